@@ -1,0 +1,287 @@
+"""Robot descriptions: what the robot *is* (nominal kinematics, limits, sensors, masses).
+
+A description is read from YAML (``conf/robot/<name>.yaml`` or any path) into a frozen
+:class:`RobotDescription`. Units are converted once, here: lengths stay in mm, angles become
+radians.
+
+YAML format (keys not listed are kept in ``extra`` and ignored)::
+
+    name: kr16_2
+    n_joints: 6
+    convention: mdh_rx_tx_rz_tz_ry      # or: poe
+    joints:                             # one entry per joint, base -> flange
+      - {name: A1, a_mm: 0, alpha_deg: 0, d_mm: 675, theta_offset_deg: 0,
+         beta_deg: 0, beta_free: false, q_min_deg: -180, q_max_deg: 180}
+    poe:                                # required when convention is poe (MD-H keys then unused)
+      twists:                           # joint axis direction w and a point p_mm on it, base frame, q = 0
+        - {w: [0, 0, 1], p_mm: [0, 0, 0]}
+      flange_at_zero_mm: [x, y, z]      # flange origin at q = 0, base frame
+      flange_R_at_zero: [[..], [..], [..]]  # flange rotation at q = 0 (rows)
+    temperature_sensors:                # optional
+      - {name: T_j1_C, location: joint, index: 1}
+      - {name: T_l4_C, location: link, index: 4}
+    T0_C: 24.3                          # reference temperature of the nominal model
+    dynamics:                           # optional, for gravity torques
+      source: "how the masses were obtained"
+      gravity_mps2: [0, 0, -9.81]       # in the base frame
+      links:                            # one per joint: the body moved by that joint
+        - {mass_kg: 50, com_mm: [0, 0, 0]}   # centre of mass in that joint's frame
+      payload_com_mm: [0, 0, 100]       # payload centre of mass in the flange frame
+
+MD-H link ``i`` transform: ``Rot_x(alpha_i) Trans_x(a_i) Rot_z(q_i + theta_offset_i) Trans_z(d_i) Rot_y(beta_i)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from robocal.errors import ConfigError
+
+#: The MD-H convention string accepted in robot files.
+MDH = "mdh_rx_tx_rz_tz_ry"
+#: The product-of-exponentials convention string.
+POE = "poe"
+
+_CONF_ROBOT_DIR = Path(__file__).resolve().parents[2] / "conf" / "robot"
+
+
+@dataclass(frozen=True)
+class Sensor:
+    """A temperature sensor: its column name and where it sits (``joint`` or ``link`` ``index``, 1-based)."""
+
+    name: str
+    location: str = "joint"
+    index: int | None = None
+
+
+@dataclass(frozen=True)
+class RobotDescription:
+    """Nominal description of a serial robot.
+
+    Attributes
+    ----------
+    name : str
+    convention : str
+        ``"mdh_rx_tx_rz_tz_ry"`` or ``"poe"``.
+    joint_names : tuple of str, shape (n,)
+    a_mm, alpha, d_mm, theta_offset, beta : ndarray, shape (n,)
+        MD-H table (angles in rad). Zero for POE robots.
+    beta_free : ndarray of bool, shape (n,)
+        Joints whose Hayati beta is a calibration parameter (parallel consecutive axes).
+    q_limits : ndarray, shape (n, 2)
+        Joint limits in rad, ``[min, max]``.
+    poe_w, poe_p_mm : ndarray, shape (n, 3)
+        POE joint axis directions and points on the axes at q = 0, base frame (POE robots only).
+    poe_flange0 : ndarray, shape (4, 4)
+        Flange pose at q = 0 (POE robots only).
+    sensors : tuple of Sensor
+    T0_C : float or None
+        Reference temperature of the nominal model.
+    link_mass_kg : ndarray, shape (n,) or None
+    link_com_mm : ndarray, shape (n, 3) or None
+        Centre of mass of the body moved by joint i, in joint i's frame.
+    payload_com_mm : ndarray, shape (3,)
+    gravity : ndarray, shape (3,)
+        Gravity in the base frame, m/s².
+    """
+
+    name: str
+    convention: str
+    joint_names: tuple[str, ...]
+    a_mm: np.ndarray
+    alpha: np.ndarray
+    d_mm: np.ndarray
+    theta_offset: np.ndarray
+    beta: np.ndarray
+    beta_free: np.ndarray
+    q_limits: np.ndarray
+    poe_w: np.ndarray | None = None
+    poe_p_mm: np.ndarray | None = None
+    poe_flange0: np.ndarray | None = None
+    sensors: tuple[Sensor, ...] = ()
+    T0_C: float | None = None
+    link_mass_kg: np.ndarray | None = None
+    link_com_mm: np.ndarray | None = None
+    payload_com_mm: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    gravity: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, -9.81]))
+    source: str = ""
+
+    @property
+    def n_joints(self) -> int:
+        return len(self.joint_names)
+
+    @property
+    def sensor_names(self) -> tuple[str, ...]:
+        return tuple(s.name for s in self.sensors)
+
+    @property
+    def is_mdh(self) -> bool:
+        return self.convention == MDH
+
+    @property
+    def has_dynamics(self) -> bool:
+        return self.link_mass_kg is not None and self.link_com_mm is not None
+
+
+def _num(d: dict[str, Any], key: str, where: str, default: float | None = None) -> float:
+    if key not in d:
+        if default is None:
+            raise ConfigError(f"{where}: missing key {key!r}")
+        return default
+    try:
+        v = float(d[key])
+    except (TypeError, ValueError):
+        raise ConfigError(f"{where}: key {key!r} must be a number, got {d[key]!r}") from None
+    if not np.isfinite(v):
+        raise ConfigError(f"{where}: key {key!r} must be finite, got {d[key]!r}")
+    return v
+
+
+def _vec(value: Any, n: int, where: str) -> np.ndarray:
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise ConfigError(f"{where}: expected {n} numbers, got {value!r}") from None
+    if arr.shape != (n,) or not np.all(np.isfinite(arr)):
+        raise ConfigError(f"{where}: expected {n} finite numbers, got {value!r}")
+    return arr
+
+
+def robot_from_dict(data: dict[str, Any], source: str = "<dict>") -> RobotDescription:
+    """Build a :class:`RobotDescription` from a parsed YAML mapping; errors name ``source`` and the key."""
+    if not isinstance(data, dict):
+        raise ConfigError(f"{source}: a robot description must be a mapping")
+    joints = data.get("joints")
+    if not isinstance(joints, list) or not joints:
+        raise ConfigError(f"{source}: 'joints' must be a non-empty list")
+    n = len(joints)
+    if "n_joints" in data and int(data["n_joints"]) != n:
+        raise ConfigError(f"{source}: n_joints = {data['n_joints']} but {n} joints are listed")
+    convention = str(data.get("convention", MDH))
+    if convention not in (MDH, POE):
+        raise ConfigError(f"{source}: convention must be {MDH!r} or {POE!r}, got {convention!r}")
+    names, a, alpha, d, th, beta, bfree, lim = [], [], [], [], [], [], [], []
+    for i, j in enumerate(joints, start=1):
+        where = f"{source}: joints[{i}]"
+        if not isinstance(j, dict):
+            raise ConfigError(f"{where} must be a mapping")
+        names.append(str(j.get("name", f"q{i}")))
+        mdh_default = 0.0 if convention == POE else None
+        a.append(_num(j, "a_mm", where, mdh_default))
+        alpha.append(np.deg2rad(_num(j, "alpha_deg", where, mdh_default)))
+        d.append(_num(j, "d_mm", where, mdh_default))
+        th.append(np.deg2rad(_num(j, "theta_offset_deg", where, 0.0)))
+        beta.append(np.deg2rad(_num(j, "beta_deg", where, 0.0)))
+        bfree.append(bool(j.get("beta_free", False)))
+        lo, hi = _num(j, "q_min_deg", where), _num(j, "q_max_deg", where)
+        if lo >= hi:
+            raise ConfigError(f"{where}: q_min_deg ({lo}) must be below q_max_deg ({hi})")
+        lim.append((np.deg2rad(lo), np.deg2rad(hi)))
+
+    poe_w = poe_p = poe_f = None
+    if convention == POE:
+        poe = data.get("poe")
+        if not isinstance(poe, dict) or "twists" not in poe:
+            raise ConfigError(f"{source}: convention poe needs a 'poe' mapping with 'twists'")
+        tw = poe["twists"]
+        if len(tw) != n:
+            raise ConfigError(f"{source}: poe.twists has {len(tw)} entries, expected {n}")
+        poe_w = np.array([_vec(t.get("w"), 3, f"{source}: poe.twists[{k + 1}].w") for k, t in enumerate(tw)])
+        norms = np.linalg.norm(poe_w, axis=1)
+        if np.any(np.abs(norms - 1.0) > 1e-6):
+            raise ConfigError(f"{source}: poe.twists[*].w must be unit vectors, norms {norms}")
+        poe_p = np.array([_vec(t.get("p_mm"), 3, f"{source}: poe.twists[{k + 1}].p_mm") for k, t in enumerate(tw)])
+        f = np.eye(4)
+        f[:3, 3] = _vec(poe.get("flange_at_zero_mm"), 3, f"{source}: poe.flange_at_zero_mm")
+        rot = np.asarray(poe.get("flange_R_at_zero", np.eye(3).tolist()), dtype=float)
+        if rot.shape != (3, 3) or np.abs(rot @ rot.T - np.eye(3)).max() > 1e-6 or np.linalg.det(rot) < 0:
+            raise ConfigError(f"{source}: poe.flange_R_at_zero must be a 3x3 rotation matrix")
+        f[:3, :3] = rot
+        poe_f = f
+
+    sensors = []
+    for k, s in enumerate(data.get("temperature_sensors") or []):
+        if isinstance(s, str):
+            sensors.append(Sensor(name=s))
+        elif isinstance(s, dict) and "name" in s:
+            idx = s.get("index")
+            sensors.append(
+                Sensor(
+                    name=str(s["name"]),
+                    location=str(s.get("location", "joint")),
+                    index=None if idx is None else int(idx),
+                )
+            )
+        else:
+            raise ConfigError(f"{source}: temperature_sensors[{k + 1}] must be a name or a mapping with 'name'")
+        if not sensors[-1].name.startswith("T_") or not sensors[-1].name.endswith("_C"):
+            raise ConfigError(f"{source}: temperature sensor {sensors[-1].name!r} must be named T_<sensor>_C")
+
+    t0 = data.get("T0_C")
+    mass = com = None
+    payload_com = np.zeros(3)
+    gravity = np.array([0.0, 0.0, -9.81])
+    dyn = data.get("dynamics")
+    if isinstance(dyn, dict) and dyn.get("links"):
+        links = dyn["links"]
+        if len(links) != n:
+            raise ConfigError(f"{source}: dynamics.links has {len(links)} entries, expected {n}")
+        mass = np.array([_num(lk, "mass_kg", f"{source}: dynamics.links[{k + 1}]") for k, lk in enumerate(links)])
+        com = np.array(
+            [_vec(lk.get("com_mm"), 3, f"{source}: dynamics.links[{k + 1}].com_mm") for k, lk in enumerate(links)]
+        )
+        if "payload_com_mm" in dyn:
+            payload_com = _vec(dyn["payload_com_mm"], 3, f"{source}: dynamics.payload_com_mm")
+        if "gravity_mps2" in dyn:
+            gravity = _vec(dyn["gravity_mps2"], 3, f"{source}: dynamics.gravity_mps2")
+
+    return RobotDescription(
+        name=str(data.get("name", Path(source).stem)),
+        convention=convention,
+        joint_names=tuple(names),
+        a_mm=np.array(a),
+        alpha=np.array(alpha),
+        d_mm=np.array(d),
+        theta_offset=np.array(th),
+        beta=np.array(beta),
+        beta_free=np.array(bfree, dtype=bool),
+        q_limits=np.array(lim),
+        poe_w=poe_w,
+        poe_p_mm=poe_p,
+        poe_flange0=poe_f,
+        sensors=tuple(sensors),
+        T0_C=None if t0 is None else float(t0),
+        link_mass_kg=mass,
+        link_com_mm=com,
+        payload_com_mm=payload_com,
+        gravity=gravity,
+        source=source,
+    )
+
+
+def load_robot(name_or_path: str | Path, conf_dir: str | Path | None = None) -> RobotDescription:
+    """Load a robot by name (``conf/robot/<name>.yaml``) or from a YAML path."""
+    p = Path(name_or_path)
+    if p.suffix in (".yaml", ".yml") or p.exists():
+        path = p
+    else:
+        base = Path(conf_dir) if conf_dir is not None else _CONF_ROBOT_DIR
+        path = base / f"{name_or_path}.yaml"
+        if not path.exists():
+            known = sorted(x.stem for x in base.glob("*.yaml")) if base.exists() else []
+            raise ConfigError(f"unknown robot {str(name_or_path)!r}: no {path}; known robots: {known}")
+    if not path.exists():
+        raise ConfigError(f"robot description {path} does not exist")
+    try:
+        data = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML: {exc}") from None
+    # Hydra group files may nest the description under 'robot:'
+    if isinstance(data, dict) and "joints" not in data and isinstance(data.get("robot"), dict):
+        data = data["robot"]
+    return robot_from_dict(data, source=str(path))
