@@ -1,0 +1,5 @@
+"""The data door: :func:`read_campaign` reads a campaign in the data contract into a :class:`Campaign`."""
+
+from robocal.data.contract import Campaign, SplitConfig, read_campaign
+
+__all__ = ["Campaign", "SplitConfig", "read_campaign"]
