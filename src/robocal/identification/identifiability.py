@@ -1,0 +1,135 @@
+"""Which parameters the measurements can identify, and what absorbs the others.
+
+The Jacobian columns are scaled to unit norm (so mm and rad compare), the numerical rank is read
+from the singular values, and columns are kept in a priority order (frames and tools first, then the
+joint-level parameters base to flange): a column is kept when the part of it that the columns before
+it cannot explain is larger than ``rtol`` of its norm. This is a QR factorisation whose pivot order is
+fixed by physical preference instead of column norms; the rank it finds equals the SVD rank unless
+parameters are nearly (not exactly) redundant, which the report then says.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Eliminated:
+    """A parameter left at its nominal value because others absorb its effect.
+
+    ``absorbed_by`` lists ``(name, coefficient)``: the column is (nearly) ``sum coefficient * column(name)``
+    in physical units, i.e. an error of 1 unit in this parameter looks like ``coefficient`` units of each.
+    ``leftover`` is the relative norm of the part no kept column explains (0 = exactly redundant).
+    """
+
+    name: str
+    absorbed_by: tuple[tuple[str, float], ...]
+    leftover: float
+    reason: str
+
+    def describe(self) -> str:
+        if not self.absorbed_by:
+            return f"{self.name}: {self.reason}"
+        parts = " + ".join(f"{c:+.3g}·{n}" for n, c in self.absorbed_by)
+        return f"{self.name} with {parts} ({self.reason})"
+
+    def to_dict(self) -> dict[str, object]:
+        return {
+            "name": self.name,
+            "absorbed_by": [{"name": n, "coefficient": c} for n, c in self.absorbed_by],
+            "leftover": self.leftover,
+            "reason": self.reason,
+            "text": self.describe(),
+        }
+
+
+@dataclass(frozen=True)
+class Identifiability:
+    """Result of :func:`analyse`.
+
+    kept : ndarray of int
+        Column indices identified, in the priority order.
+    eliminated : tuple of Eliminated
+    rank : int
+        Numerical rank of the candidate columns from the SVD.
+    singular_values : ndarray
+        Of the unit-column-scaled candidate Jacobian.
+    """
+
+    kept: np.ndarray
+    eliminated: tuple[Eliminated, ...]
+    rank: int
+    singular_values: np.ndarray
+    names: tuple[str, ...] = field(default_factory=tuple)
+
+    @property
+    def condition_number(self) -> float:
+        s = self.singular_values[: self.rank]
+        return float(s[0] / s[-1]) if len(s) else float("inf")
+
+
+def analyse(
+    J: np.ndarray,
+    names: tuple[str, ...] | list[str],
+    candidates: np.ndarray | list[int],
+    rtol: float = 1e-6,
+    max_absorbers: int = 4,
+) -> Identifiability:
+    """Identify the parameters among ``candidates`` (column indices, in priority order).
+
+    Parameters
+    ----------
+    J : ndarray, shape (M, n)
+        Jacobian of the (whitened) residuals w.r.t. all parameters.
+    names : sequence of str, length n
+    candidates : sequence of int
+        Columns that may be fitted, most preferred first.
+    rtol : float
+        A column is kept when its part orthogonal to the kept columns exceeds ``rtol`` times its norm.
+    """
+    names = tuple(names)
+    cand = np.asarray(candidates, dtype=int)
+    norms = np.linalg.norm(J[:, cand], axis=0)
+    Jc = J[:, cand] / np.where(norms > 0, norms, 1.0)
+    # Householder QR in the priority order: |R_kk| is the norm of the part of column k that the
+    # columns before it cannot explain (columns dropped before k lie in the span of kept ones).
+    Rq: np.ndarray = np.linalg.qr(Jc, mode="r")  # type: ignore[assignment]
+    left_all = np.abs(np.diag(Rq)) if Rq.shape[0] >= Rq.shape[1] else np.zeros(len(cand))
+    kept: list[int] = []
+    weak: list[tuple[int, float, str]] = []
+    for k, c in enumerate(cand):
+        left = float(left_all[k])
+        if norms[k] == 0.0:
+            weak.append((c, 1.0, "has no effect on the measurements"))
+        elif left > rtol:
+            kept.append(c)
+        else:
+            weak.append((c, left, "redundant" if left < 1e-9 else "not identifiable with these poses"))
+    sv = np.linalg.svd(Jc, compute_uv=False)
+    rank = int(np.sum(sv > rtol * sv[0])) if len(sv) else 0
+
+    eliminated = []
+    Jk = J[:, kept]
+    absorbed = [c for c, _, reason in weak if not reason.startswith("has no")]
+    betas = np.linalg.lstsq(Jk, J[:, absorbed], rcond=None)[0] if absorbed and kept else None
+    kn = np.linalg.norm(Jk, axis=0)
+    for c, left, reason in weak:
+        if reason.startswith("has no") or betas is None:
+            eliminated.append(Eliminated(names[c], (), left, reason))
+            continue
+        beta = betas[:, absorbed.index(c)]
+        contrib = np.abs(beta) * kn
+        order = np.argsort(-contrib)
+        top = [i for i in order[:max_absorbers] if contrib[i] > 0.1 * contrib[order[0]]]
+        eliminated.append(
+            Eliminated(names[c], tuple((names[kept[i]], float(beta[i])) for i in top), float(left), reason)
+        )
+    return Identifiability(
+        kept=np.array(kept, dtype=int),
+        eliminated=tuple(eliminated),
+        rank=rank,
+        singular_values=sv,
+        names=names,
+    )

@@ -1,0 +1,224 @@
+"""The calibration model: robot chain + tracker->base frame + one tool offset per target.
+
+Full parameter vector ``x`` (layout in :class:`CalibrationModel.names`):
+
+- kinematic parameter errors of the chain (``theta1``, ``d1``, ``a1``, ``alpha1`` ..., ``beta2``; mm / rad),
+  zero = nominal;
+- ``base_tx, base_ty, base_tz`` (mm) and ``base_rx, base_ry, base_rz`` (rad): ``tracker_T_base =
+  T_ref · Trans(t) · Rot_x · Rot_y · Rot_z``, a correction of a reference frame ``T_ref`` (the closed-form
+  registration), zero at the reference;
+- ``tool_<T>_x/y/z`` (mm): the target's position in the flange frame, per target;
+- with orientation data, ``tool_<T>_rx/ry/rz`` (rad): the target frame
+  ``flange_R_target = R_ref_T · Rot_x Rot_y Rot_z``.
+
+Residuals are predicted minus measured: positions (mm) flattened row-major ``[x1, y1, z1, x2, ...]``,
+then (when orientation is used) rotation vectors of ``R_pred R_meas^T`` (rad).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from robocal.kinematics.chain import RX, RY, RZ, TX, TY, TZ, Chain, build_chain, point_jacobians, propagate
+from robocal.kinematics.transforms import matrix_to_rotvec, rotx, roty, rotz, so3_left_jacobian_inv
+from robocal.robot import RobotDescription
+
+BASE_NAMES = ("base_tx", "base_ty", "base_tz", "base_rx", "base_ry", "base_rz")
+
+
+def _with_base(chain: Chain) -> Chain:
+    """Prepend the six base-correction elements; their parameters follow the kinematic ones."""
+    P = chain.n_params
+    kinds = (TX, TY, TZ, RX, RY, RZ, *chain.kinds)
+    return Chain(
+        kinds=kinds,
+        nominal=np.concatenate([np.zeros(6), chain.nominal]),
+        joint=np.concatenate([-np.ones(6, dtype=int), chain.joint]),
+        param=np.concatenate([np.arange(P, P + 6), chain.param]),
+        fixed=(None,) * 6 + chain.fixed,
+        param_names=chain.param_names + BASE_NAMES,
+        n_joints=chain.n_joints,
+    )
+
+
+@dataclass(frozen=True)
+class FitData:
+    """Measurements prepared for fitting.
+
+    q : (m, n) rad; p_mm : (m, 3) tracker frame; target_index : (m,) int;
+    R_meas : (m, 3, 3) or None (target orientation in the tracker frame).
+    """
+
+    q: np.ndarray
+    p_mm: np.ndarray
+    target_index: np.ndarray
+    R_meas: np.ndarray | None = None
+
+    @property
+    def m(self) -> int:
+        return self.q.shape[0]
+
+
+class CalibrationModel:
+    """Predicts target positions (and orientations) from a full parameter vector; gives analytic Jacobians."""
+
+    def __init__(
+        self,
+        robot: RobotDescription,
+        target_names: tuple[str, ...] | list[str],
+        orientation: bool = False,
+        T_ref: np.ndarray | None = None,
+        tool_R_ref: np.ndarray | None = None,
+    ) -> None:
+        self.robot = robot
+        self.chain = build_chain(robot)
+        self.full_chain = _with_base(self.chain)
+        self.target_names = tuple(target_names)
+        self.orientation = bool(orientation)
+        self.T_ref = np.eye(4) if T_ref is None else np.asarray(T_ref, dtype=float)
+        K = len(self.target_names)
+        self.tool_R_ref = np.tile(np.eye(3), (K, 1, 1)) if tool_R_ref is None else np.asarray(tool_R_ref, float)
+        names = list(self.full_chain.param_names)
+        kinds = ["kinematic"] * self.chain.n_params + ["base"] * 6
+        for t in self.target_names:
+            names += [f"tool_{t}_x", f"tool_{t}_y", f"tool_{t}_z"]
+            kinds += ["tool"] * 3
+        if self.orientation:
+            for t in self.target_names:
+                names += [f"tool_{t}_rx", f"tool_{t}_ry", f"tool_{t}_rz"]
+                kinds += ["tool_rot"] * 3
+        self.names: tuple[str, ...] = tuple(names)
+        self.kinds: tuple[str, ...] = tuple(kinds)
+        pk = self.chain.param_kind
+        units = ["mm" if k == "length" else "rad" for k in pk]
+        units += ["mm"] * 3 + ["rad"] * 3 + ["mm"] * (3 * K) + (["rad"] * (3 * K) if self.orientation else [])
+        self.units: tuple[str, ...] = tuple(units)
+        self.n_chain = self.full_chain.n_params  # kinematic + base
+        self.n = len(self.names)
+
+    # ------------------------------------------------------------------ layout helpers
+    def index(self, name: str) -> int:
+        try:
+            return self.names.index(name)
+        except ValueError:
+            raise KeyError(f"unknown parameter {name!r}") from None
+
+    def zeros(self) -> np.ndarray:
+        return np.zeros(self.n)
+
+    def tools(self, x: np.ndarray) -> np.ndarray:
+        """Tool offsets ``(K, 3)`` (or ``(pop, K, 3)``) in the flange frame, mm."""
+        K = len(self.target_names)
+        return x[..., self.n_chain : self.n_chain + 3 * K].reshape(*x.shape[:-1], K, 3)
+
+    def tool_rotations(self, x: np.ndarray) -> np.ndarray:
+        """``flange_R_target`` per target, ``(K, 3, 3)``."""
+        K = len(self.target_names)
+        if not self.orientation:
+            return self.tool_R_ref.copy()
+        a = x[self.n_chain + 3 * K :].reshape(K, 3)
+
+        return self.tool_R_ref @ rotx(a[:, 0]) @ roty(a[:, 1]) @ rotz(a[:, 2])
+
+    def base_transform(self, x: np.ndarray) -> np.ndarray:
+        """``tracker_T_base`` (4, 4) for the parameter vector ``x``."""
+        st = propagate(self.full_chain_base_only, np.zeros((1, self.chain.n_joints)), x[: self.n_chain], self.T_ref)
+        T = np.eye(4)
+        T[:3, :3] = st.R.reshape(3, 3)
+        T[:3, 3] = np.asarray(st.o).reshape(3)
+        return T
+
+    @property
+    def full_chain_base_only(self) -> Chain:
+        fc = self.full_chain
+        return Chain(
+            kinds=fc.kinds[:6],
+            nominal=fc.nominal[:6],
+            joint=fc.joint[:6],
+            param=fc.param[:6],
+            fixed=fc.fixed[:6],
+            param_names=fc.param_names,
+            n_joints=fc.n_joints,
+        )
+
+    # ------------------------------------------------------------------ prediction
+    def predict(self, x: np.ndarray, q: np.ndarray, target_index: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Predicted target positions ``(m, 3)`` and orientations ``(m, 3, 3)`` in the tracker frame.
+
+        With ``x`` of shape ``(pop, n)`` the positions are ``(pop, m, 3)`` (orientation then omitted:
+        an empty array is returned).
+        """
+        x = np.asarray(x, dtype=float)
+        st = propagate(self.full_chain, q, x[..., : self.n_chain], self.T_ref)
+        t = self.tools(x)[..., target_index, :]
+        p = st.o + st.x * t[..., 0:1] + st.y * t[..., 1:2] + st.z * t[..., 2:3]
+        if x.ndim == 2:
+            return p, np.empty(0)
+        R = st.R @ self.tool_rotations(x)[target_index]
+        return p, R
+
+    def residuals(self, x: np.ndarray, data: FitData) -> np.ndarray:
+        """Residual vector (predicted - measured), shape ``(3m,)`` or ``(6m,)`` with orientation."""
+        p, R = self.predict(x, data.q, data.target_index)
+        r = (p - data.p_mm).ravel()
+        if self.orientation and data.R_meas is not None:
+            rv = matrix_to_rotvec(R @ np.swapaxes(data.R_meas, -1, -2))
+            r = np.concatenate([r, rv.ravel()])
+        return r
+
+    def batch_position_residuals(self, X: np.ndarray, data: FitData) -> np.ndarray:
+        """Position residuals for a population ``X (pop, n)``: shape ``(pop, 3m)``."""
+        p, _ = self.predict(X, data.q, data.target_index)
+        return (p - data.p_mm).reshape(X.shape[0], -1)
+
+    def residuals_and_jacobian(self, x: np.ndarray, data: FitData) -> tuple[np.ndarray, np.ndarray]:
+        """Residuals (as :meth:`residuals`) and their analytic Jacobian ``(M, n)``."""
+        x = np.asarray(x, dtype=float)
+        m = data.m
+        K = len(self.target_names)
+        st = propagate(self.full_chain, data.q, x[: self.n_chain], self.T_ref, record=True)
+        t = self.tools(x)[data.target_index]
+        p = st.o + st.x * t[:, 0:1] + st.y * t[:, 1:2] + st.z * t[:, 2:3]
+        J_eta, W_eta, _, _ = point_jacobians(self.full_chain, st, p)
+        use_rot = self.orientation and data.R_meas is not None
+        M = 3 * m * (2 if use_rot else 1)
+        J = np.zeros((M, self.n))
+        Jp = J[: 3 * m].reshape(m, 3, self.n)
+        Jp[:, :, : self.n_chain] = J_eta
+        Rf = np.stack([st.x, st.y, st.z], axis=-1)  # (m, 3, 3)
+        rows = np.arange(m)
+        for c in range(3):
+            Jp[rows, :, self.n_chain + 3 * data.target_index + c] = Rf[:, :, c]
+        r = (p - data.p_mm).ravel()
+        if use_rot:
+            assert data.R_meas is not None
+            Rt = self.tool_rotations(x)
+            R = Rf @ Rt[data.target_index]
+            rv = matrix_to_rotvec(R @ np.swapaxes(data.R_meas, -1, -2))
+            r = np.concatenate([r, rv.ravel()])
+            Jw = J[3 * m :].reshape(m, 3, self.n)
+            Jw[:, :, : self.n_chain] = W_eta
+            # tool rotation Rot_x(a) Rot_y(b) Rot_z(c) after R_ref: world axes
+            a = x[self.n_chain + 3 * K :].reshape(K, 3)[data.target_index]
+            A = Rf @ self.tool_R_ref[data.target_index]
+            ux = A[:, :, 0]
+            B = A @ rotx(a[:, 0])
+            uy = B[:, :, 1]
+            uz = (B @ roty(a[:, 1]))[:, :, 2]
+            base_col = self.n_chain + 3 * K + 3 * data.target_index
+            Jw[rows, :, base_col] = ux
+            Jw[rows, :, base_col + 1] = uy
+            Jw[rows, :, base_col + 2] = uz
+            # exact derivative of log(R_pred R_meas^T) for a left perturbation of R_pred
+            Jw[:] = so3_left_jacobian_inv(rv) @ Jw
+        return r, J
+
+    def joint_jacobian(self, x: np.ndarray, q: np.ndarray, target_index: np.ndarray) -> np.ndarray:
+        """Jacobian of target positions w.r.t. the joint angles, ``(m, 3, n)`` mm/rad (tracker frame)."""
+        st = propagate(self.full_chain, q, x[: self.n_chain], self.T_ref, record=True)
+        t = self.tools(x)[target_index]
+        p = st.o + st.x * t[:, 0:1] + st.y * t[:, 1:2] + st.z * t[:, 2:3]
+        _, _, J_q, _ = point_jacobians(self.full_chain, st, p)
+        return J_q

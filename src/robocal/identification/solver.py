@@ -1,0 +1,148 @@
+"""Gauss-Newton / Levenberg-Marquardt for small dense nonlinear least squares.
+
+Works on a subset of free variables, in scaled units, with whitened residuals. Each iteration
+first tries the Gauss-Newton step (lambda -> 0 after successes) and damps it (Marquardt scaling)
+only when the cost does not decrease.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+STATUS_MESSAGES = {
+    -1: "the residual or Jacobian is not finite",
+    0: "the maximum number of iterations was reached",
+    1: "the relative cost reduction fell below ftol",
+    2: "the scaled step fell below xtol",
+    3: "the damping grew without reducing the cost (at a minimum to working precision)",
+}
+
+
+@dataclass
+class LMResult:
+    """Outcome of :func:`levenberg_marquardt`.
+
+    x : (n,) solution (all variables, fixed ones unchanged); cost : 0.5 * sum of whitened squared
+    residuals; r : (M,) whitened residuals; J : (M, k) whitened Jacobian on the free variables (unscaled);
+    history : cost after each iteration.
+    """
+
+    x: np.ndarray
+    cost: float
+    r: np.ndarray
+    J: np.ndarray
+    nit: int
+    nfev: int
+    njev: int
+    status: int
+    wall_time_s: float
+    history: list[float] = field(default_factory=list)
+
+    @property
+    def success(self) -> bool:
+        return self.status > 0
+
+    @property
+    def message(self) -> str:
+        return STATUS_MESSAGES[self.status]
+
+
+def levenberg_marquardt(
+    fun: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
+    x0: np.ndarray,
+    free: np.ndarray,
+    weights: np.ndarray | float = 1.0,
+    scale: np.ndarray | None = None,
+    max_iter: int = 100,
+    ftol: float = 1e-12,
+    xtol: float = 1e-10,
+    lam0: float = 0.0,
+) -> LMResult:
+    """Minimise ``0.5 * |w * r(x)|²`` over ``x[free]``.
+
+    Parameters
+    ----------
+    fun : callable
+        ``fun(x) -> (r, J)`` with ``r`` of shape (M,) and ``J`` of shape (M, n).
+    x0 : ndarray, shape (n,)
+    free : ndarray of int, shape (k,)
+        Indices of the variables to fit.
+    weights : float or ndarray, shape (M,)
+        Residual weights (1 / sigma).
+    scale : ndarray, shape (n,), optional
+        Typical magnitude per variable; steps are measured in ``x / scale``. Default: column norms.
+    """
+    t0 = time.perf_counter()
+    x = np.array(x0, dtype=float)
+    free = np.asarray(free, dtype=int)
+    w = np.asarray(weights, dtype=float)
+    r, J = fun(x)
+    nfev = njev = 1
+    r = w * r
+    Jf = (w[:, None] if w.ndim else w) * J[:, free]
+    cost = 0.5 * float(r @ r)
+    history = [cost]
+    if scale is None:
+        d = np.linalg.norm(Jf, axis=0)
+        d[d == 0] = 1.0
+        s = 1.0 / d
+    else:
+        s = np.asarray(scale, dtype=float)[free]
+    lam = lam0
+    status = 0
+    nit = 0
+    if not (np.all(np.isfinite(r)) and np.all(np.isfinite(Jf))):
+        return LMResult(x, cost, r, Jf, 0, nfev, njev, -1, time.perf_counter() - t0, history)
+    for nit in range(1, max_iter + 1):
+        A = Jf * s  # scaled Jacobian
+        g = A.T @ r
+        H = A.T @ A
+        accepted = False
+        # predicted reduction of the undamped Gauss-Newton step: stop without another evaluation when
+        # even the full step cannot lower the cost by more than ftol (at a minimum to working precision)
+        try:
+            dz_gn = -np.linalg.solve(H, g)
+            pred = -(g @ dz_gn + 0.5 * dz_gn @ (H @ dz_gn))
+        except np.linalg.LinAlgError:
+            pred = np.inf
+        if pred <= ftol * max(cost, 1e-300):
+            status = 1
+            nit -= 1
+            break
+        for _ in range(30):
+            Hd = H + lam * np.diag(np.diag(H)) if lam > 0 else H
+            try:
+                L = np.linalg.cholesky(Hd)
+                dz = -np.linalg.solve(L.T, np.linalg.solve(L, g))
+            except np.linalg.LinAlgError:
+                dz = -np.linalg.lstsq(Hd, g, rcond=None)[0]
+            x_new = x.copy()
+            x_new[free] += s * dz
+            r_new, J_new = fun(x_new)
+            nfev += 1
+            njev += 1
+            r_new = w * r_new
+            cost_new = 0.5 * float(r_new @ r_new)
+            if np.isfinite(cost_new) and cost_new <= cost * (1.0 + 1e-14):
+                accepted = True
+                break
+            lam = max(lam * 10.0, 1e-6)
+        if not accepted:
+            status = 3
+            break
+        lam = lam / 10.0 if lam > 1e-9 else 0.0
+        dcost = cost - cost_new
+        x, r, cost = x_new, r_new, cost_new
+        Jf = (w[:, None] if w.ndim else w) * J_new[:, free]
+        history.append(cost)
+        if dcost <= ftol * max(cost, 1e-300):
+            status = 1
+            break
+        if np.linalg.norm(dz) <= xtol * (xtol + np.linalg.norm(x[free] / s)):
+            status = 2
+            break
+    return LMResult(x, cost, r, Jf, nit, nfev, njev, status, time.perf_counter() - t0, history)
