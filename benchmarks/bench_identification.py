@@ -1,0 +1,52 @@
+"""Speed of a full geometric identification (issue 2): registration + identifiability + LM + statistics.
+
+    python benchmarks/bench_identification.py [--poses 100] [--repeat 50]
+
+KR16-2 twin, ~30 parameters (25 joint-level + 6 base + 3 tool candidates, 27 identified).
+Prints the median and quartiles in ms, single BLAS thread.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import tempfile
+import time
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numpy as np
+
+from robocal.data import read_campaign
+from robocal.identification.calibrate import calibrate
+from robocal.robot import load_robot
+from robocal.sim.twin import load_scenario, simulate
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--poses", type=int, default=100)
+    ap.add_argument("--repeat", type=int, default=50)
+    args = ap.parse_args()
+    robot = load_robot("kr16_2")
+    sc = load_scenario("geometric")
+    sc.update(n_poses=args.poses, n_validation_poses=0)
+    with tempfile.TemporaryDirectory() as d:
+        simulate(sc, d, seed=0)
+        camp = read_campaign(d, robot)
+    calibrate(camp, robot)  # warm-up
+    times = []
+    for _ in range(args.repeat):
+        t = time.perf_counter()
+        res = calibrate(camp, robot)
+        times.append(time.perf_counter() - t)
+    ms = np.array(times) * 1e3
+    print(
+        f"identification, {camp.n_rows} poses, {len(res.names)} candidate / {int(res.identified.sum())} "
+        f"identified parameters: median {np.median(ms):.2f} ms (q1 {np.percentile(ms, 25):.2f}, "
+        f"q3 {np.percentile(ms, 75):.2f}); LM {res.fit['nit']} iterations; issue target <= 10 ms"
+    )
+
+
+if __name__ == "__main__":
+    main()

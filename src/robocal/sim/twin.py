@@ -1,0 +1,372 @@
+"""The digital twin: writes measurement campaigns in the data contract, with a truth file.
+
+A scenario (a mapping, e.g. ``conf/scenario/geometric.yaml``) says which robot, how many poses,
+the size of the geometric errors, where the tracker stands, which targets sit on the tool, the
+tracker noise and which optional effects act. The true robot is the nominal one plus random
+joint-level errors; effects add joint-angle offsets (compliance, gear errors, backlash) or make the
+kinematic parameters drift (thermal). Every random number comes from ``numpy.random.default_rng(seed)``
+through named child streams, and files are written with fixed formatting: the same scenario and seed
+write the same bytes.
+
+Effects are registered in :data:`EFFECTS` (name -> class); each implements :class:`Effect`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from datetime import UTC, datetime, timedelta
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+import yaml
+
+from robocal.errors import ConfigError
+from robocal.io import atomic_write, write_json, write_text
+from robocal.kinematics.chain import Chain, build_chain, propagate
+from robocal.kinematics.transforms import homogeneous, matrix_from_rpy, matrix_to_quat, rotvec_to_matrix
+from robocal.robot import RobotDescription, load_robot
+
+_CONF_SCENARIO_DIR = Path(__file__).resolve().parents[3] / "conf" / "scenario"
+
+
+@dataclass
+class Rows:
+    """The measurement plan and the true state of every row, shared by the effects.
+
+    pose_id : (m,) str; split : (m,) str; target_index : (m,) int; q_cmd : (m, n) rad (as reported);
+    t_s : (m,) seconds from the campaign start; payload_kg : (m,);
+    dq : (m, n) true joint-angle offsets added by effects (rad); deta : (m, P) kinematic parameter drift;
+    columns : extra contract columns written to poses.csv (name -> (m,) array).
+    """
+
+    pose_id: np.ndarray
+    split: np.ndarray
+    target_index: np.ndarray
+    q_cmd: np.ndarray
+    t_s: np.ndarray
+    payload_kg: np.ndarray
+    dq: np.ndarray
+    deta: np.ndarray
+    columns: dict[str, np.ndarray] = field(default_factory=dict)
+
+
+@dataclass
+class TwinContext:
+    robot: RobotDescription
+    chain: Chain
+    eta_true: np.ndarray
+    rng_factory: Callable[[str], np.random.Generator]
+    truth: dict[str, Any]
+    temperature_log: dict[str, np.ndarray] | None = None  # "t_s" + sensor columns
+
+
+class Effect(Protocol):
+    """An optional physical effect of the twin."""
+
+    name: str
+
+    def plan(self, rows: Rows, ctx: TwinContext) -> Rows:
+        """Optionally change the measurement plan (e.g. repeat poses over a warm-up, add payloads)."""
+
+    def apply(self, rows: Rows, ctx: TwinContext) -> None:
+        """Add true joint offsets ``rows.dq`` / parameter drift ``rows.deta``, reported columns, truth."""
+
+
+EFFECTS: dict[str, Callable[[Mapping[str, Any]], Effect]] = {}
+
+
+def register_effect(
+    name: str,
+) -> Callable[[Callable[[Mapping[str, Any]], Effect]], Callable[[Mapping[str, Any]], Effect]]:
+    def deco(cls: Callable[[Mapping[str, Any]], Effect]) -> Callable[[Mapping[str, Any]], Effect]:
+        EFFECTS[name] = cls
+        return cls
+
+    return deco
+
+
+def _joint(cfg: Mapping[str, Any], n: int, key: str = "joint") -> int:
+    j = int(cfg.get(key, 0))
+    if not 1 <= j <= n:
+        raise ConfigError(f"The '{key}' setting of the effect must be a joint number 1..{n}. Got {j} instead.")
+    return j - 1
+
+
+@register_effect("gear")
+class GearEffect:
+    """Periodic gear (reducer) transmission error: ``dq_j = sum_h A_h sin(h q_j + phi_h)``.
+
+    Config: ``joint`` (1-based), ``harmonics`` list of ``{harmonic, amplitude_deg, phase_deg}``.
+    """
+
+    name = "gear"
+
+    def __init__(self, cfg: Mapping[str, Any]) -> None:
+        self.cfg = dict(cfg)
+
+    def plan(self, rows: Rows, ctx: TwinContext) -> Rows:
+        return rows
+
+    def apply(self, rows: Rows, ctx: TwinContext) -> None:
+        j = _joint(self.cfg, ctx.robot.n_joints)
+        truth = []
+        for h in self.cfg.get("harmonics", []):
+            k = int(h["harmonic"])
+            amp = np.deg2rad(float(h["amplitude_deg"]))
+            ph = np.deg2rad(float(h.get("phase_deg", 0.0)))
+            rows.dq[:, j] += amp * np.sin(k * rows.q_cmd[:, j] + ph)
+            # the same term as a sin/cos pair: a sin(kq + phi) = a cos(phi) sin(kq) + a sin(phi) cos(kq)
+            truth.append(
+                {
+                    "harmonic": k,
+                    "amplitude_deg": float(h["amplitude_deg"]),
+                    "phase_deg": float(np.rad2deg(ph)),
+                    "sin_deg": float(np.rad2deg(amp * np.cos(ph))),
+                    "cos_deg": float(np.rad2deg(amp * np.sin(ph))),
+                }
+            )
+        ctx.truth.setdefault("effects", {})["gear"] = {"joint": j + 1, "harmonics": truth}
+
+
+@register_effect("backlash")
+class BacklashEffect:
+    """Backlash: the joint lags by half the dead band against its approach direction.
+
+    Config: ``joints`` {joint number: band_deg}; approach directions random per pose and joint,
+    reported as ``dir1..dirN``. ``dq_j = dir_j * band_j / 2``.
+    """
+
+    name = "backlash"
+
+    def __init__(self, cfg: Mapping[str, Any]) -> None:
+        self.cfg = dict(cfg)
+
+    def plan(self, rows: Rows, ctx: TwinContext) -> Rows:
+        return rows
+
+    def apply(self, rows: Rows, ctx: TwinContext) -> None:
+        n = ctx.robot.n_joints
+        rng = ctx.rng_factory("backlash")
+        # one direction per pose (all targets of a pose share the approach)
+        _, inv = np.unique(rows.pose_id, return_inverse=True)
+        dirs_pose = rng.choice(np.array([-1, 1]), size=(inv.max() + 1, n))
+        dirs = dirs_pose[inv]
+        bands = {int(k): float(v) for k, v in dict(self.cfg.get("joints", {})).items()}
+        for jn, band in bands.items():
+            j = _joint({"joint": jn}, n)
+            rows.dq[:, j] += dirs[:, j] * np.deg2rad(band) / 2.0
+        for j in range(n):
+            rows.columns[f"dir{j + 1}"] = dirs[:, j]
+        ctx.truth.setdefault("effects", {})["backlash"] = {"band_deg": bands}
+
+
+def load_scenario(name_or_path: str | Path, conf_dir: str | Path | None = None) -> dict[str, Any]:
+    """A scenario mapping from ``conf/scenario/<name>.yaml`` or a YAML path."""
+    p = Path(name_or_path)
+    if p.suffix not in (".yaml", ".yml"):
+        base = Path(conf_dir) if conf_dir is not None else _CONF_SCENARIO_DIR
+        p = base / f"{name_or_path}.yaml"
+        if not p.exists():
+            known = sorted(x.stem for x in base.glob("*.yaml")) if base.exists() else []
+            raise ConfigError(f"unknown scenario {str(name_or_path)!r}: no {p}; known scenarios: {known}")
+    data = yaml.safe_load(p.read_text())
+    if not isinstance(data, dict):
+        raise ConfigError(f"{p}: a scenario must be a mapping")
+    return data
+
+
+def _rng_factory(seed: int) -> Callable[[str], np.random.Generator]:
+    root = np.random.SeedSequence(int(seed))
+
+    def make(stream: str) -> np.random.Generator:
+        key = [int(b) for b in stream.encode()]
+        return np.random.default_rng(np.random.SeedSequence(entropy=root.entropy, spawn_key=tuple(key)))
+
+    return make
+
+
+def sample_poses(
+    robot: RobotDescription, n: int, rng: np.random.Generator, fraction: float = 0.9, ranges_deg: Any = None
+) -> np.ndarray:
+    """Uniform random joint configurations ``(n, N)`` rad inside ``fraction`` of the limits (or given ranges)."""
+    lim = robot.q_limits.copy()
+    if ranges_deg is not None:
+        r = np.deg2rad(np.asarray(ranges_deg, dtype=float))
+        if r.shape != lim.shape:
+            raise ConfigError(f"The 'joint_ranges_deg' setting must have shape {lim.shape}. Got {r.shape} instead.")
+        lim = np.clip(r, lim[:, 0:1], lim[:, 1:2])
+    mid = lim.mean(1)
+    half = (lim[:, 1] - lim[:, 0]) / 2 * fraction
+    return rng.uniform(mid - half, mid + half, size=(n, robot.n_joints))
+
+
+def _fmt(v: np.ndarray, nd: int) -> list[str]:
+    return [f"{x:.{nd}f}" for x in np.asarray(v, dtype=float)]
+
+
+def simulate(
+    scenario: Mapping[str, Any],
+    out_dir: str | Path,
+    seed: int | None = None,
+    robot: RobotDescription | None = None,
+) -> dict[str, Any]:
+    """Write ``poses.csv`` (+ ``temperatures.csv``), ``truth.json`` and ``scenario.yaml`` into ``out_dir``.
+
+    Returns the truth mapping.
+    """
+    sc = dict(scenario)
+    seed = int(sc.get("seed", 0) if seed is None else seed)
+    robot = robot or load_robot(sc.get("robot", "kr16_2"))
+    chain = build_chain(robot)
+    rng = _rng_factory(seed)
+    n = robot.n_joints
+    P = chain.n_params
+
+    # true geometric errors
+    err = dict(sc.get("errors", {}))
+    length_sd = float(err.get("length_mm", 0.3))
+    angle_sd = np.deg2rad(float(err.get("angle_deg", 0.02)))
+    g = rng("geometry")
+    kinds = chain.param_kind
+    eta = np.array([g.normal(0, length_sd if k == "length" else angle_sd) for k in kinds])
+
+    # tracker frame and tools
+    tr = dict(sc.get("tracker", {}))
+    T_base = homogeneous(
+        matrix_from_rpy(np.deg2rad(np.asarray(tr.get("rpy_deg", [0.3, -0.5, 135.0]), dtype=float))),
+        np.asarray(tr.get("xyz_mm", [2500.0, 1200.0, -350.0]), dtype=float),
+    )
+    targets = dict(sc.get("targets", {"T1": [0.0, 0.0, 120.0]}))
+    tnames = list(targets)
+    tools = np.array([np.asarray(targets[t], dtype=float) for t in tnames])
+    if tools.shape != (len(tnames), 3):
+        raise ConfigError("The 'targets' scenario setting must map target names to [x, y, z] in mm")
+    orientation = bool(sc.get("orientation", False))
+    tool_R = rotvec_to_matrix(rng("tool_rot").normal(0, 0.3, (len(tnames), 3)))
+
+    # plan: calibration and validation poses, each measured on every target
+    n_cal = int(sc.get("n_poses", 80))
+    n_val = int(sc.get("n_validation_poses", 20))
+    frac = float(sc.get("joint_range_fraction", 0.9))
+    q_all = sample_poses(robot, n_cal + n_val, rng("poses"), frac, sc.get("joint_ranges_deg"))
+    q_all = np.deg2rad(np.round(np.rad2deg(q_all), 6))  # what the controller reports, 1e-6 deg
+    pose_ids = [f"p{k:04d}" for k in range(n_cal + n_val)]
+    K = len(tnames)
+    pid = np.repeat(np.array(pose_ids, dtype=object), K)
+    split = np.repeat(np.array(["calibration"] * n_cal + ["validation"] * n_val, dtype=object), K)
+    tidx = np.tile(np.arange(K), n_cal + n_val)
+    qrow = np.repeat(q_all, K, axis=0)
+    interval = float(sc.get("interval_s", 10.0))
+    m = len(pid)
+    rows = Rows(
+        pose_id=pid,
+        split=split,
+        target_index=tidx,
+        q_cmd=qrow,
+        t_s=np.arange(m) * interval,
+        payload_kg=np.full(m, float(sc.get("payload_kg", 0.0))),
+        dq=np.zeros((m, n)),
+        deta=np.zeros((m, P)),
+    )
+
+    truth: dict[str, Any] = {
+        "scenario": sc.get("name", "custom"),
+        "seed": seed,
+        "robot": robot.name,
+        "kinematic_errors": {name: float(v) for name, v in zip(chain.param_names, eta, strict=True)},
+        "kinematic_units": {
+            name: ("mm" if k == "length" else "rad") for name, k in zip(chain.param_names, kinds, strict=True)
+        },
+        "tracker_T_base": T_base.tolist(),
+        "tools_mm": {t: tools[k].tolist() for k, t in enumerate(tnames)},
+        "tool_rotations": {t: tool_R[k].tolist() for k, t in enumerate(tnames)},
+        "noise_mm": float(sc.get("noise_mm", 0.015)),
+    }
+    ctx = TwinContext(robot=robot, chain=chain, eta_true=eta, rng_factory=rng, truth=truth)
+    effects_cfg = dict(sc.get("effects") or {})
+    effects: list[Effect] = []
+    for name, ecfg in effects_cfg.items():
+        if ecfg in (None, False):
+            continue
+        if name not in EFFECTS:
+            raise ConfigError(f"unknown twin effect {name!r}; known effects: {sorted(EFFECTS)}")
+        effects.append(EFFECTS[name](ecfg if isinstance(ecfg, Mapping) else {}))
+    for eff in effects:
+        rows = eff.plan(rows, ctx)
+    m = len(rows.pose_id)
+    for eff in effects:
+        eff.apply(rows, ctx)
+
+    # true measurements, grouped by identical parameter drift
+    q_true = rows.q_cmd + rows.dq
+    p = np.zeros((m, 3))
+    R = np.zeros((m, 3, 3))
+    keys, inv = np.unique(np.round(rows.deta, 15), axis=0, return_inverse=True)
+    inv = inv.ravel()
+    for g_i in range(len(keys)):
+        sel = inv == g_i
+        st = propagate(chain, q_true[sel], eta + rows.deta[np.flatnonzero(sel)[0]], T_base)
+        t = tools[rows.target_index[sel]]
+        p[sel] = st.o + st.x * t[:, 0:1] + st.y * t[:, 1:2] + st.z * t[:, 2:3]
+        R[sel] = st.R @ tool_R[rows.target_index[sel]]
+    noise = rng("noise")
+    sigma = truth["noise_mm"]
+    p_meas = p + noise.normal(0, sigma, p.shape)
+    sigma_o = np.deg2rad(float(sc.get("noise_deg", 0.005)))
+    quat = matrix_to_quat(rotvec_to_matrix(noise.normal(0, sigma_o, (m, 3))) @ R) if orientation else None
+
+    # write files
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    start = datetime.fromisoformat(str(sc.get("start", "2026-01-05T07:00:00+00:00")).replace("Z", "+00:00"))
+    if start.tzinfo is None:
+        start = start.replace(tzinfo=UTC)
+
+    def iso(ts: float) -> str:
+        return (start + timedelta(seconds=float(ts))).astimezone(UTC).strftime("%Y-%m-%dT%H:%M:%S.%f")[:-3] + "Z"
+
+    header = ["pose_id", "timestamp", "target"] + [f"q{j + 1}_deg" for j in range(n)] + ["x_mm", "y_mm", "z_mm"]
+    cols: list[list[str]] = [
+        list(map(str, rows.pose_id)),
+        [iso(t) for t in rows.t_s],
+        [tnames[i] for i in rows.target_index],
+    ]
+    cols += [_fmt(np.rad2deg(rows.q_cmd[:, j]), 6) for j in range(n)]
+    cols += [_fmt(p_meas[:, c], 6) for c in range(3)]
+    if quat is not None:
+        header += ["qw", "qx", "qy", "qz"]
+        cols += [_fmt(quat[:, c], 9) for c in range(4)]
+    header.append("payload_kg")
+    cols.append(_fmt(rows.payload_kg, 3))
+    for name in sorted(rows.columns, key=_column_order):
+        header.append(name)
+        v = rows.columns[name]
+        cols.append([str(int(x)) for x in v] if name.startswith("dir") else _fmt(v, 6))
+    header.append("split")
+    cols.append(list(map(str, rows.split)))
+    lines = [",".join(header)] + [",".join(r) for r in zip(*cols, strict=True)]
+    write_text(out / "poses.csv", "\n".join(lines) + "\n")
+    if ctx.temperature_log is not None:
+        log = ctx.temperature_log
+        names = [k for k in log if k != "t_s"]
+        tl = [",".join(["timestamp", *names])]
+        for k, ts in enumerate(log["t_s"]):
+            tl.append(",".join([iso(ts)] + [f"{log[c][k]:.4f}" for c in names]))
+        write_text(out / "temperatures.csv", "\n".join(tl) + "\n")
+    else:
+        (out / "temperatures.csv").unlink(missing_ok=True)
+    write_json(out / "truth.json", truth)
+    atomic_write(
+        out / "scenario.yaml",
+        lambda pth: pth.write_text(yaml.safe_dump({**sc, "seed": seed}, sort_keys=True)),
+    )
+    return truth
+
+
+def _column_order(name: str) -> tuple[int, int]:
+    for rank, prefix in enumerate(("tau", "i", "dir")):
+        if name.startswith(prefix) and name[len(prefix) :].split("_")[0].isdigit():
+            return rank, int(name[len(prefix) :].split("_")[0])
+    return 9, 0
