@@ -1,0 +1,116 @@
+"""The HTML report of a geometric calibration."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from robocal.report.html import Report
+
+from robocal.report import plots
+
+if TYPE_CHECKING:
+    from robocal.data.contract import Campaign
+
+    from robocal.identification.calibrate import CalibrationResult
+
+
+def geometric_report(
+    result: CalibrationResult,
+    campaign: Campaign,
+    validation: dict[str, Any] | None,
+    validation_before: dict[str, Any] | None,
+    summary: dict[str, Any],
+) -> Report:
+    """Error before/after per pose, histograms, parameter table with standard errors, eliminated
+    parameters, residuals against each joint angle, and the validation statistics."""
+    fit = result.fit
+    rep = Report(f"Geometric calibration — {result.model.robot.name}")
+    rep.paragraph(
+        f"Campaign {campaign.source}: {fit['n_rows']} calibration rows, targets {', '.join(fit['targets'])}; "
+        f"model {result.model.robot.convention}; {fit['n_identified']} parameters identified, "
+        f"{fit['n_eliminated']} eliminated."
+    )
+    rep.heading("Fit")
+    kv = {
+        "RMS 3-D position error (mm)": f"{fit['rms_position_mm']:.4f}",
+        "mean / max (mm)": f"{fit['mean_position_mm']:.4f} / {fit['max_position_mm']:.4f}",
+        "noise floor RMS (mm)": "n/a" if fit.get("noise_floor_rms_mm") is None else f"{fit['noise_floor_rms_mm']:.4f}",
+        "chi² / dof": f"{fit['chi2']:.1f} / {fit['dof']} (95 % band {fit['chi2_band_95'][0]:.0f}–"
+        f"{fit['chi2_band_95'][1]:.0f}; {'inside' if fit['chi2_within_band'] else 'OUTSIDE'})",
+        "tracker noise assumed (mm)": f"{result.config.noise_mm}",
+        "iterations / time": f"{fit['nit']} / {fit['wall_time_s'] * 1e3:.1f} ms",
+        "solver status": fit["message"],
+    }
+    if "rms_orientation_deg" in fit:
+        kv["RMS orientation error (deg)"] = f"{fit['rms_orientation_deg']:.4f}"
+    rep.kv(kv)
+    if not fit["chi2_within_band"]:
+        rep.note(
+            "chi² is outside its 95 % band: either the tracker noise setting is wrong or the model misses an "
+            "effect (run `robocal discover`).",
+            kind="warn",
+        )
+    before = np.linalg.norm(result.extra["residuals_before_mm"], axis=1)
+    after = np.linalg.norm(result.residuals_mm, axis=1)
+    cal = campaign.calibration() if validation else campaign
+    labels = [f"{p}/{t}" for p, t in zip(cal.pose_id, cal.target, strict=True)]
+    rep.figure(
+        plots.error_per_pose(before, after, labels),
+        "Calibration rows: 3-D error before (nominal kinematics, registered frames) and after calibration",
+    )
+    rep.figure(plots.error_histogram(before, after), "Calibration rows: error histograms")
+    if validation and validation_before:
+        rep.heading("Validation")
+        rep.kv(
+            {
+                "rows": str(validation["n_rows"]),
+                "mean / RMS / max after (mm)": f"{validation['mean_position_mm']:.4f} / "
+                f"{validation['rms_position_mm']:.4f} / {validation['max_position_mm']:.4f}",
+                "mean / RMS / max before (mm)": f"{validation_before['mean_position_mm']:.4f} / "
+                f"{validation_before['rms_position_mm']:.4f} / {validation_before['max_position_mm']:.4f}",
+                **{f"tool of {k}": v for k, v in validation["tool_source"].items()},
+            }
+        )
+        keep = validation["kept_rows"]
+        vb = np.linalg.norm(validation_before["errors_mm"][keep], axis=1)
+        va = np.linalg.norm(validation["errors_mm"][keep], axis=1)
+        val = campaign.validation()
+        vl = [f"{p}/{t}" for p, t in zip(val.pose_id[keep], val.target[keep], strict=True)]
+        rep.figure(plots.error_per_pose(vb, va, vl), "Validation rows: 3-D error before and after")
+    rep.heading("Residuals against joint angles")
+    rep.figure(plots.residuals_vs_joints(cal.q, result.residuals_mm), "Calibration residuals (x, y, z) per joint")
+    rep.heading("Parameters")
+    table = result.parameter_table()
+    rep.table(
+        [[r["name"], r["kind"], r["unit"], r["value"], r["stderr"], r["status"]] for r in table],
+        columns=["parameter", "kind", "unit", "value", "std. error", "status"],
+        caption="Kinematic errors are deviations from the nominal model; frames and tools are absolute.",
+    )
+    kin = [r for r in table if r["kind"] == "kinematic" and r["status"] == "identified"]
+    if kin:
+        rep.figure(
+            plots.parameter_errors(
+                [r["name"] + (" [deg×100]" if r["unit"] == "deg" else " [mm]") for r in kin],
+                np.array([r["value"] * (100 if r["unit"] == "deg" else 1) for r in kin]),
+                np.array([r["stderr"] * (100 if r["unit"] == "deg" else 1) for r in kin]),
+            ),
+            "Identified joint-level errors with ±1 standard error (angles ×100 to share the axis)",
+        )
+    rep.heading("Eliminated parameters")
+    if result.eliminated:
+        rep.table(
+            [[e.name, e.describe(), e.reason] for e in result.eliminated],
+            columns=["parameter", "absorbed by", "reason"],
+        )
+    else:
+        rep.paragraph("None: every candidate parameter is identifiable from these poses.")
+    T = result.tracker_T_base
+    rep.heading("Frames and tools")
+    rep.kv(
+        {
+            "tracker→base xyz (mm)": np.array2string(T[:3, 3], precision=4),
+            **{f"tool {k} (mm, flange frame)": np.array2string(v, precision=4) for k, v in result.tools.items()},
+        }
+    )
+    return rep
