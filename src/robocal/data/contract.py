@@ -35,17 +35,18 @@ METRES_SUSPECT_MM = 10.0
 class SplitConfig:
     """How rows are split when the campaign has no ``split`` column.
 
-    method : ``random_pose`` (whole pose ids go to validation, so every target of a pose stays together) or
-        ``none`` (all rows calibrate). validation_fraction : share of pose ids held out. seed : the split's seed.
+    method : ``random`` (whole pose ids go to validation, so every target and every repetition of a pose
+        stays together; ``random_pose`` is the same) or ``none`` (all rows calibrate).
+        validation_fraction : share of pose ids held out. seed : the split's seed.
     """
 
-    method: str = "random_pose"
+    method: str = "random"
     validation_fraction: float = 0.2
     seed: int = 0
 
     def __post_init__(self) -> None:
-        if self.method not in ("random_pose", "none"):
-            raise ConfigError(f"split.method must be 'random_pose' or 'none'. Got {self.method!r} instead.")
+        if self.method not in ("random", "random_pose", "none"):
+            raise ConfigError(f"split.method must be 'random' or 'none'. Got {self.method!r} instead.")
         if not 0.0 <= float(self.validation_fraction) < 1.0:
             raise ConfigError(f"split.validation_fraction must be in [0, 1). Got {self.validation_fraction!r}.")
 

@@ -75,6 +75,20 @@ class Effect(Protocol):
 
 
 EFFECTS: dict[str, Callable[[Mapping[str, Any]], Effect]] = {}
+#: Modules that register more effects (thermal warm-up, compliance under payload, tracker drift); imported
+#: on first use so that ``robocal.sim.twin`` itself stays light. A module that does not exist is skipped.
+EFFECT_MODULES = ("robocal.sim.thermal", "robocal.sim.compliance", "robocal.sim.drift")
+
+
+def load_effect_modules() -> dict[str, Callable[[Mapping[str, Any]], Effect]]:
+    """Import every module of :data:`EFFECT_MODULES` that exists; returns :data:`EFFECTS`."""
+    import importlib
+    import importlib.util
+
+    for mod in EFFECT_MODULES:
+        if importlib.util.find_spec(mod) is not None:
+            importlib.import_module(mod)
+    return EFFECTS
 
 
 def register_effect(
@@ -287,6 +301,8 @@ def simulate(
     ctx = TwinContext(robot=robot, chain=chain, eta_true=eta, rng_factory=rng, truth=truth)
     effects_cfg = dict(sc.get("effects") or {})
     effects: list[Effect] = []
+    if effects_cfg:
+        load_effect_modules()
     for name, ecfg in effects_cfg.items():
         if ecfg in (None, False):
             continue
