@@ -54,7 +54,8 @@ class Compensation:
     """Result of :func:`compensate`.
 
     q_target : (m, n) the requested joints; q : (m, n) corrected joint targets, rad;
-    converged : (m,) bool; residual_mm : (m, 3) predicted position error after compensation; residual_rad : (m, 3) predicted orientation error (rotation vector);
+    converged : (m,) bool; residual_mm : (m, 3) predicted position error after compensation;
+    residual_rad : (m, 3) predicted orientation error (rotation vector);
     error_before_mm / error_before_rad : the same without compensation; iterations : int.
     """
 

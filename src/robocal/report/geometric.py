@@ -5,13 +5,12 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from robocal.report.html import Report
 
 from robocal.report import plots
+from robocal.report.html import Report
 
 if TYPE_CHECKING:
     from robocal.data.contract import Campaign
-
     from robocal.identification.calibrate import CalibrationResult
 
 

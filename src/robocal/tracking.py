@@ -1,0 +1,411 @@
+"""MLflow tracking, in one place. MLflow is imported lazily: ``import robocal`` stays light.
+
+Where runs go (first that applies):
+
+1. ``$MLFLOW_TRACKING_URI`` (e.g. ``http://host:5000`` or ``sqlite:////abs/path/mlflow.db``);
+2. the ``uri`` argument (the ``tracking.uri`` config value, when not null);
+3. ``sqlite:///<repo>/mlflow.db`` with artifacts in ``<repo>/mlartifacts``; ``<repo>`` is ``$DVC_ROOT``
+   when DVC runs the stage (for queued experiments DVC points it at the *parent* repository, so runs made in
+   DVC's temporary copies are not lost), else the repository that holds this package.
+
+A SQLite store is created (tables, migrations) once, under a lock, by :func:`ensure_store`, before any
+parallel run: a brand-new SQLite file raced by parallel writers fails.
+
+Tracking never costs results. Every MLflow call made through :class:`StageRun` is guarded: if MLflow
+errors, the error is printed to stderr (``robocal tracking: ...``), the run is marked broken and the stage
+carries on writing its files; ``required=True`` makes :meth:`StageRun.close` raise afterwards, so the stage
+fails *after* its outputs are on disk. Nothing here is silent.
+
+Hydra sweeps: :func:`start_sweep` opens a parent run and exports its id in :data:`PARENT_ENV`; every job
+(also in joblib worker processes, which inherit the environment) opens its run nested under it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import math
+import os
+import subprocess
+import sys
+import time
+import traceback
+from collections.abc import Callable, Iterator, Mapping
+from pathlib import Path
+from typing import Any, TypeVar
+from urllib.parse import unquote, urlparse
+
+from robocal.errors import RobocalError
+
+#: Environment variable carrying the parent run id of a Hydra sweep to its jobs.
+PARENT_ENV = "ROBOCAL_MLFLOW_PARENT_RUN_ID"
+#: Default experiment name.
+DEFAULT_EXPERIMENT = "robocal"
+#: Default SQLite file name, in the repository root.
+DB_NAME = "mlflow.db"
+#: Default artifact directory name, next to the SQLite file.
+ARTIFACT_DIR = "mlartifacts"
+
+_REPO_ROOT = Path(__file__).resolve().parents[2]
+_ENSURED: dict[tuple[str, str], str] = {}  # (uri, experiment) -> experiment id, per process
+
+T = TypeVar("T")
+
+
+class TrackingError(RobocalError, RuntimeError):
+    """MLflow failed while ``required`` tracking was asked for (raised after the stage's files are written)."""
+
+
+# ----------------------------------------------------------------------------------------------- where
+
+
+def repo_root() -> Path:
+    """The repository the runs belong to: ``$DVC_ROOT`` when set (DVC stages, queued experiments), else ours."""
+    env = os.environ.get("DVC_ROOT")
+    return Path(env).resolve() if env else _REPO_ROOT
+
+
+def tracking_uri(uri: str | None = None) -> str:
+    """The tracking URI: ``$MLFLOW_TRACKING_URI``, else ``uri``, else ``sqlite:///<repo>/mlflow.db`` (absolute).
+
+    A relative ``sqlite:///x.db`` is made absolute against the repository root, so queued DVC experiments
+    (which run in temporary copies) and Hydra jobs (any working directory) all write to the same file.
+    """
+    chosen = os.environ.get("MLFLOW_TRACKING_URI") or uri or f"sqlite:///{repo_root() / DB_NAME}"
+    if chosen.startswith("sqlite:///") and not chosen.startswith("sqlite:////"):
+        rel = chosen[len("sqlite:///") :]
+        chosen = f"sqlite:///{(repo_root() / rel).resolve()}"
+    elif "://" not in chosen:  # a bare path: a local SQLite file
+        chosen = f"sqlite:///{(repo_root() / chosen).resolve()}"
+    return chosen
+
+
+def sqlite_path(uri: str) -> Path | None:
+    """The database file of a ``sqlite:///`` URI, else None."""
+    if not uri.startswith("sqlite:"):
+        return None
+    return Path(unquote(urlparse(uri).path))
+
+
+def artifact_location(uri: str) -> str | None:
+    """Artifact root for a new experiment: ``<db dir>/mlartifacts`` for SQLite stores, else the server's choice."""
+    db = sqlite_path(uri)
+    return (db.parent / ARTIFACT_DIR).resolve().as_uri() if db is not None else None
+
+
+# ----------------------------------------------------------------------------------------------- store
+
+
+@contextlib.contextmanager
+def _dir_lock(directory: Path) -> Iterator[None]:
+    """An exclusive ``flock`` on a directory (no lock file left behind); a no-op where flock is unsupported."""
+    fd = None
+    try:
+        fd = os.open(directory, os.O_RDONLY)
+        fcntl.flock(fd, fcntl.LOCK_EX)
+    except OSError:
+        if fd is not None:
+            os.close(fd)
+        fd = None
+    try:
+        yield
+    finally:
+        if fd is not None:
+            fcntl.flock(fd, fcntl.LOCK_UN)
+            os.close(fd)
+
+
+def _client(uri: str) -> Any:
+    from mlflow.tracking import MlflowClient
+
+    return MlflowClient(tracking_uri=uri)
+
+
+def ensure_store(uri: str | None = None, experiment: str = DEFAULT_EXPERIMENT) -> str:
+    """Create the store (SQLite tables and migrations) and the experiment once; return the experiment id.
+
+    Safe to call from several processes at once: SQLite stores are created under a lock on their directory.
+    Call it in the parent process before starting parallel jobs.
+    """
+    uri = tracking_uri(uri)
+    key = (uri, experiment)
+    if key in _ENSURED:
+        return _ENSURED[key]
+    db = sqlite_path(uri)
+    lock: contextlib.AbstractContextManager[None] = contextlib.nullcontext()
+    if db is not None:
+        db.parent.mkdir(parents=True, exist_ok=True)
+        lock = _dir_lock(db.parent)
+    with lock:
+        client = _client(uri)
+        exp = client.get_experiment_by_name(experiment)  # creates / migrates the SQLite tables on first use
+        if exp is not None:
+            exp_id = str(exp.experiment_id)
+        else:
+            exp_id = str(client.create_experiment(experiment, artifact_location=artifact_location(uri)))
+    _ENSURED[key] = exp_id
+    return exp_id
+
+
+# ----------------------------------------------------------------------------------------------- values
+
+
+def flatten(mapping: Mapping[str, Any], prefix: str = "", sep: str = ".") -> dict[str, Any]:
+    """Nested mappings to ``{"a.b.c": value}``; lists of scalars become their string form, lists holding
+    mappings are left out (too wide for a parameter table: log the whole config as an artifact instead)."""
+    out: dict[str, Any] = {}
+    for key, value in mapping.items():
+        name = f"{prefix}{sep}{key}" if prefix else str(key)
+        if isinstance(value, Mapping):
+            out.update(flatten(value, name, sep))
+        elif isinstance(value, list | tuple):
+            if not any(isinstance(v, Mapping | list | tuple) for v in value):
+                out[name] = str(list(value))
+        else:
+            out[name] = value
+    return out
+
+
+def numeric_metrics(mapping: Mapping[str, Any]) -> dict[str, float]:
+    """The numeric leaves of a (nested) mapping, flattened; bools count as 0/1, non-finite values are dropped."""
+    out: dict[str, float] = {}
+    for key, value in flatten(mapping).items():
+        if isinstance(value, bool):
+            out[key] = float(value)
+        elif isinstance(value, int | float) and math.isfinite(float(value)):
+            out[key] = float(value)
+        elif hasattr(value, "item") and isinstance(value.item(), int | float):  # numpy scalars
+            f = float(value.item())
+            if math.isfinite(f):
+                out[key] = f
+    return out
+
+
+def git_commit(cwd: Path | None = None) -> str | None:
+    """The current git commit of the repository, or None (no git, no commit yet)."""
+    try:
+        res = subprocess.run(
+            ["git", "rev-parse", "HEAD"],
+            cwd=cwd or repo_root(),
+            capture_output=True,
+            text=True,
+            timeout=5,
+            check=False,
+        )
+    except (OSError, subprocess.SubprocessError):
+        return None
+    sha = res.stdout.strip()
+    return sha if res.returncode == 0 and len(sha) == 40 else None
+
+
+def default_tags(stage: str) -> dict[str, str]:
+    """Tags every run gets: stage name, DVC experiment / stage when DVC runs it, git commit when there is one."""
+    tags = {"robocal.stage": stage}
+    for env, tag in (("DVC_EXP_NAME", "dvc.exp_name"), ("DVC_STAGE", "dvc.stage"), ("DVC_ROOT", "dvc.root")):
+        if os.environ.get(env):
+            tags[tag] = os.environ[env]
+    sha = git_commit()
+    if sha:
+        tags["mlflow.source.git.commit"] = sha
+    return tags
+
+
+def _report(what: str, exc: BaseException) -> None:
+    print(f"robocal tracking: {what} failed: {type(exc).__name__}: {exc}", file=sys.stderr)
+    if os.environ.get("ROBOCAL_DEBUG"):
+        traceback.print_exc()
+
+
+def _retry(fn: Callable[[], T], attempts: int = 4, delay_s: float = 0.25) -> T:
+    """Retry transient SQLite contention ("database is locked") from parallel writers."""
+    for k in range(attempts):
+        try:
+            return fn()
+        except Exception as exc:
+            if k == attempts - 1 or "locked" not in str(exc).lower():
+                raise
+            time.sleep(delay_s * (2**k))
+    raise AssertionError("unreachable")  # pragma: no cover
+
+
+# ----------------------------------------------------------------------------------------------- runs
+
+
+class StageRun:
+    """One MLflow run of one stage (or one sweep job), every call guarded.
+
+    Parameters
+    ----------
+    stage : str
+        Stage name; the run name and the ``robocal.stage`` tag.
+    enabled : bool
+        False: every method is a no-op (``tracking.enabled: false``).
+    uri : str, optional
+        Tracking URI (see :func:`tracking_uri`).
+    experiment : str
+    parent_run_id : str, optional
+        Nest under this run; default ``$ROBOCAL_MLFLOW_PARENT_RUN_ID`` (set by :func:`start_sweep`).
+    tags : mapping, optional
+        Extra tags.
+    required : bool
+        Raise :class:`TrackingError` from :meth:`close` when any MLflow call failed.
+    """
+
+    def __init__(
+        self,
+        stage: str,
+        *,
+        enabled: bool = True,
+        uri: str | None = None,
+        experiment: str = DEFAULT_EXPERIMENT,
+        parent_run_id: str | None = None,
+        tags: Mapping[str, str] | None = None,
+        run_name: str | None = None,
+        required: bool = False,
+    ) -> None:
+        self.stage = stage
+        self.enabled = enabled
+        self.uri = tracking_uri(uri) if enabled else None
+        self.experiment = experiment
+        self.parent_run_id = parent_run_id or os.environ.get(PARENT_ENV) or None
+        self.extra_tags = dict(tags or {})
+        self.run_name = run_name or stage
+        self.required = required
+        self.run_id: str | None = None
+        self.errors: list[str] = []
+        self._client: Any = None
+        self._closed = False
+
+    # -- guarded call
+    def _call(self, what: str, fn: Callable[[], Any]) -> Any:
+        if not self.enabled or (self.run_id is None and what != "start run"):
+            return None
+        try:
+            return _retry(fn)
+        except Exception as exc:
+            self.errors.append(f"{what}: {type(exc).__name__}: {exc}")
+            _report(what, exc)
+            return None
+
+    def start(self) -> StageRun:
+        """Create the store if needed and open the run (status RUNNING)."""
+
+        def go() -> str:
+            assert self.uri is not None
+            exp_id = ensure_store(self.uri, self.experiment)
+            self._client = _client(self.uri)
+            tags = {**default_tags(self.stage), **self.extra_tags}
+            if self.parent_run_id:
+                tags["mlflow.parentRunId"] = self.parent_run_id
+            run = self._client.create_run(exp_id, tags=tags, run_name=self.run_name)
+            return str(run.info.run_id)
+
+        self.run_id = self._call("start run", go)
+        if self.run_id:
+            print(f"robocal tracking: run {self.run_id} ({self.run_name}) in {self.uri}", file=sys.stderr)
+        return self
+
+    def log_params(self, params: Mapping[str, Any]) -> None:
+        """Log a (nested) mapping as flattened parameters (values cut to MLflow's length limit)."""
+        from_flat = {k: ("null" if v is None else str(v)) for k, v in flatten(params).items()}
+
+        def go() -> None:
+            from mlflow.entities import Param
+
+            items = [Param(k, v[:6000]) for k, v in sorted(from_flat.items())]
+            for i in range(0, len(items), 100):
+                self._client.log_batch(self.run_id, params=items[i : i + 100])
+
+        self._call("log params", go)
+
+    def log_metrics(self, metrics: Mapping[str, Any], step: int = 0) -> None:
+        """Log the numeric leaves of a (nested) mapping as metrics."""
+        values = numeric_metrics(metrics)
+
+        def go() -> None:
+            from mlflow.entities import Metric
+
+            ts = int(time.time() * 1000)
+            items = [Metric(k, v, ts, step) for k, v in sorted(values.items())]
+            for i in range(0, len(items), 1000):
+                self._client.log_batch(self.run_id, metrics=items[i : i + 1000])
+
+        self._call("log metrics", go)
+
+    def set_tags(self, tags: Mapping[str, Any]) -> None:
+        def go() -> None:
+            from mlflow.entities import RunTag
+
+            self._client.log_batch(self.run_id, tags=[RunTag(str(k), str(v)) for k, v in tags.items()])
+
+        self._call("set tags", go)
+
+    def log_artifact(self, path: str | Path, artifact_path: str | None = None) -> None:
+        """Log a file or a directory (recursively) as artifacts; missing paths are skipped."""
+        p = Path(path)
+        if not p.exists():
+            return
+        if p.is_dir():
+            self._call("log artifacts", lambda: self._client.log_artifacts(self.run_id, str(p), artifact_path))
+        else:
+            self._call("log artifact", lambda: self._client.log_artifact(self.run_id, str(p), artifact_path))
+
+    def log_text(self, text: str, artifact_file: str) -> None:
+        """Log ``text`` as the artifact file ``artifact_file`` (e.g. the stage's parameters as YAML)."""
+        self._call("log text", lambda: self._client.log_text(self.run_id, text, artifact_file))
+
+    def close(self, status: str = "FINISHED") -> None:
+        """End the run with ``status`` (FINISHED, FAILED, KILLED); raise if ``required`` and MLflow failed."""
+        if self._closed:
+            return
+        self._closed = True
+        self._call("end run", lambda: self._client.set_terminated(self.run_id, status))
+        if self.required and self.enabled and (self.errors or self.run_id is None):
+            raise TrackingError("MLflow tracking was required but failed: " + "; ".join(self.errors or ["no run"]))
+
+    def __enter__(self) -> StageRun:
+        return self.start()
+
+    def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
+        if exc_type is None:
+            self.close("FINISHED")
+        else:
+            with contextlib.suppress(TrackingError):  # the stage's own error wins
+                self.close("KILLED" if exc_type is KeyboardInterrupt else "FAILED")
+
+
+# ----------------------------------------------------------------------------------------------- sweeps
+
+
+def start_sweep(
+    stage: str,
+    overrides: list[str],
+    *,
+    enabled: bool = True,
+    uri: str | None = None,
+    experiment: str = DEFAULT_EXPERIMENT,
+) -> StageRun:
+    """Open the parent run of a Hydra sweep and export its id (:data:`PARENT_ENV`) for the jobs.
+
+    Also creates the store first, so parallel jobs (joblib launcher) never race on a new SQLite file.
+    """
+    os.environ.pop(PARENT_ENV, None)  # a sweep is never nested in a stale parent
+    parent = StageRun(
+        stage,
+        enabled=enabled,
+        uri=uri,
+        experiment=experiment,
+        parent_run_id=None,
+        tags={"robocal.sweep": "parent", "hydra.overrides": " ".join(overrides)},
+        run_name=f"{stage} sweep",
+    )
+    parent.start()
+    if parent.run_id:
+        os.environ[PARENT_ENV] = parent.run_id
+    return parent
+
+
+def end_sweep(parent: StageRun, status: str = "FINISHED") -> None:
+    """Close the parent run of a sweep and stop exporting its id."""
+    os.environ.pop(PARENT_ENV, None)
+    parent.close(status)

@@ -1,0 +1,103 @@
+"""Geometric calibration workflow: data door -> calibration -> validation -> files and report."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from robocal.data.contract import Campaign, SplitConfig, read_campaign
+from robocal.errors import ConfigError
+from robocal.identification.calibrate import CalibrationConfig, CalibrationResult, calibrate, validate
+from robocal.io import atomic_write, write_json
+from robocal.robot import RobotDescription, load_robot
+
+
+def split_config(split: Mapping[str, Any] | None) -> SplitConfig | None:
+    if not split:
+        return None
+    known = {"method", "validation_fraction", "seed"}
+    unknown = sorted(set(split) - known)
+    if unknown:
+        raise ConfigError(f"unknown split setting(s) {unknown}; known: {sorted(known)}")
+    return SplitConfig(**dict(split))
+
+
+def summarise(result: CalibrationResult, validation: dict[str, Any] | None) -> dict[str, Any]:
+    fit = dict(result.fit)
+    summary: dict[str, Any] = {
+        "robot": result.model.robot.name,
+        "fit": fit,
+        "n_identified": int(result.identified.sum()),
+        "eliminated": [e.describe() for e in result.eliminated],
+        "fixed": list(result.fixed_by_user),
+    }
+    if validation and validation.get("n_rows"):
+        summary["validation"] = {k: v for k, v in validation.items() if k not in ("errors_mm", "kept_rows")}
+    return summary
+
+
+def run_calibration(
+    data_dir: str | Path,
+    robot: str | Path | RobotDescription,
+    out_dir: str | Path,
+    overrides: Mapping[str, Any] | None = None,
+    split: Mapping[str, Any] | None = None,
+    report: bool = True,
+    campaign: Campaign | None = None,
+) -> dict[str, Any]:
+    """Calibrate the campaign in ``data_dir``; write ``calibration.json``, ``summary.json``,
+    ``residuals.csv`` and (optionally) ``report.html`` into ``out_dir``. Returns the summary."""
+    rob = robot if isinstance(robot, RobotDescription) else load_robot(robot)
+    cfg = CalibrationConfig.from_mapping(overrides)
+    camp = campaign if campaign is not None else read_campaign(data_dir, rob, split=split_config(split))
+    result = calibrate(camp, rob, cfg)
+    val = validate(result, camp) if np.any(camp.split == "validation") else None
+    val_before = validate(result, camp, x=result.extra["x_init"]) if val else None
+    summary = summarise(result, val)
+    if val_before:
+        summary["validation_before"] = {
+            k: val_before[k] for k in ("mean_position_mm", "rms_position_mm", "max_position_mm")
+        }
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    write_json(out / "calibration.json", result.to_dict())
+    cal = camp.calibration() if val else camp
+    rows = pd.DataFrame(
+        {
+            "pose_id": cal.pose_id,
+            "target": cal.target,
+            "split": "calibration",
+            "err_before_mm": np.linalg.norm(result.extra["residuals_before_mm"], axis=1),
+            "err_after_mm": np.linalg.norm(result.residuals_mm, axis=1),
+            "rx_mm": result.residuals_mm[:, 0],
+            "ry_mm": result.residuals_mm[:, 1],
+            "rz_mm": result.residuals_mm[:, 2],
+        }
+    )
+    if val and val_before:
+        v = camp.validation()
+        keep = val["kept_rows"]
+        vr = pd.DataFrame(
+            {
+                "pose_id": v.pose_id[keep],
+                "target": v.target[keep],
+                "split": "validation",
+                "err_before_mm": np.linalg.norm(val_before["errors_mm"][keep], axis=1),
+                "err_after_mm": np.linalg.norm(val["errors_mm"][keep], axis=1),
+                "rx_mm": val["errors_mm"][keep, 0],
+                "ry_mm": val["errors_mm"][keep, 1],
+                "rz_mm": val["errors_mm"][keep, 2],
+            }
+        )
+        rows = pd.concat([rows, vr], ignore_index=True)
+    atomic_write(out / "residuals.csv", lambda p: rows.to_csv(p, index=False, float_format="%.6f"))
+    write_json(out / "summary.json", summary)
+    if report:
+        from robocal.report.geometric import geometric_report
+
+        geometric_report(result, camp, val, val_before, summary).save(out / "report.html")
+    return summary
