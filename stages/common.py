@@ -1,0 +1,361 @@
+"""The runner shared by every pipeline stage, and THE pattern for adding one.
+
+A stage is a short file ``stages/<name>.py``: it declares what it reads and writes, and a ``compute(ctx)``
+that calls one library function. The runner does the rest: read the parameters, open the MLflow run, time
+the stage, write the metrics JSON atomically, write an explicit "skipped" result, log params / metrics /
+artifacts, and turn a :class:`robocal.errors.RobocalError` into a one-line error that names the key or file.
+
+Adding a stage (``thermal_fit`` as the example)
+------------------------------------------------
+
+1. ``stages/thermal_fit.py``::
+
+       \"\"\"thermal_fit: temperature-dependent kinematic parameters from the interim campaign.\"\"\"
+
+       from common import Stage, run
+
+       STAGE = Stage(
+           name="thermal_fit",
+           params=("robot", "thermal"),                  # exactly the `params:` of the stage in dvc.yaml
+           out="reports/thermal",                        # its `outs:` (a directory the stage fills)
+           metrics="reports/metrics/thermal_fit.json",   # its `metrics:` (cache: false)
+           plots="reports/plots/thermal_fit",            # its `plots:` (cache: false), or None
+       )
+
+
+       def compute(ctx):
+           prep = ctx.read_json("data/interim/prepare.json")
+           if not prep["has_temperatures"]:
+               return ctx.skip("the campaign has no temperatures.csv")   # explicit skipped result, exit 0
+           from robocal.thermal.workflow import run_thermal           # import the library lazily
+
+           summary = run_thermal(ctx.path("data/interim"), ctx.cfg["robot"], ctx.cfg["thermal"], ctx.out)
+           ctx.artifact(ctx.out / "report.html")                       # logged to MLflow after the stage
+           return {"rms_position_mm": summary["rms_position_mm"]}      # metrics (nested dicts are fine)
+
+
+       if __name__ == "__main__":
+           run(STAGE, compute)
+
+2. ``dvc.yaml``::
+
+       thermal_fit:
+         cmd: python stages/thermal_fit.py
+         deps:
+           - stages/thermal_fit.py
+           - stages/common.py
+           - src/robocal/pipeline.py
+           - src/robocal/tracking.py
+           - src/robocal/thermal            # every library package the stage imports
+           - data/interim                   # its input data
+         params: [robot, thermal]           # = STAGE.params
+         outs: [reports/thermal]
+         metrics:
+           - reports/metrics/thermal_fit.json: {cache: false}
+         plots:
+           - reports/plots/thermal_fit: {cache: false}
+
+3. New parameters: a group ``conf/thermal/default.yaml`` + ``- thermal: default`` in ``conf/config.yaml``'s
+   defaults, then ``make params``. ``tests/pipeline/test_stages.py`` checks that dvc.yaml and ``STAGE`` agree.
+
+Reading a section the stage did not declare raises a ConfigError (so dvc.yaml stays honest).
+
+Two ways a stage runs
+---------------------
+
+* ``python stages/<name>.py`` (what ``dvc repro`` / ``dvc exp run`` run): parameters from ``params.yaml``
+  (DVC composed it from ``conf/``, with any ``-S`` overrides); outputs at the paths above.
+* ``python stages/<name>.py key=value ...`` or ``-m key=a,b,c`` (Hydra): ``conf/`` composed with the
+  overrides; each job writes into its own directory under ``reports/runs/<name>/`` or
+  ``reports/sweeps/<name>/<time>/<job>/`` (the DVC-tracked outputs are not touched); a sweep is one parent
+  MLflow run with one nested run per job. ``hydra/launcher=joblib`` runs the jobs in parallel.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+os.environ.setdefault("MLFLOW_DISABLE_TELEMETRY", "1")
+
+from robocal.errors import ConfigError, RobocalError  # noqa: E402
+from robocal.pipeline import (  # noqa: E402
+    PARAMS_FILE,
+    STATUS_OK,
+    Skipped,
+    compose,
+    get,
+    load_params,
+    resolve_path,
+    skipped,
+    write_metrics,
+    write_skipped,
+)
+
+#: The repository root: the folder holding ``stages/`` (in DVC's temporary copies too).
+ROOT = Path(__file__).resolve().parents[1]
+#: Tracking settings used when the parameters have no ``tracking`` section.
+TRACKING_DEFAULTS: dict[str, Any] = {"enabled": True, "experiment": "robocal", "uri": None, "required": False}
+
+
+@dataclass(frozen=True)
+class Stage:
+    """What a stage reads and writes; must agree with its entry in ``dvc.yaml``."""
+
+    name: str
+    params: tuple[str, ...]
+    out: str
+    metrics: str
+    plots: str | None = None
+
+
+class Sections(dict):  # type: ignore[type-arg]
+    """The parameter sections a stage declared; reading another one is an error that names it."""
+
+    stage: str = ""
+
+    def __missing__(self, key: str) -> Any:
+        raise ConfigError(
+            f"stage {self.stage!r} reads the parameter section '{key}' but does not declare it: add it to "
+            f"STAGE.params and to the stage's params in dvc.yaml. Declared: {sorted(self)}"
+        )
+
+
+@dataclass
+class Context:
+    """What ``compute(ctx)`` gets.
+
+    cfg : the declared parameter sections (plain dicts); out : the output directory (created);
+    metrics_path / plots : where the runner writes metrics and where plots go (created); root : the
+    repository root; hydra : True when run by Hydra (outputs then live in the job directory); tracker : the
+    :class:`robocal.tracking.StageRun` (log extra things with it).
+    """
+
+    stage: Stage
+    root: Path
+    cfg: Sections
+    out: Path
+    metrics_path: Path
+    plots: Path | None
+    hydra: bool
+    tracker: Any
+    artifacts: list[Path] = field(default_factory=list)
+
+    def path(self, value: str | Path) -> Path:
+        """A path from the config or a stage input: absolute as given, else relative to the repository root."""
+        return resolve_path(self.root, value)
+
+    def get(self, key: str, default: Any = ..., types: type | tuple[type, ...] | None = None) -> Any:
+        """One dotted key of the declared sections, e.g. ``ctx.get("data.campaign")``; errors name the key."""
+        section = key.split(".", 1)[0]
+        self.cfg[section]  # raises for an undeclared section
+        return get(self.cfg, key, types=types) if default is ... else get(self.cfg, key, default, types)
+
+    def read_json(self, value: str | Path) -> Any:
+        p = self.path(value)
+        if not p.is_file():
+            raise ConfigError(f"stage {self.stage.name!r}: missing input {p} (run the upstream stage first)")
+        return json.loads(p.read_text(encoding="utf-8"))
+
+    def artifact(self, path: str | Path) -> None:
+        """Log ``path`` (file or directory) to MLflow once the stage has written its outputs."""
+        self.artifacts.append(Path(path))
+
+    @staticmethod
+    def skip(reason: str) -> Skipped:
+        """Return this from ``compute``: explicit ``{"status": "skipped", "reason": ...}`` result, exit 0."""
+        return skipped(reason)
+
+
+Compute = Callable[[Context], "Mapping[str, Any] | Skipped | None"]
+
+
+def _sections(stage: Stage, cfg: Mapping[str, Any], source: str) -> Sections:
+    missing = [s for s in stage.params if s not in cfg]
+    if missing:
+        raise ConfigError(f"{source}: missing parameter section(s) {missing} needed by stage {stage.name!r}")
+    out = Sections({s: cfg[s] for s in stage.params})
+    out.stage = stage.name
+    return out
+
+
+def _tracking(cfg: Mapping[str, Any]) -> dict[str, Any]:
+    t = cfg.get("tracking") or {}
+    if not isinstance(t, Mapping):
+        raise ConfigError(f"The config key 'tracking' must be a mapping. Got {t!r} instead.")
+    unknown = sorted(set(t) - set(TRACKING_DEFAULTS))
+    if unknown:
+        raise ConfigError(f"unknown tracking setting(s) {unknown}; known: {sorted(TRACKING_DEFAULTS)}")
+    return {**TRACKING_DEFAULTS, **t}
+
+
+def execute(
+    stage: Stage,
+    compute: Compute,
+    cfg: Mapping[str, Any],
+    *,
+    root: Path,
+    out: Path,
+    metrics_path: Path,
+    plots: Path | None,
+    hydra: bool = False,
+    tags: Mapping[str, str] | None = None,
+    run_name: str | None = None,
+) -> dict[str, Any]:
+    """Run one stage job: tracking run, ``compute``, metrics / skipped result, artifacts. Returns the metrics."""
+    from robocal.tracking import StageRun
+
+    sections = _sections(stage, cfg, "the config" if hydra else PARAMS_FILE)
+    tcfg = _tracking(cfg)
+    tracker = StageRun(
+        stage.name,
+        enabled=bool(tcfg["enabled"]),
+        uri=tcfg["uri"],
+        experiment=str(tcfg["experiment"]),
+        required=bool(tcfg["required"]),
+        tags=tags,
+        run_name=run_name,
+    )
+    out.mkdir(parents=True, exist_ok=True)
+    if plots is not None:
+        plots.mkdir(parents=True, exist_ok=True)
+    ctx = Context(stage, root, sections, out, metrics_path, plots, hydra, tracker)
+    t0 = time.perf_counter()
+    with tracker:  # FAILED in MLflow when compute raises; the error then propagates
+        tracker.log_params(dict(sections))
+        tracker.log_text(_yaml(dict(sections)), "params.yaml")
+        tc = time.perf_counter()
+        result = compute(ctx)
+        times = {"compute_time_s": time.perf_counter() - tc, "wall_time_s": time.perf_counter() - t0}
+        if isinstance(result, Skipped):
+            metrics = {**write_skipped(out, result.reason), "skipped": 1, **times}
+            print(f"stage {stage.name}: skipped: {result.reason}")
+        else:
+            metrics = {"status": STATUS_OK, **dict(result or {}), **times}
+        write_metrics(metrics_path, metrics)
+        tracker.set_tags({"robocal.status": metrics["status"]})
+        tracker.log_metrics(metrics)
+        for path in [metrics_path, *([plots] if plots is not None else []), *ctx.artifacts]:
+            tracker.log_artifact(path, _artifact_dir(path, out, plots))
+    wall = time.perf_counter() - t0
+    print(f"stage {stage.name}: {metrics['status']} in {wall:.2f} s; metrics {_rel(metrics_path, root)}")
+    return metrics
+
+
+def _artifact_dir(path: Path, out: Path, plots: Path | None) -> str | None:
+    if plots is not None and path == plots:
+        return "plots"
+    try:
+        rel = path.resolve().relative_to(out.resolve())
+    except ValueError:
+        return None
+    parent = rel.parent.as_posix()
+    return None if parent in ("", ".") else parent
+
+
+def _yaml(obj: Any) -> str:
+    import yaml
+
+    return yaml.safe_dump(obj, sort_keys=False)
+
+
+def _rel(path: Path, root: Path) -> str:
+    try:
+        return str(path.resolve().relative_to(root.resolve()))
+    except ValueError:
+        return str(path)
+
+
+def run(stage: Stage, compute: Compute, argv: Sequence[str] | None = None, root: Path | None = None) -> None:
+    """Entry point of ``stages/<name>.py``: params.yaml mode without arguments, Hydra mode with them."""
+    args = list(sys.argv[1:] if argv is None else argv)
+    root = (root or ROOT).resolve()
+    os.chdir(root)  # config paths are relative to the repository root, wherever the stage is started from
+    if args:
+        sys.exit(_run_hydra(stage, compute, root, args))
+    try:
+        cfg = load_params(root / PARAMS_FILE)
+        execute(
+            stage,
+            compute,
+            cfg,
+            root=root,
+            out=root / stage.out,
+            metrics_path=root / stage.metrics,
+            plots=None if stage.plots is None else root / stage.plots,
+        )
+    except RobocalError as exc:
+        print(f"stage {stage.name}: error: {exc}", file=sys.stderr)
+        sys.exit(2)
+
+
+def _run_hydra(stage: Stage, compute: Compute, root: Path, args: list[str]) -> int:
+    import hydra
+    from hydra.core.hydra_config import HydraConfig
+    from omegaconf import OmegaConf
+
+    from robocal import tracking
+
+    multirun = any(a in ("-m", "--multirun") for a in args)
+    parent = None
+    if multirun:
+        # tracking settings of the sweep: conf/ with the (non-swept) tracking overrides only
+        tov = [a for a in args if a.lstrip("+~").startswith("tracking") and "," not in a]
+        tcfg = _tracking(compose(root, tov))
+        parent = tracking.start_sweep(
+            stage.name,
+            [a for a in args if not a.startswith("-")],
+            enabled=bool(tcfg["enabled"]),
+            uri=tcfg["uri"],
+            experiment=str(tcfg["experiment"]),
+        )
+
+    def job(cfg: Any) -> dict[str, Any]:
+        data = OmegaConf.to_container(cfg, resolve=True)
+        assert isinstance(data, dict)
+        hc = HydraConfig.get()
+        job_dir = Path(hc.runtime.output_dir).resolve()
+        overrides = " ".join(hc.overrides.task)
+        tags = {"hydra.overrides": overrides or "(none)", "hydra.job_dir": str(job_dir)}
+        run_name = f"{stage.name} {overrides}".strip()
+        if multirun:
+            tags["hydra.job_num"] = str(hc.job.num)
+            run_name = f"{stage.name} #{hc.job.num} {overrides}".strip()
+        try:
+            return execute(
+                stage,
+                compute,
+                {str(k): v for k, v in data.items()},
+                root=root,
+                out=job_dir,
+                metrics_path=job_dir / "metrics.json",
+                plots=None if stage.plots is None else job_dir / "plots",
+                hydra=True,
+                tags=tags,
+                run_name=run_name,
+            )
+        except RobocalError as exc:
+            print(f"stage {stage.name}: error: {exc}", file=sys.stderr)
+            raise
+
+    app = hydra.main(version_base=None, config_path=str(root / "conf"), config_name="config")(job)
+    saved = sys.argv
+    sys.argv = [saved[0], *args, f"hydra.job.name={stage.name}"]
+    code = 0
+    try:
+        app()
+    except SystemExit as exc:  # Hydra exits 1 after printing a job's error
+        code = int(exc.code or 0) if not isinstance(exc.code, str) else 1
+    finally:
+        sys.argv = saved
+        if parent is not None:
+            tracking.end_sweep(parent, "FINISHED" if code == 0 else "FAILED")
+    return code

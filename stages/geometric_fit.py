@@ -1,0 +1,114 @@
+"""geometric_fit: geometric calibration of the interim campaign (robocal.workflows.geometric.run_calibration).
+
+Reads ``robot``, ``optimizer`` (its stopping rules) and ``calibration``; writes ``reports/geometric/``
+(calibration.json, summary.json, residuals.csv, report.html), metrics (errors in mm, and degrees when the
+campaign has orientations; times) and two plots for ``dvc plots show``.
+
+Sweep inside the stage (nested MLflow runs under one parent)::
+
+    python stages/geometric_fit.py -m optimizer=gn,lm
+    python stages/geometric_fit.py -m calibration.noise_mm=0.01,0.015,0.02 hydra/launcher=joblib
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from common import Context, Stage, run
+
+STAGE = Stage(
+    name="geometric_fit",
+    params=("robot", "optimizer", "calibration"),
+    out="reports/geometric",
+    metrics="reports/metrics/geometric_fit.json",
+    plots="reports/plots/geometric_fit",
+)
+#: The stage's input: the prepare stage's interim copy of the campaign.
+INPUT = "data/interim"
+#: Optimizers the geometric fit can use (robocal.identification.solver). Population methods (goa, igoa, woa)
+#: are for the thermal stage.
+GRADIENT_OPTIMIZERS = ("gn", "lm")
+
+
+def calibration_settings(cfg: dict[str, Any]) -> tuple[dict[str, Any], bool]:
+    """The CalibrationConfig mapping from the ``calibration`` and ``optimizer`` sections, and ``report``."""
+    from robocal.errors import ConfigError
+
+    opt = cfg["optimizer"]
+    name = opt.get("name")
+    if name not in GRADIENT_OPTIMIZERS:
+        raise ConfigError(
+            f"The config key 'optimizer.name' must be one of {list(GRADIENT_OPTIMIZERS)} for geometric_fit "
+            f"(Gauss-Newton / Levenberg-Marquardt). Got {name!r} instead."
+        )
+    if opt.get("polish", False):
+        raise ConfigError("The config key 'optimizer.polish' must be false for a gradient optimizer.")
+    settings = dict(cfg["calibration"])
+    report = bool(settings.pop("report", True))
+    for key in ("max_iter", "ftol", "xtol"):
+        if key not in opt:
+            raise ConfigError(f"The config key 'optimizer.{key}' is missing (optimizer {name!r}).")
+        settings[key] = opt[key]
+    return settings, report
+
+
+def metrics_of(summary: dict[str, Any]) -> dict[str, Any]:
+    """The numbers worth comparing across runs: fit and validation errors (mm, deg), sizes, times."""
+    fit = summary["fit"]
+    keep = (
+        "rms_position_mm",
+        "mean_position_mm",
+        "max_position_mm",
+        "rms_orientation_deg",
+        "mean_orientation_deg",
+        "max_orientation_deg",
+        "noise_floor_rms_mm",
+        "chi2",
+        "dof",
+        "nit",
+        "n_rows",
+        "wall_time_s",
+    )
+    out: dict[str, Any] = {"fit": {k: fit[k] for k in keep if isinstance(fit.get(k), int | float)}}
+    out["n_identified"] = summary["n_identified"]
+    out["n_eliminated"] = len(summary["eliminated"])
+    for part in ("validation", "validation_before"):
+        if part in summary:
+            out[part] = {k: v for k, v in summary[part].items() if isinstance(v, int | float)}
+    return out
+
+
+def compute(ctx: Context) -> dict[str, Any]:
+    import pandas as pd
+
+    from robocal.report import plots
+    from robocal.robot import robot_from_dict
+    from robocal.workflows.geometric import run_calibration
+
+    settings, report = calibration_settings(ctx.cfg)
+    robot = robot_from_dict(ctx.cfg["robot"], source="params: robot")
+    summary = run_calibration(ctx.path(INPUT), robot, ctx.out, settings, report=report)
+
+    rows = pd.read_csv(ctx.out / "residuals.csv")
+    cal = rows[rows["split"] == "calibration"]
+    assert ctx.plots is not None
+    plots.save_figure(
+        plots.error_histogram(cal["err_before_mm"].to_numpy(), cal["err_after_mm"].to_numpy()),
+        ctx.plots / "error_histogram.svg",
+    )
+    shown = rows[rows["split"] == "validation"] if (rows["split"] == "validation").any() else cal
+    plots.save_figure(
+        plots.error_per_pose(
+            shown["err_before_mm"].to_numpy(),
+            shown["err_after_mm"].to_numpy(),
+            [f"{p}/{t}" for p, t in zip(shown["pose_id"], shown["target"], strict=True)],
+        ),
+        ctx.plots / "error_per_pose.png",
+    )
+    for name in ("report.html", "calibration.json", "summary.json", "residuals.csv"):
+        ctx.artifact(ctx.out / name)
+    return metrics_of(summary)
+
+
+if __name__ == "__main__":
+    run(STAGE, compute)

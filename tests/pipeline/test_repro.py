@@ -1,0 +1,196 @@
+"""End to end: a tiny `dvc repro` in a temporary copy of the repository.
+
+The copy holds what DVC needs (dvc.yaml, params.yaml, conf/, stages/, src/ as deps, .dvc/config,
+.dvcignore) in a fresh git repository; robocal itself is imported from the virtual environment. The scenario
+is made tiny in the copy's conf/ (30 + 10 poses) and params.yaml regenerated from it, so `dvc exp run` (which
+recomposes params.yaml from conf/) keeps it tiny too. MLflow records into a SQLite file inside the copy.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from robocal.pipeline import params_text, write_params
+
+REPO = Path(__file__).resolve().parents[2]
+STAGES = ["simulate", "prepare", "geometric_fit"]
+pytestmark = pytest.mark.slow
+
+
+def _git(root: Path, *args: str) -> None:
+    subprocess.run(
+        ["git", "-c", "user.name=robocal-test", "-c", "user.email=test@robocal.invalid", *args],
+        cwd=root,
+        check=True,
+        capture_output=True,
+    )
+
+
+def _reproduce(root: Path, **kwargs: Any) -> list[str]:
+    from contextlib import chdir
+
+    from dvc.repo import Repo
+
+    # DVC resolves its default target (dvc.yaml) against the working directory, not the repo root
+    with chdir(root), Repo(str(root)) as repo:
+        return [s.addressing for s in repo.reproduce(**kwargs)]
+
+
+def _runs(uri: str, filter_string: str = "") -> list[Any]:
+    from mlflow.tracking import MlflowClient
+
+    client = MlflowClient(uri)
+    exp = client.get_experiment_by_name("robocal")
+    assert exp is not None, "no MLflow experiment 'robocal'"
+    return list(client.search_runs([exp.experiment_id], filter_string=filter_string, max_results=1000))
+
+
+@pytest.fixture(scope="module")
+def copy(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
+    root = tmp_path_factory.mktemp("repo")
+    ignore = shutil.ignore_patterns("__pycache__", "*.pyc", "*.egg-info")
+    for d in ("conf", "stages", "src"):
+        shutil.copytree(REPO / d, root / d, ignore=ignore)
+    for f in ("dvc.yaml", ".dvcignore", ".dvc/config"):
+        (root / f).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy2(REPO / f, root / f)
+    (root / ".gitignore").write_text("/mlflow.db\n/mlartifacts/\n/reports/sweeps/\n/reports/runs/\n")
+    # a tiny default scenario, in conf/ so that `dvc exp run` keeps it
+    sc = root / "conf" / "scenario" / "geometric.yaml"
+    text = sc.read_text()
+    for key, value in (("n_poses", 30), ("n_validation_poses", 10)):
+        lines = [ln for ln in text.splitlines() if ln.startswith(f"{key}:")]
+        assert len(lines) == 1, key
+        text = text.replace(lines[0], f"{key}: {value}")
+    sc.write_text(text)
+    write_params(root)
+    _git(root, "init", "-q")
+
+    uri = f"sqlite:///{root / 'mlflow.db'}"
+    mp = pytest.MonkeyPatch()
+    mp.setenv("MLFLOW_TRACKING_URI", uri)
+    mp.setenv("PATH", f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}")
+    mp.setenv("DVC_NO_ANALYTICS", "1")
+    mp.setenv("MLFLOW_DISABLE_TELEMETRY", "1")
+    mp.delenv("DVC_ROOT", raising=False)
+    t0 = time.perf_counter()
+    ran = _reproduce(root)
+    seconds = time.perf_counter() - t0
+    print(f"\ntiny dvc repro (3 stages): {seconds:.1f} s")
+    try:
+        yield {"root": root, "uri": uri, "ran": ran, "seconds": seconds}
+    finally:
+        mp.undo()
+
+
+def test_first_repro_runs_every_stage(copy: dict[str, Any]) -> None:
+    root = copy["root"]
+    assert copy["ran"] == STAGES
+    prep = json.loads((root / "data/interim/prepare.json").read_text())
+    assert prep["n_rows"] == 40 and prep["has_temperatures"] is False
+    assert (root / "data/interim/poses.parquet").is_file()
+    report = (root / "reports/geometric/report.html").read_text()
+    assert "<img" in report and "http://" not in report.split("<body", 1)[-1][:200_000].replace("http://www.w3", "")
+    m = json.loads((root / "reports/metrics/geometric_fit.json").read_text())
+    assert m["status"] == "ok" and 0 < m["fit"]["rms_position_mm"] < 0.1
+    assert m["validation"]["mean_position_mm"] < m["validation_before"]["mean_position_mm"]
+    assert sorted(p.name for p in (root / "reports/plots/geometric_fit").iterdir()) == [
+        "error_histogram.svg",
+        "error_per_pose.png",
+    ]
+
+
+def test_second_repro_runs_nothing(copy: dict[str, Any]) -> None:
+    assert _reproduce(copy["root"]) == []
+
+
+def test_one_optimizer_parameter_reruns_only_downstream(copy: dict[str, Any]) -> None:
+    root = copy["root"]
+    params = root / "params.yaml"
+    text = params.read_text()
+    old = "optimizer:\n  name: lm\n  max_iter: 100\n"
+    assert old in text
+    params.write_text(text.replace(old, "optimizer:\n  name: lm\n  max_iter: 50\n"))
+    assert _reproduce(root) == ["geometric_fit"]
+    assert _reproduce(root) == []
+
+
+def test_mlflow_holds_a_run_per_stage_with_metrics(copy: dict[str, Any]) -> None:
+    for stage in STAGES:
+        runs = _runs(copy["uri"], f"tags.`robocal.stage` = '{stage}'")
+        assert runs, stage
+        run = runs[0]
+        assert run.info.status == "FINISHED"
+        assert "wall_time_s" in run.data.metrics, stage
+        assert run.data.tags.get("dvc.stage") == stage
+    fit = _runs(copy["uri"], "tags.`robocal.stage` = 'geometric_fit'")
+    assert len(fit) == 2  # the first repro and the max_iter change
+    newest = fit[0]
+    for key in ("fit.rms_position_mm", "validation.mean_position_mm", "validation.max_position_mm", "fit.chi2"):
+        assert key in newest.data.metrics, key
+    assert newest.data.params["optimizer.max_iter"] == "50"
+    from mlflow.tracking import MlflowClient
+
+    names = {a.path for a in MlflowClient(copy["uri"]).list_artifacts(newest.info.run_id)}
+    assert {"report.html", "plots", "params.yaml", "geometric_fit.json"} <= names
+
+
+def test_hydra_sweep_gives_three_comparable_nested_runs(copy: dict[str, Any]) -> None:
+    root = copy["root"]
+    cmd = [
+        sys.executable,
+        "stages/geometric_fit.py",
+        "-m",
+        "calibration.noise_mm=0.01,0.015,0.02",
+        "hydra/launcher=joblib",
+        "hydra.launcher.n_jobs=2",
+    ]
+    res = subprocess.run(cmd, cwd=root, capture_output=True, text=True, timeout=180)
+    assert res.returncode == 0, res.stderr[-3000:]
+    parents = _runs(copy["uri"], "tags.`robocal.sweep` = 'parent'")
+    assert len(parents) == 1 and parents[0].info.status == "FINISHED"
+    children = _runs(copy["uri"], f"tags.`mlflow.parentRunId` = '{parents[0].info.run_id}'")
+    assert len(children) == 3
+    assert sorted(float(r.data.params["calibration.noise_mm"]) for r in children) == [0.01, 0.015, 0.02]
+    keys = [set(r.data.metrics) for r in children]
+    assert keys[0] == keys[1] == keys[2] and "fit.rms_position_mm" in keys[0]  # comparable side by side
+    # chi² scales as 1/noise²: the three runs differ where they should
+    chi2 = {float(r.data.params["calibration.noise_mm"]): r.data.metrics["fit.chi2"] for r in children}
+    assert chi2[0.01] > chi2[0.015] > chi2[0.02]
+    jobs = sorted((root / "reports/sweeps/geometric_fit").glob("*/[0-9]*"))
+    assert [j.name for j in jobs] == ["0", "1", "2"]
+    assert all((j / "report.html").is_file() and (j / "metrics.json").is_file() for j in jobs)
+    # the sweep neither touched the DVC outputs nor littered the tree
+    assert _reproduce(root) == []
+    assert not (root / "outputs").exists() and not (root / "multirun").exists()
+    assert not list(root.rglob(".hydra")) and not list(root.rglob("*.log"))
+
+
+def test_dvc_exp_run_set_param_switches_the_optimizer(copy: dict[str, Any]) -> None:
+    root = copy["root"]
+    _git(root, "add", "-A")
+    _git(root, "commit", "-q", "-m", "baseline")
+    res = subprocess.run(
+        ["dvc", "exp", "run", "-S", "optimizer=gn", "-n", "gn-test"],
+        cwd=root,
+        capture_output=True,
+        text=True,
+        timeout=180,
+    )
+    assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-2000:]
+    assert "Running stage 'geometric_fit'" in res.stdout
+    assert "Running stage 'simulate'" not in res.stdout and "Running stage 'prepare'" not in res.stdout
+    # DVC recomposed params.yaml from conf/ + the override, byte for byte as our composition
+    assert (root / "params.yaml").read_text() == params_text(root, ["optimizer=gn"])
+    runs = _runs(copy["uri"], "tags.`dvc.exp_name` = 'gn-test'")
+    assert len(runs) == 1 and runs[0].data.params["optimizer.name"] == "gn"

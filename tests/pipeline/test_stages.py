@@ -1,0 +1,204 @@
+"""dvc.yaml and the stage code agree, and the shared runner behaves (fast: no DVC run).
+
+* each stage's ``STAGE`` declaration (params, outs, metrics, plots, cmd) matches its dvc.yaml entry;
+* each stage lists as deps every robocal module it imports, directly or transitively, lazily or not
+  (found statically from the import statements), so an edit to the library reruns exactly the stages using it;
+* the runner: skipped results, undeclared sections, bad config naming the key, tracking failures.
+"""
+
+from __future__ import annotations
+
+import ast
+import importlib.util
+import json
+import sys
+from pathlib import Path
+from types import ModuleType
+from typing import Any
+
+import pytest
+import yaml
+
+REPO = Path(__file__).resolve().parents[2]
+SRC = REPO / "src"
+STAGES_DIR = REPO / "stages"
+DVC = yaml.safe_load((REPO / "dvc.yaml").read_text())["stages"]
+
+
+def _load_stage(name: str) -> ModuleType:
+    if str(STAGES_DIR) not in sys.path:
+        sys.path.insert(0, str(STAGES_DIR))
+    spec = importlib.util.spec_from_file_location(f"_stage_{name}", STAGES_DIR / f"{name}.py")
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def _entries(items: list[Any]) -> list[str]:
+    return [next(iter(x)) if isinstance(x, dict) else str(x) for x in items or []]
+
+
+def _module_file(name: str) -> Path | None:
+    base = SRC.joinpath(*name.split("."))
+    for p in (base.with_suffix(".py"), base / "__init__.py"):
+        if p.is_file():
+            return p
+    return None
+
+
+def _robocal_imports(path: Path) -> set[str]:
+    """Modules ``robocal.*`` imported anywhere in ``path`` (also inside functions and TYPE_CHECKING blocks)."""
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    found: set[str] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            found |= {a.name for a in node.names if a.name.startswith("robocal")}
+        elif isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("robocal"):
+            found.add(node.module)
+            found |= {f"{node.module}.{a.name}" for a in node.names if _module_file(f"{node.module}.{a.name}")}
+    return found
+
+
+def _closure(start: Path) -> set[Path]:
+    todo, seen = [start], set()
+    while todo:
+        for name in _robocal_imports(todo.pop()):
+            parts = name.split(".")
+            for k in range(1, len(parts) + 1):  # importing a.b.c imports a and a.b too
+                f = _module_file(".".join(parts[:k]))
+                if f is not None and f not in seen:
+                    seen.add(f)
+                    todo.append(f)
+    return seen
+
+
+@pytest.mark.parametrize("name", sorted(DVC))
+def test_stage_declaration_matches_dvc_yaml(name: str) -> None:
+    stage = _load_stage(name).STAGE
+    entry = DVC[name]
+    assert stage.name == name
+    assert entry["cmd"] == f"python stages/{name}.py"
+    assert sorted(entry["params"]) == sorted(stage.params), "params in dvc.yaml != STAGE.params"
+    assert _entries(entry["outs"]) == [stage.out]
+    assert _entries(entry["metrics"]) == [stage.metrics]
+    assert _entries(entry.get("plots", [])) == ([stage.plots] if stage.plots else [])
+    for m in entry["metrics"] + entry.get("plots", []):
+        assert next(iter(m.values())) == {"cache": False}
+
+
+@pytest.mark.parametrize("name", sorted(DVC))
+def test_stage_deps_cover_the_code_it_imports(name: str) -> None:
+    deps = [REPO / d for d in DVC[name]["deps"] if "${" not in d]
+    files = {STAGES_DIR / f"{name}.py", STAGES_DIR / "common.py"}
+    files |= _closure(STAGES_DIR / f"{name}.py") | _closure(STAGES_DIR / "common.py")
+    files.discard(SRC / "robocal" / "__init__.py")  # the version string only
+    uncovered = sorted(str(f.relative_to(REPO)) for f in files if not any(f == d or d in f.parents for d in deps))
+    assert not uncovered, f"stage {name!r} imports these files but dvc.yaml does not list them as deps"
+
+
+def test_every_declared_param_section_exists() -> None:
+    params = yaml.safe_load((REPO / "params.yaml").read_text())
+    for name, entry in DVC.items():
+        for section in entry["params"]:
+            assert section in params, (name, section)
+        assert "tracking" not in entry["params"]  # where runs are recorded never reruns a stage
+
+
+# ------------------------------------------------------------------------------------------------ runner
+
+
+def _toy_repo(tmp: Path, params: dict[str, Any]) -> Path:
+    (tmp / "params.yaml").write_text(yaml.safe_dump(params))
+    return tmp
+
+
+def _run(stage: Any, compute: Any, root: Path, argv: list[str] | None = None) -> int:
+    common = sys.modules["common"]
+    try:
+        common.run(stage, compute, argv=argv or [], root=root)
+    except SystemExit as exc:
+        return int(exc.code or 0)
+    return 0
+
+
+@pytest.fixture()
+def common() -> ModuleType:
+    _load_stage("simulate")  # puts stages/ on sys.path and imports common
+    return sys.modules["common"]
+
+
+def test_skipped_stage_completes_with_an_explicit_result(common: ModuleType, tmp_path: Path) -> None:
+    root = _toy_repo(tmp_path, {"thermal": {"a": 1}, "tracking": {"enabled": False}})
+    stage = common.Stage("thermal_fit", ("thermal",), "reports/thermal", "reports/metrics/thermal_fit.json")
+    code = _run(stage, lambda ctx: ctx.skip("the campaign has no temperatures.csv"), root)
+    assert code == 0
+    result = json.loads((root / "reports/thermal/result.json").read_text())
+    assert result == {"status": "skipped", "reason": "the campaign has no temperatures.csv"}
+    metrics = json.loads((root / "reports/metrics/thermal_fit.json").read_text())
+    assert metrics["status"] == "skipped" and metrics["skipped"] == 1
+
+
+def test_reading_an_undeclared_section_names_it(
+    common: ModuleType, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    root = _toy_repo(tmp_path, {"a": {}, "b": {}, "tracking": {"enabled": False}})
+    stage = common.Stage("s", ("a",), "out", "m.json")
+    assert _run(stage, lambda ctx: ctx.cfg["b"], root) == 2
+    err = capsys.readouterr().err
+    assert "stage s: error:" in err and "'b'" in err and "does not declare" in err
+
+
+def test_missing_campaign_is_a_clear_error_naming_the_key(
+    common: ModuleType, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    prepare = _load_stage("prepare")
+    params = yaml.safe_load((REPO / "params.yaml").read_text())
+    params["data"]["campaign"] = "data/raw/no-such-campaign"
+    params["tracking"] = {"enabled": False}
+    root = _toy_repo(tmp_path, params)
+    assert _run(prepare.STAGE, prepare.compute, root) == 2
+    err = capsys.readouterr().err
+    assert "stage prepare: error:" in err
+    assert "'data.campaign'" in err and "no-such-campaign" in err and "does not exist" in err
+    assert not (root / "data" / "interim" / "poses.parquet").exists()
+
+
+def test_geometric_fit_rejects_a_population_optimizer_naming_the_key() -> None:
+    from robocal.errors import ConfigError
+
+    fit = _load_stage("geometric_fit")
+    cfg = {"optimizer": {"name": "goa", "max_iter": 10}, "calibration": {}}
+    with pytest.raises(ConfigError, match=r"'optimizer\.name'.*'goa'"):
+        fit.calibration_settings(cfg)
+    settings, report = fit.calibration_settings(
+        {
+            "optimizer": {"name": "gn", "max_iter": 7, "ftol": 1e-9, "xtol": 1e-8, "polish": False},
+            "calibration": {"noise_mm": 0.02, "report": False},
+        }
+    )
+    assert settings == {"noise_mm": 0.02, "max_iter": 7, "ftol": 1e-9, "xtol": 1e-8} and report is False
+
+
+def test_mlflow_failure_keeps_the_results_and_is_printed(
+    common: ModuleType, tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    blocker = tmp_path / "not-a-dir"
+    blocker.write_text("x")
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{blocker}/mlflow.db")  # cannot be created
+    root = _toy_repo(tmp_path, {"a": {"x": 1}, "tracking": {"enabled": True, "required": False}})
+    stage = common.Stage("s", ("a",), "out", "reports/metrics/s.json")
+
+    def compute(ctx: Any) -> dict[str, Any]:
+        (ctx.out / "result.txt").write_text("42")
+        return {"answer": 42}
+
+    assert _run(stage, compute, root) == 0
+    assert (root / "out/result.txt").read_text() == "42"
+    assert json.loads((root / "reports/metrics/s.json").read_text())["answer"] == 42
+    assert "robocal tracking: start run failed" in capsys.readouterr().err
+    # required tracking: the files are still written, then the stage fails
+    (root / "params.yaml").write_text(yaml.safe_dump({"a": {"x": 2}, "tracking": {"required": True}}))
+    (root / "out/result.txt").unlink()
+    assert _run(stage, compute, root) != 0
+    assert (root / "out/result.txt").read_text() == "42"

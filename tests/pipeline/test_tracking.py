@@ -1,0 +1,100 @@
+"""robocal.tracking: where runs go, what is logged, and that MLflow trouble never costs a stage its results."""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import sqlite3
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from robocal import tracking
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def test_import_robocal_does_not_import_mlflow() -> None:
+    code = "import sys, robocal, robocal.tracking, robocal.pipeline; print('mlflow' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
+
+
+def test_uri_default_env_and_relative(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    monkeypatch.delenv("MLFLOW_TRACKING_URI", raising=False)
+    monkeypatch.delenv("DVC_ROOT", raising=False)
+    assert tracking.tracking_uri() == f"sqlite:///{REPO / 'mlflow.db'}"
+    # DVC sets DVC_ROOT to the parent repository for queued experiments: runs must land there
+    monkeypatch.setenv("DVC_ROOT", str(tmp_path))
+    assert tracking.tracking_uri() == f"sqlite:///{tmp_path / 'mlflow.db'}"
+    assert tracking.tracking_uri("sqlite:///sub/x.db") == f"sqlite:///{tmp_path / 'sub' / 'x.db'}"
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", "http://127.0.0.1:5999")
+    assert tracking.tracking_uri("sqlite:///ignored.db") == "http://127.0.0.1:5999"
+    assert tracking.artifact_location(f"sqlite:///{tmp_path}/m.db") == (tmp_path / "mlartifacts").as_uri()
+
+
+def test_flatten_and_numeric_metrics() -> None:
+    cfg = {"a": {"b": 1, "c": [1, 2]}, "joints": [{"x": 1}], "s": "t", "n": None}
+    assert tracking.flatten(cfg) == {"a.b": 1, "a.c": "[1, 2]", "s": "t", "n": None}
+    m = tracking.numeric_metrics({"fit": {"rms_mm": 0.1, "ok": True, "name": "x", "bad": float("nan")}, "k": 3})
+    assert m == {"fit.rms_mm": 0.1, "fit.ok": 1.0, "k": 3.0}
+
+
+def _ensure(uri: str) -> str:
+    return tracking.ensure_store(uri, "robocal")
+
+
+def test_a_new_sqlite_store_survives_parallel_first_use(tmp_path: Path) -> None:
+    # a brand-new SQLite file raced by parallel writers fails without the lock in ensure_store
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    with mp.get_context("spawn").Pool(3) as pool:
+        ids = pool.map(_ensure, [uri] * 3)
+    assert len(set(ids)) == 1
+    with sqlite3.connect(tmp_path / "mlflow.db") as con:
+        assert con.execute("select count(*) from experiments where name = 'robocal'").fetchone()[0] == 1
+
+
+def test_run_logs_params_metrics_artifacts_and_nests(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from mlflow.tracking import MlflowClient
+
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", uri)
+    monkeypatch.setenv("DVC_EXP_NAME", "exp-1")
+    (tmp_path / "report.html").write_text("<html></html>")
+    parent = tracking.start_sweep("fit", ["x=1,2"])
+    with tracking.StageRun("fit") as run:
+        run.log_params({"optimizer": {"name": "lm", "max_iter": 100}})
+        run.log_metrics({"fit": {"rms_position_mm": 0.02}, "status": "ok"})
+        run.log_artifact(tmp_path / "report.html")
+    tracking.end_sweep(parent)
+    client = MlflowClient(uri)
+    child = client.get_run(run.run_id)
+    assert child.data.params["optimizer.max_iter"] == "100"
+    assert child.data.metrics == {"fit.rms_position_mm": 0.02}
+    assert child.data.tags["mlflow.parentRunId"] == parent.run_id
+    assert child.data.tags["dvc.exp_name"] == "exp-1"
+    assert child.data.tags["robocal.stage"] == "fit"
+    assert child.info.status == "FINISHED"
+    assert [a.path for a in client.list_artifacts(run.run_id)] == ["report.html"]
+    assert client.get_run(parent.run_id).info.status == "FINISHED"
+
+
+def test_mlflow_errors_are_printed_not_fatal(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    blocker = tmp_path / "file"
+    blocker.write_text("not a directory")
+    run = tracking.StageRun("fit", uri=f"sqlite:///{blocker}/sub/mlflow.db").start()
+    run.log_metrics({"a": 1.0})
+    run.close()
+    assert run.run_id is None and run.errors
+    assert "robocal tracking: start run failed" in capsys.readouterr().err
+    required = tracking.StageRun("fit", uri=f"sqlite:///{blocker}/sub/mlflow.db", required=True).start()
+    with pytest.raises(tracking.TrackingError, match="required"):
+        required.close()
+
+
+def test_disabled_tracking_does_nothing(tmp_path: Path) -> None:
+    run = tracking.StageRun("fit", enabled=False, uri=f"sqlite:///{tmp_path / 'm.db'}", required=True).start()
+    run.log_metrics({"a": 1.0})
+    run.close()
+    assert run.run_id is None and not (tmp_path / "m.db").exists()
