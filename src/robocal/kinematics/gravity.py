@@ -1,0 +1,170 @@
+"""Static gravity torques on the joints from link masses, centres of mass and a payload.
+
+The torque gravity exerts about joint ``j`` (the *load torque*, N·m) is
+
+    tau_j = u_j · sum_{k >= j} (c_k - o_j) x (m_k g)  (+ the payload's term),
+
+``u_j`` the joint's world axis, ``o_j`` a point on it, ``c_k`` the centre of mass of body ``k`` (the body moved
+by joint ``k``) and ``g`` gravity in the base frame (m/s²). Equivalently ``tau_j = -dV/dq_j`` with the potential
+energy ``V = -sum_k m_k g · c_k`` (the tests check the two against each other).
+
+Sign convention used throughout robocal's compliance work: a positive load torque turns joint ``j`` in its
+positive direction, so a reducer of stiffness ``k_j`` deflects by ``+tau_j / k_j``. The torque a drive must
+supply to hold the arm is ``-tau_j``; drives that report that sign simply give compliances of the opposite sign.
+
+Body frames: the centre of mass of body ``i`` (``RobotDescription.link_com_mm[i]``) is given in joint ``i``'s
+frame as :func:`robocal.kinematics.chain.build_chain` builds it: for MD-H the frame after link ``i``'s
+elements (``Rot_x Trans_x Rot_z Trans_z [Rot_y]``); for POE the frame on axis ``i`` (z along the axis) right
+after the joint rotation. The payload's centre of mass is in the flange frame.
+
+Everything is vectorised over poses: ``q`` is ``(m, n)`` rad, the result ``(m, n)`` N·m.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from robocal.kinematics.chain import FIXED, Chain, build_chain, propagate
+from robocal.robot import RobotDescription
+
+MM = 1e-3  # m per mm
+
+
+def body_frame_boundaries(chain: Chain, convention_mdh: bool) -> list[int]:
+    """Element index just after body ``i``'s frame, one per joint: the frame is the chain state before it.
+
+    MD-H: before link ``i + 1``'s first element (``alpha{i+2}``), the chain end for the last link.
+    POE: before the FIXED element following joint ``i``'s rotation (the axis-to-axis transform or the flange).
+    """
+    n = chain.n_joints
+    out: list[int] = []
+    if convention_mdh:
+        names = chain.param_names
+        for i in range(n):
+            if i == n - 1:
+                out.append(len(chain.kinds))
+                continue
+            p = names.index(f"alpha{i + 2}")
+            out.append(int(np.flatnonzero(chain.param == p)[0]))
+        return out
+    joint_el = [int(np.flatnonzero(chain.joint == i)[0]) for i in range(n)]
+    for i in range(n):
+        nxt = [e for e in range(joint_el[i] + 1, len(chain.kinds)) if chain.kinds[e] == FIXED]
+        out.append(nxt[0] if nxt else len(chain.kinds))
+    return out
+
+
+def _prefix(chain: Chain, e: int) -> Chain:
+    return Chain(
+        kinds=chain.kinds[:e],
+        nominal=chain.nominal[:e],
+        joint=chain.joint[:e],
+        param=chain.param[:e],
+        fixed=chain.fixed[:e],
+        param_names=chain.param_names,
+        n_joints=chain.n_joints,
+    )
+
+
+def gravity_torques(
+    robot: RobotDescription,
+    q: np.ndarray,
+    payload_kg: np.ndarray | float = 0.0,
+    *,
+    eta: np.ndarray | None = None,
+    chain: Chain | None = None,
+    link_mass_kg: np.ndarray | None = None,
+    link_com_mm: np.ndarray | None = None,
+    payload_com_mm: np.ndarray | None = None,
+    gravity: np.ndarray | None = None,
+) -> np.ndarray:
+    """Gravity load torques ``(m, n)`` N·m at joint angles ``q``.
+
+    Parameters
+    ----------
+    robot : RobotDescription
+        Supplies the kinematics and, unless overridden, the masses (``robot.has_dynamics`` must hold).
+    q : ndarray, shape (m, n)
+        Joint angles, rad (the true / deflected angles when known; the difference is second order).
+    payload_kg : float or ndarray, shape (m,)
+        Payload mass on the flange per pose, kg (its centre of mass at ``payload_com_mm``, flange frame).
+    eta : ndarray, shape (P,), optional
+        Kinematic parameter errors (default nominal); millimetres do not matter for torques.
+    chain : Chain, optional
+        ``build_chain(robot)``, to avoid rebuilding it.
+    link_mass_kg, link_com_mm, payload_com_mm, gravity : optional overrides of the robot's values
+        (e.g. the twin's "true" masses), shapes (n,), (n, 3), (3,), (3,) in kg, mm, mm, m/s².
+    """
+    q = np.asarray(q, dtype=float)
+    n = robot.n_joints
+    if q.ndim != 2 or q.shape[1] != n:
+        raise ValueError(f"The 'q' parameter of gravity_torques must have shape (m, {n}). Got {q.shape} instead.")
+    m = q.shape[0]
+    mass = robot.link_mass_kg if link_mass_kg is None else np.asarray(link_mass_kg, dtype=float)
+    com = robot.link_com_mm if link_com_mm is None else np.asarray(link_com_mm, dtype=float)
+    if mass is None or com is None:
+        raise ValueError(
+            f"robot {robot.name!r} has no dynamics (link masses and centres of mass): add a 'dynamics' section "
+            "to its description or pass link_mass_kg and link_com_mm"
+        )
+    if mass.shape != (n,) or com.shape != (n, 3):
+        raise ValueError(
+            f"link_mass_kg must have shape ({n},) and link_com_mm ({n}, 3). Got {mass.shape} and {com.shape}."
+        )
+    pcom = robot.payload_com_mm if payload_com_mm is None else np.asarray(payload_com_mm, dtype=float)
+    g = robot.gravity if gravity is None else np.asarray(gravity, dtype=float)
+    pl = np.broadcast_to(np.asarray(payload_kg, dtype=float), (m,))
+    ch = chain if chain is not None else build_chain(robot)
+
+    # joint axes and points on them (world = base frame)
+    st = propagate(ch, q, eta, record=True)
+    joint_el = [int(np.flatnonzero(ch.joint == j)[0]) for j in range(n)]
+    u = np.stack([np.broadcast_to(np.asarray(st.axes[e]), (m, 3)) for e in joint_el], axis=1)  # (m, n, 3)
+    o = np.stack([np.broadcast_to(np.asarray(st.origins[e]), (m, 3)) for e in joint_el], axis=1)  # (m, n, 3)
+
+    # centres of mass (m, n + 1, 3) in mm and their weights (m, n + 1, 3) in N
+    bounds = body_frame_boundaries(ch, robot.is_mdh)
+    c = np.empty((m, n + 1, 3))
+    for i, e in enumerate(bounds):
+        s = propagate(_prefix(ch, e), q, eta)
+        c[:, i] = s.o + s.x * com[i, 0] + s.y * com[i, 1] + s.z * com[i, 2]
+    c[:, n] = st.o + st.x * pcom[0] + st.y * pcom[1] + st.z * pcom[2]
+    w = np.concatenate([np.broadcast_to(mass, (m, n)), pl[:, None]], axis=1)[..., None] * g  # (m, n + 1, 3)
+
+    tau = np.zeros((m, n))
+    for j in range(n):
+        r = (c[:, j:] - o[:, j : j + 1]) * MM  # bodies j..n and the payload, metres
+        mom = np.cross(r, w[:, j:]).sum(axis=1)  # (m, 3) N·m
+        tau[:, j] = np.einsum("mi,mi->m", u[:, j], mom)
+    return tau
+
+
+def potential_energy(
+    robot: RobotDescription,
+    q: np.ndarray,
+    payload_kg: np.ndarray | float = 0.0,
+    *,
+    chain: Chain | None = None,
+) -> np.ndarray:
+    """Gravitational potential energy ``(m,)`` J (for checks: ``tau = -dV/dq``)."""
+    q = np.asarray(q, dtype=float)
+    n = robot.n_joints
+    assert robot.link_mass_kg is not None and robot.link_com_mm is not None
+    ch = chain if chain is not None else build_chain(robot)
+    m = q.shape[0]
+    pl = np.broadcast_to(np.asarray(payload_kg, dtype=float), (m,))
+    V = np.zeros(m)
+    for i, e in enumerate(body_frame_boundaries(ch, robot.is_mdh)):
+        s = propagate(_prefix(ch, e), q)
+        cm = robot.link_com_mm[i]
+        c = s.o + s.x * cm[0] + s.y * cm[1] + s.z * cm[2]
+        V -= robot.link_mass_kg[i] * (c * MM) @ robot.gravity
+    st = propagate(ch, q)
+    pc = robot.payload_com_mm
+    c = st.o + st.x * pc[0] + st.y * pc[1] + st.z * pc[2]
+    V -= pl * ((c * MM) @ robot.gravity)
+    del n
+    return V
+
+
+__all__ = ["body_frame_boundaries", "gravity_torques", "potential_energy"]
