@@ -1,0 +1,1 @@
+"""Temperature-dependent kinematics: thermal model, sensitivity screening, compensation and validation."""

@@ -1,0 +1,149 @@
+"""ThermalModel persistence / evaluation and the per-parameter regression on synthetic drift with known truth."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from robocal.thermal.model import ParameterModel, ThermalModel, design, monomials
+from robocal.thermal.regression import RegressionConfig, fit_parameter
+
+
+def _model() -> ThermalModel:
+    p1 = ParameterModel(
+        "d1",
+        "length",
+        "expansion",
+        ("T_a_C",),
+        ((1,),),
+        np.array([0.01]),
+        np.array([1e-3]),
+        np.eye(1) * 1e-6,
+        nominal=675.0,
+    )
+    p2 = ParameterModel(
+        "theta4",
+        "angle",
+        "polynomial",
+        ("T_a_C", "T_b_C"),
+        tuple(monomials(2, 2)),
+        np.array([1e-5, -2e-5, 1e-7, 0.0, 3e-7]),
+        np.full(5, 1e-7),
+        np.eye(5) * 1e-14,
+    )
+    return ThermalModel(
+        "r",
+        ("d1", "a1", "theta4"),
+        ("T_a_C", "T_b_C"),
+        np.array([20.0, 21.0]),
+        np.array([[20.0, 30.0], [21.0, 29.0]]),
+        (p1, p2),
+    )
+
+
+def test_monomials_count_and_order() -> None:
+    # C(s + p, p) - 1 monomials of order 1..p (eq. 7 without the constant)
+    assert len(monomials(3, 2)) == 9
+    assert monomials(2, 2) == [(1, 0), (0, 1), (2, 0), (1, 1), (0, 2)]
+    X = design(np.array([[2.0, 3.0]]), monomials(2, 2))
+    assert np.allclose(X, [[2, 3, 4, 6, 9]])
+
+
+def test_deta_chain_order_and_round_trip(tmp_path) -> None:
+    m = _model()
+    T = np.array([[25.0, 23.0], [20.0, 21.0]])
+    d = m.deta(T)
+    assert d.shape == (2, 3)
+    x1, x2 = 5.0, 2.0
+    assert d[0, 0] == pytest.approx(0.01 * x1)
+    assert d[0, 1] == 0.0  # a1 has no model
+    assert d[0, 2] == pytest.approx(1e-5 * x1 - 2e-5 * x2 + 1e-7 * x1**2 + 3e-7 * x2**2)
+    assert np.all(d[1] == 0.0)  # at the reference temperatures there is no drift
+    p = tmp_path / "m.json"
+    from robocal.io import write_json
+
+    write_json(p, m.to_dict())
+    m2 = ThermalModel.from_json(p)
+    assert np.array_equal(m2.deta(T), d)
+    assert m2.parameter("d1").lambda_per_C == pytest.approx(0.01 / 675.0)
+    assert m.out_of_range(np.array([[31.0, 25.0]])).tolist() == [[True, False]]
+    with pytest.raises(ValueError, match=r"shape \(m, 2\)"):
+        m.deta(np.zeros((2, 3)))
+    assert "Δd1 = 0.01 × (t_a − 20.00)" in m.equations()[0]
+
+
+def _warm_up(n: int = 6) -> np.ndarray:
+    """Sensor differences of a first-order warm-up at 30..180 min: (n, 3)."""
+    t = np.arange(1, n + 1) * 30.0
+    rise, tau = np.array([10.0, 7.0, 9.0]), np.array([35.0, 60.0, 45.0])
+    return rise * (1 - np.exp(-t[:, None] / tau))
+
+
+def _noise(rng: np.random.Generator, n: int, v: float) -> np.ndarray:
+    # the structure of identified drift: a shared reference error plus one error per state, each of variance v
+    return rng.normal(0, np.sqrt(v)) + rng.normal(0, np.sqrt(v), n)
+
+
+def test_expansion_coefficient_coverage() -> None:
+    """The stated standard error covers the truth as often as it should (Monte Carlo, known sensor)."""
+    x = _warm_up()
+    sensors = ("T_a_C", "T_b_C", "T_c_C")
+    c_true, v = 0.012, 0.004**2
+    rng = np.random.default_rng(3)
+    z = []
+    for _ in range(300):
+        y = c_true * x[:, 1] + _noise(rng, len(x), v)
+        out = fit_parameter("d1", "length", x, y, v, sensors, ["T_b_C"], RegressionConfig(allow_none=False))
+        assert out.model is not None
+        z.append((out.model.coefficients[0] - c_true) / out.model.stderr[0])
+    z = np.abs(np.array(z))
+    # nominal 95 % at |z| < 1.96; the error is scaled up by max(1, reduced chi2) so the coverage is >= nominal;
+    # 300 draws give a binomial spread of ~1.3 %: accept 0.92..0.995
+    assert 0.92 <= np.mean(z < 1.96) <= 0.995
+
+
+def test_polynomial_selection_and_recovery() -> None:
+    """CV picks the true sensors and order when the signal is clear; coefficients within 3 std. errors."""
+    x = _warm_up()
+    sensors = ("T_a_C", "T_b_C", "T_c_C")
+    # theta = a * x_a + b * x_a^2 (rad), with small state noise
+    a, b, v = 6e-5, 3e-6, (2e-6) ** 2
+    rng = np.random.default_rng(0)
+    hits = 0
+    for _ in range(20):
+        y = a * x[:, 0] + b * x[:, 0] ** 2 + _noise(rng, len(x), v)
+        out = fit_parameter(
+            "theta6", "angle", x, y, v, sensors, list(sensors), RegressionConfig(), forms=("polynomial",)
+        )
+        m = out.model
+        assert m is not None
+        if m.sensors == ("T_a_C",) and m.terms == ((1,), (2,)):
+            hits += 1
+            z = (m.coefficients - [a, b]) / m.stderr
+            assert np.all(np.abs(z) < 3.5)  # 3.5 sigma: two coefficients, 20 draws, no false alarm expected
+    assert hits >= 15  # the other sensors' curves differ in time constant: the right model should usually win
+
+
+def test_no_drift_for_pure_noise() -> None:
+    """A parameter that does not move gets no model (the chi2 test at alpha = 1e-3) in almost every draw."""
+    x = _warm_up()
+    sensors = ("T_a_C", "T_b_C", "T_c_C")
+    rng = np.random.default_rng(1)
+    v = 1e-6
+    fitted = sum(
+        fit_parameter(
+            "alpha1",
+            "angle",
+            x,
+            _noise(rng, 6, v),
+            v,
+            sensors,
+            list(sensors),
+            RegressionConfig(),
+            forms=("polynomial",),
+        ).model
+        is not None
+        for _ in range(100)
+    )
+    # alpha = 1e-3 per test, but the best of ~20 candidate models is tested: allow a few false models in 100
+    assert fitted <= 5
