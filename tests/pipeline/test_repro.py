@@ -24,7 +24,7 @@ import yaml
 from robocal.pipeline import params_text, write_params
 
 REPO = Path(__file__).resolve().parents[2]
-#: every stage of dvc.yaml: on the default (purely geometric) campaign the later ones complete as "skipped"
+#: every stage of dvc.yaml (the default campaign is the thermal warm-up: all of them have work to do)
 STAGES = list(yaml.safe_load((REPO / "dvc.yaml").read_text())["stages"])
 pytestmark = pytest.mark.slow
 
@@ -67,10 +67,12 @@ def copy(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
         (root / f).parent.mkdir(parents=True, exist_ok=True)
         shutil.copy2(REPO / f, root / f)
     (root / ".gitignore").write_text("/mlflow.db\n/mlartifacts/\n/reports/sweeps/\n/reports/runs/\n")
-    # a tiny default scenario, in conf/ so that `dvc exp run` keeps it
-    sc = root / "conf" / "scenario" / "geometric.yaml"
+    # a tiny default scenario, in conf/ so that `dvc exp run` keeps it (12 + 6 poses at each of the 7 states)
+    default = yaml.safe_load((REPO / "conf" / "config.yaml").read_text())["defaults"]
+    assert {"scenario": "thermal"} in default
+    sc = root / "conf" / "scenario" / "thermal.yaml"
     text = sc.read_text()
-    for key, value in (("n_poses", 30), ("n_validation_poses", 10)):
+    for key, value in (("n_poses", 12), ("n_validation_poses", 6)):
         lines = [ln for ln in text.splitlines() if ln.startswith(f"{key}:")]
         assert len(lines) == 1, key
         text = text.replace(lines[0], f"{key}: {value}")
@@ -100,11 +102,14 @@ def test_first_repro_runs_every_stage(copy: dict[str, Any]) -> None:
     ran = copy["ran"]
     assert sorted(ran) == sorted(STAGES)
     assert ran.index("simulate") < ran.index("prepare") < ran.index("geometric_fit")
-    for stage in STAGES[3:]:  # nothing to do on a purely geometric campaign: an explicit skipped result
-        m = json.loads((root / f"reports/metrics/{stage}.json").read_text())
-        assert m["status"] in ("ok", "skipped"), (stage, m)
+    assert ran.index("thermal_fit") < ran.index("screen") < ran.index("validate")
+    status = {s: json.loads((root / f"reports/metrics/{s}.json").read_text())["status"] for s in STAGES}
+    # the warm-up has temperatures but no payload: only compliance_fit has nothing to do
+    assert status == {s: ("skipped" if s == "compliance_fit" else "ok") for s in STAGES}
+    val = json.loads((root / "reports/metrics/validate.json").read_text())
+    assert val["validation"]["proposed"]["mean_position_mm"] < val["validation"]["none"]["mean_position_mm"], val
     prep = json.loads((root / "data/interim/prepare.json").read_text())
-    assert prep["n_rows"] == 40 and prep["has_temperatures"] is False
+    assert prep["n_rows"] == (12 + 6) * 7 and prep["has_temperatures"] is True
     assert (root / "data/interim/poses.parquet").is_file()
     report = (root / "reports/geometric/report.html").read_text()
     assert "<img" in report and "http://" not in report.split("<body", 1)[-1][:200_000].replace("http://www.w3", "")
@@ -128,7 +133,9 @@ def test_one_optimizer_parameter_reruns_only_downstream(copy: dict[str, Any]) ->
     old = "optimizer:\n  name: lm\n  max_iter: 100\n"
     assert old in text
     params.write_text(text.replace(old, "optimizer:\n  name: lm\n  max_iter: 50\n"))
-    assert _reproduce(root) == ["geometric_fit"]
+    ran = _reproduce(root)
+    # the geometric fit and what reads its result; not the twin, the data door or the thermal chain
+    assert ran[0] == "geometric_fit" and set(ran) <= {"geometric_fit", "discover"}, ran
     assert _reproduce(root) == []
 
 
@@ -201,3 +208,16 @@ def test_dvc_exp_run_set_param_switches_the_optimizer(copy: dict[str, Any]) -> N
     assert (root / "params.yaml").read_text() == params_text(root, ["optimizer=gn"])
     runs = _runs(copy["uri"], "tags.`dvc.exp_name` = 'gn-test'")
     assert len(runs) == 1 and runs[0].data.params["optimizer.name"] == "gn"
+
+
+def test_a_campaign_without_temperatures_skips_the_thermal_stages(copy: dict[str, Any]) -> None:
+    """The purely geometric twin has no temperature log: thermal_fit, screen and validate say so, and complete."""
+    root = copy["root"]
+    write_params(root, ["scenario=geometric"])
+    ran = _reproduce(root)
+    assert "simulate" in ran and "thermal_fit" in ran
+    for stage in ("thermal_fit", "screen", "validate"):
+        m = json.loads((root / f"reports/metrics/{stage}.json").read_text())
+        assert m["status"] == "skipped" and "temperature" in m["reason"], (stage, m)
+    assert json.loads((root / "reports/metrics/geometric_fit.json").read_text())["status"] == "ok"
+    assert _reproduce(root) == []
