@@ -50,6 +50,7 @@ class Rows:
     dq: np.ndarray
     deta: np.ndarray
     columns: dict[str, np.ndarray] = field(default_factory=dict)
+    dp_tracker_mm: np.ndarray | None = None  # (m, 3) tracker-frame displacement of the measured points (drift)
 
 
 @dataclass
@@ -327,6 +328,8 @@ def simulate(
         t = tools[rows.target_index[sel]]
         p[sel] = st.o + st.x * t[:, 0:1] + st.y * t[:, 1:2] + st.z * t[:, 2:3]
         R[sel] = st.R @ tool_R[rows.target_index[sel]]
+    if rows.dp_tracker_mm is not None:
+        p = p + rows.dp_tracker_mm
     noise = rng("noise")
     sigma = truth["noise_mm"]
     p_meas = p + noise.normal(0, sigma, p.shape)

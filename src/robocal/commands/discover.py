@@ -1,0 +1,37 @@
+"""``robocal discover DATA_DIR --robot NAME_OR_YAML --out DIR [key=value ...]``."""
+
+from __future__ import annotations
+
+import argparse
+
+from robocal.commands import parse_overrides
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("data_dir", help="campaign directory in the data contract")
+    p.add_argument("--robot", required=True, help="robot name (conf/robot/<name>.yaml) or a YAML path")
+    p.add_argument("--out", required=True, help="output directory: discovery.json, report.html")
+    p.add_argument("--no-report", action="store_true", help="skip the HTML report")
+    p.add_argument(
+        "overrides",
+        nargs="*",
+        help="discovery settings key=value, e.g. noise_mm=0.02 alpha=0.001 'effects=[gear,backlash]' split.method=none",
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    from robocal.discovery.workflow import run_discovery
+
+    ov = parse_overrides(args.overrides)
+    split = ov.pop("split", None)
+    s = run_discovery(args.data_dir, args.robot, args.out, ov, split=split, report=not args.no_report)
+    named = ", ".join(
+        n["effect"] + (f" j{n['joint']}" if n["joint"] else "") + (f" h{n['harmonic']}" if n["harmonic"] else "")
+        for n in s["named"]
+    )
+    print(
+        f"discover: named [{named or 'nothing'}]; RMS {s['rms_before_mm']:.4f} -> {s['rms_after_mm']:.4f} mm "
+        f"(noise floor {s['noise_floor_mm']:.4f}); unexplained: {s['unexplained']}"
+    )
+    print(f"wrote {args.out}/discovery.json")
+    return 0

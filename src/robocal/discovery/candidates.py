@@ -1,0 +1,261 @@
+"""The library of candidate effects: physical cause, signals, and regressor in error-Jacobian form.
+
+Every candidate adds a few coefficients ``c`` to the calibration model. Three shapes:
+
+- ``joint``: a joint-angle error ``dq_j(row) = S(row) · c`` on one joint (compliance: ``S`` = torque, current or
+  gravity torque; gear: ``sin(h q_j), cos(h q_j)``; backlash: the approach direction ``dir_j``). Its regressor is
+  the position Jacobian column of joint ``j`` times the signal: ``dp = J_q[:, :, j] · S c``.
+- ``param``: per-row drift of calibration parameters ``x_i(row) = x_i + S_i(row) · c_i`` (thermal: every
+  identifiable parameter follows the temperature signals; drift: the tracker/base frame moves with time).
+  Regressor ``J_x[:, :, i] · S_i``. The drift is small, so the extended model adds it to first order.
+- ``structure``: a kinematic parameter the model leaves out (Hayati ``beta`` on a parallel joint pair).
+
+All signals are built for every row of the campaign (calibration and validation), so the extended model
+can predict held-out rows. A candidate whose signal is missing or does not vary is returned in the skipped list
+with the reason.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from robocal.data.contract import Campaign
+from robocal.discovery.config import DiscoveryConfig
+from robocal.robot import RobotDescription
+
+HOUR_S = 3600.0
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One candidate effect.
+
+    key : unique id (``gear:j4:h1``); effect : family name; joint / harmonic : 1-based or None;
+    cause : the physical cause; signal : what drives it; shape : ``joint`` | ``param`` | ``structure``;
+    S : (m_all, k) signal matrix for ``joint`` shape, (m_all, s) for ``param`` (one coefficient per
+    parameter and signal column); coef_names : names of the coefficients (for ``param`` shape filled when the
+    model's parameters are known); coef_units : their units; scale : display factor per coefficient.
+    """
+
+    key: str
+    effect: str
+    joint: int | None
+    harmonic: int | None
+    cause: str
+    signal: str
+    shape: str
+    S: np.ndarray
+    coef_names: tuple[str, ...] = ()
+    coef_units: tuple[str, ...] = ()
+    params: tuple[str, ...] = ()  # param shape: which calibration parameters drift ("*identified*" = all)
+    signal_names: tuple[str, ...] = ()
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def label(self) -> str:
+        out = self.effect
+        if self.joint is not None:
+            out += f" joint {self.joint}"
+        if self.harmonic is not None:
+            out += f" harmonic {self.harmonic}"
+        return out
+
+
+@dataclass(frozen=True)
+class SkippedCandidate:
+    key: str
+    effect: str
+    joint: int | None
+    reason: str
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"key": self.key, "effect": self.effect, "joint": self.joint, "reason": self.reason}
+
+
+def _varies(x: np.ndarray, tol: float) -> bool:
+    return bool(np.all(np.isfinite(x)) and np.std(x) > tol)
+
+
+def compliance_signal(campaign: Campaign, robot: RobotDescription, j: int) -> tuple[np.ndarray | None, str, str, str]:
+    """Signal for the compliance of joint ``j`` (0-based): reported torque, else current, else gravity torque.
+
+    Returns ``(values (m,), description, coefficient unit, why None)``.
+    """
+    if campaign.tau_Nm is not None:
+        return campaign.tau_Nm[:, j], f"reported torque tau{j + 1}_Nm", "rad/N·m", ""
+    if campaign.current_A is not None:
+        return campaign.current_A[:, j], f"motor current i{j + 1}_A", "rad/A", ""
+    if robot.has_dynamics:
+        from robocal.kinematics.gravity import gravity_torques
+
+        tau = gravity_torques(robot, campaign.q, campaign.payload_kg)
+        return tau[:, j], "gravity torque from link masses and payload (robot description)", "rad/N·m", ""
+    return None, "", "", "no torques, no currents and no link masses (dynamics) in the robot description"
+
+
+def _temperature_signals(campaign: Campaign, n_comp: int) -> tuple[np.ndarray, tuple[str, ...], str]:
+    """Principal components of the rows' temperature changes (°C), up to ``n_comp`` with real variance."""
+    assert campaign.temperatures is not None
+    T = np.asarray(campaign.temperatures, dtype=float)
+    dT = T - T.mean(axis=0)
+    _U, s, Vt = np.linalg.svd(dT, full_matrices=False)
+    # keep components above the sensor-noise level: a singular value must exceed 1 % of the first
+    keep = [k for k in range(min(n_comp, len(s))) if s[k] > 0.01 * s[0]]
+    S = dT @ Vt[keep].T  # (m, k) °C
+    names = tuple(f"PC{k + 1}" for k in keep)
+    load = "; ".join(
+        f"PC{k + 1} = " + " + ".join(f"{Vt[k, i]:.2f}·{campaign.sensor_names[i]}" for i in range(len(Vt[k])))
+        for k in keep
+    )
+    return S, names, load
+
+
+def _parallel_joints(robot: RobotDescription) -> list[int]:
+    """0-based joints ``j`` whose axis is parallel to the next one (MD-H ``alpha_{j+1}`` ≡ 0 mod π)."""
+    if not robot.is_mdh:
+        return []
+    out = []
+    for j in range(robot.n_joints - 1):
+        a = float(np.mod(robot.alpha[j + 1], np.pi))
+        if min(a, np.pi - a) < np.deg2rad(1.0):
+            out.append(j)
+    return out
+
+
+def build_library(
+    campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig
+) -> tuple[list[Candidate], list[SkippedCandidate]]:
+    """Every candidate of the configured effects for this campaign, and the skipped ones with reasons."""
+    n = robot.n_joints
+    tol = cfg.min_signal_std
+    cands: list[Candidate] = []
+    skipped: list[SkippedCandidate] = []
+    q = campaign.q
+    for effect in cfg.effects:
+        if effect == "compliance":
+            for j in range(n):
+                key = f"compliance:j{j + 1}"
+                sig, desc, unit, why = compliance_signal(campaign, robot, j)
+                if sig is None:
+                    skipped.append(SkippedCandidate(key, effect, j + 1, why))
+                elif not _varies(sig, max(tol, 1e-6)):
+                    skipped.append(SkippedCandidate(key, effect, j + 1, f"the signal ({desc}) does not vary"))
+                else:
+                    cands.append(
+                        Candidate(
+                            key, effect, j + 1, None,
+                            cause=f"torsional elasticity of the joint-{j + 1} reducer under load (dq = c·tau)",
+                            signal=desc, shape="joint", S=sig[:, None],
+                            coef_names=("c",), coef_units=(unit,),
+                        )
+                    )  # fmt: skip
+        elif effect == "gear":
+            for j in range(n):
+                rng = float(np.ptp(q[:, j]))
+                for h in cfg.gear_harmonics:
+                    key = f"gear:j{j + 1}:h{h}"
+                    if rng < 1e-6:
+                        skipped.append(SkippedCandidate(key, effect, j + 1, f"joint {j + 1} does not move"))
+                        continue
+                    S = np.column_stack([np.sin(h * q[:, j]), np.cos(h * q[:, j])])
+                    cands.append(
+                        Candidate(
+                            key, effect, j + 1, int(h),
+                            cause=f"periodic transmission error of the joint-{j + 1} reducer, harmonic {h} "
+                            "of the joint angle",
+                            signal=f"sin/cos({h}·q{j + 1})", shape="joint", S=S,
+                            coef_names=("sin", "cos"), coef_units=("rad", "rad"),
+                            extra={"joint_range_deg": float(np.rad2deg(rng))},
+                        )
+                    )  # fmt: skip
+        elif effect == "backlash":
+            for j in range(n):
+                key = f"backlash:j{j + 1}"
+                if campaign.direction is None:
+                    skipped.append(SkippedCandidate(key, effect, j + 1, "no approach directions (dir1..dirN)"))
+                    continue
+                d = campaign.direction[:, j].astype(float)
+                if not _varies(d, 1e-9):
+                    skipped.append(
+                        SkippedCandidate(key, effect, j + 1, f"every pose approached joint {j + 1} the same way")
+                    )
+                    continue
+                cands.append(
+                    Candidate(
+                        key, effect, j + 1, None,
+                        cause=f"dead band of the joint-{j + 1} drive: the joint lags against its approach direction",
+                        signal=f"approach direction dir{j + 1}", shape="joint", S=d[:, None],
+                        coef_names=("half_band",), coef_units=("rad",),
+                    )
+                )  # fmt: skip
+        elif effect == "thermal":
+            key = "thermal"
+            if campaign.temperatures is None:
+                skipped.append(SkippedCandidate(key, effect, None, "no temperature log (temperatures.csv)"))
+                continue
+            T = np.asarray(campaign.temperatures, dtype=float)
+            if not np.all(np.isfinite(T)) or float(np.max(np.std(T, axis=0))) < max(tol, 0.05):
+                skipped.append(
+                    SkippedCandidate(key, effect, None, "the temperatures do not vary (a constant offset is a pure "
+                                     "length scale, absorbed by the geometry)")
+                )  # fmt: skip
+                continue
+            S, names, load = _temperature_signals(campaign, cfg.thermal_components)
+            cands.append(
+                Candidate(
+                    key, effect, None, None,
+                    cause="thermal expansion and tilt: every identifiable parameter (base and tool included) drifts "
+                    "linearly with the temperature signals",
+                    signal=f"temperature principal components ({load})", shape="param", S=S,
+                    params=("*identified*",), signal_names=names,
+                )
+            )  # fmt: skip
+        elif effect == "drift":
+            key = "drift"
+            t = np.asarray(campaign.timestamp_s, dtype=float)
+            if not _varies(t, 1.0):
+                skipped.append(SkippedCandidate(key, effect, None, "the timestamps do not vary"))
+                continue
+            S = ((t - t.mean()) / HOUR_S)[:, None]
+            cands.append(
+                Candidate(
+                    key, effect, None, None,
+                    cause="tracker or robot base moving over the campaign (tripod settling, floor): the tracker-to-"
+                    "base frame drifts linearly in time",
+                    signal="timestamp (h from the campaign's mean time)", shape="param", S=S,
+                    params=("base_tx", "base_ty", "base_tz", "base_rx", "base_ry", "base_rz"), signal_names=("t_h",),
+                )
+            )  # fmt: skip
+        elif effect == "beta":
+            par = _parallel_joints(robot)
+            if not robot.is_mdh:
+                skipped.append(SkippedCandidate("beta", effect, None, "POE robot: the twists already carry any tilt"))
+            elif not par:
+                skipped.append(SkippedCandidate("beta", effect, None, "no parallel consecutive joint axes"))
+            for j in par:
+                key = f"beta:j{j + 1}"
+                if bool(robot.beta_free[j]):
+                    skipped.append(SkippedCandidate(key, effect, j + 1, f"beta{j + 1} is already in the model"))
+                    continue
+                if any(p in (f"beta{j + 1}", "beta*") for p in cfg.fixed):
+                    skipped.append(SkippedCandidate(key, effect, j + 1, f"beta{j + 1} is fixed by the settings"))
+                    continue
+                cands.append(
+                    Candidate(
+                        key, effect, j + 1, None,
+                        cause=f"axes {j + 1} and {j + 2} are not exactly parallel (Hayati tilt beta{j + 1})",
+                        signal="geometry", shape="structure", S=np.zeros((campaign.n_rows, 0)),
+                        coef_names=(f"beta{j + 1}",), coef_units=("rad",),
+                    )
+                )  # fmt: skip
+    return cands, skipped
+
+
+def with_beta(robot: RobotDescription, joint: int) -> RobotDescription:
+    """The robot with Hayati ``beta`` of ``joint`` (1-based) made a calibration parameter."""
+    free = np.array(robot.beta_free, dtype=bool).copy()
+    free[joint - 1] = True
+    return replace(robot, beta_free=free)

@@ -1,0 +1,233 @@
+"""The calibration model extended with accepted effects, and its joint nonlinear fit.
+
+Parameters: the geometric calibration vector of :class:`robocal.identification.model.CalibrationModel`
+(kinematic errors, base, tools) followed by the coefficients of every accepted effect. Joint-angle effects
+enter exactly (the joint angles are corrected before the forward kinematics); parameter drifts enter to first
+order (``dp = J_x · dx``: a drift of 0.1 mm or 1e-4 rad leaves a second-order term below 1e-5 mm).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from robocal.discovery.candidates import Candidate, with_beta
+from robocal.identification.identifiability import analyse
+from robocal.identification.model import CalibrationModel, FitData
+from robocal.identification.solver import levenberg_marquardt
+from robocal.robot import RobotDescription
+
+
+@dataclass(frozen=True)
+class Accepted:
+    """An accepted candidate with the calibration parameters it drifts (``param`` shape)."""
+
+    cand: Candidate
+    params: tuple[str, ...] = ()
+
+    @property
+    def coef_names(self) -> tuple[str, ...]:
+        c = self.cand
+        if c.shape == "param":
+            return tuple(f"{c.key}:{p}*{s}" for p in self.params for s in c.signal_names)
+        if c.shape == "structure":
+            return ()  # lives in the base model (beta parameter)
+        return tuple(f"{c.key}:{n}" for n in c.coef_names)
+
+
+def robot_with(robot: RobotDescription, accepted: list[Accepted]) -> RobotDescription:
+    for a in accepted:
+        if a.cand.shape == "structure" and a.cand.effect == "beta":
+            assert a.cand.joint is not None
+            robot = with_beta(robot, a.cand.joint)
+    return robot
+
+
+class ExtendedModel:
+    """Geometric calibration model + accepted effects; residuals (predicted - measured) and Jacobian."""
+
+    def __init__(
+        self,
+        robot: RobotDescription,
+        targets: tuple[str, ...],
+        T_ref: np.ndarray,
+        accepted: list[Accepted],
+    ) -> None:
+        self.robot = robot_with(robot, accepted)
+        self.base = CalibrationModel(self.robot, targets, orientation=False, T_ref=T_ref)
+        self.accepted = list(accepted)
+        self.nb = self.base.n
+        names = list(self.base.names)
+        self.slices: list[slice] = []
+        for a in self.accepted:
+            k0 = len(names)
+            names += list(a.coef_names)
+            self.slices.append(slice(k0, len(names)))
+        self.names = tuple(names)
+        self.n = len(names)
+
+    def index(self, name: str) -> int:
+        return self.names.index(name)
+
+    def map_from(self, names: tuple[str, ...], theta: np.ndarray) -> np.ndarray:
+        """A parameter vector for this model from another model's (missing names start at zero)."""
+        lookup = dict(zip(names, theta, strict=True))
+        return np.array([lookup.get(n, 0.0) for n in self.names])
+
+    def joint_offsets(self, theta: np.ndarray, rows: np.ndarray, m_all: int) -> np.ndarray:
+        dq = np.zeros((len(rows), self.robot.n_joints))
+        for a, sl in zip(self.accepted, self.slices, strict=True):
+            if a.cand.shape == "joint":
+                assert a.cand.joint is not None
+                dq[:, a.cand.joint - 1] += a.cand.S[rows] @ theta[sl]
+        return dq
+
+    def residuals_and_jacobian(
+        self, theta: np.ndarray, data: FitData, rows: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Residuals ``(3m,)``, Jacobian ``(3m, n)``, and the base Jacobians ``J_x (m, 3, nb)``, ``J_q (m, 3, N)``.
+
+        ``rows`` index the campaign rows of ``data`` (signals are stored for every campaign row).
+        """
+        x = theta[: self.nb]
+        m = data.m
+        dq = self.joint_offsets(theta, rows, 0)
+        d = FitData(q=data.q + dq, p_mm=data.p_mm, target_index=data.target_index)
+        r, Jb = self.base.residuals_and_jacobian(x, d)
+        Jx = Jb.reshape(m, 3, self.nb)
+        Jq = self.base.joint_jacobian(x, d.q, d.target_index)
+        J = np.zeros((3 * m, self.n))
+        J[:, : self.nb] = Jb
+        Jv = J.reshape(m, 3, self.n)
+        rv = r.reshape(m, 3).copy()
+        for a, sl in zip(self.accepted, self.slices, strict=True):
+            c = a.cand
+            if c.shape == "joint":
+                assert c.joint is not None
+                Jv[:, :, sl] = Jq[:, :, c.joint - 1][:, :, None] * c.S[rows][:, None, :]
+            elif c.shape == "param":
+                idx = [self.base.index(p) for p in a.params]
+                S = c.S[rows]  # (m, s)
+                cols = Jx[:, :, idx][:, :, :, None] * S[:, None, None, :]  # (m, 3, P, s)
+                cols = cols.reshape(m, 3, -1)
+                Jv[:, :, sl] = cols
+                rv += np.einsum("mij,j->mi", cols, theta[sl])
+        return rv.ravel(), J, Jx, Jq
+
+
+@dataclass
+class Fit:
+    """A joint fit of an :class:`ExtendedModel`: whitened residuals and Jacobian on the free parameters."""
+
+    model: ExtendedModel
+    theta: np.ndarray
+    free: np.ndarray
+    r_w: np.ndarray  # (M,) whitened residuals
+    J_w: np.ndarray  # (M, k) whitened Jacobian on the free parameters
+    Jx: np.ndarray
+    Jq: np.ndarray
+    cov: np.ndarray  # (k, k) covariance of the free parameters (s² (JᵀJ)⁻¹), in their units
+    s2: float
+    sigma: float
+    eliminated: tuple[str, ...]
+    rows: np.ndarray | None = None  # campaign rows fitted
+
+    @property
+    def M(self) -> int:
+        return len(self.r_w)
+
+    @property
+    def k(self) -> int:
+        return len(self.free)
+
+    @property
+    def rss(self) -> float:
+        return float(self.r_w @ self.r_w)
+
+    @property
+    def dof(self) -> int:
+        return max(self.M - self.k, 1)
+
+    @property
+    def residuals_mm(self) -> np.ndarray:
+        return (self.r_w * self.sigma).reshape(-1, 3)
+
+    @property
+    def rms_mm(self) -> float:
+        return float(np.sqrt(np.mean(np.sum(self.residuals_mm**2, axis=1))))
+
+    @property
+    def noise_floor_mm(self) -> float:
+        """Expected RMS of the 3-D residual of a correct model: ``sigma sqrt(3 dof / M)``."""
+        return float(self.sigma * np.sqrt(3.0 * self.dof / self.M))
+
+    def stderr(self, name: str) -> float:
+        i = self.model.index(name)
+        pos = np.flatnonzero(self.free == i)
+        return float(np.sqrt(self.cov[pos[0], pos[0]])) if len(pos) else float("nan")
+
+    def cov_of(self, names: list[str]) -> np.ndarray:
+        pos = []
+        for nme in names:
+            p = np.flatnonzero(self.free == self.model.index(nme))
+            pos.append(int(p[0]) if len(p) else -1)
+        out = np.full((len(names), len(names)), np.nan)
+        for a, pa in enumerate(pos):
+            for b, pb in enumerate(pos):
+                if pa >= 0 and pb >= 0:
+                    out[a, b] = self.cov[pa, pb]
+        return out
+
+
+def fit_model(
+    model: ExtendedModel,
+    theta0: np.ndarray,
+    data: FitData,
+    rows: np.ndarray,
+    sigma: float,
+    fixed: set[str],
+    rank_tol: float,
+    max_iter: int = 100,
+) -> Fit:
+    """Identifiability analysis of the extended model, then Levenberg-Marquardt on its identifiable parameters."""
+
+    def fun(th: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        r, J, _, _ = model.residuals_and_jacobian(th, data, rows)
+        return r, J
+
+    _r0, J0 = fun(theta0)
+    kinds = list(model.base.kinds) + ["effect"] * (model.n - model.nb)
+    order = [i for i, k in enumerate(kinds) if k == "base"]
+    order += [i for i, k in enumerate(kinds) if k in ("tool", "tool_rot")]
+    order += [i for i, k in enumerate(kinds) if k == "kinematic"]
+    order += [i for i, k in enumerate(kinds) if k == "effect"]
+    order = [i for i in order if model.names[i] not in fixed]
+    ident = analyse(J0 / sigma, model.names, order, rtol=rank_tol)
+    free = np.sort(ident.kept)
+    lm = levenberg_marquardt(fun, theta0, free, 1.0 / sigma, max_iter=max_iter, ftol=1e-12, xtol=1e-10)
+    theta = lm.x
+    r, J, Jx, Jq = model.residuals_and_jacobian(theta, data, rows)
+    r_w = r / sigma
+    J_w = J[:, free] / sigma
+    dof = max(len(r_w) - len(free), 1)
+    s2 = float(r_w @ r_w) / dof
+    JtJ = J_w.T @ J_w
+    try:
+        cov_w = np.linalg.inv(JtJ)
+    except np.linalg.LinAlgError:
+        cov_w = np.linalg.pinv(JtJ)
+    return Fit(
+        model=model,
+        theta=theta,
+        free=free,
+        r_w=r_w,
+        J_w=J_w,
+        Jx=Jx,
+        Jq=Jq,
+        cov=s2 * cov_w,
+        s2=s2,
+        sigma=sigma,
+        eliminated=tuple(e.name for e in ident.eliminated),
+        rows=np.asarray(rows),
+    )

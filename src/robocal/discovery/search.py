@@ -1,0 +1,313 @@
+"""Forward selection of effects on what the current model cannot explain.
+
+One step: at the joint fit of the current model (geometry + accepted effects) every remaining candidate's
+regressor is projected onto the orthogonal complement of the model's column space (what the model cannot
+absorb). A candidate the model absorbs completely is unidentifiable and is never chosen. The others get a nested
+F-test on the projected regressor (Bonferroni family-wise threshold over the library), a BIC change, and the
+share of the excess chi² they would remove; the best by log p that passes all three and improves a grouped
+(whole-pose) cross-validation is accepted, the whole model is refitted jointly, and effects accepted earlier
+that no longer pass a Wald test are dropped. The search stops when no candidate passes. The chi² against the
+tracker noise is used only after the search, to flag an unexplained residual (gating the search on a global
+chi² test loses power against a two-parameter signal).
+"""
+
+from __future__ import annotations
+
+import fnmatch
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy import stats
+
+from robocal.data.contract import Campaign
+from robocal.discovery.candidates import Candidate, SkippedCandidate, build_library, with_beta
+from robocal.discovery.config import DiscoveryConfig
+from robocal.discovery.model import Accepted, ExtendedModel, Fit, fit_model
+from robocal.errors import ConfigError
+from robocal.identification.calibrate import CalibrationConfig, calibrate, fit_data, present_targets
+from robocal.identification.model import CalibrationModel, FitData
+from robocal.robot import RobotDescription
+
+
+@dataclass
+class Score:
+    """The test of one candidate at one step."""
+
+    key: str
+    label: str
+    status: str  # "tested" | "unidentifiable" | "accepted" | "failed cross-validation"
+    absorbed_share: float
+    dof: int = 0
+    F: float = float("nan")
+    log10_p: float = float("nan")
+    delta_bic: float = float("nan")
+    excess_share: float = float("nan")
+    passes: bool = False
+    cv_gain: float | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        return {k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in self.__dict__.items()}
+
+
+@dataclass
+class Step:
+    accepted: str | None
+    label: str | None
+    rms_before_mm: float
+    rms_after_mm: float
+    chi2_before: float
+    chi2_after: float
+    dof_after: int
+    scores: list[Score]
+    dropped: list[str] = field(default_factory=list)
+    residuals_before_mm: np.ndarray | None = None
+    residuals_after_mm: np.ndarray | None = None
+
+
+@dataclass
+class DiscoveryResult:
+    """Everything a discovery run found; :func:`robocal.discovery.workflow.summary` turns it into JSON."""
+
+    robot: RobotDescription
+    config: DiscoveryConfig
+    campaign: Campaign
+    rows: np.ndarray  # campaign rows used for fitting (calibration)
+    library: list[Candidate]
+    skipped: list[SkippedCandidate]
+    unidentifiable: dict[str, float]  # key -> absorbed share (first step it was found absorbed)
+    geometric: Fit
+    final: Fit
+    accepted: list[Accepted]
+    steps: list[Step]
+    n_tests: int
+    threshold_log10_p: float
+    wall_time_s: float = 0.0
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def chi2_p_value(self) -> float:
+        return float(stats.chi2.sf(self.final.rss, self.final.dof))
+
+    @property
+    def unexplained(self) -> bool:
+        return bool(self.chi2_p_value < self.config.chi2_alpha)
+
+
+def _resolve_fixed(names: tuple[str, ...], patterns: tuple[str, ...]) -> set[str]:
+    out: set[str] = set()
+    for p in patterns:
+        hits = fnmatch.filter(names, p)
+        if not hits:
+            raise ConfigError(f"The 'discovery.fixed' setting names {p!r}, which matches no parameter of {names}")
+        out.update(hits)
+    return out
+
+
+def regressor(cand: Candidate, fit: Fit, rows: np.ndarray, data: FitData) -> tuple[np.ndarray, tuple[str, ...]]:
+    """Whitened regressor ``(M, q)`` of a candidate at the current fit, and (param shape) the parameters it drifts."""
+    m = len(rows)
+    sig = fit.sigma
+    if cand.shape == "joint":
+        assert cand.joint is not None
+        Z = fit.Jq[:, :, cand.joint - 1][:, :, None] * cand.S[rows][:, None, :]
+        return Z.reshape(3 * m, -1) / sig, ()
+    if cand.shape == "param":
+        model = fit.model
+        ident = {model.names[i] for i in fit.free}
+        if cand.params == ("*identified*",):
+            params = tuple(n for k, n in enumerate(model.base.names) if n in ident and model.base.kinds[k] != "")
+        else:
+            params = tuple(p for p in cand.params if p in ident)
+        idx = [model.base.index(p) for p in params]
+        Z = fit.Jx[:, :, idx][:, :, :, None] * cand.S[rows][:, None, None, :]
+        return Z.reshape(3 * m, -1) / sig, params
+    # structure: the beta column of the robot with that beta free, at the current parameters
+    assert cand.joint is not None
+    rob = with_beta(fit.model.robot, cand.joint)
+    mod = CalibrationModel(rob, fit.model.base.target_names, orientation=False, T_ref=fit.model.base.T_ref)
+    x = np.array(
+        [dict(zip(fit.model.base.names, fit.theta[: fit.model.nb], strict=True)).get(n, 0.0) for n in mod.names]
+    )
+    dq = fit.model.joint_offsets(fit.theta, rows, 0)
+    _, J = mod.residuals_and_jacobian(x, FitData(data.q + dq, data.p_mm, data.target_index))
+    return J[:, [mod.index(f"beta{cand.joint}")]] / sig, ()
+
+
+def _basis(J_w: np.ndarray) -> np.ndarray:
+    U, s, _ = np.linalg.svd(J_w, full_matrices=False)
+    keep = s > 1e-10 * (s[0] if len(s) else 1.0)
+    return U[:, keep]
+
+
+def score_candidate(
+    cand: Candidate, Z: np.ndarray, Q: np.ndarray, fit: Fit, cfg: DiscoveryConfig, log_thr: float
+) -> tuple[Score, np.ndarray]:
+    """Projected nested F-test, BIC and excess-chi² share of one candidate. Returns the score and the kept
+    directions of the projected regressor (``(M, q')``)."""
+    norms = np.linalg.norm(Z, axis=0)
+    norms[norms == 0] = 1.0
+    Zn = Z / norms
+    Zp = Zn - Q @ (Q.T @ Zn)
+    absorbed = float(1.0 - np.mean(np.sum(Zp**2, axis=0)))
+    U, s, _ = np.linalg.svd(Zp, full_matrices=False)
+    keep = s > cfg.absorbed_tol
+    if not keep.any():
+        return Score(cand.key, cand.label, "unidentifiable", absorbed), U[:, :0]
+    Uk = U[:, keep]
+    q = int(keep.sum())
+    r = fit.r_w
+    rss = fit.rss
+    M = fit.M
+    d = float(np.sum((Uk.T @ r) ** 2))
+    dof1 = M - fit.k - q
+    if dof1 < 1:
+        return Score(cand.key, cand.label, "unidentifiable", absorbed, q), Uk
+    F = (d / q) / max((rss - d) / dof1, 1e-300)
+    log10_p = float(stats.f.logsf(F, q, dof1) / np.log(10.0))
+    dbic = float(M * np.log(max(rss - d, 1e-300) / rss) + q * np.log(M))
+    excess = rss - fit.dof
+    share = d / excess if excess > 0 else float("inf")
+    passes = bool(log10_p < log_thr and dbic < 0 and share >= cfg.min_excess_share)
+    return Score(cand.key, cand.label, "tested", absorbed, q, float(F), log10_p, dbic, float(share), passes), Uk
+
+
+def cross_validation_gain(fit: Fit, Uk: np.ndarray, groups: np.ndarray, folds: int, seed: int) -> float:
+    """Relative drop of the held-out (whole poses) squared error when the candidate's directions are added.
+
+    Linearised at the current fit: each fold refits the model's free parameters (with / without the candidate)
+    on the other poses and predicts the held-out residuals. Positive = the candidate predicts better.
+    """
+    r = fit.r_w
+    A0 = fit.J_w
+    A1 = np.hstack([A0, Uk])
+    rng = np.random.default_rng(seed)
+    uniq = np.unique(groups)
+    perm = rng.permutation(len(uniq))
+    fold_of = {g: int(perm[i] % folds) for i, g in enumerate(uniq)}
+    f = np.array([fold_of[g] for g in groups])
+    sse0 = sse1 = 0.0
+    for k in range(folds):
+        test = f == k
+        train = ~test
+        if not test.any() or not train.any():
+            continue
+        for A, acc in ((A0, 0), (A1, 1)):
+            delta = np.linalg.lstsq(A[train], -r[train], rcond=1e-10)[0]
+            e = float(np.sum((r[test] + A[test] @ delta) ** 2))
+            if acc == 0:
+                sse0 += e
+            else:
+                sse1 += e
+    return float((sse0 - sse1) / sse0) if sse0 > 0 else 0.0
+
+
+def _wald_log10_p(fit: Fit, acc: Accepted) -> float:
+    names = list(acc.coef_names)
+    if acc.cand.shape == "structure":
+        names = [f"beta{acc.cand.joint}"]
+    idx = [int(np.flatnonzero(fit.free == fit.model.index(n))[0]) for n in names if fit.model.index(n) in fit.free]
+    if not idx:
+        return 0.0
+    c = fit.theta[fit.free[idx]]
+    C = fit.cov[np.ix_(idx, idx)]
+    try:
+        w = float(c @ np.linalg.solve(C, c))
+    except np.linalg.LinAlgError:
+        return 0.0
+    q = len(idx)
+    return float(stats.f.logsf(w / q, q, fit.dof) / np.log(10.0))
+
+
+def discover(campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig | None = None) -> DiscoveryResult:
+    """Run the discovery on the campaign's calibration rows (all rows when there is no validation split)."""
+    cfg = cfg or DiscoveryConfig()
+    t0 = time.perf_counter()
+    has_val = bool(np.any(campaign.split == "validation"))
+    rows = np.flatnonzero(campaign.split == "calibration") if has_val else np.arange(campaign.n_rows)
+    if len(rows) == 0:
+        raise ConfigError(f"campaign {campaign.source} has no calibration rows")
+    cal = campaign.subset(rows)
+    targets = present_targets(cal)
+    data = fit_data(cal, use_orientation=False, targets=targets)
+    geo = calibrate(cal, robot, CalibrationConfig(noise_mm=cfg.noise_mm, fixed=cfg.fixed, use_orientation=False))
+    library, skipped = build_library(campaign, robot, cfg)
+    T_ref = geo.model.T_ref
+    fixed = _resolve_fixed(geo.model.names, cfg.fixed)
+
+    def refit(accepted: list[Accepted], prev: Fit | None) -> Fit:
+        model = ExtendedModel(robot, targets, T_ref, accepted)
+        theta0 = model.map_from(prev.model.names, prev.theta) if prev is not None else model.map_from(geo.names, geo.x)
+        return fit_model(model, theta0, data, rows, cfg.noise_mm, fixed, cfg.rank_tol, cfg.max_iter)
+
+    fit = refit([], None)
+    geometric = fit
+    n_tests = max(len(library), 1)
+    log_thr = float(np.log10(cfg.alpha / n_tests))
+    accepted: list[Accepted] = []
+    steps: list[Step] = []
+    unident: dict[str, float] = {}
+    remaining = list(library)
+    groups = np.repeat(np.asarray(cal.pose_id).astype(str), 3)
+    for _ in range(cfg.max_steps):
+        Q = _basis(fit.J_w)
+        scored: list[tuple[Score, Candidate, np.ndarray, tuple[str, ...]]] = []
+        for cand in remaining:
+            Z, params = regressor(cand, fit, rows, data)
+            sc, Uk = score_candidate(cand, Z, Q, fit, cfg, log_thr)
+            if sc.status == "unidentifiable":
+                unident.setdefault(cand.key, sc.absorbed_share)
+            scored.append((sc, cand, Uk, params))
+        passing = sorted((s for s in scored if s[0].passes), key=lambda s: s[0].log10_p)
+        chosen = None
+        for sc, cand, Uk, params in passing:
+            if cfg.cv_folds >= 2:
+                sc.cv_gain = cross_validation_gain(fit, Uk, groups, cfg.cv_folds, cfg.seed)
+                if sc.cv_gain <= 0:
+                    sc.status = "failed cross-validation"
+                    continue
+            sc.status = "accepted"
+            chosen = (cand, params)
+            break
+        scores = [s[0] for s in scored]
+        if chosen is None:
+            steps.append(Step(None, None, fit.rms_mm, fit.rms_mm, fit.rss, fit.rss, fit.dof, scores))
+            break
+        cand, params = chosen
+        before = fit
+        accepted.append(Accepted(cand, params))
+        remaining = [c for c in remaining if c.key != cand.key]
+        fit = refit(accepted, fit)
+        dropped: list[str] = []
+        while True:  # backward check: an earlier effect the new one made redundant is dropped
+            weak = [(a, _wald_log10_p(fit, a)) for a in accepted[:-1]]
+            weak = [(a, lp) for a, lp in weak if lp > log_thr]
+            if not weak:
+                break
+            worst = max(weak, key=lambda t: t[1])[0]
+            accepted = [a for a in accepted if a is not worst]
+            dropped.append(worst.cand.key)
+            fit = refit(accepted, fit)
+        steps.append(
+            Step(
+                cand.key, cand.label, before.rms_mm, fit.rms_mm, before.rss, fit.rss, fit.dof, scores, dropped,
+                before.residuals_mm, fit.residuals_mm,
+            )
+        )  # fmt: skip
+    return DiscoveryResult(
+        robot=robot,
+        config=cfg,
+        campaign=campaign,
+        rows=rows,
+        library=library,
+        skipped=skipped,
+        unidentifiable=unident,
+        geometric=geometric,
+        final=fit,
+        accepted=accepted,
+        steps=steps,
+        n_tests=n_tests,
+        threshold_log10_p=log_thr,
+        wall_time_s=time.perf_counter() - t0,
+    )

@@ -1,0 +1,254 @@
+"""From a :class:`DiscoveryResult` to ``discovery.json``: named effects with estimates, steps, and where an
+unexplained residual lives (joints, workspace region, time span)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from robocal.discovery.model import Accepted, Fit
+from robocal.discovery.search import DiscoveryResult, Step
+from robocal.kinematics.chain import fk
+
+_DEG = float(np.rad2deg(1.0))
+
+
+def _est(value: float, se: float, unit: str) -> dict[str, Any]:
+    return {"value": float(value), "stderr": None if not np.isfinite(se) else float(se), "unit": unit}
+
+
+def estimates(fit: Fit, acc: Accepted) -> dict[str, Any]:
+    """Estimates with standard errors of one accepted effect, in readable units."""
+    c = acc.cand
+    model = fit.model
+    names = list(acc.coef_names)
+    val = np.array([fit.theta[model.index(n)] for n in names]) if names else np.zeros(0)
+    C = fit.cov_of(names) if names else np.zeros((0, 0))
+    se = np.sqrt(np.diag(C)) if names else np.zeros(0)
+    out: dict[str, Any] = {}
+    if c.effect == "gear":
+        s, co = val
+        out["sin_deg"] = _est(s * _DEG, se[0] * _DEG, "deg")
+        out["cos_deg"] = _est(co * _DEG, se[1] * _DEG, "deg")
+        amp = float(np.hypot(s, co))
+        g = np.array([s, co]) / amp if amp > 0 else np.zeros(2)
+        out["amplitude_deg"] = _est(amp * _DEG, float(np.sqrt(g @ C @ g)) * _DEG, "deg")
+        # dq = A sin(h q + phi) = A cos(phi) sin(h q) + A sin(phi) cos(h q)
+        gp = np.array([-co, s]) / amp**2 if amp > 0 else np.zeros(2)
+        out["phase_deg"] = _est(np.rad2deg(np.arctan2(co, s)), float(np.sqrt(gp @ C @ gp)) * _DEG, "deg")
+    elif c.effect == "backlash":
+        out["band_deg"] = _est(2 * val[0] * _DEG, 2 * se[0] * _DEG, "deg")
+    elif c.effect == "compliance":
+        unit = c.coef_units[0]
+        key = "c_rad_per_A" if unit == "rad/A" else "c_rad_per_Nm"
+        out[key] = _est(val[0], se[0], unit)
+    elif c.effect == "beta":
+        nm = f"beta{c.joint}"
+        out[f"{nm}_deg"] = _est(fit.theta[model.index(nm)] * _DEG, fit.stderr(nm) * _DEG, "deg")
+    elif c.effect in ("thermal", "drift"):
+        for k, n in enumerate(names):
+            p = n.split(":", 1)[1]
+            pname, sig = p.split("*")
+            unit_p = model.base.units[model.base.index(pname)]
+            f = _DEG if unit_p == "rad" else 1.0
+            per = "h" if sig == "t_h" else f"degC({sig})"
+            out[f"{pname}_per_{sig}"] = _est(val[k] * f, se[k] * f, f"{'deg' if unit_p == 'rad' else 'mm'}/{per}")
+        if c.effect == "drift":
+            R = model.base.T_ref[:3, :3]
+            tn = [f"drift:base_t{a}*t_h" for a in "xyz"]
+            if all(n in names for n in tn):
+                v = np.array([fit.theta[model.index(n)] for n in tn])
+                Ct = fit.cov_of(tn)
+                Ct = np.where(np.isfinite(Ct), Ct, 0.0)
+                vt = R @ v
+                st = np.sqrt(np.diag(R @ Ct @ R.T))
+                for a, axis in enumerate("xyz"):
+                    out[f"tracker_{axis}_mm_per_h"] = _est(vt[a], st[a], "mm/h")
+    return out
+
+
+def effect_displacement(fit: Fit, acc: Accepted) -> np.ndarray:
+    """The modelled displacement ``(m, 3)`` mm of each fitted row due to one accepted effect (first order)."""
+    model = fit.model
+    m = fit.Jx.shape[0]
+    c = acc.cand
+    if c.shape == "structure":
+        return np.zeros((m, 3))
+    sl = model.slices[model.accepted.index(acc)]
+    th = fit.theta[sl]
+    if c.shape == "joint":
+        assert c.joint is not None
+        return fit.Jq[:, :, c.joint - 1] * (c.S[_rows(fit)] @ th)[:, None]
+    idx = [model.base.index(p) for p in acc.params]
+    cols = fit.Jx[:, :, idx][:, :, :, None] * c.S[_rows(fit)][:, None, None, :]
+    return np.einsum("mij,j->mi", cols.reshape(m, 3, -1), th)
+
+
+def _rows(fit: Fit) -> np.ndarray:
+    assert fit.rows is not None, "Fit.rows must be set by the discovery run"
+    return fit.rows
+
+
+def locate(res: DiscoveryResult) -> dict[str, Any]:
+    """Where the leftover lives: joints (a flexible joint-angle error per joint), workspace region, time span."""
+    fit = res.final
+    camp = res.campaign.subset(res.rows)
+    r = fit.r_w.reshape(-1, 3)
+    m = r.shape[0]
+    per_row = np.sum(r**2, axis=1)
+    expect = 3.0 * fit.dof / fit.M
+    excess = float(fit.rss - fit.dof)
+    out: dict[str, Any] = {"excess_chi2": excess, "chi2": fit.rss, "dof": fit.dof}
+    # joints: share of the excess a generic joint-angle error (smooth in every joint angle) would explain
+    q = camp.q
+    n = q.shape[1]
+    B = np.column_stack([np.ones(m)] + [f(h * q[:, k]) for k in range(n) for h in (1, 2) for f in (np.sin, np.cos)])
+    U0, s0, _ = np.linalg.svd(fit.J_w, full_matrices=False)
+    Q = U0[:, s0 > 1e-10 * s0[0]]
+    joints = []
+    for j in range(n):
+        Z = (fit.Jq[:, :, j][:, :, None] * B[:, None, :]).reshape(3 * m, -1) / fit.sigma
+        Z = Z - Q @ (Q.T @ Z)
+        U, s, _ = np.linalg.svd(Z, full_matrices=False)
+        Uk = U[:, s > 1e-6 * (s[0] if len(s) else 1.0)]
+        d = float(np.sum((Uk.T @ fit.r_w) ** 2))
+        dfree = Uk.shape[1]
+        joints.append(
+            {"joint": j + 1, "explained_share_of_excess": (d - dfree) / excess if excess > 0 else 0.0, "dof": dfree}
+        )
+    joints.sort(key=lambda t: -t["explained_share_of_excess"])
+    out["joints"] = joints
+    # workspace: octants of the flange position (base frame): reach, height and side split at their medians
+    T = fk(fit.model.base.chain, q)
+    pos = T[:, :3, 3]
+    reach = np.hypot(pos[:, 0], pos[:, 1])
+    side = np.arctan2(pos[:, 1], pos[:, 0])
+    cells: dict[tuple[int, int, int], list[int]] = {}
+    for i in range(m):
+        key = (int(reach[i] > np.median(reach)), int(pos[i, 2] > np.median(pos[:, 2])), int(side[i] > np.median(side)))
+        cells.setdefault(key, []).append(i)
+    regions = []
+    for key, idx in cells.items():
+        ii = np.array(idx)
+        regions.append(
+            {
+                "reach": "far" if key[0] else "near",
+                "height": "high" if key[1] else "low",
+                "side": "left" if key[2] else "right",
+                "n_rows": len(ii),
+                "reach_mm": [float(reach[ii].min()), float(reach[ii].max())],
+                "z_mm": [float(pos[ii, 2].min()), float(pos[ii, 2].max())],
+                "mean_chi2_per_row_over_expected": float(per_row[ii].mean() / expect),
+            }
+        )
+    regions.sort(key=lambda t: -float(t["mean_chi2_per_row_over_expected"]))  # type: ignore[arg-type]
+    out["workspace_regions"] = regions
+    # time: the contiguous span (in time order) holding the largest excess
+    order = np.argsort(camp.timestamp_s, kind="stable")
+    e = per_row[order] - expect
+    best, cur, start, b0, b1 = -np.inf, 0.0, 0, 0, 0
+    for i, v in enumerate(e):
+        if cur <= 0:
+            cur, start = v, i
+        else:
+            cur += v
+        if cur > best:
+            best, b0, b1 = cur, start, i
+    t = camp.timestamp_s[order]
+    out["time_span"] = {
+        "t_start_s": float(t[b0]),
+        "t_end_s": float(t[b1]),
+        "n_rows": int(b1 - b0 + 1),
+        "share_of_excess": float(best / excess) if excess > 0 else 0.0,
+    }
+    return out
+
+
+def _step_dict(k: int, st: Step, res: DiscoveryResult) -> dict[str, Any]:
+    cand = next((c for c in res.library if c.key == st.accepted), None)
+    return {
+        "step": k,
+        "accepted": st.accepted,
+        "effect": None if cand is None else cand.effect,
+        "joint": None if cand is None else cand.joint,
+        "harmonic": None if cand is None else cand.harmonic,
+        "rms_before_mm": st.rms_before_mm,
+        "rms_after_mm": st.rms_after_mm,
+        "chi2_before": st.chi2_before,
+        "chi2_after": st.chi2_after,
+        "dof_after": st.dof_after,
+        "dropped": st.dropped,
+        "candidates": [s.to_dict() for s in sorted(st.scores, key=_score_key)],
+    }
+
+
+def _score_key(s: Any) -> float:
+    return float(s.log10_p) if np.isfinite(s.log10_p) else 1.0
+
+
+def summary(res: DiscoveryResult, validation: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The ``discovery.json`` content."""
+    fit = res.final
+    named = []
+    for acc in res.accepted:
+        c = acc.cand
+        step = next((st for st in res.steps if st.accepted == c.key), None)
+        sc = next((s for s in step.scores if s.key == c.key), None) if step else None
+        named.append(
+            {
+                "effect": c.effect,
+                "joint": c.joint,
+                "harmonic": c.harmonic,
+                "estimates": estimates(fit, acc),
+                "key": c.key,
+                "cause": c.cause,
+                "signal": c.signal,
+                "selection": None if sc is None else sc.to_dict(),
+                "rms_of_effect_mm": float(np.sqrt(np.mean(np.sum(effect_displacement(fit, acc) ** 2, axis=1)))),
+            }
+        )
+    out: dict[str, Any] = {
+        "robot": res.robot.name,
+        "named": named,
+        "steps": [_step_dict(k + 1, st, res) for k, st in enumerate(res.steps)],
+        "rms_before_mm": res.geometric.rms_mm,
+        "rms_after_mm": fit.rms_mm,
+        "noise_floor_mm": fit.noise_floor_mm,
+        "noise_mm": res.config.noise_mm,
+        "chi2": fit.rss,
+        "dof": fit.dof,
+        "chi2_p_value": res.chi2_p_value,
+        "unexplained": res.unexplained,
+        "skipped": [s.to_dict() for s in res.skipped],
+        "unidentifiable": [
+            {"key": k, "absorbed_share": v, "reason": "the current model absorbs its regressor completely"}
+            for k, v in res.unidentifiable.items()
+        ],
+        "library": [
+            {
+                "key": c.key,
+                "effect": c.effect,
+                "joint": c.joint,
+                "harmonic": c.harmonic,
+                "cause": c.cause,
+                "signal": c.signal,
+            }
+            for c in res.library
+        ],
+        "selection": {
+            "n_tests": res.n_tests,
+            "family_wise_alpha": res.config.alpha,
+            "threshold_log10_p": res.threshold_log10_p,
+            "min_excess_share": res.config.min_excess_share,
+            "cv_folds": res.config.cv_folds,
+        },
+        "n_rows": len(res.rows),
+        "wall_time_s": res.wall_time_s,
+        "config": res.config.to_dict(),
+    }
+    if res.unexplained:
+        out["unexplained_where"] = locate(res)
+    if validation is not None:
+        out["validation"] = validation
+    return out

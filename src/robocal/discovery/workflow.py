@@ -1,0 +1,173 @@
+"""Discovery workflow: campaign -> discovery -> ``discovery.json`` + ``report.html`` (residual plots per step)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from robocal.data.contract import Campaign, SplitConfig, read_campaign
+from robocal.discovery.config import DiscoveryConfig
+from robocal.discovery.model import Fit
+from robocal.discovery.search import DiscoveryResult, discover
+from robocal.discovery.summary import summary
+from robocal.identification.calibrate import fit_data
+from robocal.io import write_json
+from robocal.robot import RobotDescription, load_robot
+
+
+def validation_errors(res: DiscoveryResult) -> dict[str, Any] | None:
+    """RMS 3-D error on the campaign's validation rows: geometric model vs the discovered one (mm).
+
+    Validation rows of a target the calibration rows never saw are left out (their tool offset is unknown).
+    """
+    camp = res.campaign
+    vmask = camp.split == "validation"
+    if not np.any(vmask) or np.array_equal(res.rows, np.arange(camp.n_rows)):
+        return None
+    targets = res.final.model.base.target_names
+    keep = np.flatnonzero(vmask & np.isin(camp.target.astype(str), targets))
+    if len(keep) == 0:
+        return None
+    val = camp.subset(keep)
+    data = fit_data(val, use_orientation=False, targets=targets)
+
+    def rms(fit: Fit) -> float:
+        r, _, _, _ = fit.model.residuals_and_jacobian(fit.theta, data, keep)
+        return float(np.sqrt(np.mean(np.sum(r.reshape(-1, 3) ** 2, axis=1))))
+
+    return {"n_rows": len(keep), "rms_geometric_mm": rms(res.geometric), "rms_discovered_mm": rms(res.final)}
+
+
+def write_report(res: DiscoveryResult, summ: dict[str, Any], path: Path) -> Path:
+    """Self-contained HTML report: the verdict, named effects, every step with residual plots before / after."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from robocal.report import plots
+    from robocal.report.html import Report
+
+    camp = res.campaign.subset(res.rows)
+    rep = Report(f"Discovery — {res.robot.name}", subtitle=str(res.campaign.source))
+    rep.heading("Verdict")
+    names = [f"{n['effect']}" + (f" joint {n['joint']}" if n["joint"] else "") for n in summ["named"]]
+    rep.kv(
+        {
+            "named": ", ".join(names) if names else "nothing",
+            "RMS before (geometric fit), mm": summ["rms_before_mm"],
+            "RMS after, mm": summ["rms_after_mm"],
+            "noise floor, mm": summ["noise_floor_mm"],
+            "chi² / dof": f"{summ['chi2']:.1f} / {summ['dof']}",
+            "chi² p-value": summ["chi2_p_value"],
+            "unexplained": summ["unexplained"],
+            "candidates tested": summ["selection"]["n_tests"],
+            "threshold log10 p (Bonferroni)": summ["selection"]["threshold_log10_p"],
+        }
+    )
+    if summ["unexplained"]:
+        w = summ["unexplained_where"]
+        rep.note(
+            "The residual is still above the tracker-noise floor and no candidate explains it. Joints with the "
+            f"largest share: {[j['joint'] for j in w['joints'][:2]]}; worst workspace region: "
+            f"{w['workspace_regions'][0]}; time span: {w['time_span']}.",
+            kind="warn",
+        )
+    if "validation" in summ:
+        rep.kv(summ["validation"], caption="Validation rows (held out): RMS 3-D error, mm")
+    if summ["named"]:
+        rep.heading("Named effects")
+        rows = []
+        for n in summ["named"]:
+            for k, e in n["estimates"].items():
+                rows.append({"effect": n["key"], "estimate": k, "value": e["value"], "stderr": e["stderr"],
+                             "unit": e["unit"]})  # fmt: skip
+        rep.table(rows, caption="Estimates with standard errors (joint fit of geometry and every named effect)")
+        rep.table(
+            [{"effect": n["key"], "cause": n["cause"], "signal": n["signal"]} for n in summ["named"]],
+            caption="Physical causes and signals",
+        )
+    rep.heading("Steps")
+    rep.table(
+        [
+            {k: s[k] for k in ("step", "accepted", "rms_before_mm", "rms_after_mm", "chi2_before", "chi2_after")}
+            for s in summ["steps"]
+        ],
+        caption="One effect accepted per step; everything refitted jointly",
+    )
+    for k, st in enumerate(res.steps):
+        srows = summ["steps"][k]["candidates"][:8]
+        rep.heading(f"Step {k + 1}: {st.label or 'stop (no candidate passes)'}", level=3)
+        rep.table(
+            [
+                {
+                    c: s[c]
+                    for c in (
+                        "key",
+                        "status",
+                        "absorbed_share",
+                        "dof",
+                        "F",
+                        "log10_p",
+                        "delta_bic",
+                        "excess_share",
+                        "cv_gain",
+                    )
+                }
+                for s in srows
+            ],
+            caption="Best candidates by log10 p (projected nested F-test)",
+        )
+        if st.residuals_before_mm is not None and st.residuals_after_mm is not None:
+            fig = plots.residuals_vs_joints(camp.q, st.residuals_before_mm, list(res.robot.joint_names))
+            rep.figure(fig, caption=f"Residuals against the joint angles before step {k + 1}")
+            plt.close(fig)
+            fig = plots.residuals_vs_joints(camp.q, st.residuals_after_mm, list(res.robot.joint_names))
+            rep.figure(fig, caption=f"Residuals after step {k + 1} ({st.label})")
+            plt.close(fig)
+            fig = plots.error_histogram(
+                np.linalg.norm(st.residuals_before_mm, axis=1), np.linalg.norm(st.residuals_after_mm, axis=1)
+            )
+            rep.figure(fig, caption=f"3-D residuals before / after step {k + 1}")
+            plt.close(fig)
+    if not res.steps or res.steps[0].accepted is None:
+        fig = plots.residuals_vs_joints(camp.q, res.final.residuals_mm, list(res.robot.joint_names))
+        rep.figure(fig, caption="Residuals of the geometric fit against the joint angles (nothing named)")
+        plt.close(fig)
+    rep.heading("Library")
+    rep.table(summ["library"], columns=["key", "cause", "signal"], caption="Candidates tested")
+    if summ["skipped"]:
+        rep.table(summ["skipped"], caption="Skipped candidates (signal missing or not varying)")
+    if summ["unidentifiable"]:
+        rep.table(summ["unidentifiable"], caption="Unidentifiable candidates (absorbed by the model)")
+    rep.paragraph(
+        "Reaching the noise floor does not prove the physics: check that the estimates are physically plausible "
+        "(e.g. compliance of the right sign and size) before compensating with them."
+    )
+    return rep.save(path)
+
+
+def run_discovery(
+    data_dir: str | Path,
+    robot: str | Path | RobotDescription,
+    out_dir: str | Path,
+    settings: Mapping[str, Any] | None = None,
+    split: Mapping[str, Any] | None = None,
+    report: bool = True,
+    campaign: Campaign | None = None,
+) -> dict[str, Any]:
+    """Discover the effects in the campaign; write ``discovery.json`` (+ ``report.html``). Returns the summary."""
+    rob = robot if isinstance(robot, RobotDescription) else load_robot(robot)
+    cfg = DiscoveryConfig.from_mapping(settings)
+    camp = campaign if campaign is not None else read_campaign(data_dir, rob, split=SplitConfig.from_mapping(split))
+    res = discover(camp, rob, cfg)
+    summ = summary(res, validation_errors(res))
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    write_json(out / "discovery.json", summ)
+    if report:
+        write_report(res, summ, out / "report.html")
+    return summ

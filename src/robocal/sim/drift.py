@@ -1,0 +1,55 @@
+"""Twin effect ``drift``: the tracker (or the robot base) moves slowly during the campaign.
+
+A tracker on a tripod settles, a floor creeps as it warms: the measured points shift in the tracker frame by
+``dp(t) = v · h + a · h²`` with ``h`` hours since the campaign start (``rate_mm_per_h`` = v,
+``accel_mm_per_h2`` = a, tracker-frame mm). The shift is written to ``rows.dp_tracker_mm`` and added to the
+true positions before the tracker noise. Nothing is reported in the data: only the timestamps carry it.
+
+Truth: ``truth["effects"]["drift"] = {"rate_mm_per_h": [...], "accel_mm_per_h2": [...], "max_shift_mm": ...}``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from robocal.errors import ConfigError
+from robocal.sim.twin import Rows, TwinContext, register_effect
+
+
+def _vec3(cfg: Mapping[str, Any], key: str) -> np.ndarray:
+    v = np.asarray(cfg.get(key, [0.0, 0.0, 0.0]), dtype=float)
+    if v.shape != (3,) or not np.all(np.isfinite(v)):
+        raise ConfigError(f"The '{key}' setting of the drift effect must be [x, y, z] in mm. Got {cfg.get(key)!r}.")
+    return v
+
+
+@register_effect("drift")
+class DriftEffect:
+    """Slow tracker/base drift over time (see the module docstring). Config: ``rate_mm_per_h``,
+    ``accel_mm_per_h2`` (tracker-frame [x, y, z])."""
+
+    name = "drift"
+
+    def __init__(self, cfg: Mapping[str, Any]) -> None:
+        self.cfg = dict(cfg)
+
+    def plan(self, rows: Rows, ctx: TwinContext) -> Rows:
+        return rows
+
+    def apply(self, rows: Rows, ctx: TwinContext) -> None:
+        v = _vec3(self.cfg, "rate_mm_per_h")
+        a = _vec3(self.cfg, "accel_mm_per_h2")
+        h = (np.asarray(rows.t_s, dtype=float) - float(np.min(rows.t_s)))[:, None] / 3600.0
+        dp = v[None, :] * h + a[None, :] * h**2
+        rows.dp_tracker_mm = dp if rows.dp_tracker_mm is None else rows.dp_tracker_mm + dp
+        ctx.truth.setdefault("effects", {})["drift"] = {
+            "rate_mm_per_h": v.tolist(),
+            "accel_mm_per_h2": a.tolist(),
+            "max_shift_mm": float(np.max(np.linalg.norm(dp, axis=1))) if len(dp) else 0.0,
+        }
+
+
+__all__ = ["DriftEffect"]

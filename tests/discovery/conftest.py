@@ -1,0 +1,37 @@
+"""Twin campaigns with one hidden effect, shared by the discovery tests."""
+
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from robocal.data.contract import read_campaign
+from robocal.robot import load_robot
+from robocal.sim.twin import load_scenario, simulate
+
+
+def make_campaign(tmp: Path, scenario: str, seed: int, effects: dict[str, Any] | None = None, **over: Any):
+    """Simulate ``scenario`` with ``effects`` (replacing the scenario's) and read it back: (campaign, robot, truth)."""
+    sc = copy.deepcopy(load_scenario(scenario))
+    if effects is not None:
+        sc["effects"] = effects
+    sc.update(over)
+    robot = load_robot(sc["robot"])
+    d = tmp / f"{scenario}_{seed}_{abs(hash(str(effects))) % 10**8}"
+    truth = simulate(sc, d, seed=seed)
+    return read_campaign(d, robot), robot, truth
+
+
+def named(summary_or_result: Any) -> list[tuple[str, int | None, int | None]]:
+    if isinstance(summary_or_result, dict):
+        return [(n["effect"], n["joint"], n["harmonic"]) for n in summary_or_result["named"]]
+    return [(a.cand.effect, a.cand.joint, a.cand.harmonic) for a in summary_or_result.accepted]
+
+
+@pytest.fixture
+def rng() -> np.random.Generator:
+    return np.random.default_rng(0)
