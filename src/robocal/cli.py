@@ -20,6 +20,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "simulate": ("robocal.commands.simulate", "write a twin measurement campaign (data contract + truth)"),
     "calibrate": ("robocal.commands.calibrate", "geometric calibration of a campaign"),
     "serve": ("robocal.commands.serve", "online compensation service (TCP JSON lines) over a calibration bundle"),
+    "closed-loop": ("robocal.commands.closed_loop", "drive the twin's warm-up through the compensation service"),
     "discover": ("robocal.commands.discover", "name the effects the calibration model is missing (discovery)"),
     "compliance": ("robocal.commands.compliance", "heavy-load joint compliance and compensation (Mao 2021)"),
     "thermal": ("robocal.commands.thermal", "thermal fit, screening and compensation of a warm-up campaign"),

@@ -1,0 +1,274 @@
+"""Calibration bundles: the models the compensation service loads, in one directory.
+
+Layout::
+
+    bundle/
+      manifest.json       {"format": "robocal-bundle", "version": 1, "robot": "kr16_2" | "robot.yaml",
+                           "calibration": "calibration.json", "thermal": "thermal.json" | null,
+                           "compliance": "compliance.json" | null, "created": ISO time,
+                           "sha256": {file name: hex digest, ...}}
+      calibration.json    geometric calibration (robocal.identification.calibrate.CalibrationResult.to_dict)
+      thermal.json        optional: robocal.thermal.model.ThermalModel
+      compliance.json     optional: robocal.compliance.model.ComplianceModel
+      robot.yaml          optional: the robot description when ``robot`` names a file
+
+Every file listed in ``sha256`` is checked on load; a bundle is loaded completely (and checked) before the
+server swaps it in, so a half-written or inconsistent bundle never replaces a good one.
+
+Thermal model interface used: ``.sensors`` (sensor names, in the order ``deta`` expects), the fitted
+temperature range (``temperature_range`` (s, 2) or ``fitted_range`` / ``t_min, t_max``; see
+:func:`thermal_range`) and ``.deta(T (m, s)) -> (m, P)`` kinematic parameter drift in the chain's parameter
+order. Compliance: ``.joint_offsets(q (m, n), payload_kg (m,), current_A (m, n) | None, tau_Nm (m, n) | None)
+-> dq (m, n)`` joint deflection added to the commanded joints.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib
+import json
+import shutil
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from robocal.errors import ConfigError
+from robocal.identification.calibrate import CalibrationResult, load_calibration
+from robocal.io import write_json
+from robocal.kinematics.chain import Chain
+from robocal.robot import RobotDescription, load_robot
+
+FORMAT = "robocal-bundle"
+VERSION = 1
+MANIFEST = "manifest.json"
+#: default loaders of the optional models: kind -> "module:Class" with a ``from_json(path)`` classmethod
+DEFAULT_LOADERS = {
+    "thermal": "robocal.thermal.model:ThermalModel",
+    "compliance": "robocal.compliance.model:ComplianceModel",
+}
+
+Loader = Callable[[Path], Any]
+
+
+def _sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with path.open("rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def _default_loader(kind: str) -> Loader:
+    spec = DEFAULT_LOADERS[kind]
+    mod, cls = spec.split(":")
+    try:
+        klass = getattr(importlib.import_module(mod), cls)
+    except (ImportError, AttributeError) as exc:
+        raise ConfigError(f"the bundle has a {kind} model but {spec} is not available: {exc}") from exc
+    return klass.from_json
+
+
+def thermal_range(model: Any) -> tuple[np.ndarray, np.ndarray] | None:
+    """The fitted temperature range ``(lo (s,), hi (s,))`` in degC of a thermal model, or None if it has none."""
+    for name in ("fitted_range_C", "temperature_range", "fitted_range", "fit_range", "range_C"):
+        r = getattr(model, name, None)
+        if r is not None:
+            if callable(r):
+                r = r()
+            if isinstance(r, Mapping):  # {sensor: [lo, hi]}
+                r = [r[s] for s in model.sensors]
+            arr = np.asarray(r, dtype=float)
+            if arr.ndim == 2 and arr.shape[1] == 2:
+                return arr[:, 0], arr[:, 1]
+            if arr.ndim == 2 and arr.shape[0] == 2:
+                return arr[0], arr[1]
+    for lo_name, hi_name in (("t_min", "t_max"), ("T_min", "T_max"), ("temperature_min", "temperature_max")):
+        lo, hi = getattr(model, lo_name, None), getattr(model, hi_name, None)
+        if lo is not None and hi is not None:
+            s = len(model.sensors)
+            return np.broadcast_to(np.asarray(lo, float), (s,)).copy(), np.broadcast_to(np.asarray(hi, float), (s,))
+    return None
+
+
+@dataclass(frozen=True)
+class Bundle:
+    """A loaded, checked bundle.
+
+    robot, calibration : the geometric model; chain : ``calibration.model.chain``; eta0 : (P,) identified
+    kinematic errors; tracker_T_base : (4, 4); tools : {target name: (4, 4) flange_T_tool};
+    thermal / compliance : the optional models (None when absent); sensors : thermal sensor names;
+    t_lo / t_hi : (s,) fitted temperature range or None; manifest : the manifest; bundle_id : short hash.
+    """
+
+    path: Path
+    robot: RobotDescription
+    calibration: CalibrationResult
+    chain: Chain
+    eta0: np.ndarray
+    tracker_T_base: np.ndarray
+    tools: dict[str, np.ndarray]
+    thermal: Any = None
+    compliance: Any = None
+    sensors: tuple[str, ...] = ()
+    t_lo: np.ndarray | None = None
+    t_hi: np.ndarray | None = None
+    manifest: dict[str, Any] = field(default_factory=dict)
+    bundle_id: str = ""
+
+    @property
+    def default_tool(self) -> str:
+        return next(iter(self.tools))
+
+    def info(self) -> dict[str, Any]:
+        """What a client needs to know: robot, joints and limits, tools, sensors and their fitted range."""
+        return {
+            "bundle": self.bundle_id,
+            "path": str(self.path),
+            "created": self.manifest.get("created"),
+            "robot": self.robot.name,
+            "joints": list(self.robot.joint_names),
+            "q_limits_deg": np.rad2deg(self.robot.q_limits).round(9).tolist(),
+            "tools": list(self.tools),
+            "thermal": self.thermal is not None,
+            "compliance": self.compliance is not None,
+            "sensors": list(self.sensors),
+            "temperature_range_C": None
+            if self.t_lo is None or self.t_hi is None
+            else {s: [float(a), float(b)] for s, a, b in zip(self.sensors, self.t_lo, self.t_hi, strict=True)},
+        }
+
+
+def load_bundle(path: str | Path, loaders: Mapping[str, Loader] | None = None) -> Bundle:
+    """Load and check the bundle in directory ``path``.
+
+    loaders : optional ``{"thermal": fn, "compliance": fn}`` with ``fn(json_path) -> model`` (default
+    :data:`DEFAULT_LOADERS`); used by tests with stand-in models.
+    """
+    d = Path(path)
+    mpath = d / MANIFEST
+    if not mpath.is_file():
+        raise ConfigError(f"bundle {d}: no {MANIFEST}")
+    try:
+        manifest = json.loads(mpath.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ConfigError(f"bundle {d}: {MANIFEST} is not valid JSON: {exc}") from exc
+    if not isinstance(manifest, dict) or manifest.get("format") != FORMAT:
+        raise ConfigError(f"bundle {d}: {MANIFEST} must be a mapping with format {FORMAT!r}")
+    if int(manifest.get("version", 0)) != VERSION:
+        raise ConfigError(f"bundle {d}: unsupported version {manifest.get('version')!r}; this robocal reads {VERSION}")
+    for name, digest in dict(manifest.get("sha256") or {}).items():
+        f = d / str(name)
+        if not f.is_file():
+            raise ConfigError(f"bundle {d}: {name} is listed in {MANIFEST} but missing")
+        if _sha256(f) != digest:
+            raise ConfigError(f"bundle {d}: {name} does not match its sha256 in {MANIFEST} (changed or half-written)")
+    robot_ref = manifest.get("robot")
+    if not robot_ref:
+        raise ConfigError(f"bundle {d}: {MANIFEST} must name the 'robot'")
+    robot = load_robot(d / robot_ref if str(robot_ref).endswith((".yaml", ".yml")) else str(robot_ref))
+    cal_file = d / str(manifest.get("calibration") or "calibration.json")
+    try:
+        cal = load_calibration(json.loads(cal_file.read_text(encoding="utf-8")), robot)
+    except (OSError, json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
+        raise ConfigError(f"bundle {d}: cannot load {cal_file.name}: {type(exc).__name__}: {exc}") from exc
+    chain = cal.model.chain
+    tools: dict[str, np.ndarray] = {}
+    tool_R = cal.model.tool_rotations(cal.x)
+    for k, (name, t) in enumerate(cal.tools.items()):
+        T = np.eye(4)
+        T[:3, :3] = tool_R[k]
+        T[:3, 3] = t
+        tools[name] = T
+    models: dict[str, Any] = {}
+    for kind in ("thermal", "compliance"):
+        ref = manifest.get(kind)
+        if not ref:
+            continue
+        f = d / str(ref)
+        load = (loaders or {}).get(kind) or _default_loader(kind)
+        try:
+            models[kind] = load(f)
+        except ConfigError:
+            raise
+        except Exception as exc:  # a model file that fails to load must name itself
+            raise ConfigError(
+                f"bundle {d}: cannot load the {kind} model {f.name}: {type(exc).__name__}: {exc}"
+            ) from exc
+    sensors: tuple[str, ...] = ()
+    t_lo = t_hi = None
+    th = models.get("thermal")
+    if th is not None:
+        sensors = tuple(str(s) for s in th.sensors)
+        rng = thermal_range(th)
+        if rng is not None:
+            t_lo, t_hi = rng
+        probe = np.asarray(th.deta(np.full((1, len(sensors)), float(robot.T0_C or 20.0))))
+        if probe.shape != (1, chain.n_params):
+            raise ConfigError(
+                f"bundle {d}: thermal model deta returns shape {probe.shape}; expected (1, {chain.n_params}) "
+                f"(the parameters of {robot.name})"
+            )
+    digest = hashlib.sha256(json.dumps(manifest, sort_keys=True).encode()).hexdigest()[:12]
+    return Bundle(
+        path=d.resolve(),
+        robot=robot,
+        calibration=cal,
+        chain=chain,
+        eta0=cal.kinematic_errors,
+        tracker_T_base=cal.tracker_T_base,
+        tools=tools,
+        thermal=th,
+        compliance=models.get("compliance"),
+        sensors=sensors,
+        t_lo=t_lo,
+        t_hi=t_hi,
+        manifest=manifest,
+        bundle_id=digest,
+    )
+
+
+def write_bundle(
+    out_dir: str | Path,
+    robot: str | Path,
+    calibration: str | Path,
+    thermal: str | Path | None = None,
+    compliance: str | Path | None = None,
+) -> Path:
+    """Copy the model files into ``out_dir`` and write the manifest last (atomically) with their sha256.
+
+    robot : a robot name (conf/robot) or a YAML file (copied as ``robot.yaml``).
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    files: dict[str, str] = {}
+    manifest: dict[str, Any] = {"format": FORMAT, "version": VERSION}
+    rp = Path(robot)
+    if rp.suffix in (".yaml", ".yml"):
+        if not rp.is_file():
+            raise ConfigError(f"robot file {rp} does not exist")
+        shutil.copyfile(rp, out / "robot.yaml")
+        manifest["robot"] = "robot.yaml"
+        files["robot.yaml"] = "robot.yaml"
+    else:
+        manifest["robot"] = str(robot)
+    for kind, src in (("calibration", calibration), ("thermal", thermal), ("compliance", compliance)):
+        if src is None:
+            manifest[kind] = None
+            continue
+        sp = Path(src)
+        if not sp.is_file():
+            raise ConfigError(f"the {kind} file {sp} does not exist")
+        name = f"{kind}.json"
+        tmp = out / f".{name}.tmp"
+        shutil.copyfile(sp, tmp)
+        tmp.replace(out / name)
+        manifest[kind] = name
+        files[name] = name
+    manifest["created"] = datetime.now(UTC).isoformat(timespec="seconds")
+    manifest["sha256"] = {name: _sha256(out / name) for name in files}
+    write_json(out / MANIFEST, manifest)
+    return out

@@ -1,0 +1,283 @@
+"""Fast batched differential compensation for the online service.
+
+:func:`robocal.compensation.compensate` is the reference implementation (it re-propagates the whole
+element chain, ~30 elements, and takes an SVD pseudo-inverse per target each Newton step). For the
+service the kinematic parameters are fixed within one request, so the chain is first *compiled* for
+that parameter vector: every run of non-joint elements between two joints is multiplied into one rigid
+transform, leaving ``T0 · C_0 · Rot(q_1 + off_1) · C_1 · ... · Rot(q_n + off_n) · C_n · tool`` (one
+rotation per joint). Forward kinematics then costs ``n`` column rotations and ``n`` 3x3 products per
+pose, the joint Jacobian comes from the recorded joint axes (``dp = u x (p - o)``, ``dw = u``), and each
+Newton step solves damped normal equations (6x6 for the full pose; the minimum-norm 3x3 form for
+position only) with ``numpy.linalg.solve`` over the whole batch. The same fixed point as the reference
+is reached (checked in ``tests/serve/test_engine.py``).
+
+Shapes: ``q`` ``(m, n)`` rad; positions ``(m, 3)`` mm; rotations ``(m, 3, 3)``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from robocal.kinematics.chain import FIXED, RX, RY, RZ, TZ, Chain
+from robocal.kinematics.transforms import matrix_to_rotvec
+
+#: Column pairs rotated by an elementary rotation (u' = c u + s v, v' = c v - s u) and the axis column.
+_PAIR = {RX: (1, 2, 0), RY: (2, 0, 1), RZ: (0, 1, 2)}
+
+#: ``joint_offset(q_cmd (k, n), rows (k,)) -> dq (k, n)``: deflection of the targets ``rows`` at ``q_cmd``
+JointOffset = Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+
+_DIAG = {k: np.arange(k) for k in range(1, 13)}
+#: index pairs of the skew part (vee) and of the cross product components
+_VI, _VJ = np.array([2, 0, 1]), np.array([1, 2, 0])
+_C1, _C2 = np.array([1, 2, 0]), np.array([2, 0, 1])
+
+
+def _element(kind: int, v: float) -> np.ndarray:
+    T = np.eye(4)
+    if kind <= TZ:
+        T[kind, 3] = v
+        return T
+    c, s = np.cos(v), np.sin(v)
+    a, b, _ = _PAIR[kind]
+    # columns a, b of the identity rotated: e_a' = c e_a + s e_b, e_b' = c e_b - s e_a
+    T[a, a], T[b, a] = c, s
+    T[a, b], T[b, b] = -s, c
+    return T
+
+
+@dataclass(frozen=True)
+class CompiledChain:
+    """A chain with its kinematic parameters folded in: one rotation per joint between rigid transforms.
+
+    S0 : (4, 4) transform before the first joint (includes ``T0``); joint : (n,) joint index of each
+    joint element, in chain order; axis : (n,) local rotation axis column (0, 1, 2) of each joint element;
+    offset : (n,) rad, nominal + parameter error added to the joint angle; A, B, K : (n, 4, 4) with
+    ``Rot(q + offset) · C_i = cos · A_i + sin · B_i + K_i`` (``C_i`` the rigid transform after joint element i).
+    """
+
+    S0: np.ndarray
+    joint: np.ndarray
+    axis: np.ndarray
+    offset: np.ndarray
+    A: np.ndarray
+    B: np.ndarray
+    K: np.ndarray
+
+    @property
+    def n_joints(self) -> int:
+        return len(self.joint)
+
+
+def compile_chain(chain: Chain, eta: np.ndarray | None = None, T0: np.ndarray | None = None) -> CompiledChain:
+    """Fold the parameter vector ``eta`` (P,) and ``T0`` (4, 4) into a :class:`CompiledChain`."""
+    eta = np.zeros(chain.n_params) if eta is None else np.asarray(eta, dtype=float)
+    if eta.shape != (chain.n_params,):
+        raise ValueError(f"The 'eta' parameter must have shape ({chain.n_params},). Got {eta.shape} instead.")
+    acc = np.eye(4) if T0 is None else np.asarray(T0, dtype=float).copy()
+    first: np.ndarray | None = None
+    joints: list[int] = []
+    kinds: list[int] = []
+    offsets: list[float] = []
+    after: list[np.ndarray] = []
+    for e, kind in enumerate(chain.kinds):
+        if kind == FIXED:
+            Tf = chain.fixed[e]
+            assert Tf is not None
+            acc = acc @ Tf
+            continue
+        v = float(chain.nominal[e])
+        p = int(chain.param[e])
+        if p >= 0:
+            v += float(eta[p])
+        j = int(chain.joint[e])
+        if j >= 0:
+            if kind not in _PAIR:
+                raise ValueError(f"joint {j + 1} drives a translation element; only revolute joints are supported")
+            if first is None:
+                first = acc
+            else:
+                after.append(acc)
+            joints.append(j)
+            kinds.append(kind)
+            offsets.append(v)
+            acc = np.eye(4)
+            continue
+        acc = acc @ _element(kind, v)
+    if first is None:
+        raise ValueError("the chain has no joint")
+    after.append(acc)
+    if sorted(joints) != list(range(chain.n_joints)):
+        raise ValueError(f"each joint must drive exactly one element; got joints {joints}")
+    n = len(joints)
+    A = np.zeros((n, 4, 4))
+    B = np.zeros((n, 4, 4))
+    K = np.zeros((n, 4, 4))
+    for i, (kind, C) in enumerate(zip(kinds, after, strict=True)):
+        a, b, ax = _PAIR[kind]
+        Pc, Ps, Pk = np.zeros((4, 4)), np.zeros((4, 4)), np.zeros((4, 4))
+        Pc[a, a] = Pc[b, b] = 1.0
+        Ps[b, a], Ps[a, b] = 1.0, -1.0
+        Pk[ax, ax] = Pk[3, 3] = 1.0
+        A[i], B[i], K[i] = Pc @ C, Ps @ C, Pk @ C
+    return CompiledChain(
+        first.copy(),
+        np.array(joints),
+        np.array([_PAIR[k][2] for k in kinds]),
+        np.array(offsets),
+        A,
+        B,
+        K,
+    )
+
+
+def forward(
+    cc: CompiledChain, q: np.ndarray, tool_T: np.ndarray, record: bool = False
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """Tool point ``(m, 3)`` and tool rotation ``(m, 3, 3)`` for joints ``q`` (m, n) and the flange-to-tool
+    transform ``tool_T`` (4, 4); with ``record`` also the world joint axes and origins ``(m, 3, n)``
+    indexed by joint number."""
+    m = q.shape[0]
+    n = cc.n_joints
+    th = q[:, cc.joint] + cc.offset
+    M = np.cos(th)[:, :, None, None] * cc.A + np.sin(th)[:, :, None, None] * cc.B + cc.K  # (m, n, 4, 4)
+    before = np.empty((m, n, 4, 4)) if record else None
+    T = cc.S0
+    for i in range(n):
+        if before is not None:
+            before[:, i] = T
+        T = T @ M[:, i]
+    T = T @ tool_T
+    if before is None:
+        return T[:, :3, 3], T[:, :3, :3], None, None
+    axes = np.empty((m, 3, n))
+    origins = np.empty((m, 3, n))
+    axes[:, :, cc.joint] = before[:, np.arange(n), :3, cc.axis].transpose(1, 2, 0)  # (n, m, 3) -> (m, 3, n)
+    origins[:, :, cc.joint] = np.swapaxes(before[:, :, :3, 3], 1, 2)
+    return T[:, :3, 3], T[:, :3, :3], axes, origins
+
+
+def rotation_error(R: np.ndarray, R_desired: np.ndarray) -> np.ndarray:
+    """Rotation vectors ``(m, 3)`` of ``R R_desired^T`` (rad)."""
+    return _rotvec(R @ np.swapaxes(R_desired, -1, -2))
+
+
+def _rotvec(E: np.ndarray) -> np.ndarray:
+    """Rotation vectors of rotations ``E`` (m, 3, 3): exact atan2 form below 179.9 deg, else the general
+    :func:`~robocal.kinematics.transforms.matrix_to_rotvec`."""
+    w = 0.5 * (E[:, _VI, _VJ] - E[:, _VJ, _VI])
+    c = 0.5 * (np.einsum("mii->m", E) - 1.0)
+    s = np.sqrt(np.einsum("mi,mi->m", w, w))
+    th = np.arctan2(s, c)
+    if th.max(initial=0.0) > np.pi - 2e-3:
+        return matrix_to_rotvec(E)
+    return w * (th / np.maximum(s, 1e-300) + (s <= 1e-12))[:, None]
+
+
+@dataclass
+class Solution:
+    """Result of :func:`solve`.
+
+    q : (m, n) corrected joints (rad); converged : (m,) bool; iterations : int;
+    error_before_mm / error_before_rad : (m, 3) tool error at the start joints;
+    residual_mm / residual_rad : (m, 3) predicted error at ``q``.
+    """
+
+    q: np.ndarray
+    converged: np.ndarray
+    iterations: int
+    error_before_mm: np.ndarray
+    error_before_rad: np.ndarray
+    residual_mm: np.ndarray
+    residual_rad: np.ndarray
+
+
+def solve(
+    cc: CompiledChain,
+    tool_T: np.ndarray,
+    q_start: np.ndarray,
+    p_desired: np.ndarray,
+    R_desired: np.ndarray | None = None,
+    joint_offset: JointOffset | None = None,
+    max_iter: int = 20,
+    tol_mm: float = 1e-6,
+    tol_rad: float = 1e-9,
+    max_step_rad: float = 0.05,
+    rot_weight_mm: float = 1000.0,
+) -> Solution:
+    """Newton iterations from ``q_start`` (m, n) until the robot ``cc`` with tool ``tool_T`` (4, 4) and joint
+    deflection ``joint_offset(q_cmd, rows) -> dq`` (added to the commanded joints; ``rows`` are the
+    indices of the targets passed) puts the tool at ``p_desired``
+    (m, 3) and, when given, ``R_desired`` (m, 3, 3).
+
+    The orientation error driven to zero is ``w = vee(E - E^T) / 2`` (``E = R R_d^T``), which equals the
+    rotation vector to third order and vanishes exactly where it does; rotation rows are weighted by
+    ``rot_weight_mm`` (mm per rad). Each joint step is clipped to ``max_step_rad`` (a target near a
+    singularity then fails to converge instead of running away); converged targets stop moving.
+    """
+    q = np.array(q_start, dtype=float)
+    m, n = q.shape
+    Rd_T = np.swapaxes(R_desired, -1, -2) if R_desired is not None else None
+    conv = np.zeros(m, dtype=bool)
+    e_p = np.zeros((m, 3))
+    E = np.tile(np.eye(3), (m, 1, 1))
+    e_p0, E0 = e_p, E
+    active = np.arange(m)  # targets still iterating
+    last = np.full(m, np.inf)  # previous error size, for stall detection
+    it = 0
+    for it in range(max_iter + 1):
+        qs = q[active]
+        qa = qs if joint_offset is None else qs + joint_offset(qs, active)
+        p, R, U, O = forward(cc, qa, tool_T, record=True)
+        assert U is not None and O is not None
+        ep = p - p_desired[active]
+        size = np.abs(ep).max(axis=1)
+        ok = size < tol_mm
+        if Rd_T is not None:
+            Ea = R @ Rd_T[active]
+            w = 0.5 * (Ea[:, _VI, _VJ] - Ea[:, _VJ, _VI])
+            wsize = np.abs(w).max(axis=1)
+            ok &= wsize < tol_rad
+            size = size + rot_weight_mm * wsize
+            E[active] = Ea
+        e_p[active] = ep
+        if it == 0:
+            e_p0, E0 = ep.copy(), E.copy()
+        conv[active] = ok
+        # Newton contracts quadratically near a regular solution: a target whose error stops halving
+        # (after the first steps, which may be clipped) is near a singularity and stops here, unconverged
+        stalled = (size > 0.5 * last[active]) & (it >= 3)
+        last[active] = size
+        keep = ~(ok | stalled)
+        if not keep.any() or it == max_iter:
+            break
+        active, ep, U, O, p = active[keep], ep[keep], U[keep], O[keep], p[keep]
+        D = p[:, :, None] - O
+        Jp = U[:, _C1] * D[:, _C2] - U[:, _C2] * D[:, _C1]  # u x (p - o), (m, 3, n)
+        if Rd_T is not None:
+            A = np.concatenate([Jp, rot_weight_mm * U], axis=1)  # (m, 6, n)
+            b = np.concatenate([ep, rot_weight_mm * w[keep]], axis=1)
+        else:
+            A, b = Jp, ep
+        At = np.swapaxes(A, 1, 2)
+        k = A.shape[1]
+        if k >= n:  # (over)determined: damped normal equations
+            N = At @ A
+            N[:, _DIAG[n], _DIAG[n]] += 1e-12 * np.einsum("mii->m", N)[:, None]
+            dq = -np.linalg.solve(N, At @ b[:, :, None])[:, :, 0]
+        else:  # redundant (position only): minimum-norm step
+            N = A @ At
+            N[:, _DIAG[k], _DIAG[k]] += 1e-12 * np.einsum("mii->m", N)[:, None]
+            dq = -(At @ np.linalg.solve(N, b[:, :, None]))[:, :, 0]
+        big = np.abs(dq).max(axis=1)
+        if big.max() > max_step_rad:
+            dq *= np.minimum(1.0, max_step_rad / np.maximum(big, 1e-300))[:, None]
+        q[active] += dq
+    zeros = np.zeros((m, 3))
+    if R_desired is None:
+        return Solution(q, conv, it, e_p0, zeros, e_p, zeros)
+    return Solution(q, conv, it, e_p0, _rotvec(E0), e_p, _rotvec(E))

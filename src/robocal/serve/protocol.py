@@ -1,0 +1,469 @@
+"""Request parsing, safety checks and answers of the compensation service (transport-free).
+
+The wire protocol (one JSON object per line, UTF-8, ``\\n``-terminated; one reply line per request line,
+in order) is documented in :mod:`robocal.serve.server`. :class:`Service` turns one request line into one
+reply line; it never raises: malformed input gets an error reply with one of :data:`ERROR_CODES`.
+"""
+
+from __future__ import annotations
+
+import hmac
+import json
+import math
+import sys
+import threading
+import time
+import traceback
+from collections import OrderedDict
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from robocal.errors import ConfigError
+from robocal.kinematics.transforms import matrix_to_quat, quat_to_matrix
+from robocal.serve.bundle import Bundle
+from robocal.serve.engine import CompiledChain, compile_chain, forward, solve
+
+#: every error code a reply can carry
+ERROR_CODES = ("parse_error", "bad_request", "unauthorized", "too_large", "unknown_op", "unavailable", "internal")
+OPS = ("correct", "info", "ping", "auth", "reload", "stats")
+POLICIES = ("refuse", "flag")
+
+
+class RequestError(Exception):
+    """A request that cannot be answered; ``code`` is one of :data:`ERROR_CODES`."""
+
+    def __init__(self, code: str, message: str) -> None:
+        super().__init__(message)
+        self.code = code
+        self.message = message
+
+
+@dataclass(frozen=True)
+class SafetyConfig:
+    """Limits on what the service answers (see conf/serve/default.yaml)."""
+
+    max_correction_deg: float = 0.5
+    max_error_mm: float = 5.0
+    joint_limit_margin_deg: float = 0.0
+    temperature_margin_C: float = 0.0
+    max_residual_mm: float = 0.001
+    on_correction_bound: str = "refuse"
+    on_joint_limits: str = "refuse"
+    on_temperature_range: str = "refuse"
+
+
+@dataclass(frozen=True)
+class SolverConfig:
+    max_iter: int = 20
+    tol_mm: float = 1e-4
+    tol_deg: float = 1e-6
+    max_step_deg: float = 3.0
+
+
+@dataclass(frozen=True)
+class ServiceConfig:
+    """Service settings; :meth:`from_mapping` checks names and values."""
+
+    max_targets: int = 100_000
+    safety: SafetyConfig = field(default_factory=SafetyConfig)
+    solver: SolverConfig = field(default_factory=SolverConfig)
+    token: str | None = None
+
+    @classmethod
+    def from_mapping(cls, cfg: Mapping[str, Any] | None, token: str | None = None) -> ServiceConfig:
+        data = dict(cfg or {})
+        safety = _sub(SafetyConfig, data.pop("safety", None), "safety")
+        solver = _sub(SolverConfig, data.pop("solver", None), "solver")
+        for key in ("max_targets",):
+            if key in data:
+                v = data.pop(key)
+                if not isinstance(v, int) or v < 1:
+                    raise ConfigError(f"The 'serve.{key}' setting must be a positive integer. Got {v!r} instead.")
+        for p in ("on_correction_bound", "on_joint_limits", "on_temperature_range"):
+            if getattr(safety, p) not in POLICIES:
+                raise ConfigError(
+                    f"The 'serve.safety.{p}' setting must be one of {POLICIES}. Got {getattr(safety, p)!r}."
+                )
+        return cls(max_targets=int((cfg or {}).get("max_targets", 100_000)), safety=safety, solver=solver, token=token)
+
+
+def _sub(cls: Any, data: Any, name: str) -> Any:
+    if data is None:
+        return cls()
+    d = dict(data)
+    unknown = sorted(set(d) - set(cls.__dataclass_fields__))
+    if unknown:
+        raise ConfigError(f"unknown serve.{name} setting(s) {unknown}; known: {sorted(cls.__dataclass_fields__)}")
+    for k, v in d.items():
+        if isinstance(getattr(cls(), k), float):
+            if isinstance(v, bool) or not isinstance(v, int | float) or not v >= 0:
+                raise ConfigError(f"The 'serve.{name}.{k}' setting must be a number >= 0. Got {v!r} instead.")
+            d[k] = float(v)
+    return cls(**d)
+
+
+# --------------------------------------------------------------------------------------------- parsing
+
+
+def _reject_constant(name: str) -> float:
+    raise ValueError(f"{name} is not a number JSON allows")
+
+
+def _loads(line: bytes) -> dict[str, Any]:
+    try:
+        text = line.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise RequestError("parse_error", f"request is not UTF-8: {exc}") from None
+    try:
+        obj = json.loads(text, parse_constant=_reject_constant)
+    except (ValueError, RecursionError) as exc:
+        raise RequestError("parse_error", f"request is not valid JSON: {exc}") from None
+    if not isinstance(obj, dict):
+        raise RequestError("parse_error", f"request must be a JSON object, got {type(obj).__name__}")
+    return obj
+
+
+def _number(v: Any, name: str) -> float:
+    if isinstance(v, bool) or not isinstance(v, int | float):
+        raise RequestError("bad_request", f"'{name}' must be a number, got {type(v).__name__}")
+    f = float(v)
+    if not math.isfinite(f):
+        raise RequestError("bad_request", f"'{name}' must be finite")
+    return f
+
+
+def _vector(v: Any, n: int, name: str) -> np.ndarray:
+    if not isinstance(v, list) or len(v) != n:
+        raise RequestError("bad_request", f"'{name}' must be a list of {n} numbers")
+    return np.array([_number(x, f"{name}[{k}]") for k, x in enumerate(v)], dtype=float)
+
+
+@dataclass
+class Targets:
+    """Parsed targets: joint targets and Cartesian ones (tool pose in the robot base frame)."""
+
+    kind: np.ndarray  # (m,) 0 joints, 1 pose
+    q_deg: np.ndarray  # (m, n) target joints, or the seed for pose targets
+    xyz_mm: np.ndarray  # (m, 3) pose targets (zeros for joint targets)
+    quat: np.ndarray  # (m, 4)
+    current_A: np.ndarray | None
+    tau_Nm: np.ndarray | None
+
+
+def parse_targets(raw: Any, n: int, max_targets: int) -> Targets:
+    """``targets``: a non-empty list of ``{"q_deg": [n]}`` or ``{"xyz_mm": [3], "quat_wxyz": [4],
+    "q_seed_deg": [n]}``, each optionally with ``current_A`` / ``tau_Nm`` ([n])."""
+    if not isinstance(raw, list) or not raw:
+        raise RequestError("bad_request", "'targets' must be a non-empty list of objects")
+    if len(raw) > max_targets:
+        raise RequestError("too_large", f"{len(raw)} targets in one request; the limit is {max_targets}")
+    m = len(raw)
+    kind = np.zeros(m, dtype=int)
+    q = np.zeros((m, n))
+    xyz = np.zeros((m, 3))
+    quat = np.tile([1.0, 0.0, 0.0, 0.0], (m, 1))
+    cur = tau = None
+    for k, t in enumerate(raw):
+        if not isinstance(t, dict):
+            raise RequestError("bad_request", f"targets[{k}] must be an object")
+        if "q_deg" in t:
+            extra = set(t) - {"q_deg", "current_A", "tau_Nm"}
+            q[k] = _vector(t["q_deg"], n, f"targets[{k}].q_deg")
+        elif "xyz_mm" in t:
+            extra = set(t) - {"xyz_mm", "quat_wxyz", "q_seed_deg", "current_A", "tau_Nm"}
+            kind[k] = 1
+            xyz[k] = _vector(t["xyz_mm"], 3, f"targets[{k}].xyz_mm")
+            qu = _vector(t.get("quat_wxyz"), 4, f"targets[{k}].quat_wxyz")
+            norm = float(np.linalg.norm(qu))
+            if not 0.9 < norm < 1.1:
+                raise RequestError("bad_request", f"targets[{k}].quat_wxyz must be a unit quaternion (norm {norm:.3g})")
+            quat[k] = qu / norm
+            q[k] = _vector(t.get("q_seed_deg"), n, f"targets[{k}].q_seed_deg")
+        else:
+            raise RequestError("bad_request", f"targets[{k}] needs 'q_deg' (joint target) or 'xyz_mm' (pose target)")
+        if extra:
+            raise RequestError("bad_request", f"targets[{k}] has unknown field(s) {sorted(extra)}")
+        if "current_A" in t:
+            if cur is None:
+                cur = np.full((m, n), np.nan)
+            cur[k] = _vector(t["current_A"], n, f"targets[{k}].current_A")
+        if "tau_Nm" in t:
+            if tau is None:
+                tau = np.full((m, n), np.nan)
+            tau[k] = _vector(t["tau_Nm"], n, f"targets[{k}].tau_Nm")
+    for arr, name in ((cur, "current_A"), (tau, "tau_Nm")):
+        if arr is not None and np.isnan(arr).any():
+            raise RequestError("bad_request", f"'{name}' must be given for every target or for none")
+    return Targets(kind, q, xyz, quat, cur, tau)
+
+
+def parse_temperatures(raw: Any, sensors: tuple[str, ...]) -> np.ndarray:
+    """``temperatures``: ``{sensor: degC}`` naming every sensor of the thermal model, or a list in its order."""
+    if isinstance(raw, dict):
+        missing = [s for s in sensors if s not in raw]
+        if missing:
+            raise RequestError(
+                "bad_request", f"'temperatures' lacks sensor(s) {missing}; the model needs {list(sensors)}"
+            )
+        unknown = sorted(set(raw) - set(sensors))
+        if unknown:
+            raise RequestError("bad_request", f"'temperatures' has unknown sensor(s) {unknown}; known {list(sensors)}")
+        return np.array([_number(raw[s], f"temperatures.{s}") for s in sensors])
+    if isinstance(raw, list):
+        return _vector(raw, len(sensors), "temperatures")
+    raise RequestError("bad_request", f"'temperatures' must map the sensors {list(sensors)} to degC")
+
+
+# --------------------------------------------------------------------------------------------- service
+
+
+class Service:
+    """Answers request lines against the current bundle; swapping :attr:`bundle` is atomic."""
+
+    def __init__(self, bundle: Bundle, config: ServiceConfig | None = None) -> None:
+        self.bundle = bundle
+        self.config = config or ServiceConfig()
+        self.reloader: Any = None  # callable(path | None) -> Bundle, set by the server
+        self.counters = {"requests": 0, "errors": 0, "targets": 0, "refused": 0, "flagged": 0, "internal": 0}
+        self._cache: OrderedDict[tuple[str, bytes], CompiledChain] = OrderedDict()
+        self._lock = threading.Lock()
+
+    # -- transport entry point
+    def handle_line(self, line: bytes, session: dict[str, Any] | None = None) -> bytes:
+        """One reply line (``\\n``-terminated) for one request line. Never raises."""
+        session = session if session is not None else {}
+        rid: Any = None
+        self.counters["requests"] += 1
+        try:
+            req = _loads(line)
+            rid = req.get("id")
+            if (rid is not None and not isinstance(rid, str | int)) or isinstance(rid, bool):
+                rid = None
+                raise RequestError("bad_request", "'id' must be a string or an integer")
+            reply = self.handle(req, session)
+            reply["id"] = rid
+        except RequestError as exc:
+            self.counters["errors"] += 1
+            reply = {"id": rid, "ok": False, "error": {"code": exc.code, "message": exc.message}}
+        except Exception as exc:  # never take the server down; the traceback goes to the log
+            self.counters["internal"] += 1
+            traceback.print_exc(file=sys.stderr)
+            reply = {"id": rid, "ok": False, "error": {"code": "internal", "message": f"{type(exc).__name__}: {exc}"}}
+        return (json.dumps(reply, separators=(",", ":"), allow_nan=False) + "\n").encode()
+
+    def handle(self, req: dict[str, Any], session: dict[str, Any]) -> dict[str, Any]:
+        op = req.get("op", "correct")
+        if not isinstance(op, str) or op not in OPS:
+            raise RequestError("unknown_op", f"unknown op {op!r}; known: {list(OPS)}")
+        token = self.config.token
+        if token is not None and not session.get("authed"):
+            given = req.get("token")
+            if not isinstance(given, str) or not hmac.compare_digest(given.encode(), token.encode()):
+                raise RequestError("unauthorized", "a valid 'token' is required (send it once with op 'auth')")
+            session["authed"] = True
+        if op == "ping":
+            return {"ok": True, "op": "ping", "bundle": self.bundle.bundle_id}
+        if op == "auth":
+            return {"ok": True, "op": "auth"}
+        if op == "info":
+            return {"ok": True, "op": "info", **self.bundle.info()}
+        if op == "stats":
+            return {"ok": True, "op": "stats", **self.counters}
+        if op == "reload":
+            if self.reloader is None:
+                raise RequestError("unavailable", "this server cannot reload")
+            path = req.get("bundle")
+            if path is not None and not isinstance(path, str):
+                raise RequestError("bad_request", "'bundle' must be a directory path")
+            try:
+                b = self.reloader(path)
+            except ConfigError as exc:
+                raise RequestError(
+                    "bad_request", f"reload failed, still serving {self.bundle.bundle_id}: {exc}"
+                ) from None
+            return {"ok": True, "op": "reload", "bundle": b.bundle_id}
+        return self.correct(req)
+
+    # -- the correction
+    def _compiled(self, bundle: Bundle, temps: np.ndarray | None) -> CompiledChain:
+        """The compiled chain at these temperatures (None: nominal); cached, the cell's temperatures change slowly."""
+        key = (bundle.bundle_id, b"nominal" if temps is None else temps.tobytes())
+        with self._lock:
+            cc = self._cache.get(key)
+            if cc is not None:
+                self._cache.move_to_end(key)
+                return cc
+        if temps is None:
+            eta = np.zeros_like(bundle.eta0)
+        elif bundle.thermal is None:
+            eta = bundle.eta0
+        else:
+            eta = bundle.eta0 + np.asarray(bundle.thermal.deta(temps[None, :]), dtype=float)[0]
+        cc = compile_chain(bundle.chain, eta)
+        with self._lock:
+            self._cache[key] = cc
+            while len(self._cache) > 16:
+                self._cache.popitem(last=False)
+        return cc
+
+    def correct(self, req: dict[str, Any]) -> dict[str, Any]:
+        """The ``correct`` op: see :mod:`robocal.serve.server` for the schema."""
+        t_start = time.perf_counter()
+        bundle = self.bundle  # one bundle for the whole request, even if a reload swaps it meanwhile
+        cfg = self.config
+        sf = cfg.safety
+        robot = bundle.robot
+        n = robot.n_joints
+        allowed = {"op", "id", "token", "targets", "temperatures", "payload_kg", "tool", "mode"}
+        unknown = sorted(set(req) - allowed)
+        if unknown:
+            raise RequestError("bad_request", f"unknown field(s) {unknown}; known: {sorted(allowed)}")
+        tg = parse_targets(req.get("targets"), n, cfg.max_targets)
+        m = len(tg.kind)
+        mode = req.get("mode", "pose")
+        if mode not in ("pose", "position"):
+            raise RequestError("bad_request", f"'mode' must be 'pose' or 'position', got {mode!r}")
+        tool_name = req.get("tool", bundle.default_tool)
+        if not isinstance(tool_name, str) or tool_name not in bundle.tools:
+            raise RequestError("bad_request", f"unknown 'tool' {tool_name!r}; the bundle has {list(bundle.tools)}")
+        tool_T = bundle.tools[tool_name]
+        payload = _number(req.get("payload_kg", 0.0), "payload_kg")
+        if payload < 0:
+            raise RequestError("bad_request", "'payload_kg' must be >= 0")
+        reasons_all: list[str] = []  # request-level reasons (apply to every target)
+        refuse_all = False
+        temps = None
+        if bundle.thermal is not None:
+            if "temperatures" not in req:
+                raise RequestError(
+                    "bad_request",
+                    f"'temperatures' is required: the bundle has a thermal model of {list(bundle.sensors)}",
+                )
+            temps = parse_temperatures(req["temperatures"], bundle.sensors)
+            if bundle.t_lo is not None and bundle.t_hi is not None:
+                mg = sf.temperature_margin_C
+                hot = np.flatnonzero((temps < bundle.t_lo - mg) | (temps > bundle.t_hi + mg))
+                for i in hot:
+                    reasons_all.append(
+                        f"temperature {bundle.sensors[i]}={temps[i]:.2f} degC outside the fitted range "
+                        f"[{bundle.t_lo[i]:.2f}, {bundle.t_hi[i]:.2f}]"
+                    )
+                if len(hot) and sf.on_temperature_range == "refuse":
+                    refuse_all = True
+        elif "temperatures" in req and not isinstance(req["temperatures"], dict | list):
+            raise RequestError("bad_request", "'temperatures' must be an object or a list")
+        cc = self._compiled(bundle, temps)
+        cc_nom = self._compiled(bundle, None)
+        joint_offset = None
+        if bundle.compliance is not None:
+            pay = np.full(m, payload)
+            comp = bundle.compliance
+
+            def joint_offset(qc: np.ndarray, rows: np.ndarray) -> np.ndarray:
+                cur = None if tg.current_A is None else tg.current_A[rows]
+                tau = None if tg.tau_Nm is None else tg.tau_Nm[rows]
+                return np.asarray(comp.joint_offsets(qc, pay[rows], cur, tau), dtype=float)
+
+        sv = cfg.solver
+        kw = dict(
+            max_iter=sv.max_iter,
+            tol_mm=sv.tol_mm,
+            tol_rad=np.deg2rad(sv.tol_deg),
+            max_step_rad=np.deg2rad(sv.max_step_deg),
+        )
+        q_in = np.deg2rad(tg.q_deg)
+        q_target = q_in.copy()
+        pose_rows = np.flatnonzero(tg.kind == 1)
+        ik_ok = np.ones(m, dtype=bool)
+        if len(pose_rows):  # the nominal controller's inverse kinematics from the seed
+            R_p = quat_to_matrix(tg.quat[pose_rows])
+            ik = solve(cc_nom, tool_T, q_in[pose_rows], tg.xyz_mm[pose_rows], R_p, None, **kw)
+            q_target[pose_rows] = ik.q
+            ik_ok[pose_rows] = ik.converged
+        p_des, R_des, _, _ = forward(cc_nom, q_target, tool_T)
+        sol = solve(cc, tool_T, q_target, p_des, R_des if mode == "pose" else None, joint_offset, **kw)
+        q_corr = sol.q
+        dq_deg = np.rad2deg(q_corr - q_target)
+        err_before = np.linalg.norm(sol.error_before_mm, axis=1)
+        err_before_deg = np.rad2deg(np.linalg.norm(sol.error_before_rad, axis=1))
+        resid = np.linalg.norm(sol.residual_mm, axis=1)
+        resid_deg = np.rad2deg(np.linalg.norm(sol.residual_rad, axis=1))
+        cmd_p, cmd_R, _, _ = forward(cc_nom, q_corr, tool_T)  # what the nominal controller must be sent
+        cmd_quat = matrix_to_quat(cmd_R)
+        lim = robot.q_limits
+        mg = np.deg2rad(sf.joint_limit_margin_deg)
+        lo, hi = lim[:, 0] + mg, lim[:, 1] - mg
+        results = []
+        n_ref = n_flag = 0
+        qc_deg = np.rad2deg(q_corr).round(9)
+        qt_deg = np.rad2deg(q_target)
+        for k in range(m):
+            reasons = list(reasons_all)
+            refuse = refuse_all
+            if not ik_ok[k]:
+                reasons.append(
+                    "the pose target is unreachable from q_seed_deg (nominal inverse kinematics did not converge)"
+                )
+                refuse = True
+            elif not sol.converged[k] or resid[k] > sf.max_residual_mm:
+                reasons.append(f"compensation did not converge (residual {resid[k]:.4g} mm; near a singularity?)")
+                refuse = True
+            bad_t = np.flatnonzero((q_target[k] < lo) | (q_target[k] > hi))
+            bad_c = np.flatnonzero((q_corr[k] < lo) | (q_corr[k] > hi))
+            if len(bad_t) or len(bad_c):
+                js = sorted(set(bad_t.tolist()) | set(bad_c.tolist()))
+                reasons.append(
+                    "outside the joint limits: "
+                    + ", ".join(
+                        f"{robot.joint_names[j]}={qt_deg[k, j]:.4f} deg (corrected {qc_deg[k, j]:.4f})" for j in js
+                    )
+                )
+                refuse |= sf.on_joint_limits == "refuse"
+            big = float(np.abs(dq_deg[k]).max())
+            if big > sf.max_correction_deg or err_before[k] > sf.max_error_mm:
+                reasons.append(
+                    f"correction {big:.4g} deg / predicted error {err_before[k]:.4g} mm exceeds the bound "
+                    f"({sf.max_correction_deg} deg / {sf.max_error_mm} mm)"
+                )
+                refuse |= sf.on_correction_bound == "refuse"
+            r: dict[str, Any] = {
+                "status": "refused" if refuse else ("flagged" if reasons else "ok"),
+                "predicted_error_mm": round(float(err_before[k]), 7),
+                "predicted_error_xyz_mm": np.round(sol.error_before_mm[k], 7).tolist(),
+                "predicted_error_deg": round(float(err_before_deg[k]), 9),
+            }
+            if reasons:
+                r["reasons"] = reasons
+            if refuse:
+                n_ref += 1
+            else:
+                n_flag += bool(reasons)
+                r["q_deg"] = qc_deg[k].tolist()
+                r["correction_deg"] = dq_deg[k].round(9).tolist()
+                r["command"] = {"xyz_mm": cmd_p[k].round(7).tolist(), "quat_wxyz": cmd_quat[k].round(12).tolist()}
+                r["residual_mm"] = float(resid[k])
+                r["residual_deg"] = float(resid_deg[k])
+            if tg.kind[k] == 1:
+                r["q_nominal_deg"] = qt_deg[k].round(9).tolist()
+            results.append(r)
+        self.counters["targets"] += m
+        self.counters["refused"] += n_ref
+        self.counters["flagged"] += n_flag
+        out: dict[str, Any] = {
+            "ok": True,
+            "op": "correct",
+            "bundle": bundle.bundle_id,
+            "tool": tool_name,
+            "mode": mode,
+            "n": m,
+            "n_refused": n_ref,
+            "n_flagged": n_flag,
+            "results": results,
+        }
+        if temps is not None:
+            out["temperatures_C"] = temps.tolist()
+        out["elapsed_ms"] = round((time.perf_counter() - t_start) * 1e3, 4)
+        return out
