@@ -31,7 +31,7 @@ setup: $(STAMP) ## create .venv and install robocal with its tools
 run: $(STAMP) ## set up, then run the default pipeline end to end (dvc repro)
 	$(BIN)/dvc repro
 	@echo
-	@echo "report:  $(CURDIR)/reports/geometric/report.html"
+	@echo "reports: $(CURDIR)/reports/{geometric,thermal,screen,validate,compliance,discovery}/report.html"
 	@echo "metrics: $(BIN)/dvc metrics show    runs: make ui"
 
 test: $(STAMP) ## set up, then run the test suite
