@@ -27,7 +27,8 @@ from robocal.errors import ConfigError, DataError
 from robocal.robot import RobotDescription
 
 SPLIT_VALUES = ("calibration", "validation")
-#: A campaign whose largest position magnitude is below this looks like metres (a robot cell spans > 100 mm).
+#: A measured point closer than this to the tracker (the frame's origin) looks like metres: no target can sit
+#: inside the tracker head, and a robot cell measured in metres has every |p| of a few units.
 METRES_SUSPECT_MM = 10.0
 
 
@@ -221,12 +222,15 @@ def _read_table(path: Path) -> pd.DataFrame:
         else:
             # everything as text first, so that a bad cell is reported rather than silently coerced
             df = pd.read_csv(path, dtype=str, keep_default_na=False, skipinitialspace=True)
+            # pandas renames a repeated header ("x_mm", "x_mm.1"): check the header as written
+            header = pd.read_csv(path, header=None, nrows=1, dtype=str, keep_default_na=False, skipinitialspace=True)
+            df.columns = header.iloc[0].tolist()
     except Exception as exc:
         raise DataError(f"cannot be read as a table: {exc}", file=path) from None
     df.columns = [str(c).strip() for c in df.columns]
     dup = sorted({c for c in df.columns if list(df.columns).count(c) > 1})
     if dup:
-        raise DataError(f"duplicated column name(s) {dup}", file=path)
+        raise DataError(f"duplicated column name(s) {dup}", file=path, row=1, column=dup[0])
     if len(df) == 0:
         raise DataError("has a header but no rows", file=path)
     return df
@@ -288,7 +292,9 @@ def _timestamps(df: pd.DataFrame, col: str, path: Path) -> pd.Series:
 def _require(df: pd.DataFrame, cols: list[str], path: Path) -> None:
     missing = [c for c in cols if c not in df.columns]
     if missing:
-        raise DataError(f"missing required column(s) {missing}; present: {list(df.columns)}", file=path)
+        raise DataError(
+            f"missing required column(s) {missing}; present: {list(df.columns)}", file=path, row=1, column=missing[0]
+        )
 
 
 def _optional_block(df: pd.DataFrame, fmt: str, n: int, path: Path) -> np.ndarray | None:
@@ -298,7 +304,9 @@ def _optional_block(df: pd.DataFrame, fmt: str, n: int, path: Path) -> np.ndarra
         return None
     if len(present) != n:
         missing = [c for c in names if c not in df.columns]
-        raise DataError(f"has {present} but not {missing}: give all {n} joints or none", file=path)
+        raise DataError(
+            f"has {present} but not {missing}: give all {n} joints or none", file=path, row=1, column=missing[0]
+        )
     return np.column_stack([_numeric(df, c, path) for c in names])
 
 
@@ -332,7 +340,12 @@ def read_campaign(
     _require(df, ["pose_id", "timestamp", *qcols, "x_mm", "y_mm", "z_mm"], path)
     extra_q = [c for c in df.columns if re.fullmatch(r"q(\d+)_deg", c) and int(c[1:-4]) > n]
     if extra_q:
-        raise DataError(f"has joint column(s) {extra_q} but robot {robot.name!r} has {n} joints", file=path)
+        raise DataError(
+            f"has joint column(s) {extra_q} but robot {robot.name!r} has {n} joints",
+            file=path,
+            row=1,
+            column=extra_q[0],
+        )
     m = len(df)
 
     # identifiers
@@ -367,15 +380,19 @@ def read_campaign(
                 column=c,
             )
 
-    # positions (mm; reject metres)
-    p = np.column_stack([_numeric(df, c, path) for c in ("x_mm", "y_mm", "z_mm")])
-    reach = float(np.max(np.linalg.norm(p, axis=1)))
-    if reach < METRES_SUSPECT_MM:
+    # positions (mm; reject metres, row by row, so that a file mixing units is caught too)
+    pcols = ("x_mm", "y_mm", "z_mm")
+    p = np.column_stack([_numeric(df, c, path) for c in pcols])
+    dist = np.linalg.norm(p, axis=1)
+    near = dist < METRES_SUSPECT_MM
+    if near.any():
+        i = int(np.flatnonzero(near)[0])
         raise DataError(
-            f"the largest target distance from the tracker is {reach:.4g}; positions look like metres, "
-            "the contract wants millimetres",
+            f"target {dist[i]:.4g} from the tracker ({int(near.sum())} of {m} row(s) closer than "
+            f"{METRES_SUSPECT_MM:g}); positions look like metres, the contract wants millimetres",
             file=path,
-            column="x_mm",
+            row=_row(i),
+            column=pcols[int(np.argmax(np.abs(p[i])))],
         )
 
     # orientation
@@ -384,7 +401,8 @@ def read_campaign(
     quat = None
     if present:
         if len(present) != 4:
-            raise DataError(f"has {present} but not all of {qcols_o}", file=path)
+            missing_o = [c for c in qcols_o if c not in present]
+            raise DataError(f"has {present} but not all of {qcols_o}", file=path, row=1, column=missing_o[0])
         quat = np.column_stack([_numeric(df, c, path) for c in qcols_o])
         norm = np.linalg.norm(quat, axis=1)
         bad = np.abs(norm - 1.0) > quat_norm_tol
@@ -488,7 +506,7 @@ def read_campaign(
 
 
 def _check_same_joints(camp: Campaign, path: Path, qcols: list[str]) -> None:
-    """The contract: a pose_id measured again has the same joint angles (up to 1e-6 deg of rounding)."""
+    """The contract: a pose_id measured again has the same joint angles (up to 1e-3 deg of rounding)."""
     order = np.argsort(camp.pose_id, kind="stable")
     pid = camp.pose_id[order]
     q = camp.q[order]
@@ -531,13 +549,15 @@ def _join_temperatures(
     _require(df, ["timestamp"], path)
     sensors = [c for c in df.columns if re.fullmatch(r"T_.+_C", c)]
     if not sensors:
-        raise DataError("no sensor column (T_<sensor>_C)", file=path)
+        raise DataError("no sensor column (T_<sensor>_C)", file=path, row=1)
     if robot.sensors:
         unknown = [s for s in sensors if s not in robot.sensor_names]
         if unknown:
             raise DataError(
                 f"sensor column(s) {unknown} are not in robot {robot.name!r}'s sensors {list(robot.sensor_names)}",
                 file=path,
+                row=1,
+                column=unknown[0],
             )
     ts = _timestamps(df, "timestamp", path)
     tv = ts.to_numpy()

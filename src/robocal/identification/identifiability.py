@@ -3,9 +3,9 @@
 The Jacobian columns are scaled to unit norm (so mm and rad compare), the numerical rank is read
 from the singular values, and columns are kept in a priority order (frames and tools first, then the
 joint-level parameters base to flange): a column is kept when the part of it that the columns before
-it cannot explain is larger than ``rtol`` of its norm. This is a QR factorisation whose pivot order is
-fixed by physical preference instead of column norms; the rank it finds equals the SVD rank unless
-parameters are nearly (not exactly) redundant, which the report then says.
+it cannot explain is larger than ``rtol`` of its norm. This is a QR factorisation (against the kept
+columns only) whose pivot order is fixed by physical preference instead of column norms; the rank it
+finds equals the SVD rank unless parameters are nearly (not exactly) redundant, which the report then says.
 """
 
 from __future__ import annotations
@@ -93,10 +93,28 @@ def analyse(
     cand = np.asarray(candidates, dtype=int)
     norms = np.linalg.norm(J[:, cand], axis=0)
     Jc = J[:, cand] / np.where(norms > 0, norms, 1.0)
-    # Householder QR in the priority order: |R_kk| is the norm of the part of column k that the
-    # columns before it cannot explain (columns dropped before k lie in the span of kept ones).
-    Rq: np.ndarray = np.linalg.qr(Jc, mode="r")  # type: ignore[assignment]
-    left_all = np.abs(np.diag(Rq)) if Rq.shape[0] >= Rq.shape[1] else np.zeros(len(cand))
+    # QR in the priority order, against the kept columns only: left[k] is the norm of the part of column k
+    # that the kept columns before it cannot explain. (One Householder QR over all candidates would let each
+    # dropped column use up a dimension of R, so later columns would be judged against a wrong span, and
+    # with fewer residuals than candidates nothing after the M-th candidate could be kept.) The rows are
+    # first reduced by one QR (an orthogonal change of coordinates: distances and singular values are kept);
+    # then [kept, pending] is factorised again after each dropped column: |R_jj| holds up to the next drop.
+    A: np.ndarray = np.linalg.qr(Jc, mode="r")  # type: ignore[assignment]
+    left_all = np.zeros(len(cand))
+    kept_pos: list[int] = []
+    pending = [k for k in range(len(cand)) if norms[k] > 0.0]
+    while pending:
+        block = kept_pos + pending
+        Rb: np.ndarray = np.linalg.qr(A[:, block], mode="r")  # type: ignore[assignment]
+        d = np.zeros(len(block))
+        diag = np.abs(np.diag(Rb))
+        d[: len(diag)] = diag  # beyond the row count nothing is left to explain
+        d = d[len(kept_pos) :]
+        left_all[pending] = d
+        drop = np.flatnonzero(d <= rtol)
+        stop = int(drop[0]) if drop.size else len(pending)
+        kept_pos += pending[:stop]
+        pending = pending[stop + 1 :]
     kept: list[int] = []
     weak: list[tuple[int, float, str]] = []
     for k, c in enumerate(cand):
@@ -107,7 +125,7 @@ def analyse(
             kept.append(c)
         else:
             weak.append((c, left, "redundant" if left < 1e-9 else "not identifiable with these poses"))
-    sv = np.linalg.svd(Jc, compute_uv=False)
+    sv = np.linalg.svd(A, compute_uv=False)  # those of Jc
     rank = int(np.sum(sv > rtol * sv[0])) if len(sv) else 0
 
     eliminated = []
