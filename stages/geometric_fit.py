@@ -1,12 +1,15 @@
 """geometric_fit: geometric calibration of the interim campaign (robocal.workflows.geometric.run_calibration).
 
-Reads ``robot``, ``optimizer`` (its stopping rules) and ``calibration``; writes ``reports/geometric/``
+Reads ``robot``, ``optimizer`` (gn / lm: calibrate() with the optimizer's stopping rules; ipopt / igoa / goa / woa:
+robocal.workflows.optimizers.fit_with_optimizer, raw and polished results both in summary.json and the metrics)
+and ``calibration``; writes ``reports/geometric/``
 (calibration.json, summary.json, residuals.csv, report.html), metrics (errors in mm, and degrees when the
 campaign has orientations; times) and two plots for ``dvc plots show``.
 
 Sweep inside the stage (nested MLflow runs under one parent)::
 
-    python stages/geometric_fit.py -m optimizer=gn,lm
+    python stages/geometric_fit.py -m optimizer=gn,lm,ipopt
+    python stages/geometric_fit.py -m optimizer=igoa,goa,woa optimizer.polish=true
     python stages/geometric_fit.py -m calibration.noise_mm=0.01,0.015,0.02 hydra/launcher=joblib
 """
 
@@ -25,9 +28,10 @@ STAGE = Stage(
 )
 #: The stage's input: the prepare stage's interim copy of the campaign.
 INPUT = "data/interim"
-#: Optimizers the geometric fit can use (robocal.identification.solver). Population methods (goa, igoa, woa)
-#: are for the thermal stage.
+#: Optimizers that run calibrate() itself (robocal.identification.solver); the others (ipopt, igoa, goa, woa) go
+#: through robocal.workflows.optimizers.fit_with_optimizer (positions only, optional Gauss-Newton polish).
 GRADIENT_OPTIMIZERS = ("gn", "lm")
+OPTIMIZERS = ("gn", "lm", "ipopt", "igoa", "goa", "woa")
 
 
 def calibration_settings(cfg: dict[str, Any]) -> tuple[dict[str, Any], bool]:
@@ -36,15 +40,14 @@ def calibration_settings(cfg: dict[str, Any]) -> tuple[dict[str, Any], bool]:
 
     opt = cfg["optimizer"]
     name = opt.get("name")
-    if name not in GRADIENT_OPTIMIZERS:
-        raise ConfigError(
-            f"The config key 'optimizer.name' must be one of {list(GRADIENT_OPTIMIZERS)} for geometric_fit "
-            f"(Gauss-Newton / Levenberg-Marquardt). Got {name!r} instead."
-        )
-    if opt.get("polish", False):
-        raise ConfigError("The config key 'optimizer.polish' must be false for a gradient optimizer.")
+    if name not in OPTIMIZERS:
+        raise ConfigError(f"The config key 'optimizer.name' must be one of {list(OPTIMIZERS)}. Got {name!r} instead.")
     settings = dict(cfg["calibration"])
     report = bool(settings.pop("report", True))
+    if name not in GRADIENT_OPTIMIZERS:
+        return settings, report
+    if opt.get("polish", False):
+        raise ConfigError("The config key 'optimizer.polish' must be false for a gradient optimizer.")
     for key in ("max_iter", "ftol", "xtol"):
         if key not in opt:
             raise ConfigError(f"The config key 'optimizer.{key}' is missing (optimizer {name!r}).")
@@ -75,6 +78,13 @@ def metrics_of(summary: dict[str, Any]) -> dict[str, Any]:
     for part in ("validation", "validation_before"):
         if part in summary:
             out[part] = {k: v for k, v in summary[part].items() if isinstance(v, int | float)}
+    if "optimizer" in summary:  # raw and polished results of a non-gradient optimizer, side by side
+        opt = summary["optimizer"]
+        for part in ("raw", "polished", "times_s"):
+            if part in opt:
+                out[f"optimizer_{part}"] = {
+                    k: v for k, v in opt[part].items() if isinstance(v, int | float) and not isinstance(v, bool)
+                }
     return out
 
 
@@ -87,7 +97,7 @@ def compute(ctx: Context) -> dict[str, Any]:
 
     settings, report = calibration_settings(ctx.cfg)
     robot = robot_from_dict(ctx.cfg["robot"], source="params: robot")
-    summary = run_calibration(ctx.path(INPUT), robot, ctx.out, settings, report=report)
+    summary = run_calibration(ctx.path(INPUT), robot, ctx.out, settings, report=report, optimizer=ctx.cfg["optimizer"])
 
     rows = pd.read_csv(ctx.out / "residuals.csv")
     cal = rows[rows["split"] == "calibration"]

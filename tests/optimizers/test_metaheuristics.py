@@ -397,7 +397,13 @@ def test_config_files_build_their_optimizer_with_the_code_defaults(stem, cls):
     opt = make_optimizer(cfg)
     assert type(opt) is cls and opt.name == cfg["name"] == stem
     assert cfg["_target_"] == f"{cls.__module__}.{cls.__name__}"
-    assert pipeline_options(cfg) == {"polish": False, "objective": "nonlinear"}
+    assert pipeline_options(cfg) == {
+        "polish": False,
+        "objective": "nonlinear",
+        "bound_mm": 1.0,
+        "bound_deg": 0.1,
+        "stop_error": None,
+    }
     # every coefficient is in the file, with the value the class uses by default
     defaults = {k: p.default for k, p in inspect.signature(cls.__init__).parameters.items() if k != "self"}
     coefficients = {k: v for k, v in cfg.items() if k not in PIPELINE_KEYS}
@@ -409,7 +415,7 @@ def test_config_files_build_their_optimizer_with_the_code_defaults(stem, cls):
 
 def test_registry_by_target_and_errors():
     assert isinstance(make_optimizer({"_target_": "robocal.optimizers.woa.WOA"}), WOA)
-    with pytest.raises(ConfigError, match=r"must be one of \[.*'goa', 'igoa', 'woa'"):
+    with pytest.raises(ConfigError, match=r"must be one of \['gn', 'goa', 'igoa', 'ipopt', 'lm', 'woa'\]"):
         make_optimizer({"name": "pso"})
     with pytest.raises(ConfigError, match="arbitrary classes are not instantiated"):
         make_optimizer({"_target_": "os.system"})

@@ -77,6 +77,14 @@ def copy(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
         assert len(lines) == 1, key
         text = text.replace(lines[0], f"{key}: {value}")
     sc.write_text(text)
+    # the optimizer comparison, tiny: one run of population 20 for 10 iterations per algorithm
+    cmp_cfg = root / "conf" / "compare" / "default.yaml"
+    text = cmp_cfg.read_text()
+    for key, value in (("populations", "[20]"), ("runs", "1"), ("max_iter", "10")):
+        lines = [ln for ln in text.splitlines() if ln.startswith(f"{key}:")]
+        assert len(lines) == 1, key
+        text = text.replace(lines[0], f"{key}: {value}")
+    cmp_cfg.write_text(text)
     write_params(root)
     _git(root, "init", "-q")
 

@@ -164,13 +164,19 @@ def test_missing_campaign_is_a_clear_error_naming_the_key(
     assert not (root / "data" / "interim" / "poses.parquet").exists()
 
 
-def test_geometric_fit_rejects_a_population_optimizer_naming_the_key() -> None:
+def test_geometric_fit_rejects_an_unknown_optimizer_naming_the_key() -> None:
     from robocal.errors import ConfigError
 
     fit = _load_stage("geometric_fit")
-    cfg = {"optimizer": {"name": "goa", "max_iter": 10}, "calibration": {}}
-    with pytest.raises(ConfigError, match=r"'optimizer\.name'.*'goa'"):
+    cfg = {"optimizer": {"name": "pso", "max_iter": 10}, "calibration": {}}
+    with pytest.raises(ConfigError, match=r"'optimizer\.name'.*'pso'"):
         fit.calibration_settings(cfg)
+    # every optimizer of conf/optimizer/ is accepted (population methods too: issue 4)
+    for name in ("gn", "lm", "ipopt", "igoa", "goa", "woa"):
+        assert (REPO / "conf" / "optimizer" / f"{name}.yaml").is_file()
+        fit.calibration_settings(
+            {"optimizer": {"name": name, "max_iter": 5, "ftol": 1e-9, "xtol": 1e-9}, "calibration": {}}
+        )
     settings, report = fit.calibration_settings(
         {
             "optimizer": {"name": "gn", "max_iter": 7, "ftol": 1e-9, "xtol": 1e-8, "polish": False},

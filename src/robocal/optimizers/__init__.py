@@ -1,12 +1,16 @@
 """Optimizers for identification: one protocol (:class:`Problem` in, :class:`OptimizeResult` out).
 
-Population methods: :class:`GOA`, :class:`ImprovedGOA` (Guo et al. 2026), :class:`WOA`. Build one from a
-Hydra ``optimizer`` config with :func:`make_optimizer`; add more with :func:`register`.
+Gradient methods: :class:`GaussNewton`, :class:`LevenbergMarquardt` (``robocal.identification.solver``),
+:class:`Ipopt` (CasADi, exact derivatives). Population methods: :class:`GOA`, :class:`ImprovedGOA` (Guo et al.
+2026), :class:`WOA`. Build one from a Hydra ``optimizer`` config with :func:`make_optimizer`; add more with
+:func:`register`. The calibration as a Problem: :mod:`robocal.optimizers.calibration`.
 """
 
 from __future__ import annotations
 
 from robocal.optimizers.goa import GOA, ImprovedGOA
+from robocal.optimizers.gradient import GaussNewton, LevenbergMarquardt
+from robocal.optimizers.ipopt import Ipopt
 from robocal.optimizers.protocol import (
     STATUS_MESSAGES,
     IterationInfo,
@@ -23,8 +27,11 @@ __all__ = [
     "GOA",
     "STATUS_MESSAGES",
     "WOA",
+    "GaussNewton",
     "ImprovedGOA",
+    "Ipopt",
     "IterationInfo",
+    "LevenbergMarquardt",
     "OptimizeResult",
     "Optimizer",
     "Problem",

@@ -48,6 +48,7 @@ from robocal.optimizers.protocol import (
     SearchTracker,
     check_int,
     check_real,
+    other_index,
     require_finite_bounds,
 )
 
@@ -99,15 +100,9 @@ def tent_population(
     return z
 
 
-def _other_index(rng: np.random.Generator, n_pop: int, me: np.ndarray) -> np.ndarray:
-    """For each index in ``me`` a uniformly random index in [0, n_pop) different from it."""
-    r = rng.integers(0, n_pop - 1, size=me.shape)
-    return r + (r >= me)
-
-
 def _two_other_indices(rng: np.random.Generator, n_pop: int, me: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """For each index c in ``me`` two random indices r1 != r2, both != c (needs n_pop >= 3)."""
-    r1 = _other_index(rng, n_pop, me)
+    r1 = other_index(rng, n_pop, me)
     lo = np.minimum(me, r1)
     hi = np.maximum(me, r1)
     r2 = rng.integers(0, n_pop - 2, size=me.shape)
@@ -178,7 +173,7 @@ def goat_search(
         # (6) jump toward another random goat (eq. 12), synchronous snapshot
         jumpers = np.flatnonzero(rng.random(n_pop) < jump_prob)
         if jumpers.size:
-            partners = _other_index(rng, n_pop, jumpers)
+            partners = other_index(rng, n_pop, jumpers)
             X[jumpers] += jump_coef * (X[partners] - X[jumpers])
             dirty[jumpers] = True
         np.clip(X, lb, ub, out=X)

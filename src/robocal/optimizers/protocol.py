@@ -44,14 +44,17 @@ __all__ = [
     "evaluate",
     "evaluate_batch",
     "fitness_from_residuals",
+    "other_index",
     "require_finite_bounds",
     "residual_vector",
 ]
 
 #: Fitness of a residual vector r (m,): "sse" = sum r², "l1" = sum |r| (the thermal paper's eq. 9 when
 #: r = dP - J dEta), "rms3d" = sqrt(mean over points of |r_i|²) with r read as consecutive xyz triples
-#: (the RMS 3-D position error, in the residual's unit).
-OBJECTIVES = ("sse", "l1", "rms3d")
+#: (the RMS 3-D position error, in the residual's unit), "mean3d" = mean over points of |r_i| (the thermal
+#: paper's eq. 9, sum over poses of |dP_l - J_l dEta|, divided by the number of poses so that it reads as a
+#: mean 3-D error: same minimiser).
+OBJECTIVES = ("sse", "l1", "rms3d", "mean3d")
 
 #: Status code -> message, as scipy's ``least_squares``. ``success`` is ``status > 0``. Codes 1-3 follow
 #: ``robocal.identification.solver`` (Gauss-Newton / LM) so that it can be wrapped without translation.
@@ -178,6 +181,9 @@ class Problem:
         Iteration budget (>= 1). An optimizer's own ``max_iter`` keyword, when set, overrides it.
     seed : int
         Seed (>= 0) of ``np.random.default_rng``: the only source of randomness.
+    symbolic : object, optional
+        A symbolic form of ``residuals`` for solvers that differentiate it themselves (CasADi + Ipopt):
+        see :class:`robocal.optimizers.ipopt.SymbolicResiduals`.
     """
 
     n: int
@@ -193,6 +199,7 @@ class Problem:
     target: float | None = None
     max_iter: int = 200
     seed: int = 0
+    symbolic: Any = None
 
     def __post_init__(self) -> None:
         put = object.__setattr__  # frozen: normalise once, here
@@ -282,14 +289,17 @@ def fitness_from_residuals(R: np.ndarray, objective: str) -> np.ndarray:
         return np.einsum("ij,ij->i", R, R)
     if objective == "l1":
         return np.abs(R).sum(axis=1)
-    if objective == "rms3d":
+    if objective in ("rms3d", "mean3d"):
         m = R.shape[1]
         if m % 3:
             raise ConfigError(
-                "The 'objective' parameter of Problem is 'rms3d', which needs residuals in xyz triples "
+                f"The 'objective' parameter of Problem is {objective!r}, which needs residuals in xyz triples "
                 f"(m divisible by 3). Got m={m} instead."
             )
-        return np.sqrt(np.einsum("ij,ij->i", R, R) / max(m // 3, 1))
+        if objective == "rms3d":
+            return np.sqrt(np.einsum("ij,ij->i", R, R) / max(m // 3, 1))
+        R3 = R.reshape(R.shape[0], -1, 3)
+        return np.sqrt(np.einsum("ijk,ijk->ij", R3, R3)).mean(axis=1)
     raise ConfigError(f"The 'objective' parameter of Problem must be one of {list(OBJECTIVES)}. Got {objective!r}.")
 
 
@@ -507,6 +517,12 @@ class SearchTracker:
             method=self.method,
             extra=info,
         )
+
+
+def other_index(rng: np.random.Generator, n_pop: int, me: np.ndarray) -> np.ndarray:
+    """For each index in ``me`` a uniformly random index in [0, n_pop) different from it (population moves)."""
+    r = rng.integers(0, n_pop - 1, size=me.shape)
+    return r + (r >= me)
 
 
 class EstimatorParams:

@@ -3,8 +3,8 @@
 ``make_optimizer(cfg)`` looks ``cfg["name"]`` (or ``cfg["_target_"]``) up in a registry of known
 factories, so a config can only select optimizers the code registered: Hydra's ``optimizer=goa`` works and
 nothing arbitrary is instantiated. The other keys are the optimizer's keyword arguments, except the
-pipeline keys (:data:`PIPELINE_KEYS`: ``polish``, ``objective``), which the calling workflow reads with
-:func:`pipeline_options`. More optimizers (Gauss-Newton / LM, Ipopt) are added with :func:`register`.
+pipeline keys (:data:`PIPELINE_KEYS`), which the calling workflow reads with :func:`pipeline_options`.
+Registered: ``gn``, ``lm``, ``ipopt``, ``igoa``, ``goa``, ``woa``; add more with :func:`register`.
 """
 
 from __future__ import annotations
@@ -16,7 +16,9 @@ from typing import Any
 
 from robocal.errors import ConfigError
 from robocal.optimizers.goa import GOA, ImprovedGOA
-from robocal.optimizers.protocol import Optimizer
+from robocal.optimizers.gradient import GaussNewton, LevenbergMarquardt
+from robocal.optimizers.ipopt import Ipopt
+from robocal.optimizers.protocol import Optimizer, check_real
 from robocal.optimizers.woa import WOA
 
 __all__ = [
@@ -30,8 +32,10 @@ __all__ = [
 
 #: Keys of an optimizer config that are not constructor arguments.
 #: ``polish``: run a Gauss-Newton polish from the population method's best (the workflow does it);
-#: ``objective``: "nonlinear" (residuals of the full model) or "linearized" (dP - J dEta, eq. 9).
-PIPELINE_KEYS = ("name", "_target_", "polish", "objective")
+#: ``objective``: "nonlinear" (residuals of the full model) or "linearized" (dP - J dEta, eq. 9);
+#: ``bound_mm`` / ``bound_deg``: half-width of the search box around the initial estimate (lengths / angles);
+#: ``stop_error``: stop when the best fitness (mm) is below it; "auto" = 1.1 x the noise floor; null = never.
+PIPELINE_KEYS = ("name", "_target_", "polish", "objective", "bound_mm", "bound_deg", "stop_error")
 OBJECTIVE_KINDS = ("nonlinear", "linearized")
 
 Factory = Callable[..., Optimizer]
@@ -151,7 +155,11 @@ def make_optimizer(cfg: Mapping[str, Any]) -> Optimizer:
 
 
 def pipeline_options(cfg: Mapping[str, Any]) -> dict[str, Any]:
-    """The workflow-level keys of an optimizer config, validated: ``{"polish": bool, "objective": str}``."""
+    """The workflow-level keys of an optimizer config, validated.
+
+    Returns ``{"polish": bool, "objective": str, "bound_mm": float, "bound_deg": float,
+    "stop_error": float | "auto" | None}`` (defaults: False, "nonlinear", 1.0, 0.1, None).
+    """
     polish = cfg.get("polish", False)
     if not isinstance(polish, bool):
         raise ConfigError(f"The 'polish' key of the optimizer config must be a bool. Got {polish!r} instead.")
@@ -161,7 +169,12 @@ def pipeline_options(cfg: Mapping[str, Any]) -> dict[str, Any]:
             f"The 'objective' key of the optimizer config must be one of {list(OBJECTIVE_KINDS)}. "
             f"Got {objective!r} instead."
         )
-    return {"polish": polish, "objective": objective}
+    bound_mm = check_real(cfg.get("bound_mm", 1.0), "bound_mm", "the optimizer config", 0.0, low_open=True)
+    bound_deg = check_real(cfg.get("bound_deg", 0.1), "bound_deg", "the optimizer config", 0.0, low_open=True)
+    stop = cfg.get("stop_error", None)
+    if stop is not None and stop != "auto":
+        stop = check_real(stop, "stop_error", "the optimizer config", 0.0, low_open=True)
+    return {"polish": polish, "objective": objective, "bound_mm": bound_mm, "bound_deg": bound_deg, "stop_error": stop}
 
 
 def _plain(value: Any) -> Any:
@@ -178,3 +191,6 @@ def _plain(value: Any) -> Any:
 register("goa", GOA, target="robocal.optimizers.goa.GOA")
 register("igoa", ImprovedGOA, target="robocal.optimizers.goa.ImprovedGOA")
 register("woa", WOA, target="robocal.optimizers.woa.WOA")
+register("gn", GaussNewton, target="robocal.optimizers.gradient.GaussNewton")
+register("lm", LevenbergMarquardt, target="robocal.optimizers.gradient.LevenbergMarquardt")
+register("ipopt", Ipopt, target="robocal.optimizers.ipopt.Ipopt")

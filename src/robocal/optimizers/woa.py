@@ -35,6 +35,7 @@ from robocal.optimizers.protocol import (
     SearchTracker,
     check_int,
     check_real,
+    other_index,
     require_finite_bounds,
 )
 
@@ -84,7 +85,7 @@ def whale_search(
         ref = np.broadcast_to(best, (n_pop, n)).copy()
         search = shrink & (np.abs(A) >= 1.0)
         if search.any():
-            ref[search] = X[_other_index(rng, n_pop, everyone[search])]
+            ref[search] = X[other_index(rng, n_pop, everyone[search])]
         X_new = np.empty_like(X)
         s = np.flatnonzero(shrink)
         X_new[s] = ref[s] - A[s, None] * np.abs(C[s, None] * ref[s] - X[s])
@@ -98,11 +99,6 @@ def whale_search(
         if tracker.end_iteration(X, fit):
             break
     return tracker.result(extra)
-
-
-def _other_index(rng: np.random.Generator, n_pop: int, me: np.ndarray) -> np.ndarray:
-    r = rng.integers(0, n_pop - 1, size=me.shape)
-    return r + (r >= me)
 
 
 class WOA(EstimatorParams):

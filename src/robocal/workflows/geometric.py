@@ -48,16 +48,34 @@ def run_calibration(
     split: Mapping[str, Any] | None = None,
     report: bool = True,
     campaign: Campaign | None = None,
+    optimizer: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Calibrate the campaign in ``data_dir``; write ``calibration.json``, ``summary.json``,
-    ``residuals.csv`` and (optionally) ``report.html`` into ``out_dir``. Returns the summary."""
+    ``residuals.csv`` and (optionally) ``report.html`` into ``out_dir``. Returns the summary.
+
+    ``optimizer``: an optimizer config (``conf/optimizer/*.yaml``); None, ``gn`` or ``lm`` run
+    ``calibrate`` (stopping rules from ``overrides``); ``ipopt`` / ``igoa`` / ``goa`` / ``woa`` go through
+    :func:`robocal.workflows.optimizers.fit_with_optimizer`, and the summary gets an ``optimizer`` section
+    with the raw and (with ``polish``) the polished result."""
     rob = robot if isinstance(robot, RobotDescription) else load_robot(robot)
     cfg = CalibrationConfig.from_mapping(overrides)
     camp = campaign if campaign is not None else read_campaign(data_dir, rob, split=split_config(split))
-    result = calibrate(camp, rob, cfg)
+    outcome = None
+    if optimizer is None or optimizer.get("name") in ("gn", "lm"):
+        result = calibrate(camp, rob, cfg)
+    else:
+        from robocal.workflows.optimizers import fit_with_optimizer
+
+        outcome = fit_with_optimizer(camp, rob, cfg, optimizer)
+        result = outcome.result
     val = validate(result, camp) if np.any(camp.split == "validation") else None
     val_before = validate(result, camp, x=result.extra["x_init"]) if val else None
     summary = summarise(result, val)
+    if outcome is not None:
+        summary["optimizer"] = outcome.summary()
+        if outcome.polished is not None and val:
+            raw_val = validate(outcome.raw, camp)
+            summary["optimizer"]["raw"]["validation_rms_position_mm"] = raw_val["rms_position_mm"]
     if val_before:
         summary["validation_before"] = {
             k: val_before[k] for k in ("mean_position_mm", "rms_position_mm", "max_position_mm")

@@ -1,0 +1,170 @@
+"""Gauss-Newton and Levenberg-Marquardt behind the optimizer protocol.
+
+Thin wrappers of :func:`robocal.identification.solver.levenberg_marquardt` (the solver ``calibrate()``
+uses): a :class:`~robocal.optimizers.protocol.Problem` with ``residuals`` and ``jacobian`` in, an
+:class:`~robocal.optimizers.protocol.OptimizeResult` out. Both minimise the sum of squared residuals
+without bounds (a least-squares solver; ``problem.lower``/``upper`` are reported, not enforced:
+``extra["inside_bounds"]``), starting from ``problem.x0``.
+
+* ``gn``: Gauss-Newton, undamped (``lam0 = 0``); the solver damps a step only when it fails to lower the
+  cost, as a safeguard.
+* ``lm``: Levenberg-Marquardt, the same solver with ``lam0`` configurable (default 0, which is what
+  ``calibrate()`` runs: the first successful steps are pure Gauss-Newton, damping grows on failure).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from robocal.errors import ConfigError
+from robocal.identification.solver import levenberg_marquardt
+from robocal.optimizers.protocol import (
+    STATUS_MESSAGES,
+    EstimatorParams,
+    OptimizeResult,
+    Problem,
+    check_int,
+    check_real,
+    fitness_from_residuals,
+)
+
+__all__ = ["GaussNewton", "LevenbergMarquardt", "check_problem", "history_in_objective"]
+
+
+def check_problem(problem: object, owner: str) -> Problem:
+    """Raise :class:`ConfigError` unless ``problem`` is a :class:`Problem`."""
+    if not isinstance(problem, Problem):
+        raise ConfigError(
+            f"The 'problem' parameter of {owner}.minimize must be a Problem. Got {type(problem).__name__} instead."
+        )
+    return problem
+
+
+def history_in_objective(costs: list[float], problem: Problem, m: int) -> tuple[list[float], str]:
+    """Least-squares costs ``0.5 |r|²`` as the problem's fitness where that is a function of them."""
+    if problem.objective == "sse":
+        return [2.0 * c for c in costs], "sse"
+    if problem.objective == "rms3d" and m % 3 == 0:
+        return [math.sqrt(2.0 * c / max(m // 3, 1)) for c in costs], "rms3d"
+    return [2.0 * c for c in costs], "sse"  # l1 / mean3d are not functions of the sum of squares
+
+
+class GaussNewton(EstimatorParams):
+    """Gauss-Newton (``lam0 = 0``) on ``problem.residuals`` / ``problem.jacobian``.
+
+    Parameters
+    ----------
+    max_iter : int, optional
+        Iteration budget; None takes ``problem.max_iter``.
+    ftol : float, default 1e-12
+        Stop when the relative cost reduction falls below it.
+    xtol : float, default 1e-10
+        Stop when the scaled step falls below it.
+    """
+
+    name = "gn"
+    _lam0_default = 0.0
+
+    def __init__(self, *, max_iter: int | None = None, ftol: float = 1e-12, xtol: float = 1e-10) -> None:
+        self.max_iter = max_iter
+        self.ftol = ftol
+        self.xtol = xtol
+
+    def _lam0(self) -> float:
+        return self._lam0_default
+
+    def validate_params(self) -> None:
+        owner = type(self).__name__
+        if self.max_iter is not None:
+            check_int(self.max_iter, "max_iter", owner, minimum=0)
+        check_real(self.ftol, "ftol", owner, 0.0)
+        check_real(self.xtol, "xtol", owner, 0.0)
+
+    def minimize(self, problem: Problem) -> OptimizeResult:
+        """Least squares from ``problem.x0`` (required) with the analytic Jacobian (required)."""
+        owner = type(self).__name__
+        problem = check_problem(problem, owner)
+        self.validate_params()
+        if problem.residuals is None or problem.jacobian is None:
+            raise ConfigError(
+                f"{owner} needs a Problem with 'residuals' and 'jacobian'. Got residuals="
+                f"{problem.residuals!r}, jacobian={problem.jacobian!r} instead."
+            )
+        if problem.x0 is None:
+            raise ConfigError(f"The 'x0' parameter of Problem is required by {owner}. Got None instead.")
+        res_fun, jac_fun = problem.residuals, problem.jacobian
+
+        def fun(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            return np.asarray(res_fun(x), dtype=float).ravel(), np.asarray(jac_fun(x), dtype=float)
+
+        max_iter = int(self.max_iter if self.max_iter is not None else problem.max_iter)
+        lm = levenberg_marquardt(
+            fun,
+            problem.x0,
+            np.arange(problem.n),
+            1.0,
+            max_iter=max_iter,
+            ftol=float(self.ftol),
+            xtol=float(self.xtol),
+            lam0=self._lam0(),
+        )
+        m = lm.r.size
+        cost = float(fitness_from_residuals(lm.r[None, :], problem.objective)[0])
+        history, kind = history_in_objective(lm.history[1:], problem, m)
+        JtJ = lm.J.T @ lm.J
+        dof = max(m - problem.n, 1)
+        try:
+            cov = np.linalg.inv(JtJ) * (2.0 * lm.cost / dof)
+        except np.linalg.LinAlgError:
+            cov = None
+        inside = bool(np.all(lm.x >= problem.lower) and np.all(lm.x <= problem.upper))
+        return OptimizeResult(
+            x=lm.x.copy(),
+            cost=cost,
+            success=lm.status > 0,
+            status=lm.status,
+            message=STATUS_MESSAGES[lm.status],
+            nit=lm.nit,
+            nfev=lm.nfev,
+            njev=lm.njev,
+            wall_time_s=lm.wall_time_s,
+            history=history,
+            method=self.name,
+            covariance=cov,
+            extra={
+                "least_squares_cost": lm.cost,
+                "history_kind": kind,
+                "solver_message": lm.message,
+                "inside_bounds": inside,
+                "lam0": self._lam0(),
+            },
+        )
+
+
+class LevenbergMarquardt(GaussNewton):
+    """Levenberg-Marquardt: :class:`GaussNewton` with a configurable initial damping ``lam0``.
+
+    Parameters
+    ----------
+    max_iter, ftol, xtol
+        As :class:`GaussNewton`.
+    lam0 : float, default 0.0
+        Initial damping (Marquardt scaling); 0 is ``calibrate()``'s behaviour.
+    """
+
+    name = "lm"
+
+    def __init__(
+        self, *, max_iter: int | None = None, ftol: float = 1e-12, xtol: float = 1e-10, lam0: float = 0.0
+    ) -> None:
+        super().__init__(max_iter=max_iter, ftol=ftol, xtol=xtol)
+        self.lam0 = lam0
+
+    def _lam0(self) -> float:
+        return float(self.lam0)
+
+    def validate_params(self) -> None:
+        super().validate_params()
+        check_real(self.lam0, "lam0", type(self).__name__, 0.0)
