@@ -10,8 +10,10 @@ per whale, ``A = 2 a r1 - a``, ``C = 2 r2``, p ~ U[0, 1], l ~ U[-1, 1]:
 * p >= 0.5, bubble-net spiral: ``X <- |X* - X| e^{b l} cos(2 pi l) + X*`` with b = 1 (eq. 2.5).
 
 Then clip to the bounds and evaluate every whale (one batch call, N evaluations per iteration). The
-best-so-far is kept apart from the population; there is no greedy selection (unlike mealpy's
-``OriginalWOA``, which also draws the "random whale" from the box rather than the population).
+best-so-far is kept apart from the population. By default there is no greedy selection, as in the paper;
+``greedy=True`` keeps a whale's new position only when it improves its fitness, which is what mealpy's
+``OriginalWOA`` does (it also draws the "random whale" from the box rather than the population). Greedy
+selection converges much further on calibration problems (see benchmarks/bench_optimizers.py --mealpy).
 
 Choices where the sources leave room:
 
@@ -50,6 +52,7 @@ def whale_search(
     a_max: float = 2.0,
     spiral_b: float = 1.0,
     spiral_prob: float = 0.5,
+    greedy: bool = False,
     callback: IterationCallback | None = None,
     method: str = "woa",
 ) -> OptimizeResult:
@@ -92,9 +95,14 @@ def whale_search(
         q = np.flatnonzero(~shrink)
         X_new[q] = np.abs(best - X[q]) * (np.exp(spiral_b * ell[q]) * np.cos(2.0 * np.pi * ell[q]))[:, None] + best
         np.clip(X_new, lb, ub, out=X_new)
-        X = X_new
-        fit = tracker.evaluate(X)
-        tracker.offer(X, fit)
+        fit_new = tracker.evaluate(X_new)
+        tracker.offer(X_new, fit_new)
+        if greedy:  # keep a whale's move only if it improved (NaN fitness never replaces a finite one)
+            better = ~(fit_new >= fit) & np.isfinite(fit_new)
+            X = np.where(better[:, None], X_new, X)
+            fit = np.where(better, fit_new, fit)
+        else:
+            X, fit = X_new, fit_new
         t += 1
         if tracker.end_iteration(X, fit):
             break
@@ -116,6 +124,8 @@ class WOA(EstimatorParams):
         Shape constant b of the logarithmic spiral.
     spiral_prob : float, default 0.5
         Probability of the spiral move (p >= 0.5 in the paper).
+    greedy : bool, default False
+        Keep a whale's new position only if it improves its fitness (mealpy's variant; not in the paper).
     callback : callable, optional
         ``callback(IterationInfo) -> bool | None`` after each iteration; True stops (status 7).
 
@@ -135,6 +145,7 @@ class WOA(EstimatorParams):
         a_max: float = 2.0,
         spiral_b: float = 1.0,
         spiral_prob: float = 0.5,
+        greedy: bool = False,
         callback: IterationCallback | None = None,
     ) -> None:
         self.population = population
@@ -142,6 +153,7 @@ class WOA(EstimatorParams):
         self.a_max = a_max
         self.spiral_b = spiral_b
         self.spiral_prob = spiral_prob
+        self.greedy = greedy
         self.callback = callback
 
     def validate_params(self) -> None:
@@ -153,6 +165,8 @@ class WOA(EstimatorParams):
         check_real(self.a_max, "a_max", owner, 0.0)
         check_real(self.spiral_b, "spiral_b", owner)
         check_real(self.spiral_prob, "spiral_prob", owner, 0.0, 1.0)
+        if not isinstance(self.greedy, bool):
+            raise ConfigError(f"The 'greedy' parameter of {owner} must be true or false. Got {self.greedy!r} instead.")
         if self.callback is not None and not callable(self.callback):
             raise ConfigError(
                 f"The 'callback' parameter of {owner} must be a callable or None. Got {self.callback!r} instead."
@@ -173,6 +187,7 @@ class WOA(EstimatorParams):
             a_max=float(self.a_max),
             spiral_b=float(self.spiral_b),
             spiral_prob=float(self.spiral_prob),
+            greedy=bool(self.greedy),
             callback=self.callback,
             method=self.name,
         )
