@@ -11,7 +11,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--bundle", default=None, help="bundle to serve (default: fitted from the scenario's campaign)")
     p.add_argument("--out", default="reports/closed_loop", help="output directory")
-    p.add_argument("--targets", type=int, default=20, help="joint targets per epoch")
+    p.add_argument("--targets", type=int, default=60, help="joint targets per epoch")
     p.add_argument("--interval-min", type=float, default=30.0, help="minutes between two epochs")
     p.add_argument("--duration-min", type=float, default=None, help="warm-up length (default: the scenario's)")
     p.add_argument("--no-tracking", action="store_true", help="no MLflow run")

@@ -45,13 +45,15 @@ class ClosedLoopResult:
 
 
 def build_bundle(campaign_dir: Path, robot: Any, out_dir: Path) -> Path:
-    """Reference calibration + proposed thermal model of a warm-up campaign, written as a bundle."""
+    """Reference calibration + the proposed thermal model of a warm-up campaign (the thermal pipeline's: the
+    parameters selected by the sensitivity screening), written as a bundle."""
     from robocal.data import read_campaign
-    from robocal.thermal.workflow import ThermalConfig, default_selection, fit_selected, fit_thermal
+    from robocal.thermal.workflow import ThermalConfig, choose_selected, fit_selected, fit_thermal, run_screening
 
     camp = read_campaign(campaign_dir, robot)
     fit = fit_thermal(camp, robot, ThermalConfig())
-    model, _, _ = fit_selected(fit, default_selection(fit))
+    selected, _ = choose_selected(fit, run_screening(fit, None))
+    model, _, _ = fit_selected(fit, selected)
     work = out_dir / "_models"
     cal = write_json(work / "calibration.json", fit.reference.to_dict())
     th = write_json(work / "thermal_model.json", model.to_dict())
@@ -84,7 +86,7 @@ def run_closed_loop(
     out_dir: str | Path = "reports/closed_loop",
     seed: int = 0,
     bundle: str | Path | None = None,
-    n_targets: int = 20,
+    n_targets: int = 60,
     interval_min: float = 30.0,
     duration_min: float | None = None,
     ratio_bound: float = 1.3,
@@ -140,6 +142,7 @@ def run_closed_loop(
     arms = ("uncompensated", "compensated", "oracle")
     errs: dict[str, list[np.ndarray]] = {a: [] for a in arms}
     temps_read, refused = [], []
+    accepted: list[np.ndarray] = []
     noise_mm = float(truth.get("noise_mm", 0.015))
     srv = Server(bdir, ServerConfig(port=0), service_config)
     with ServerThread(srv) as st, Client("127.0.0.1", st.port) as client:
@@ -152,13 +155,14 @@ def run_closed_loop(
                 temperatures=dict(zip(b.sensors, T_read.tolist(), strict=True)) if b.thermal is not None else None,
             )
             q_c = q_t.copy()
-            n_ref = 0
+            ok = np.ones(n_targets, dtype=bool)
             for k, res in enumerate(reply["results"]):
                 if res["status"] == "refused":
-                    n_ref += 1  # a refused correction is not applied: the target is commanded as it is
+                    ok[k] = False  # a refused correction is never applied (the cell does not go there)
                 else:
                     q_c[k] = np.deg2rad(res["q_deg"])
-            refused.append(n_ref)
+            refused.append(int((~ok).sum()))
+            accepted.append(ok)
             cc_true = compile_chain(chain, eta_true + effect.drift(T_now[None, :], chain.n_params)[0], T_true)
             oracle = solve(cc_true, tool_true, q_t, p_des, R_des, tol_mm=1e-6)
             noise = rng.normal(0.0, noise_mm, (n_targets, 3))
@@ -166,7 +170,12 @@ def run_closed_loop(
                 p, _, _, _ = forward(cc_true, q, tool_true)
                 errs[arm].append(np.linalg.norm(p + noise - p_des, axis=1))
     E = {a: np.array(v) for a, v in errs.items()}
-    mean = {a: E[a].mean(axis=1) for a in arms}
+    # statistics over the targets whose correction was accepted (paired: the same targets in every arm); the
+    # refused ones are counted apart, and their errors are NaN in the saved arrays
+    ok_all = np.array(accepted)
+    for a in arms:
+        E[a] = np.where(ok_all, E[a], np.nan)
+    mean = {a: np.nanmean(E[a], axis=1) for a in arms}
     ratio = mean["compensated"] / mean["oracle"]
     summary = {
         "scenario": sc.get("name", "custom"),
@@ -176,8 +185,8 @@ def run_closed_loop(
         "interval_min": interval_min,
         "t_min": t_grid.tolist(),
         "mean_error_mm": {a: mean[a].tolist() for a in arms},
-        "max_error_mm": {a: E[a].max(axis=1).tolist() for a in arms},
-        "overall_mean_mm": {a: float(E[a].mean()) for a in arms},
+        "max_error_mm": {a: np.nanmax(E[a], axis=1).tolist() for a in arms},
+        "overall_mean_mm": {a: float(np.nanmean(E[a])) for a in arms},
         "ratio_compensated_to_oracle": ratio.tolist(),
         "max_ratio": float(ratio.max()),
         "ratio_bound": ratio_bound,
@@ -196,9 +205,8 @@ def write_report(res: ClosedLoopResult, out_dir: str | Path, tracking: bool = Tr
 
     out = Path(out_dir)
     s = res.summary
-    fig = time_series(
-        res.t_min, {f"{a} (mean)": res.errors_mm[a].mean(axis=1) for a in res.errors_mm}, "tool position error (mm)"
-    )
+    means = {f"{a} (mean)": np.nanmean(res.errors_mm[a], axis=1) for a in res.errors_mm}
+    fig = time_series(res.t_min, means, "tool position error (mm)")
     png = save_figure(fig, out / "closed_loop_error.png")
     rep = Report("Closed-loop compensation over a warm-up")
     rep.paragraph(
