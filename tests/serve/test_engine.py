@@ -114,3 +114,39 @@ def test_rotation_error_matches_reference():
     R = rotvec_to_matrix(rv)
     # exact atan2 form: round-off level up to 179.8 deg
     assert np.abs(rotation_error(R, np.tile(np.eye(3), (500, 1, 1))) - rv).max() < 1e-9
+
+
+def test_compiled_kernels_match_the_numpy_reference(kr16):
+    """The numba path (robocal.serve.fastsolve) runs the same iteration as the numpy path: same fixed point,
+    same convergence flags, same errors; FK, rotation vectors and quaternions match the library's."""
+    from robocal.kinematics.chain import build_chain
+    from robocal.kinematics.transforms import matrix_to_quat, matrix_to_rotvec, rotvec_to_matrix
+    from robocal.serve import fastsolve
+    from robocal.serve.engine import _rotvec, compile_chain, forward, quaternions, solve
+
+    if not fastsolve.AVAILABLE:
+        pytest.skip("numba is not installed: only the numpy path exists")
+    rng = np.random.default_rng(5)
+    ch = build_chain(kr16)
+    kinds = np.array(ch.param_kind)
+    eta = np.where(kinds == "length", rng.normal(0, 0.5, ch.n_params), rng.normal(0, np.deg2rad(0.05), ch.n_params))
+    cc_nom, cc = compile_chain(ch), compile_chain(ch, eta)
+    tool = np.eye(4)
+    tool[:3, 3] = [35.0, -20.0, 120.0]
+    q = rng.uniform(kr16.q_limits[:, 0], kr16.q_limits[:, 1], (100, 6)) * 0.7
+    p, R, _, _ = forward(cc_nom, q, tool)  # compiled FK (record=False)
+    p_ref, R_ref, _, _ = forward(cc_nom, q, tool, record=True)  # numpy FK
+    assert np.abs(p - p_ref).max() < 1e-9 and np.abs(R - R_ref).max() < 1e-12  # float64 round-off of ~1 m
+    for R_d in (R, None):
+        kw = {"tol_mm": 1e-4, "tol_rad": 1e-8, "max_step_rad": np.deg2rad(3.0)}
+        a = solve(cc, tool, q, p, R_d, compiled=False, **kw)
+        b = solve(cc, tool, q, p, R_d, compiled=True, **kw)
+        assert (a.converged == b.converged).all() and a.converged.sum() >= 95
+        # the same arithmetic in another order: agreement to round-off, far below the 1e-4 mm tolerance
+        assert np.abs(a.q - b.q).max() < 1e-10
+        assert np.abs(a.residual_mm - b.residual_mm).max() < 1e-9
+        assert np.abs(a.error_before_rad - b.error_before_rad).max() < 1e-12
+    E = rotvec_to_matrix(rng.normal(0, 1.0, (200, 3)))
+    assert np.abs(_rotvec(E) - matrix_to_rotvec(E)).max() < 1e-9
+    qa, qb = quaternions(E), matrix_to_quat(E)
+    assert np.abs(qa - qb).max() < 1e-9

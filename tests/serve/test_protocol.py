@@ -113,6 +113,8 @@ def test_refusals_and_flags(full):
         ({"temperatures": [20.0] * 9, "targets": []}, "bad_request", "non-empty"),
         ({"op": "fly"}, "unknown_op", "fly"),
         ({"temperatures": [20.0] * 9, "targets": [{"q_deg": [True] * 6}]}, "bad_request", "number"),
+        # a JSON integer beyond the float range is a bad value, not a server error
+        ({"temperatures": [20.0] * 9, "targets": [{"q_deg": [*Q1[:5], 10**400]}]}, "bad_request", "q_deg[5]"),
     ],
 )
 def test_bad_requests_name_the_field(full, req, code, words):

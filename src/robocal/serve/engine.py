@@ -141,6 +141,10 @@ def forward(
     """Tool point ``(m, 3)`` and tool rotation ``(m, 3, 3)`` for joints ``q`` (m, n) and the flange-to-tool
     transform ``tool_T`` (4, 4); with ``record`` also the world joint axes and origins ``(m, 3, n)``
     indexed by joint number."""
+    from robocal.serve import fastsolve
+
+    if not record and fastsolve.fk is not None:
+        return (*fastsolve.fk(*_kernel_args(cc), np.ascontiguousarray(tool_T, dtype=float), _f64(q)), None, None)
     m = q.shape[0]
     n = cc.n_joints
     th = q[:, cc.joint] + cc.offset
@@ -166,9 +170,47 @@ def rotation_error(R: np.ndarray, R_desired: np.ndarray) -> np.ndarray:
     return _rotvec(R @ np.swapaxes(R_desired, -1, -2))
 
 
+def _f64(a: np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(a, dtype=float)
+
+
+def _kernel_args(cc: CompiledChain) -> tuple[np.ndarray, ...]:
+    """The compiled chain's arrays as the numba kernels take them (cached on the frozen object)."""
+    args = cc.__dict__.get("_kernel_args")
+    if args is None:
+        args = (
+            _f64(cc.S0),
+            _f64(cc.A),
+            _f64(cc.B),
+            _f64(cc.K),
+            np.ascontiguousarray(cc.joint, dtype=np.int64),
+            _f64(cc.offset),
+        )
+        object.__setattr__(cc, "_kernel_args", args)
+    return args
+
+
+def quaternions(R: np.ndarray) -> np.ndarray:
+    """Unit quaternions ``(m, 4)`` (w, x, y, z), w >= 0, of rotations ``(m, 3, 3)`` (compiled when possible)."""
+    from robocal.serve import fastsolve
+
+    if fastsolve.quat is not None:
+        return fastsolve.quat(_f64(R))
+    from robocal.kinematics.transforms import matrix_to_quat
+
+    return matrix_to_quat(R)
+
+
 def _rotvec(E: np.ndarray) -> np.ndarray:
     """Rotation vectors of rotations ``E`` (m, 3, 3): exact atan2 form below 179.9 deg, else the general
     :func:`~robocal.kinematics.transforms.matrix_to_rotvec`."""
+    from robocal.serve import fastsolve
+
+    if fastsolve.rotvec is not None:
+        out, near_pi = fastsolve.rotvec(_f64(E))
+        if near_pi.any():
+            out[near_pi] = matrix_to_rotvec(E[near_pi])
+        return out
     w = 0.5 * (E[:, _VI, _VJ] - E[:, _VJ, _VI])
     c = 0.5 * (np.einsum("mii->m", E) - 1.0)
     s = np.sqrt(np.einsum("mi,mi->m", w, w))
@@ -208,6 +250,7 @@ def solve(
     tol_rad: float = 1e-9,
     max_step_rad: float = 0.05,
     rot_weight_mm: float = 1000.0,
+    compiled: bool | None = None,
 ) -> Solution:
     """Newton iterations from ``q_start`` (m, n) until the robot ``cc`` with tool ``tool_T`` (4, 4) and joint
     deflection ``joint_offset(q_cmd, rows) -> dq`` (added to the commanded joints; ``rows`` are the
@@ -218,7 +261,44 @@ def solve(
     rotation vector to third order and vanishes exactly where it does; rotation rows are weighted by
     ``rot_weight_mm`` (mm per rad). Each joint step is clipped to ``max_step_rad`` (a target near a
     singularity then fails to converge instead of running away); converged targets stop moving.
+
+    ``compiled`` : run the same iteration compiled with numba (:mod:`robocal.serve.fastsolve`), per target;
+    None = when numba is available and there is no ``joint_offset``; False = this numpy reference path.
     """
+    from robocal.serve import fastsolve
+
+    if compiled is None:
+        compiled = fastsolve.AVAILABLE and joint_offset is None
+    if compiled:
+        if joint_offset is not None or fastsolve.newton is None:
+            raise ValueError("the compiled solver needs numba and no joint_offset")
+        qs = _f64(q_start)
+        Rd = _f64(R_desired) if R_desired is not None else np.zeros((len(qs), 3, 3))
+        S0, A, B, K, joint, offset = _kernel_args(cc)
+        qf, cf, itf, e0, E0f, e1, E1f = fastsolve.newton(
+            S0,
+            A,
+            B,
+            K,
+            joint,
+            np.ascontiguousarray(cc.axis, dtype=np.int64),
+            offset,
+            _f64(tool_T),
+            qs,
+            _f64(p_desired),
+            Rd,
+            R_desired is not None,
+            int(max_iter),
+            float(tol_mm),
+            float(tol_rad),
+            float(max_step_rad),
+            float(rot_weight_mm),
+        )
+        iters = int(itf.max(initial=0))
+        zeros3 = np.zeros((len(qs), 3))
+        if R_desired is None:
+            return Solution(qf, cf, iters, e0, zeros3, e1, zeros3)
+        return Solution(qf, cf, iters, e0, _rotvec(E0f), e1, _rotvec(E1f))
     q = np.array(q_start, dtype=float)
     m, n = q.shape
     Rd_T = np.swapaxes(R_desired, -1, -2) if R_desired is not None else None

@@ -22,9 +22,9 @@ from typing import Any
 import numpy as np
 
 from robocal.errors import ConfigError
-from robocal.kinematics.transforms import matrix_to_quat, quat_to_matrix
+from robocal.kinematics.transforms import quat_to_matrix
 from robocal.serve.bundle import Bundle
-from robocal.serve.engine import CompiledChain, compile_chain, forward, solve
+from robocal.serve.engine import CompiledChain, compile_chain, forward, quaternions, solve
 
 #: every error code a reply can carry
 ERROR_CODES = ("parse_error", "bad_request", "unauthorized", "too_large", "unknown_op", "unavailable", "internal")
@@ -129,15 +129,29 @@ def _loads(line: bytes) -> dict[str, Any]:
 def _number(v: Any, name: str) -> float:
     if isinstance(v, bool) or not isinstance(v, int | float):
         raise RequestError("bad_request", f"'{name}' must be a number, got {type(v).__name__}")
-    f = float(v)
+    try:
+        f = float(v)
+    except OverflowError:  # a JSON integer beyond float range
+        f = math.inf
     if not math.isfinite(f):
         raise RequestError("bad_request", f"'{name}' must be finite")
     return f
 
 
+_NUMBER_TYPES = (int, float)
+
+
 def _vector(v: Any, n: int, name: str) -> np.ndarray:
     if not isinstance(v, list) or len(v) != n:
         raise RequestError("bad_request", f"'{name}' must be a list of {n} numbers")
+    # fast path: plain ints / floats (not bools), all finite; otherwise the per-element check names the culprit
+    if all(type(x) in _NUMBER_TYPES for x in v):
+        try:
+            arr = np.array(v, dtype=float)
+        except OverflowError:
+            arr = np.array([math.inf])
+        if np.isfinite(arr).all():
+            return arr
     return np.array([_number(x, f"{name}[{k}]") for k, x in enumerate(v)], dtype=float)
 
 
@@ -392,7 +406,7 @@ class Service:
         resid = np.linalg.norm(sol.residual_mm, axis=1)
         resid_deg = np.rad2deg(np.linalg.norm(sol.residual_rad, axis=1))
         cmd_p, cmd_R, _, _ = forward(cc_nom, q_corr, tool_T)  # what the nominal controller must be sent
-        cmd_quat = matrix_to_quat(cmd_R)
+        cmd_quat = quaternions(cmd_R)
         lim = robot.q_limits
         mg = np.deg2rad(sf.joint_limit_margin_deg)
         lo, hi = lim[:, 0] + mg, lim[:, 1] - mg
@@ -400,6 +414,22 @@ class Service:
         n_ref = n_flag = 0
         qc_deg = np.rad2deg(q_corr).round(9)
         qt_deg = np.rad2deg(q_target)
+        # everything per target computed for the whole batch at once; the loop only assembles the replies
+        out_lim_j = (q_target < lo) | (q_target > hi) | (q_corr < lo) | (q_corr > hi)  # (m, n)
+        out_lim = out_lim_j.any(axis=1)
+        big_deg = np.abs(dq_deg).max(axis=1)
+        too_big = (big_deg > sf.max_correction_deg) | (err_before > sf.max_error_mm)
+        bad_conv = ~sol.converged | (resid > sf.max_residual_mm)
+        eb_r = np.round(err_before, 7).tolist()
+        ebx_r = np.round(sol.error_before_mm, 7).tolist()
+        ebd_r = np.round(err_before_deg, 9).tolist()
+        qc_l = qc_deg.tolist()
+        dq_l = dq_deg.round(9).tolist()
+        cmd_p_l = cmd_p.round(7).tolist()
+        cmd_q_l = cmd_quat.round(12).tolist()
+        resid_l = resid.tolist()
+        resid_deg_l = resid_deg.tolist()
+        qt_l = qt_deg.round(9).tolist()
         for k in range(m):
             reasons = list(reasons_all)
             refuse = refuse_all
@@ -408,13 +438,11 @@ class Service:
                     "the pose target is unreachable from q_seed_deg (nominal inverse kinematics did not converge)"
                 )
                 refuse = True
-            elif not sol.converged[k] or resid[k] > sf.max_residual_mm:
+            elif bad_conv[k]:
                 reasons.append(f"compensation did not converge (residual {resid[k]:.4g} mm; near a singularity?)")
                 refuse = True
-            bad_t = np.flatnonzero((q_target[k] < lo) | (q_target[k] > hi))
-            bad_c = np.flatnonzero((q_corr[k] < lo) | (q_corr[k] > hi))
-            if len(bad_t) or len(bad_c):
-                js = sorted(set(bad_t.tolist()) | set(bad_c.tolist()))
+            if out_lim[k]:
+                js = np.flatnonzero(out_lim_j[k])
                 reasons.append(
                     "outside the joint limits: "
                     + ", ".join(
@@ -422,18 +450,17 @@ class Service:
                     )
                 )
                 refuse |= sf.on_joint_limits == "refuse"
-            big = float(np.abs(dq_deg[k]).max())
-            if big > sf.max_correction_deg or err_before[k] > sf.max_error_mm:
+            if too_big[k]:
                 reasons.append(
-                    f"correction {big:.4g} deg / predicted error {err_before[k]:.4g} mm exceeds the bound "
+                    f"correction {big_deg[k]:.4g} deg / predicted error {err_before[k]:.4g} mm exceeds the bound "
                     f"({sf.max_correction_deg} deg / {sf.max_error_mm} mm)"
                 )
                 refuse |= sf.on_correction_bound == "refuse"
             r: dict[str, Any] = {
                 "status": "refused" if refuse else ("flagged" if reasons else "ok"),
-                "predicted_error_mm": round(float(err_before[k]), 7),
-                "predicted_error_xyz_mm": np.round(sol.error_before_mm[k], 7).tolist(),
-                "predicted_error_deg": round(float(err_before_deg[k]), 9),
+                "predicted_error_mm": eb_r[k],
+                "predicted_error_xyz_mm": ebx_r[k],
+                "predicted_error_deg": ebd_r[k],
             }
             if reasons:
                 r["reasons"] = reasons
@@ -441,13 +468,13 @@ class Service:
                 n_ref += 1
             else:
                 n_flag += bool(reasons)
-                r["q_deg"] = qc_deg[k].tolist()
-                r["correction_deg"] = dq_deg[k].round(9).tolist()
-                r["command"] = {"xyz_mm": cmd_p[k].round(7).tolist(), "quat_wxyz": cmd_quat[k].round(12).tolist()}
-                r["residual_mm"] = float(resid[k])
-                r["residual_deg"] = float(resid_deg[k])
+                r["q_deg"] = qc_l[k]
+                r["correction_deg"] = dq_l[k]
+                r["command"] = {"xyz_mm": cmd_p_l[k], "quat_wxyz": cmd_q_l[k]}
+                r["residual_mm"] = resid_l[k]
+                r["residual_deg"] = resid_deg_l[k]
             if tg.kind[k] == 1:
-                r["q_nominal_deg"] = qt_deg[k].round(9).tolist()
+                r["q_nominal_deg"] = qt_l[k]
             results.append(r)
         self.counters["targets"] += m
         self.counters["refused"] += n_ref
