@@ -20,8 +20,10 @@ from robocal.data import read_campaign
 from robocal.robot import load_robot
 from robocal.sim.twin import load_scenario, simulate
 from robocal.thermal import workflow as wf
+from robocal.thermal.compensate import extrapolation_summary
 from robocal.thermal.model import ThermalModel
 from robocal.thermal.report import PAPER_TABLE5
+from robocal.thermal.validate import reorder
 
 LENGTHS = {"d1": ["T_l1_C"], "d4": ["T_l4_C"], "d6": ["T_j6_C"], "a2": ["T_j2_C"], "a3": ["T_j3_C"]}
 
@@ -68,6 +70,24 @@ def main(seeds: list[int]) -> None:
             print(row(m, s))
         tab = ev["table"]
         print(f"  proposed / oracle = {tab['proposed']['mean_position_mm'] / tab['oracle']['mean_position_mm']:.3f}")
+        print(
+            "  refused / flagged in the closed loop: "
+            + ", ".join(
+                f"{m} " + "/".join(str(s[k]) for k in ("n_not_converged", "n_too_large", "n_out_of_range"))
+                for m, s in ev["closed_loop"].items()
+            )
+            + " (not_converged / too_large / out_of_range)"
+        )
+        val = camp.validation()
+        T_val = reorder(val.temperatures, val.sensor_names, proposed.sensors)
+        ext = extrapolation_summary(proposed, T_val, ev["state"], ev["t_min"], fit.cfg.limits.range_margin_C)
+        print(
+            f"  extrapolation (margin {ext['margin_C']:g} degC): {ext['n_rows_out_of_range']} of {ext['n_rows']} "
+            f"validation rows, largest excess {ext['max_excess_C']:.2f} degC"
+        )
+        print("  screening, borderline parameters:")
+        for w in scr.what_if:
+            print(f"    {w['text']}")
         cfg = wf.ThermalConfig.from_mapping({"regression": {"candidates": LENGTHS}})
         fit2 = wf.fit_thermal(camp, robot, cfg)
         m2, _, _ = wf.fit_selected(fit2, list(LENGTHS))

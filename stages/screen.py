@@ -5,8 +5,8 @@ temperatures (the screening only serves the thermal compensation). Otherwise scr
 robot's chain (robocal.thermal.screening.screen) with the per-state drift of the thermal fit
 (``screen.drift_file``, reports/thermal/states.json) or ``screen.drift``, and the tool points of the calibration
 (TOOL_SOURCES) when ``screen.tool_mm`` is null. Writes ``reports/screen/`` (screening.json, whose ``selected``
-list the thermal validation compensates; screening.csv; report.html), figures to ``reports/plots/screen``,
-metrics.
+list the thermal validation compensates, and ``what_if``: the borderline parameters and which change of the
+rule would add or drop them, and why; screening.csv; report.html), figures to ``reports/plots/screen``, metrics.
 
     python stages/screen.py +screen=default screen.selection.rule=top_k
 """
@@ -64,6 +64,8 @@ def compute(ctx: Context) -> Any:
         ctx.artifact(ctx.out / name)
     ctx.tracker.set_tags({"robocal.screen.selected": ",".join(result.selected) or "(none)"})
     print(f"stage screen: selected {len(result.selected)} of {len(result.table)}: {', '.join(result.selected)}")
+    for w in result.what_if:  # borderline parameters: which change of the rule would add or drop them, and why
+        print(f"  {w['text']}")
     t = result.table
     return {
         "n_screened": len(t),
@@ -73,6 +75,7 @@ def compute(ctx: Context) -> Any:
         "selected_share": float(t.loc[t["selected"], "share"].sum()),
         "max_abs_H": float(t["H"].abs().max()) if t["H"].notna().any() else None,
         "max_E_mean": float(t["E_mean"].max()),
+        "n_borderline": len(result.what_if),
     }
 
 

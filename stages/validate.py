@@ -5,8 +5,9 @@ oracle row and the closed loop); skips explicitly when the campaign has no tempe
 fit from ``reports/thermal`` and the screening's ``selected`` set from ``thermal.screening_file`` (without it:
 the parameters with a drift model), fits the proposed model and compares none / traditional / proposed / all
 (table 5, figs. 10 and 12). Writes ``reports/validate/`` (thermal.json, thermal_model.json — the model an online
-service loads —, validation.csv, compensation.csv for the controller, report.html), figures and metrics (the
-validation table is logged to MLflow as metrics).
+service loads —, validation.csv, compensation.csv for the controller with a status per target, report.html),
+figures and metrics (the validation table, the controller CSV's status counts and the number of validation rows
+where the model extrapolates are logged to MLflow as metrics; warnings are printed).
 """
 
 from __future__ import annotations
@@ -66,6 +67,12 @@ def compute(ctx: Context) -> Any:
     }
     if "closed_loop" in summary:
         metrics["closed_loop"] = summary["closed_loop"]
+    if "compensation" in summary:  # the controller CSV: refused / flagged targets (status column)
+        metrics["compensation_status"] = summary["compensation"]["status_counts"]
+    if "extrapolation" in summary:  # validation rows where the thermal model extrapolates
+        metrics["n_rows_out_of_range"] = summary["extrapolation"]["n_rows_out_of_range"]
+    for w in summary.get("warnings", []):
+        print(f"stage validate: WARNING {w}")
     return metrics
 
 

@@ -72,6 +72,34 @@ def test_deta_chain_order_and_round_trip(tmp_path) -> None:
     assert "Δd1 = 0.01 × (t_a − 20.00)" in m.equations()[0]
 
 
+def test_equations_in_the_papers_absolute_form_and_with_uncertainties() -> None:
+    """eq. 28 as the paper prints it (polynomials in absolute temperatures) is the same function as the model, and
+    the standard errors carried through the change of variables match a Monte Carlo of the coefficients."""
+    m = _model()
+    p = m.parameter("theta4")
+    ref = dict(zip(m.sensors, m.T_ref_C.tolist(), strict=True))
+    terms, coef, se = p.absolute(ref)
+    assert terms[0] == (0, 0) and len(terms) == 6  # constant + the 5 monomials of order <= 2 in 2 sensors
+    rng = np.random.default_rng(3)
+    T = rng.uniform(15.0, 40.0, size=(50, 2))
+    assert np.allclose(design(T, terms[1:]) @ coef[1:] + coef[0], p.evaluate(T - m.T_ref_C), rtol=1e-9, atol=1e-15)
+    # a correlated covariance, so that the propagation is not just the diagonal
+    A = rng.normal(size=(5, 5)) * 1e-7
+    q = ParameterModel(p.name, p.kind, p.form, p.sensors, p.terms, p.coefficients, np.sqrt(np.diag(A @ A.T)), A @ A.T)
+    _, c_abs, se_abs = q.absolute(ref)
+    assert np.allclose(c_abs, coef)  # same coefficients, only the covariance differs
+    draws = rng.multivariate_normal(q.coefficients, q.covariance, size=2000)
+    mc = np.array(
+        [ParameterModel(p.name, p.kind, p.form, p.sensors, p.terms, d, se, np.eye(5)).absolute(ref)[1] for d in draws]
+    )
+    # 2000 draws: the sample std is within ~3.2 % (1 sigma) of the truth; 12 % is ~4 sigma
+    assert np.allclose(mc.std(axis=0), se_abs, rtol=0.12)
+    eq_abs, eq_se = m.equations(absolute=True), m.equations(stderr=True)
+    assert eq_abs[0] == m.equations()[0]  # expansions are printed c × (t − T_ref), as in the paper
+    assert eq_abs[1].startswith("Δtheta4 = 0.0003923 ") and "t_a^2" in eq_abs[1] and "Δ" not in eq_abs[1][9:]
+    assert "(0.01 ± 0.001) × (t_a − 20.00)" in eq_se[0] and eq_se[1].count("±") == 5
+
+
 def _warm_up(n: int = 6) -> np.ndarray:
     """Sensor differences of a first-order warm-up at 30..180 min: (n, 3)."""
     t = np.arange(1, n + 1) * 30.0

@@ -176,6 +176,61 @@ def test_insignificant_drift_is_dropped_with_min_z(kr16):
     assert any("not significant" in n and "d4" in n for n in on.notes)
 
 
+def _apply(selection: dict, change: dict) -> dict:
+    """The selection with one ``what_if`` change applied, just past the flip point (1e-9 relative: H is exact to
+    ~1e-12 mm here, so the nudge decides the side without being a real change)."""
+    v = change["value"]
+    if change["setting"] == "top_k":
+        v = v if change["op"] == ">=" else v - 1
+    else:
+        v = v * (1 - 1e-9) if change["op"] in ("<=", "<") else v * (1 + 1e-9)
+    return {**selection, change["setting"]: v}
+
+
+@pytest.mark.parametrize(
+    "selection",
+    [
+        {"rule": "threshold", "h_min": 0.018, "explain_band": 1.5},  # near: a3 (.02)
+        {"rule": "top_k", "top_k": 2, "explain_band": 1.6},  # cut .03: near d4 (.03) and a3 (.02)
+        {"rule": "share", "share": 0.8, "explain_band": 2.2},  # cut .02: near a2, a3, d4
+        {"rule": "relative", "relative": 0.5, "explain_band": 1.6},  # cut .025: near a3, d4
+        {"rule": "threshold", "h_min": 0.015, "min_z": 2},  # d4 (z = 1.5) kept out by min_z
+    ],
+)
+def test_what_if_says_which_change_would_add_or_drop(kr16, selection):
+    """Every what_if entry names a change of the rule's setting; applying it really flips that parameter."""
+    se = {"d1": 0.005, "d4": 0.02, "a2": 0.001, "a3": 0.005}  # z: 10, 1.5, 10, 4
+    cfg = {"n_configs": 10, "drift": LENGTH_DRIFT}
+    res = screen(kr16, {**cfg, "selection": selection}, drift_stderr=se)
+    assert res.what_if, "LENGTH_DRIFT puts a parameter near every cut above"
+    for w in res.what_if:
+        assert w["selected"] == (w["parameter"] in res.selected)
+        assert w["text"].startswith(f"would {w['action']} {w['parameter']} if ")
+        for change in w["changes"]:
+            flipped = screen(kr16, {**cfg, "selection": _apply(selection, change)}, drift_stderr=se)
+            assert (w["parameter"] in flipped.selected) != w["selected"], (w, change)
+    # d4 is selected on its influence (|H| = .03) although its drift is only 1.5 std. errors: always explained
+    d4 = next((w for w in res.what_if if w["parameter"] == "d4"), None)
+    assert d4 is not None and d4["significant"] is False and "not significant" in d4["text"]
+    # far from every cut and significant: not listed
+    assert "d1" not in {w["parameter"] for w in res.what_if}
+
+
+def test_what_if_in_json_and_report(kr16):
+    from robocal.report.html import Report
+
+    sel = {"rule": "threshold", "h_min": 0.018, "explain_band": 1.5, "include": ["a2"]}
+    res = screen(kr16, {"n_configs": 10, "drift": LENGTH_DRIFT, "selection": sel}, drift_stderr={"d4": 0.02})
+    by = {w["parameter"]: w for w in res.what_if}
+    assert "selection.include" in by["a2"]["text"] and by["a3"]["action"] == "drop"
+    back = ScreeningResult.from_dict(json.loads(json.dumps(res.to_dict())))
+    assert [w["text"] for w in back.what_if] == [w["text"] for w in res.what_if]
+    html = add_to_report(res, Report("screen")).to_html()
+    assert "what would add or drop them" in html and "would drop a3 if h_min were" in html
+    with pytest.raises(ConfigError, match=r"screen\.selection\.explain_band"):
+        screen(kr16, {"n_configs": 5, "selection": {"explain_band": 0.5}})
+
+
 def test_unknown_drift_is_never_selected_by_the_rule(kr16):
     res = _screen_lengths(kr16, {"rule": "relative", "relative": 1e-6})
     assert set(res.selected) == set(LENGTH_DRIFT)

@@ -109,12 +109,24 @@ def test_cli_writes_thermal_json(twin, tmp_path) -> None:
         "max_orientation_deg",
     }
     assert out["selected"] and set(out["model"]) <= set(out["selected"])
+    # sensors and order chosen by cross-validation, coefficients with uncertainties, eq. 28 printed
+    for name, e in out["model"].items():
+        cv = e["cross_validation"]
+        assert set(e["sensors"]) <= set(cv["candidate_sensors"]) and cv["n_candidates"] > 1, name
+        assert cv["cv_best_rmse"] <= cv["cv_rmse"] <= cv["cv_best_rmse"] * (1 + cv["cv_tolerance"]) + 1e-300, name
+        assert e["order"] >= 1 and len(e["stderr"]) == len(e["coefficients"]) and all(v > 0 for v in e["stderr"])
+        assert e["equation_with_stderr"].count("±") == len(e["coefficients"]) and e["equation"].startswith(f"Δ{name}")
+    assert len(out["equations_absolute"]) == len(out["model"]) == len(out["equations_with_stderr"])
+    scr = out["screening"]
+    assert all(np.isfinite(r["drift_z"]) for r in scr["table"] if r["drift"] is not None)  # std. errors passed on
+    assert all(w["text"].startswith("would ") for w in scr["what_if"] if "selection." not in w["text"])
     from robocal.thermal.model import ThermalModel
 
     m = ThermalModel.from_json(tmp_path / "thermal_model.json")
     assert m.deta(np.tile(m.T_ref_C + 5.0, (2, 1))).shape == (2, len(m.param_names))
     csv = (tmp_path / "compensation.csv").read_text().splitlines()
-    assert csv[0].startswith("target_id,q1_deg") and len(csv) == 16  # header + the 15 validation poses
+    assert csv[0].startswith("target_id,status,applied,q1_deg") and len(csv) == 16  # header + 15 validation poses
+    assert out["compensation"]["n_targets"] == 15 and set(out["compensation"]["columns"]) >= {"status", "reason"}
 
 
 def _stage_root(tmp_path: Path, data: Path) -> Path:
@@ -158,6 +170,8 @@ def test_stages_run_and_skip(twin, tmp_path, monkeypatch) -> None:
         assert met["status"] == "ok"
         assert met["validation"]["proposed"]["mean_position_mm"] < met["validation"]["none"]["mean_position_mm"]
         assert (root / "reports/validate/thermal_model.json").is_file()
+        assert sum(met["compensation_status"].values()) == 15 and met["n_rows_out_of_range"] == 0  # default margin
+        assert "cross-validated choice" in (root / "reports/thermal/report.html").read_text()
         # a campaign without temperatures: both stages report an explicit skip and succeed
         (interim / "prepare.json").write_text(json.dumps({"has_temperatures": False}))
         _run_stage("thermal_fit", root)
@@ -167,3 +181,109 @@ def test_stages_run_and_skip(twin, tmp_path, monkeypatch) -> None:
             assert m["status"] == "skipped" and "no temperature log" in m["reason"]
     finally:
         monkeypatch.chdir(cwd)
+
+
+def _stretched(fit) -> np.ndarray:
+    """Joints with the arm fully stretched (q3 maximising the shoulder-flange distance, q1 = q4 = q5 = q6 = 0)."""
+    from robocal.kinematics.chain import fk
+
+    chain = fit.reference.model.chain
+    q = np.zeros((2001, 6))
+    q[:, 1] = np.deg2rad(-45.0)
+    q[:, 2] = np.deg2rad(np.linspace(-30.0, 30.0, 2001))
+    shoulder = np.array([fit.robot.a_mm[1], 0.0, fit.robot.d_mm[0]])  # joint-2 origin at q1 = 0 (MD-H a2, d1)
+    k = int(np.argmax(np.linalg.norm(fk(chain, q)[:, :3, 3] - shoulder, axis=1)))
+    return q[k : k + 1]
+
+
+def _shrinking_model(fit, c_mm_per_C: float):
+    """A model where d4 shrinks by ``c`` mm per degC of the first sensor, fitted range +/- 50 degC: no extrapolation"""
+    from robocal.thermal.model import ParameterModel, ThermalModel
+
+    m = fit.model_all
+    p = ParameterModel(
+        "d4", "length", "expansion", (m.sensors[0],), ((1,),), np.array([-c_mm_per_C]), np.array([0.01]), np.eye(1)
+    )
+    rng = np.column_stack([m.T_ref_C - 50.0, m.T_ref_C + 50.0])
+    return ThermalModel(m.robot, m.param_names, m.sensors, m.T_ref_C, rng, (p,))
+
+
+def test_controller_csv_refuses_unreachable_and_singular_targets(done, tmp_path) -> None:
+    import csv
+
+    from robocal.thermal.compensate import compensate_targets, write_controller_csv
+
+    fit = done[0]
+    T = fit.drift.temperatures[-1]  # the warmest state: the largest drift
+    q_ok = np.deg2rad([[10.0, -70.0, 100.0, 30.0, 45.0, 20.0]])  # far from every singularity
+    q_wrist = np.deg2rad([[10.0, -70.0, 100.0, 30.0, 0.02, 20.0]])  # axes 4 and 6 (almost) aligned
+    q = np.vstack([q_ok, q_wrist])
+    comp = compensate_targets(fit.reference, fit.model_all, T, q, ["T1", "T1"], q_limits=fit.robot.q_limits)
+    assert list(comp.status) == ["ok", "too_large"]
+    # near the wrist singularity the sub-mm error needs degrees on q4 / q6: refused, the nominal joints are kept
+    assert comp.correction_max_deg[1] > comp.limits.max_correction_deg
+    assert np.array_equal(comp.q[1], q[1]) and not comp.applied[1]
+    assert comp.applied[0] and not np.array_equal(comp.q[0], q[0])
+    # the unreachable target: the real arm is 5 mm shorter than nominal and fully stretched (position only)
+    shrink = _shrinking_model(fit, 1.0)
+    q_far = _stretched(fit)
+    far = compensate_targets(fit.reference, shrink, shrink.T_ref_C + 5.0, q_far, ["T1"], orientation=False)
+    assert list(far.status) == ["not_converged"] and np.array_equal(far.q, q_far)
+    # the predicted error of the nominal command is what the controller gets: the 5 mm shortening, not zero
+    assert np.linalg.norm(far.residual_mm[0]) > 1.0
+    write_controller_csv(tmp_path / "c.csv", comp)
+    rows = list(csv.DictReader((tmp_path / "c.csv").open()))
+    assert [r["status"] for r in rows] == ["ok", "too_large"] and [r["applied"] for r in rows] == ["1", "0"]
+    assert rows[0]["reason"] == "" and "max_correction_deg" in rows[1]["reason"]
+    sent = np.array([[float(r[f"q{j}_deg"]) for j in range(1, 7)] for r in rows])
+    assert np.allclose(sent[1], np.rad2deg(q_wrist[0]), atol=1e-6)  # CSV rounding 1e-6 deg
+
+
+def test_out_of_range_temperatures_are_flagged(done) -> None:
+    from robocal.thermal.compensate import CompensationLimits, compensate_targets, extrapolation_summary
+
+    fit = done[0]
+    m = fit.model_all
+    used = next(s for s in m.sensors if any(s in p.sensors for p in m.parameters))
+    j = m.sensors.index(used)
+    q = np.deg2rad([[10.0, -70.0, 100.0, 30.0, 45.0, 20.0]])
+    hot = m.fitted_range_C[:, 1].copy()
+    hot[j] += 3.0  # 3 degC above what the fit saw, margin 1 degC
+    comp = compensate_targets(fit.reference, m, hot, q, ["T1"])
+    assert list(comp.status) == ["out_of_range"] and not comp.applied[0] and used in comp.reason[0]
+    assert comp.extrapolation_C == pytest.approx(3.0)
+    applied = compensate_targets(fit.reference, m, hot, q, ["T1"], limits=CompensationLimits(out_of_range="apply"))
+    assert applied.applied[0] and applied.status[0] == "out_of_range" and not np.array_equal(applied.q, q)
+    inside = m.fitted_range_C[:, 1] + 0.5  # within the margin
+    assert list(compensate_targets(fit.reference, m, inside, q, ["T1"]).status) == ["ok"]
+    # the warm-up summary counts rows and states outside the range and names the sensor
+    T = np.vstack([m.T_ref_C, hot, hot])
+    ext = extrapolation_summary(m, T, np.array([0, 1, 1]), [0.0, 30.0], 1.0)
+    assert ext["n_rows_out_of_range"] == 2 and ext["states_out_of_range_t_min"] == [30.0]
+    assert set(ext["sensors_out_of_range"]) == {used} and "extrapolates" in ext["warning"]
+    assert extrapolation_summary(m, T[:1], np.array([0]), [0.0], 1.0)["warning"] == ""
+
+
+def test_cli_flags_extrapolation_and_large_corrections(twin, tmp_path) -> None:
+    """margin 0: the validation day starts ~0.5 degC colder than the calibration day, so its cold state is an
+    extrapolation; a 1 deg bound refuses the twin's largest corrections (~2 deg near the stretched elbow)."""
+    import csv
+
+    from robocal.cli import main
+
+    d, _truth, _robot, camp = twin
+    args = ["thermal", str(d), "--robot", "kr16_2", "--out", str(tmp_path)]
+    assert main([*args, "compensation.range_margin_C=0.0", "compensation.max_correction_deg=1.0"]) == 0
+    out = json.loads((tmp_path / "thermal.json").read_text())
+    ext, comp = out["extrapolation"], out["compensation"]
+    assert ext["n_rows_out_of_range"] > 0 and 0.0 in ext["states_out_of_range_t_min"] and ext["warning"]
+    rows = list(csv.DictReader((tmp_path / "compensation.csv").open()))
+    refused = [r for r in rows if r["status"] == "too_large"]
+    assert comp["status_counts"]["too_large"] == len(refused) > 0 and len(out["warnings"]) == 2
+    val = camp.validation()
+    for r in refused:  # the nominal joints of that validation pose are sent unchanged
+        k = list(val.pose_id).index(r["target_id"].split("/")[0])
+        sent = [float(r[f"q{j}_deg"]) for j in range(1, 7)]
+        assert np.allclose(sent, np.rad2deg(val.q[k]), atol=1e-6) and float(r["correction_max_deg"]) > 1.0
+    html = (tmp_path / "report.html").read_text()
+    assert "the thermal model extrapolates" in html and "columns of compensation.csv" in html

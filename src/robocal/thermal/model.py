@@ -15,7 +15,9 @@ it is what an online compensation service calls.
 
 from __future__ import annotations
 
+import itertools
 import json
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -107,19 +109,63 @@ class ParameterModel:
             return None
         return float(self.coefficients[0] / self.nominal)
 
-    def equation(self, T_ref: Mapping[str, float]) -> str:
-        """The model in the style of Guo et al. eq. 28 (angles in rad, lengths in mm, temperatures in °C)."""
+    def equation(self, T_ref: Mapping[str, float], stderr: bool = False) -> str:
+        """The model in the style of Guo et al. eq. 28 (angles in rad, lengths in mm, temperatures in °C), in
+        differences from the reference temperatures; ``stderr``: every coefficient as ``(c ± standard error)``."""
         short = [_short(s) for s in self.sensors]
+
+        def coef(c: float, se: float, signed: bool) -> str:
+            if stderr:
+                return f"{'+' if signed else ''}({c:.4g} ± {se:.2g})"
+            return f"{c:+.4g}" if signed else f"{c:.4g}"
+
         if self.form == "expansion":
             s = self.sensors[0]
-            return f"Δ{self.name} = {self.coefficients[0]:.4g} × ({short[0]} − {T_ref[s]:.2f})"
+            c0 = coef(float(self.coefficients[0]), float(self.stderr[0]), False)
+            return f"Δ{self.name} = {c0} × ({short[0]} − {T_ref[s]:.2f})"
         parts = [f"{self.intercept:.4g}"] if self.intercept != 0.0 else []
-        for c, e in zip(self.coefficients, self.terms, strict=True):
+        for c, se, e in zip(self.coefficients, self.stderr, self.terms, strict=True):
             mono = "·".join((f"Δ{n}" if k == 1 else f"Δ{n}^{k}") for n, k in zip(short, e, strict=True) if k > 0)
-            parts.append(f"{c:+.4g}·{mono}")
+            parts.append(f"{coef(float(c), float(se), True)}·{mono}")
         refs = ", ".join(f"Δ{n} = {n} − {T_ref[s]:.2f}" for n, s in zip(short, self.sensors, strict=True))
         body = " ".join(parts).lstrip("+") if parts else "0"
         return f"Δ{self.name} = {body}    ({refs})"
+
+    def absolute(self, T_ref: Mapping[str, float]) -> tuple[tuple[tuple[int, ...], ...], np.ndarray, np.ndarray]:
+        """The polynomial in absolute temperatures ``t_j`` (as the paper prints eq. 28 for angles): exponent
+        tuples (the constant first), coefficients and their standard errors (the covariance carried through the
+        linear change of variables ``Δt_j = t_j − T_ref_j``)."""
+        ref = np.array([T_ref[s] for s in self.sensors], dtype=float)
+        out_terms: list[tuple[int, ...]] = [tuple(0 for _ in self.sensors)]
+        out_terms += [t for p in range(1, self.order + 1) for t in monomials(len(self.sensors), p) if sum(t) == p]
+        out_terms = list(dict.fromkeys(out_terms))
+        row = {t: i for i, t in enumerate(out_terms)}
+        M = np.zeros((len(out_terms), len(self.terms)))
+        for col, e in enumerate(self.terms):
+            for ks in itertools.product(*[range(k + 1) for k in e]):
+                w = 1.0
+                for j, (k, ej) in enumerate(zip(ks, e, strict=True)):
+                    w *= math.comb(ej, k) * (-ref[j]) ** (ej - k)
+                M[row[tuple(ks)], col] += w
+        keep = np.flatnonzero(np.any(M != 0.0, axis=1) | (np.arange(len(out_terms)) == 0))  # drop unused monomials
+        M = M[keep]
+        coef = M @ self.coefficients
+        coef[0] += self.intercept
+        cov = M @ np.asarray(self.covariance, dtype=float) @ M.T
+        return tuple(out_terms[i] for i in keep), coef, np.sqrt(np.clip(np.diag(cov), 0.0, None))
+
+    def equation_absolute(self, T_ref: Mapping[str, float]) -> str:
+        """Guo et al. eq. 28 as printed there: expansions as ``c × (t − T_ref)``, polynomials expanded in the
+        absolute temperatures with a constant term."""
+        if self.form == "expansion":
+            return self.equation(T_ref)
+        short = [_short(s) for s in self.sensors]
+        terms, coef, _ = self.absolute(T_ref)
+        parts = []
+        for c, e in zip(coef, terms, strict=True):
+            mono = "·".join((n if k == 1 else f"{n}^{k}") for n, k in zip(short, e, strict=True) if k > 0)
+            parts.append(f"{c:+.4g}" + (f"·{mono}" if mono else ""))
+        return f"Δ{self.name} = " + " ".join(parts).lstrip("+")
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -249,10 +295,14 @@ class ThermalModel:
         lo, hi = self.fitted_range_C[:, 0] - margin_C, self.fitted_range_C[:, 1] + margin_C
         return (T < lo) | (T > hi)
 
-    def equations(self) -> list[str]:
-        """The model in the form of Guo et al. eq. 28, one line per parameter."""
+    def equations(self, stderr: bool = False, absolute: bool = False) -> list[str]:
+        """The model in the form of Guo et al. eq. 28, one line per parameter: in temperature differences from
+        the reference (default; ``stderr`` adds each coefficient's standard error) or, ``absolute``, with the
+        polynomials expanded in absolute temperatures as the paper prints them."""
         ref = dict(zip(self.sensors, self.T_ref_C.tolist(), strict=True))
-        return [p.equation(ref) for p in self.parameters]
+        if absolute:
+            return [p.equation_absolute(ref) for p in self.parameters]
+        return [p.equation(ref, stderr=stderr) for p in self.parameters]
 
     # ------------------------------------------------------------------ persistence
     def to_dict(self) -> dict[str, Any]:

@@ -250,6 +250,13 @@ def fit_parameter(
             "reduced_chi2": red,
             "state_stderr": float(np.sqrt(2.0 * v)),
             "p_value_vs_no_drift": p_value,
+            # how cross-validation chose the sensors and the order (leave-one-state-out)
+            "candidate_sensors": list(candidates),
+            "n_candidates": len(cands),
+            "cv_best_rmse": best,
+            "cv_tolerance": cfg.cv_tolerance,
+            "cv_alternatives": [row for row in table if not row["chosen"]][:3],
+            "no_drift_cv_rmse": float(np.sqrt(np.mean(y**2))),
         },
     )
     return FitOutcome(model, chosen, table, p_value)

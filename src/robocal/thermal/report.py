@@ -14,7 +14,7 @@ from robocal.report.html import Report
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-    from robocal.thermal.model import ThermalModel
+    from robocal.thermal.model import ParameterModel, ThermalModel
     from robocal.thermal.workflow import ThermalFit
 
 #: Table 5 of the paper (KR16-2, validation warm-up at 90 min): mean / max position (mm), orientation (deg).
@@ -142,6 +142,58 @@ def comparison_figures(ev: Mapping[str, Any]) -> list[tuple[Figure, str]]:
     return figs
 
 
+def _alternative(alts: Any) -> str:
+    if not alts:
+        return "-"
+    a = alts[0]
+    return f"{a['model']} (CV {a['cv_rmse']:.3g})"
+
+
+def model_cv_row(p: ParameterModel) -> dict[str, Any]:
+    """One row of the cross-validation table from a fitted parameter model's statistics."""
+    st = p.stats
+    return {
+        "parameter": p.name,
+        "form": p.form,
+        "sensors": ", ".join(p.sensors),
+        "order": p.order,
+        "candidate sensors": ", ".join(st.get("candidate_sensors", [])) or "-",
+        "models compared": st.get("n_candidates"),
+        "CV rmse": st.get("cv_rmse"),
+        "'no drift' CV rmse": st.get("no_drift_cv_rmse"),
+        "p vs no drift": st.get("p_value_vs_no_drift"),
+        "next best": _alternative(st.get("cv_alternatives")),
+    }
+
+
+def cv_rows(fit: ThermalFit) -> list[dict[str, Any]]:
+    """Cross-validation table of every regressed parameter (chosen model or 'none' = no significant drift)."""
+    rows = []
+    for name, o in fit.outcomes.items():
+        if o.model is not None:
+            rows.append(model_cv_row(o.model))
+            continue
+        best = next((r for r in o.table if r["model"] != "none"), None)
+        null = next((r for r in o.table if r["model"] == "none"), None)
+        rows.append(
+            {
+                "parameter": name,
+                "form": "none (no significant drift)",
+                "sensors": "-",
+                "order": 0,
+                "candidate sensors": "-",
+                "models compared": len(o.table),
+                "CV rmse": None if null is None else null["cv_rmse"],
+                "'no drift' CV rmse": None if null is None else null["cv_rmse"],
+                "p vs no drift": o.p_value,
+                "next best": _alternative([best] if best else None),
+            }
+        )
+    if not rows:  # restored fit (load_fit): only the fitted models carry their statistics
+        rows = [model_cv_row(p) for p in fit.model_all.parameters]
+    return rows
+
+
 def table_rows(tab: Mapping[str, Mapping[str, float]], paper: bool = True) -> list[dict[str, Any]]:
     rows = []
     for m, s in tab.items():
@@ -186,7 +238,20 @@ def fit_report(fit: ThermalFit, rep: Report, truth: Mapping[str, Any] | None = N
         )
     rep.table(rows, caption="identified drift per state (relative to the cold state)", float_fmt="{:.3g}")
     rep.heading("Regression: thermal model of every identifiable parameter")
-    rep.code("\n".join(fit.model_all.equations()) or "(no parameter drifts significantly)")
+    rep.paragraph(
+        "Per parameter, the form (linear expansion for lengths, eq. 5-6; polynomials for angles, eq. 7-8), the "
+        "sensors and the order are chosen by leave-one-state-out cross-validation (the smallest model within "
+        f"{fit.cfg.regression_config.cv_tolerance:.0%} of the best CV error), and kept only when it beats 'no drift' "
+        f"(chi-square test at {fit.cfg.regression_config.alpha:g}). Coefficients ± standard error, in temperature "
+        "differences from the cold state:"
+    )
+    rep.code("\n".join(fit.model_all.equations(stderr=True)) or "(no parameter drifts significantly)")
+    if fit.model_all.parameters:
+        rep.paragraph("The same model as the paper prints eq. 28 (polynomials in absolute temperatures, °C):")
+        rep.code("\n".join(fit.model_all.equations(absolute=True)))
+    rows_cv = cv_rows(fit)
+    if rows_cv:
+        rep.table(rows_cv, caption="cross-validated choice of sensors and order per parameter", float_fmt="{:.3g}")
     if truth is not None and "thermal" in truth.get("effects", {}):
         rep.paragraph("Twin truth (reference T0 for every sensor):")
         from robocal.thermal.model import ThermalModel
@@ -207,7 +272,15 @@ def validation_report(
 ) -> Report:
     rep.heading("Proposed model (the selected parameters, eq. 28 form)")
     rep.paragraph(f"Selected ({source}): {', '.join(selected) or 'none'}.")
-    rep.code("\n".join(proposed.equations()) or "(empty)")
+    rep.code("\n".join(proposed.equations(stderr=True)) or "(empty)")
+    if proposed.parameters:
+        rep.paragraph("In absolute temperatures (°C), as the paper prints eq. 28:")
+        rep.code("\n".join(proposed.equations(absolute=True)))
+        rep.table(
+            [model_cv_row(p) for p in proposed.parameters],
+            caption="sensors and order of the proposed model, chosen by leave-one-state-out cross-validation",
+            float_fmt="{:.3g}",
+        )
     rows = []
     for p in proposed.parameters:
         for c, e, se in zip(p.coefficients, p.terms, p.stderr, strict=True):
@@ -245,6 +318,56 @@ def validation_report(
         )
     for fig, cap in comparison_figures(ev):
         rep.figure(fig, cap + " (fig. 12)")
+    compensation_section(rep, ev)
+    return rep
+
+
+def compensation_section(rep: Report, ev: Mapping[str, Any]) -> Report:
+    """Extrapolation warnings and the controller CSV: status counts, refused / flagged targets, the columns."""
+    ext = ev.get("extrapolation")
+    comp = ev.get("compensation")
+    if ext is None and comp is None:
+        return rep
+    rep.heading("Controller CSV and extrapolation")
+    if ext is not None:
+        if ext.get("warning"):
+            rep.note("Warning: " + ext["warning"] + ".", kind="warn")
+        else:
+            rep.paragraph(
+                f"Every validation reading lies within the model's fitted temperature range (margin "
+                f"{ext['margin_C']:g} °C; largest excess {ext['max_excess_C']:.2f} °C): the model does not extrapolate."
+            )
+        rep.table(
+            [
+                {"sensor": s, "fitted min (°C)": lo, "fitted max (°C)": hi}
+                for s, (lo, hi) in ext.get("fitted_range_C", {}).items()
+            ],
+            caption="fitted temperature range of the proposed model (outside it by more than the margin: out_of_range)",
+            float_fmt="{:.2f}",
+        )
+    if comp is not None:
+        if comp.get("warning"):
+            rep.note("Warning: " + comp["warning"] + ".", kind="warn")
+        lim = comp.get("limits", {})
+        rep.kv(
+            {
+                "validation state (min)": comp["t_min"],
+                "targets": comp["n_targets"],
+                "corrections applied": comp["n_applied"],
+                **{f"status {k}": v for k, v in comp["status_counts"].items()},
+                "largest joint correction (deg)": comp["max_correction_deg"],
+                "max_correction_deg": lim.get("max_correction_deg"),
+                "range margin (°C)": lim.get("range_margin_C"),
+                "out_of_range policy": lim.get("out_of_range"),
+            },
+            caption="compensation.csv: the validation poses at the reported state, compensated for the controller",
+        )
+        if comp.get("flagged"):
+            rep.table(comp["flagged"], caption="targets not ok (nominal joints kept unless applied = 1)")
+        rep.table(
+            [{"column": k, "meaning": v} for k, v in comp.get("columns", {}).items()],
+            caption="columns of compensation.csv",
+        )
     return rep
 
 
@@ -259,8 +382,11 @@ def save_figures(fit: ThermalFit, out: str | Path) -> list[Path]:
 __all__ = [
     "PAPER_TABLE5",
     "comparison_figures",
+    "compensation_section",
+    "cv_rows",
     "drift_figure",
     "fit_report",
+    "model_cv_row",
     "parameter_figures",
     "save_figures",
     "temperature_figure",

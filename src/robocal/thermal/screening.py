@@ -33,7 +33,7 @@ from __future__ import annotations
 import fnmatch
 import json
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -122,7 +122,9 @@ class SelectionConfig:
     least ``share`` of the total), ``top_k`` (the ``top_k`` largest), ``relative`` (score >= ``relative`` x the
     largest score). min_z : additionally require a significant drift, ``|d_eta| >= min_z x its standard error``
     (when the drift comes with standard errors; 0 = off). include / exclude : name patterns always / never
-    selected (applied after the rule).
+    selected (applied after the rule). explain_band : parameters whose score lies within this factor of the
+    rule's cut are "near the threshold" and explained (:attr:`ScreeningResult.what_if`); explain_z : a drift
+    below this many standard errors is called not significant there.
     """
 
     rule: str = "threshold"
@@ -133,13 +135,26 @@ class SelectionConfig:
     min_z: float = 0.0
     include: tuple[str, ...] = ()
     exclude: tuple[str, ...] = ()
+    explain_band: float = 2.0
+    explain_z: float = 2.0
 
     @classmethod
     def from_mapping(cls, d: Mapping[str, Any] | None) -> SelectionConfig:
         d = {} if d is None else d
         if not isinstance(d, Mapping):
             raise _err("selection", "a mapping", d)
-        known = {"rule", "h_min", "share", "top_k", "relative", "min_z", "include", "exclude"}
+        known = {
+            "rule",
+            "h_min",
+            "share",
+            "top_k",
+            "relative",
+            "min_z",
+            "include",
+            "exclude",
+            "explain_band",
+            "explain_z",
+        }
         unknown = sorted(set(map(str, d)) - known)
         if unknown:
             raise ConfigError(
@@ -163,7 +178,12 @@ class SelectionConfig:
         min_z = _number(d, "min_z", 0.0, positive=False, prefix="selection.")
         if min_z < 0:
             raise _err("selection.min_z", "a non-negative number", min_z)
+        explain_band = _number(d, "explain_band", 2.0, prefix="selection.")
+        if explain_band < 1.0:
+            raise _err("selection.explain_band", "a number >= 1", explain_band)
         return cls(
+            explain_band=explain_band,
+            explain_z=_number(d, "explain_z", 2.0, prefix="selection."),
             min_z=min_z,
             rule=str(rule),
             h_min=h_min,
@@ -184,6 +204,8 @@ class SelectionConfig:
             "min_z": self.min_z,
             "include": list(self.include),
             "exclude": list(self.exclude),
+            "explain_band": self.explain_band,
+            "explain_z": self.explain_z,
         }
 
 
@@ -390,6 +412,8 @@ class ScreeningResult:
     ``H`` (eq. 26-27); ``score`` what the rule ranks (``|H|`` or ``E_mean``); ``share`` of the summed score;
     ``rank`` (1 = most influential); ``selected``.
     selected : selected chain parameter names, chain order. score : ``"|H|"`` or ``"E_mean"``.
+    what_if : the borderline parameters and which change of the rule would add or drop them, and why
+    (:func:`_what_if`: ``parameter, selected, action, score, rank, cut, drift_z, significant, why, changes, text``).
     """
 
     robot: str
@@ -401,6 +425,7 @@ class ScreeningResult:
     drift_states: int = 0
     drift_state_used: int | str | None = None
     notes: list[str] = field(default_factory=list)
+    what_if: list[dict[str, Any]] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
         rows = []
@@ -416,6 +441,10 @@ class ScreeningResult:
             "drift_state_used": self.drift_state_used,
             "config": self.config,
             "notes": list(self.notes),
+            "what_if": [
+                {k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in w.items()}
+                for w in self.what_if
+            ],
             "table": rows,
         }
 
@@ -441,6 +470,7 @@ class ScreeningResult:
                 drift_states=int(d.get("drift_states", 0)),
                 drift_state_used=d.get("drift_state_used"),
                 notes=[str(s) for s in d.get("notes", [])],
+                what_if=[dict(w) for w in d.get("what_if", [])],
             )
         except KeyError as exc:
             raise ConfigError(f"screening result is missing the key {exc.args[0]!r}") from None
@@ -535,6 +565,112 @@ def _select(names: Sequence[str], score: np.ndarray, sel: SelectionConfig, z: np
                 )
             mask[hits] = value
     return mask
+
+
+def _what_if(
+    names: Sequence[str],
+    score: np.ndarray,
+    score_name: str,
+    selected: np.ndarray,
+    z: np.ndarray,
+    rank: np.ndarray,
+    share: np.ndarray,
+    sel: SelectionConfig,
+) -> list[dict[str, Any]]:
+    """Which parameters the selection would add or drop, and why: those whose score lies within a factor
+    ``explain_band`` of the rule's cut, those selected although their drift is not significant (``z <
+    explain_z``), those kept out by ``min_z``, and those forced by include / exclude. Each entry says which change
+    of the rule's setting would flip it (``changes``: ``{setting, op, value}`` with setting ``h_min`` / ``relative``
+    / ``top_k`` / ``share`` / ``min_z``; any one of them flips it) and in words (``text``)."""
+    k = len(names)
+    plain = replace(sel, include=(), exclude=())
+    by_rule = _select(names, score, replace(plain, min_z=0.0), np.full(k, np.nan))  # the rule alone
+    with_z = _select(names, score, plain, z)  # the rule and min_z, before include / exclude
+    finite = np.isfinite(score)
+    if not finite.any():
+        return []
+    top = float(np.max(score[finite]))
+    if sel.rule == "threshold":
+        cut = sel.h_min
+    elif sel.rule == "relative":
+        cut = sel.relative * top
+    else:  # top_k / share: the smallest score the rule takes
+        cut = float(np.min(score[by_rule])) if by_rule.any() else top
+    order = np.argsort(rank)
+    cum_above = {int(i): float(np.sum(share[order[: rank[i] - 1]])) for i in range(k)}  # share ranked above i
+
+    def condition(i: int, add: bool) -> dict[str, Any]:
+        """The change of the rule's setting that flips parameter i: {setting, op, value}."""
+        v = float(score[i])
+        if sel.rule == "threshold":
+            return {"setting": "h_min", "op": "<=" if add else ">", "value": v}
+        if sel.rule == "relative":
+            return {"setting": "relative", "op": "<=" if add else ">", "value": v / top if top > 0 else float("nan")}
+        if sel.rule == "top_k":
+            return {"setting": "top_k", "op": ">=" if add else "<", "value": int(rank[i])}
+        return {"setting": "share", "op": ">" if add else "<=", "value": cum_above[i]}
+
+    def say(c: dict[str, Any]) -> str:
+        op = {"<=": "≤", ">=": "≥"}.get(c["op"], c["op"])
+        val = c["value"] if isinstance(c["value"], int) else f"{c['value']:.4g}"
+        return f"{c['setting']} were {op} {val}"
+
+    out: list[dict[str, Any]] = []
+    for i, n in enumerate(names):
+        if not finite[i]:
+            continue
+        v, zz = float(score[i]), float(z[i])
+        has_z = np.isfinite(zz)
+        significant = bool(zz >= sel.explain_z) if has_z else None
+        near = cut > 0 and cut / sel.explain_band <= v <= cut * sel.explain_band
+        z_dropped = bool(by_rule[i] and not with_z[i])
+        forced = bool(with_z[i] != selected[i])
+        if not (near or z_dropped or forced or (selected[i] and significant is False)):
+            continue
+        ztxt = (
+            f"drift z = {zz:.2f}" + ("" if significant else f" < {sel.explain_z:g}: not significant vs its std. error")
+            if has_z
+            else "drift z unknown (no standard errors)"
+        )
+        head = f"{score_name} = {v:.4g}, rank {int(rank[i])}"
+        changes: list[dict[str, Any]] = []
+        if forced:
+            action = "add" if not selected[i] else "drop"
+            why = f"{'selected' if selected[i] else 'left out'} by selection.{'include' if selected[i] else 'exclude'}"
+            text = f"{n}: {why} ({head}; {ztxt})"
+        elif z_dropped:
+            action = "add"
+            why = f"passes the rule but its drift is not significant (min_z = {sel.min_z:g})"
+            changes = [{"setting": "min_z", "op": "<=", "value": zz}]
+            text = f"would add {n} if {say(changes[0])} ({head}, passes the rule; {ztxt})"
+        elif selected[i]:
+            action = "drop"
+            changes = [condition(i, add=False)] if near else []
+            if has_z and not significant:
+                changes.append({"setting": "min_z", "op": ">", "value": zz})
+            why = "near the cut" if near else "selected on its influence, but the drift is not significant"
+            text = f"would drop {n} if {' or '.join(say(c) for c in changes)} ({head}; {ztxt})"
+        else:
+            action = "add"
+            why = "near the cut"
+            changes = [condition(i, add=True)]
+            text = f"would add {n} if {say(changes[0])} ({head}; {ztxt})"
+        out.append(
+            {
+                "parameter": n,
+                "selected": bool(selected[i]),
+                "action": action,
+                "score": v,
+                "rank": int(rank[i]),
+                "cut": float(cut),
+                "drift_z": zz if has_z else float("nan"),
+                "significant": significant,
+                "why": why,
+                "changes": changes,
+                "text": text,
+            }
+        )
+    return sorted(out, key=lambda w: w["rank"])
 
 
 def screen(
@@ -720,6 +856,7 @@ def screen(
         drift_states=n_states,
         drift_state_used=state_used,
         notes=notes,
+        what_if=_what_if(names, score, score_name, sel, z, rank, share, conf.selection),
     )
 
 
@@ -916,6 +1053,33 @@ def add_to_report(result: ScreeningResult, report: Report, level: int = 2) -> Re
         "selected",
     ]
     report.table(result.table[cols], caption="Per-parameter sensitivity and influence (table 4 equivalent)")
+    band, zlim = sel.get("explain_band", 2.0), sel.get("explain_z", 2.0)
+    if result.what_if:
+        report.paragraph(
+            f"Which parameters the selection would add or drop, and why: scores within a factor {band:g} of the "
+            f"rule's cut ({result.what_if[0]['cut']:.4g}), selected parameters whose drift is below {zlim:g} "
+            "standard errors (not significant: tracker noise can make such a drift), and parameters kept out by "
+            "min_z or forced by include / exclude."
+        )
+        report.table(
+            [
+                {
+                    "parameter": w["parameter"],
+                    "selected": w["selected"],
+                    result.score: w["score"],
+                    "rank": w["rank"],
+                    "drift_z": w["drift_z"],
+                    "what would change it": w["text"],
+                }
+                for w in result.what_if
+            ],
+            caption="Borderline parameters: what would add or drop them",
+        )
+    else:
+        report.paragraph(
+            f"No parameter lies within a factor {band:g} of the rule's cut, and every selected drift is significant "
+            f"(≥ {zlim:g} std. errors, when known): the selection is not borderline."
+        )
     for fig, cap in screening_figures(result):
         report.figure(fig, cap)
     return report

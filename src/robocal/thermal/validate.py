@@ -23,7 +23,7 @@ import numpy as np
 from robocal.compensation import desired_poses
 from robocal.identification.calibrate import CalibrationResult
 from robocal.kinematics.transforms import matrix_to_rotvec, quat_to_matrix
-from robocal.thermal.compensate import compensate_targets, nominal_robot, true_robot
+from robocal.thermal.compensate import CompensationLimits, compensate_targets, nominal_robot, true_robot
 from robocal.thermal.model import ThermalModel
 
 if TYPE_CHECKING:
@@ -74,6 +74,10 @@ def _truth_predict(
 
 
 def _stats(e_pos: np.ndarray, e_deg: np.ndarray | None) -> dict[str, float]:
+    if e_pos.size == 0:  # nothing to score (e.g. every target refused by the compensation)
+        nan = float("nan")
+        out = {"mean_position_mm": nan, "max_position_mm": nan, "rms_position_mm": nan}
+        return out if e_deg is None else {**out, "mean_orientation_deg": nan, "max_orientation_deg": nan}
     out = {"mean_position_mm": float(np.mean(e_pos)), "max_position_mm": float(np.max(e_pos))}
     out["rms_position_mm"] = float(np.sqrt(np.mean(e_pos**2)))
     if e_deg is not None:
@@ -89,6 +93,7 @@ def evaluate(
     models: Mapping[str, ThermalModel | None],
     truth: Mapping[str, Any] | None = None,
     at_min: float = 90.0,
+    limits: CompensationLimits | None = None,
 ) -> dict[str, Any]:
     """Errors of every method on the validation warm-up ``val`` (rows with temperatures), see the module doc.
 
@@ -141,7 +146,7 @@ def evaluate(
         "has_orientation": bool(use_rot),
     }
     if truth is not None and "oracle" in drifts:
-        out["closed_loop"] = closed_loop(result, val, state, models, truth, drifts["oracle"], use_rot)
+        out["closed_loop"] = closed_loop(result, val, state, models, truth, drifts["oracle"], use_rot, limits)
     return out
 
 
@@ -153,37 +158,45 @@ def closed_loop(
     truth: Mapping[str, Any],
     d_true: np.ndarray,
     use_rot: bool,
+    limits: CompensationLimits | None = None,
 ) -> dict[str, dict[str, float]]:
     """Twin only: send each method's corrected joints (at each state's mean temperature reading) to the true
-    robot and measure the pose error against the target without tracker noise (targets whose Newton iteration
-    did not converge, e.g. at a wrist singularity, are counted in ``n_not_converged`` and left out)."""
+    robot and measure the pose error against the target without tracker noise. Targets the compensation refuses
+    (status ``not_converged``, e.g. at a wrist singularity, or ``too_large``; see
+    :mod:`robocal.thermal.compensate`) are counted in ``n_not_converged`` / ``n_too_large`` and left out;
+    extrapolated ones (``out_of_range``) are scored with their correction and counted in ``n_out_of_range``."""
     assert val.temperatures is not None
     chain = result.model.chain
     out: dict[str, dict[str, float]] = {}
     for name, model in models.items():
         e_all, ed_all = [], []
-        n_bad = 0
+        counts = {"not_converged": 0, "too_large": 0, "out_of_range": 0}
         for s in range(int(state.max()) + 1):
             sel = np.flatnonzero(state == s)
             T = None
             if model is not None:
                 T = reorder(val.temperatures[sel], val.sensor_names, model.sensors).mean(axis=0)
-            comp = compensate_targets(result, model, T, val.q[sel], val.target[sel], orientation=use_rot)
+            comp = compensate_targets(result, model, T, val.q[sel], val.target[sel], orientation=use_rot, limits=limits)
             for t in dict.fromkeys(val.target[sel].astype(str).tolist()):
                 ts = val.target[sel].astype(str) == t
                 rows = sel[ts]
                 p_d, R_d = desired_poses(nominal_robot(result, t), val.q[rows])
-                ok = comp.results[t].converged
-                n_bad += int((~ok).sum())
+                st = comp.status[ts]
+                for k in counts:
+                    counts[k] += int(np.sum(st == k))
+                assert comp.q_corrected is not None
                 for i, r in enumerate(rows):
-                    if not ok[i]:  # Newton did not converge (near a singularity): reported, not scored
+                    if st[i] in ("not_converged", "too_large"):  # refused (near a singularity): counted, not scored
                         continue
                     act = true_robot(dict(truth), chain, t, d_true[r])
-                    p, R, _ = act.pose(comp.q[ts][i : i + 1])
+                    p, R, _ = act.pose(comp.q_corrected[ts][i : i + 1])
                     e_all.append(float(np.linalg.norm(p[0] - p_d[i])))
                     rv = matrix_to_rotvec(R[0] @ R_d[i].T)
                     ed_all.append(float(np.rad2deg(np.linalg.norm(rv))))
-        out[name] = {**_stats(np.array(e_all), np.array(ed_all) if use_rot else None), "n_not_converged": n_bad}
+        out[name] = {
+            **_stats(np.array(e_all), np.array(ed_all) if use_rot else None),
+            **{f"n_{k}": v for k, v in counts.items()},
+        }
     return out
 
 

@@ -26,11 +26,12 @@ from robocal.identification.calibrate import CalibrationConfig, CalibrationResul
 from robocal.io import write_json
 from robocal.robot import RobotDescription
 from robocal.thermal.identify import StateDrift, find_states, identify_states
-from robocal.thermal.model import ThermalModel
+from robocal.thermal.model import ParameterModel, ThermalModel
 from robocal.thermal.regression import FitOutcome, RegressionConfig, fit_drift
 
 if TYPE_CHECKING:
     from robocal.data.contract import Campaign
+    from robocal.thermal.compensate import CompensationLimits, ThermalCompensation
 
 PROPOSED_SOURCES = ("screen", "drifting", "all")
 
@@ -48,6 +49,8 @@ class ThermalConfig:
     or a list of names. validation_at_min : the validation state the paper samples (90 min). closed_loop :
     close the compensation loop on the twin when a truth file is present. screening_file : the screening
     result the validation stage reads. reference_calibration : extra :class:`CalibrationConfig` settings.
+    compensation : :class:`robocal.thermal.compensate.CompensationLimits` mapping (when a compensated target is
+    refused or flagged: correction bound, convergence tolerance, temperature range margin).
     """
 
     noise_mm: float = 0.015
@@ -62,6 +65,7 @@ class ThermalConfig:
     closed_loop: bool = True
     screening_file: str = "reports/screen/screening.json"
     reference_calibration: Mapping[str, Any] = field(default_factory=dict)
+    compensation: Mapping[str, Any] = field(default_factory=dict)
 
     @classmethod
     def from_mapping(cls, cfg: Mapping[str, Any] | None) -> ThermalConfig:
@@ -71,7 +75,7 @@ class ThermalConfig:
         unknown = sorted(set(data) - set(cls.__dataclass_fields__))
         if unknown:
             raise ConfigError(f"unknown thermal setting(s) {unknown}; known: {sorted(cls.__dataclass_fields__)}")
-        for key in ("regression", "reference_calibration"):
+        for key in ("regression", "reference_calibration", "compensation"):
             if data.get(key) is None:
                 data[key] = {}
         out = cls(**data)
@@ -84,7 +88,14 @@ class ThermalConfig:
                 f"names. Got {out.proposed!r} instead."
             )
         RegressionConfig.from_mapping(out.regression)  # errors name the key early
+        out.limits  # noqa: B018 (validates thermal.compensation early)
         return out
+
+    @property
+    def limits(self) -> CompensationLimits:
+        from robocal.thermal.compensate import CompensationLimits
+
+        return CompensationLimits.from_mapping(self.compensation)
 
     @property
     def regression_config(self) -> RegressionConfig:
@@ -262,7 +273,8 @@ def run_screening(fit: ThermalFit, screen_cfg: Mapping[str, Any] | None, seed: i
     if cfg.get("tool_mm") is None:
         cfg["tool_mm"] = {k: v.tolist() for k, v in fit.reference.tools.items()}
     drift = {n: tuple(fit.drift.deta[:, k].tolist()) for k, n in enumerate(fit.drift.names)}
-    return screening.screen(fit.robot, cfg, seed=seed, drift=drift)
+    stderr = {n: float(fit.drift.stderr[k]) for k, n in enumerate(fit.drift.names)}
+    return screening.screen(fit.robot, cfg, seed=seed, drift=drift, drift_stderr=stderr)
 
 
 def choose_selected(fit: ThermalFit, screening_result: Any) -> tuple[list[str], str]:
@@ -316,6 +328,8 @@ def fit_summary(fit: ThermalFit) -> dict[str, Any]:
         "drifting": list(fit.model_all.names),
         "traditional_parameters": list(fit.traditional_params),
         "equations": fit.model_all.equations(),
+        "equations_with_stderr": fit.model_all.equations(stderr=True),
+        "equations_absolute": fit.model_all.equations(absolute=True),
         "equations_traditional": fit.model_traditional.equations(),
     }
 
@@ -350,7 +364,7 @@ def validate_thermal(fit: ThermalFit, proposed: ThermalModel, truth: Mapping[str
         raise DataError("the validation rows have no temperatures", file=val.source)
     models = {"none": None, "traditional": fit.model_traditional, "proposed": proposed, "all": fit.model_all}
     t = truth if (truth is not None and fit.cfg.closed_loop) else None
-    ev = evaluate(fit.reference, val, vstate, models, truth=t, at_min=fit.cfg.validation_at_min)
+    ev = evaluate(fit.reference, val, vstate, models, truth=t, at_min=fit.cfg.validation_at_min, limits=fit.cfg.limits)
     if truth is not None and not fit.cfg.closed_loop:
         ev.pop("closed_loop", None)
     ev["state"] = vstate
@@ -375,18 +389,10 @@ def thermal_json(
         "robot": fit.robot.name,
         "selected": list(selected),
         "selected_from": source,
-        "model": {
-            p.name: {
-                "form": p.form,
-                "sensors": list(p.sensors),
-                "terms": [list(e) for e in p.terms],
-                "coefficients": [float(c) for c in p.coefficients],
-                "stderr": [float(c) for c in p.stderr],
-                "unit": "mm" if p.kind == "length" else "rad",
-            }
-            for p in proposed.parameters
-        },
+        "model": {p.name: model_entry(p, proposed) for p in proposed.parameters},
         "equations": proposed.equations(),
+        "equations_with_stderr": proposed.equations(stderr=True),
+        "equations_absolute": proposed.equations(absolute=True),
         "T_ref_C": dict(zip(proposed.sensors, proposed.T_ref_C.tolist(), strict=True)),
         "validation": rows(ev["table"]),
         "validation_at_state": {"t_min": ev["at_state_min"], **rows(ev["at_state"])},
@@ -394,9 +400,54 @@ def thermal_json(
     }
     if "closed_loop" in ev:
         out["closed_loop"] = rows(ev["closed_loop"])
+        out["closed_loop_refused"] = {
+            m: {k: v for k, v in s.items() if k.startswith("n_")} for m, s in ev["closed_loop"].items()
+        }
+    if "compensation" in ev:
+        out["compensation"] = ev["compensation"]
+    if "extrapolation" in ev:
+        out["extrapolation"] = ev["extrapolation"]
+    out["warnings"] = [
+        w for w in (ev.get("extrapolation", {}).get("warning"), ev.get("compensation", {}).get("warning")) if w
+    ]
     if screening_result is not None:
         out["screening"] = screening_result.to_dict()
     return out
+
+
+def model_entry(p: ParameterModel, model: ThermalModel) -> dict[str, Any]:
+    """One parameter of ``thermal.json``'s ``model``: form, sensors and order with how cross-validation chose
+    them, coefficients with standard errors, and the equation (eq. 28 form)."""
+    ref = dict(zip(model.sensors, model.T_ref_C.tolist(), strict=True))
+    st = dict(p.stats)
+    entry: dict[str, Any] = {
+        "form": p.form,
+        "unit": "mm" if p.kind == "length" else "rad",
+        "sensors": list(p.sensors),
+        "order": p.order,
+        "terms": [list(e) for e in p.terms],
+        "coefficients": [float(c) for c in p.coefficients],
+        "stderr": [float(c) for c in p.stderr],
+        "coefficient_unit": f"{'mm' if p.kind == 'length' else 'rad'} per degC^order",
+        "lambda_per_C": p.lambda_per_C,
+        "equation": p.equation(ref),
+        "equation_with_stderr": p.equation(ref, stderr=True),
+        "equation_absolute": p.equation_absolute(ref),
+        "cross_validation": {
+            "method": "leave-one-state-out; the smallest model within cv_tolerance of the best CV error, kept only "
+            "when it beats 'no drift' (chi-square test)",
+            "candidate_sensors": st.get("candidate_sensors"),
+            "n_candidates": st.get("n_candidates"),
+            "cv_rmse": st.get("cv_rmse"),
+            "cv_best_rmse": st.get("cv_best_rmse"),
+            "cv_tolerance": st.get("cv_tolerance"),
+            "no_drift_cv_rmse": st.get("no_drift_cv_rmse"),
+            "p_value_vs_no_drift": st.get("p_value_vs_no_drift"),
+            "alternatives": st.get("cv_alternatives"),
+        },
+        "fit": {k: st.get(k) for k in ("n_states", "rmse", "chi2", "dof", "reduced_chi2", "state_stderr")},
+    }
+    return entry
 
 
 def read_truth(data_dir: str | Path) -> dict[str, Any] | None:
@@ -422,18 +473,41 @@ def write_validation(
     import pandas as pd
 
     from robocal.io import atomic_write
-    from robocal.thermal.compensate import compensate_targets, write_controller_csv
+    from robocal.thermal.compensate import (
+        compensate_targets,
+        extrapolation_summary,
+        range_excess,
+        write_controller_csv,
+    )
     from robocal.thermal.validate import reorder
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     proposed, _, _ = fit_selected(fit, selected)
     ev = validate_thermal(fit, proposed, truth)
+    val = fit.campaign.validation()
+    vstate = ev["state"]
+    assert val.temperatures is not None
+    T_val = reorder(val.temperatures, val.sensor_names, proposed.sensors)
+    limits = fit.cfg.limits
+    ev["extrapolation"] = extrapolation_summary(proposed, T_val, vstate, ev["t_min"], limits.range_margin_C)
+    k = int(np.argmin(np.abs(np.asarray(ev["t_min"]) - fit.cfg.validation_at_min)))
+    sel = vstate == k
+    comp = compensate_targets(
+        fit.reference,
+        proposed,
+        T_val[sel].mean(axis=0),
+        val.q[sel],
+        val.target[sel],
+        ids=[f"{p}/{t}" for p, t in zip(val.pose_id[sel], val.target[sel], strict=True)],
+        orientation=bool(ev["has_orientation"]),
+        limits=limits,
+        q_limits=np.asarray(fit.robot.q_limits, dtype=float),
+    )
+    ev["compensation"] = compensation_summary(comp, float(ev["t_min"][k]))
     summary = thermal_json(fit, proposed, selected, source, ev, screening_result)
     write_json(out / "thermal_model.json", proposed.to_dict())
     write_json(out / "thermal.json", summary)
-    val = fit.campaign.validation()
-    vstate = ev["state"]
     frame = pd.DataFrame(
         {"pose_id": val.pose_id, "target": val.target, "state": vstate, "t_min": np.asarray(ev["t_min"])[vstate]}
     )
@@ -441,22 +515,43 @@ def write_validation(
         frame[f"{m}_position_mm"] = e
         if ev["errors_deg"][m] is not None:
             frame[f"{m}_orientation_deg"] = ev["errors_deg"][m]
+    frame["proposed_extrapolation_C"] = range_excess(proposed, T_val).max(axis=1) if len(T_val) else 0.0
     atomic_write(out / "validation.csv", lambda p: frame.to_csv(p, index=False, float_format="%.6f"))
-    k = int(np.argmin(np.abs(np.asarray(ev["t_min"]) - fit.cfg.validation_at_min)))
-    sel = vstate == k
-    assert val.temperatures is not None
-    T = reorder(val.temperatures[sel], val.sensor_names, proposed.sensors).mean(axis=0)
-    comp = compensate_targets(
-        fit.reference,
-        proposed,
-        T,
-        val.q[sel],
-        val.target[sel],
-        ids=[f"{p}/{t}" for p, t in zip(val.pose_id[sel], val.target[sel], strict=True)],
-        orientation=bool(ev["has_orientation"]),
-    )
     write_controller_csv(out / "compensation.csv", comp)
     return summary, proposed, ev
+
+
+def compensation_summary(comp: ThermalCompensation, t_min: float) -> dict[str, Any]:
+    """The ``compensation`` entry of ``thermal.json``: what ``compensation.csv`` holds and how many targets were
+    refused or flagged, with the reasons."""
+    from robocal.thermal.compensate import CSV_COLUMNS
+
+    counts = comp.counts()
+    flagged = [
+        {"target_id": str(i), "status": str(s), "reason": str(r)}
+        for i, s, r in zip(comp.ids, comp.status, comp.reason, strict=True)
+        if s != "ok"
+    ]
+    warning = ""
+    if flagged:
+        warning = (
+            f"{len(flagged)} of {len(comp.ids)} targets of compensation.csv are not ok ("
+            + ", ".join(f"{k}: {v}" for k, v in counts.items() if v and k != "ok")
+            + "); see the status and reason columns"
+        )
+    return {
+        "file": "compensation.csv",
+        "t_min": t_min,
+        "n_targets": len(comp.ids),
+        "n_applied": int(np.sum(comp.applied)),
+        "status_counts": counts,
+        "extrapolation_C": comp.extrapolation_C,
+        "max_correction_deg": float(np.max(comp.correction_max_deg)) if len(comp.ids) else 0.0,
+        "limits": comp.limits.to_dict(),
+        "flagged": flagged,
+        "warning": warning,
+        "columns": dict(CSV_COLUMNS),
+    }
 
 
 def run_all(
@@ -506,9 +601,11 @@ __all__ = [
     "ThermalFit",
     "check_warm_up",
     "choose_selected",
+    "compensation_summary",
     "fit_selected",
     "fit_thermal",
     "load_fit",
+    "model_entry",
     "read_truth",
     "run_all",
     "run_screening",
