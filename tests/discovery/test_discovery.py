@@ -129,6 +129,52 @@ def test_thermal_warm_up(tmp_path):
     assert s["rms_before_mm"] > 2 * s["noise_floor_mm"]  # the effect was really there
 
 
+@pytest.mark.parametrize("seed", [2, 3])
+def test_thermal_drift_at_the_tool_within_3_standard_errors(tmp_path, seed):
+    """The thermal candidate's coefficients (parameters on principal components of the temperatures) have no
+    one-to-one truth; its drift at the tool does. Per measurement state, relative to each pose's first
+    measurement: the modelled drift (discovery.json estimates.drift_by_state) against the twin's true drift
+    (true robot with the true thermal model at the same rows), within 3 standard errors on every axis."""
+    from robocal.discovery.summary import state_drift
+    from robocal.kinematics.chain import build_chain
+    from robocal.thermal.compensate import true_robot
+    from robocal.thermal.model import ThermalModel
+    from robocal.thermal.validate import reorder
+
+    camp, robot, truth = make_campaign(tmp_path, "thermal", seed)
+    res = discover(camp, robot)
+    s = summary(res)
+    assert named(s) == [("thermal", None, None)]
+    acc = res.accepted[0]
+    sd = state_drift(res, acc)
+    assert s["named"][0]["estimates"]["drift_by_state"] == sd["states"]
+    cal = camp.subset(res.final.rows)
+    chain = build_chain(robot)
+    tm = ThermalModel.from_dict(truth["effects"]["thermal"]["model"])
+    d_true = tm.deta(reorder(cal.temperatures, cal.sensor_names, tm.sensors))
+    p_true = np.array(
+        [
+            true_robot(truth, chain, str(cal.target[i]), d_true[i]).pose(cal.q[i : i + 1])[0][0]
+            for i in range(cal.n_rows)
+        ]
+    )
+    state, ref = sd["_state"], sd["_ref"]
+    zs = []
+    for k, entry in enumerate(sd["states"]):
+        sel = state == k
+        true_k = (p_true[sel] - p_true[ref[sel]]).mean(axis=0)
+        for a, axis in enumerate("xyz"):
+            est = entry[f"{axis}_mm"]
+            if k == 0:  # the reference state itself: zero by construction
+                assert abs(est["value"]) < 1e-12 and abs(true_k[a]) < 1e-12
+                continue
+            zs.append(_z(est, true_k[a]))
+    assert len(zs) == 3 * (len(sd["states"]) - 1) and len(zs) >= 12
+    assert max(zs) < Z_MAX, zs
+    # and the drift is far from zero: the check has power (~0.2 mm of z drift against SEs of ~3 um)
+    assert max(abs(e["z_mm"]["value"]) for e in sd["states"]) > 20 * max(e["z_mm"]["stderr"] for e in sd["states"])
+
+
 def test_null_names_nothing(tmp_path):
     """No hidden effect: nothing named on several seeds (the 200-seed figure is benchmarks/discovery_null.py)."""
     for seed in (11, 12, 13, 14):

@@ -85,6 +85,57 @@ def effect_displacement(fit: Fit, acc: Accepted) -> np.ndarray:
     return np.einsum("mij,j->mi", cols.reshape(m, 3, -1), th)
 
 
+#: Measurements more than this apart start a new measurement state (a warm-up measures its pose set in bursts).
+STATE_GAP_S = 600.0
+
+
+def state_drift(res: DiscoveryResult, acc: Accepted) -> dict[str, Any]:
+    """The modelled drift of the measured points per measurement state, with standard errors.
+
+    A parameter-drift effect (thermal, drift) moves every row by ``D_r = G_r theta`` (first order). Its constant
+    part is absorbed by the geometry, so what is meaningful (and comparable with a truth) is the change since
+    the *first* measurement of the same pose and target: ``D_r - D_ref(r)``, averaged over the rows of each
+    state (states are bursts of measurements separated by more than :data:`STATE_GAP_S`). Standard errors from
+    the coefficients' covariance: ``sqrt(diag(Gbar C Gbar^T))``, ``Gbar`` the state mean of ``G_r - G_ref(r)``.
+    Returns ``{"states": [{"t_min", "n_rows", "x_mm", "y_mm", "z_mm"} ...]}`` (each axis value + stderr,
+    tracker frame) and the arrays used (``state``, ``ref``) under private keys for tests.
+    """
+    fit = res.final
+    c = acc.cand
+    if c.shape != "param":
+        return {}
+    rows = _rows(fit)
+    camp = res.campaign.subset(rows)
+    model = fit.model
+    sl = model.slices[model.accepted.index(acc)]
+    idx = [model.base.index(p) for p in acc.params]
+    m = len(rows)
+    G = (fit.Jx[:, :, idx][:, :, :, None] * c.S[rows][:, None, None, :]).reshape(m, 3, -1)
+    names = list(acc.coef_names)
+    C = fit.cov_of(names)
+    C = np.where(np.isfinite(C), C, 0.0)  # fixed (unidentifiable) coefficients carry no variance
+    D = np.einsum("mij,j->mi", G, fit.theta[sl])
+    t = camp.timestamp_s
+    first: dict[tuple[str, str], int] = {}
+    for i in np.argsort(t, kind="stable"):
+        first.setdefault((str(camp.pose_id[i]), str(camp.target[i])), int(i))
+    ref = np.array([first[(str(camp.pose_id[i]), str(camp.target[i]))] for i in range(m)])
+    ts = np.sort(t)
+    cuts = ts[1:][np.diff(ts) > STATE_GAP_S]
+    state = np.searchsorted(cuts, t, side="right")
+    out = []
+    for k in range(int(state.max()) + 1):
+        sel = np.flatnonzero(state == k)
+        d = (D[sel] - D[ref[sel]]).mean(axis=0)
+        Gd = (G[sel] - G[ref[sel]]).mean(axis=0)
+        se = np.sqrt(np.maximum(np.diag(Gd @ C @ Gd.T), 0.0))
+        entry: dict[str, Any] = {"t_min": float((t[sel].min() - t.min()) / 60.0), "n_rows": len(sel)}
+        for a, axis in enumerate("xyz"):
+            entry[f"{axis}_mm"] = _est(d[a], se[a], "mm")
+        out.append(entry)
+    return {"states": out, "_state": state, "_ref": ref}
+
+
 def _rows(fit: Fit) -> np.ndarray:
     assert fit.rows is not None, "Fit.rows must be set by the discovery run"
     return fit.rows
@@ -208,6 +259,12 @@ def summary(res: DiscoveryResult, validation: dict[str, Any] | None = None) -> d
                 "rms_of_effect_mm": float(np.sqrt(np.mean(np.sum(effect_displacement(fit, acc) ** 2, axis=1)))),
             }
         )
+        if c.effect in ("thermal", "drift"):
+            # the effect at the tool, per measurement state, relative to each pose's first measurement: the
+            # quantity with a physical meaning (and a truth on the twin), unlike the per-component coefficients
+            est = named[-1]["estimates"]
+            assert isinstance(est, dict)
+            est["drift_by_state"] = state_drift(res, acc).get("states", [])
     out: dict[str, Any] = {
         "robot": res.robot.name,
         "named": named,
