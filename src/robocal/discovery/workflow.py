@@ -81,11 +81,28 @@ def write_report(res: DiscoveryResult, summ: dict[str, Any], path: Path) -> Path
     if summ["named"]:
         rep.heading("Named effects")
         rows = []
+        drift_rows = []
         for n in summ["named"]:
             for k, e in n["estimates"].items():
+                if k == "drift_by_state":  # a list of states: its own table below
+                    for st in e:
+                        drift_rows.append(
+                            {"effect": n["key"], "t_min": st["t_min"], "rows": st["n_rows"]}
+                            | {
+                                f"{a} (mm)": f"{st[a + '_mm']['value']:.4f} ± {st[a + '_mm']['stderr']:.4f}"
+                                for a in "xyz"
+                            }
+                        )
+                    continue
                 rows.append({"effect": n["key"], "estimate": k, "value": e["value"], "stderr": e["stderr"],
                              "unit": e["unit"]})  # fmt: skip
         rep.table(rows, caption="Estimates with standard errors (joint fit of geometry and every named effect)")
+        if drift_rows:
+            rep.table(
+                drift_rows,
+                caption="Modelled drift at the tool per measurement state, relative to each pose's first measurement "
+                "(tracker frame, ± 1 standard error)",
+            )
         rep.table(
             [{"effect": n["key"], "cause": n["cause"], "signal": n["signal"]} for n in summ["named"]],
             caption="Physical causes and signals",
