@@ -302,17 +302,26 @@ class Service:
         return self.correct(req)
 
     # -- the correction
-    def _compiled(self, bundle: Bundle, temps: np.ndarray | None) -> CompiledChain:
-        """The compiled chain at these temperatures (None: nominal); cached, the cell's temperatures change slowly."""
-        key = (bundle.bundle_id, b"nominal" if temps is None else temps.tobytes())
+    def _compiled(self, bundle: Bundle, temps: np.ndarray | None, nominal: bool = False) -> CompiledChain:
+        """The compiled chain: the controller's nominal one (``nominal``), or the calibrated robot, plus the
+        thermal drift at ``temps`` when the bundle has a thermal model. Cached: the cell's temperatures change
+        slowly.
+
+        A bundle without a thermal model is served with its calibrated errors (``eta0``); ``temps`` is then
+        None. (Before 2026-11 a missing ``temps`` meant "nominal", so a geometry-only bundle corrected nothing.)
+        """
+        if nominal:
+            key = (bundle.bundle_id, b"nominal")
+        else:
+            key = (bundle.bundle_id, b"calibrated" if temps is None else b"T" + temps.tobytes())
         with self._lock:
             cc = self._cache.get(key)
             if cc is not None:
                 self._cache.move_to_end(key)
                 return cc
-        if temps is None:
+        if nominal:
             eta = np.zeros_like(bundle.eta0)
-        elif bundle.thermal is None:
+        elif bundle.thermal is None or temps is None:
             eta = bundle.eta0
         else:
             eta = bundle.eta0 + np.asarray(bundle.thermal.deta(temps[None, :]), dtype=float)[0]
@@ -370,7 +379,7 @@ class Service:
         elif "temperatures" in req and not isinstance(req["temperatures"], dict | list):
             raise RequestError("bad_request", "'temperatures' must be an object or a list")
         cc = self._compiled(bundle, temps)
-        cc_nom = self._compiled(bundle, None)
+        cc_nom = self._compiled(bundle, None, nominal=True)
         joint_offset = None
         if bundle.compliance is not None:
             pay = np.full(m, payload)
