@@ -45,7 +45,14 @@ def test_the_campaign_is_read_as_published(irb120):
     assert cal.n_rows == 108 and set(cal.target) == {"T1", "T2", "T3"}
     assert len(set(cal.pose_id)) == 36
     assert val.n_rows == 11 and set(val.target) == {"T4"}  # 10 test configurations + v_ref
-    assert res.fit["n_rows"] == 108 and res.fit["targets"] == ["T1", "T2", "T3"]
+    assert res.fit["n_rows_total"] == 108 and res.fit["targets"] == ["T1", "T2", "T3"]
+    # the outlier test leaves out a few rows (each listed, with its file row); the statistics are on the rest
+    out = res.fit["outliers"]
+    assert res.fit["n_rows"] == 108 - len(out) and len(out) <= 5
+    rows = {o["row"] for o in out}
+    assert all(2 <= r <= 109 and camp.split[r - 2] == "calibration" for r in rows)
+    # every flagged row is far beyond the fit's spread (the kept rows' RMS)
+    assert all(o["residual_mm"] > 2.5 * res.fit["rms_position_mm"] for o in out), out
 
 
 def test_validation_meets_the_published_figures(irb120):
@@ -109,7 +116,7 @@ def test_eliminated_parameters_and_what_absorbs_them(irb120):
         assert e.describe().startswith(f"{name} with ")
     # theta6 turns every target about the flange z axis: d tool = z x tool = (-t_y, t_x, 0) per target,
     # at the tool offsets where the analysis ran (the registration's)
-    x0 = res.extra["x_init"]
+    x0 = res.extra["x_analysis"]
     tools0 = res.model.tools(x0)
     e = elim["theta6"]
     assert e.reason == "redundant"

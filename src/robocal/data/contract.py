@@ -30,6 +30,8 @@ SPLIT_VALUES = ("calibration", "validation")
 #: A measured point closer than this to the tracker (the frame's origin) looks like metres: no target can sit
 #: inside the tracker head, and a robot cell measured in metres has every |p| of a few units.
 METRES_SUSPECT_MM = 10.0
+#: the station of every row when the file has no ``station`` column
+DEFAULT_STATION = "S1"
 
 
 @dataclass(frozen=True)
@@ -78,6 +80,8 @@ class Campaign:
     temperatures : (m, s) °C joined to the poses (nearest earlier reading), or None; sensor_names : (s,).
     temperature_log : the whole log (``t_s`` + sensor columns), or None.
     extra : extra columns (kept, not used); row_number : (m,) the row in the file (header = 1).
+    station : (m,) str, the tracker placement of each row (one station ``"S1"`` when the file has none);
+    u_mm : (m,) the tracker's stated uncertainty of each point (mm), or None.
     """
 
     source: str
@@ -102,6 +106,22 @@ class Campaign:
     temperature_log: pd.DataFrame | None = None
     extra: Mapping[str, np.ndarray] = field(default_factory=dict)
     row_number: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
+    station: np.ndarray | None = None
+    u_mm: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.station is None:
+            object.__setattr__(self, "station", np.full(self.q.shape[0], DEFAULT_STATION, dtype=object).astype(str))
+
+    @property
+    def station_names(self) -> tuple[str, ...]:
+        """The distinct stations in order of first appearance."""
+        assert self.station is not None
+        return tuple(dict.fromkeys(self.station.tolist()))
+
+    @property
+    def has_stations(self) -> bool:
+        return len(self.station_names) > 1
 
     # ----------------------------------------------------------------------------------------- properties
     @property
@@ -165,6 +185,8 @@ class Campaign:
             temperatures=take(self.temperatures),
             extra={k: v[idx] for k, v in self.extra.items()},
             row_number=self.row_number[idx],
+            station=take(self.station),
+            u_mm=take(self.u_mm),
         )
 
     def calibration(self) -> Campaign:
@@ -194,6 +216,10 @@ class Campaign:
                 for j in range(n):
                     cols[fmt.format(j + 1)] = arr[:, j]
         cols["split"] = self.split
+        if self.has_stations:
+            cols["station"] = self.station
+        if self.u_mm is not None:
+            cols["u_mm"] = self.u_mm
         for name, v in self.extra.items():
             cols[name] = v
         return pd.DataFrame(cols)
@@ -466,7 +492,26 @@ def read_campaign(
         split_arr = _make_split(pid, split_cfg)
         from_file = False
 
+    # tracker stations and the tracker's own point uncertainty
+    if "station" in df.columns:
+        station = df["station"].astype(str).str.strip().to_numpy()
+        bad = (station == "") | (station == "nan") | df["station"].isna().to_numpy()
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            raise DataError("missing station name", file=path, row=_row(i), column="station")
+        station = station.astype(str)
+    else:
+        station = np.full(m, DEFAULT_STATION, dtype=object).astype(str)
+    u_mm = None
+    if "u_mm" in df.columns:
+        u_mm = _numeric(df, "u_mm", path)
+        bad = ~(u_mm > 0)
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            raise DataError(f"point uncertainty must be > 0 mm, got {u_mm[i]:g}", file=path, row=_row(i), column="u_mm")
+
     known = {"pose_id", "timestamp", "target", *qcols, "x_mm", "y_mm", "z_mm", "payload_kg", "split", *qcols_o}
+    known |= {"station", "u_mm"}
     known |= (
         {f"tau{j + 1}_Nm" for j in range(n)} | {f"i{j + 1}_A" for j in range(n)} | {f"dir{j + 1}" for j in range(n)}
     )
@@ -497,6 +542,8 @@ def read_campaign(
         split_from_file=from_file,
         extra=extra,
         row_number=np.arange(m) + 2,
+        station=station,
+        u_mm=u_mm,
     )
     _check_same_joints(camp, path, qcols)
     tpath = _find(folder, "temperatures", required=False)

@@ -16,7 +16,11 @@ EFFECT_NAMES = ("compliance", "gear", "backlash", "thermal", "drift", "beta")
 class DiscoveryConfig:
     """How candidates are built and selected.
 
-    noise_mm : tracker noise per coordinate (1 sigma): weights, chi² and the noise floor.
+    noise_mm : tracker noise per coordinate (1 sigma): weights, chi² and the noise floor (raised to the noise the
+        data show when the campaign allows a model-free estimate: see ``fit.noise`` of the calibration).
+    noise_deg : orientation noise per axis (1 sigma) when the campaign has orientations.
+    use_orientation : use measured orientations when present (``None`` = when present), as ``calibrate`` does.
+    outliers, outlier_alpha : gross errors, as in the geometric calibration (``auto`` / ``off`` / file rows).
     effects : which effects of the library to try (subset of :data:`EFFECT_NAMES`).
     gear_harmonics : harmonics of the joint angle tried for the periodic gear error.
     thermal_components : principal components of the temperature log each parameter may follow (thermal).
@@ -35,6 +39,10 @@ class DiscoveryConfig:
     """
 
     noise_mm: float = 0.015
+    noise_deg: float = 0.01
+    use_orientation: bool | None = None
+    outliers: str | tuple[int, ...] = "auto"
+    outlier_alpha: float = 0.001
     effects: tuple[str, ...] = EFFECT_NAMES
     gear_harmonics: tuple[int, ...] = (1, 2)
     thermal_components: int = 2
@@ -64,11 +72,20 @@ class DiscoveryConfig:
         for key in ("effects", "gear_harmonics", "fixed"):
             if key in data:
                 data[key] = tuple(data[key] or ())
+        if "outliers" in data or "outlier_alpha" in data:
+            from robocal.identification.calibrate import CalibrationConfig
+
+            sub = {k: data[k] for k in ("outliers", "outlier_alpha") if k in data}
+            try:
+                checked = CalibrationConfig.from_mapping(sub)
+            except ConfigError as exc:
+                raise ConfigError(str(exc).replace("calibration setting", "discovery setting")) from None
+            data.update({k: getattr(checked, k) for k in sub})
         out = cls(**data)
         bad = [e for e in out.effects if e not in EFFECT_NAMES]
         if bad:
             raise ConfigError(f"The 'discovery.effects' setting names unknown effect(s) {bad}; known: {EFFECT_NAMES}")
-        for name in ("noise_mm", "alpha", "absorbed_tol", "chi2_alpha", "rank_tol"):
+        for name in ("noise_mm", "noise_deg", "alpha", "absorbed_tol", "chi2_alpha", "rank_tol"):
             if not float(getattr(out, name)) > 0:
                 raise ConfigError(f"The 'discovery.{name}' setting must be > 0. Got {getattr(out, name)!r} instead.")
         if not 0.0 <= out.min_excess_share < 1.0:

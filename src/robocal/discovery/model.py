@@ -4,6 +4,9 @@ Parameters: the geometric calibration vector of :class:`robocal.identification.m
 (kinematic errors, base, tools) followed by the coefficients of every accepted effect. Joint-angle effects
 enter exactly (the joint angles are corrected before the forward kinematics); parameter drifts enter to first
 order (``dp = J_x · dx``: a drift of 0.1 mm or 1e-4 rad leaves a second-order term below 1e-5 mm).
+
+Residuals are ordered row by row, ``d`` per row: the position (mm) and, with a 6-DoF probe, the orientation
+(rad, rotation vector) of each measurement, so that ``r.reshape(m, d)`` is one row per measurement.
 """
 
 from __future__ import annotations
@@ -53,9 +56,22 @@ class ExtendedModel:
         targets: tuple[str, ...],
         T_ref: np.ndarray,
         accepted: list[Accepted],
+        like: CalibrationModel | None = None,
     ) -> None:
+        """``like``: a geometric model whose orientation use, tool frames and tracker stations to copy."""
         self.robot = robot_with(robot, accepted)
-        self.base = CalibrationModel(self.robot, targets, orientation=False, T_ref=T_ref)
+        if like is None:
+            self.base = CalibrationModel(self.robot, targets, orientation=False, T_ref=T_ref)
+        else:
+            self.base = CalibrationModel(
+                self.robot,
+                targets,
+                orientation=like.orientation,
+                T_ref=T_ref,
+                tool_R_ref=like.tool_R_ref,
+                stations=like.station_names,
+                station_T_ref=like.station_T_ref,
+            )
         self.accepted = list(accepted)
         self.nb = self.base.n
         names = list(self.base.names)
@@ -83,24 +99,32 @@ class ExtendedModel:
                 dq[:, a.cand.joint - 1] += a.cand.S[rows] @ theta[sl]
         return dq
 
+    def per_row(self, data: FitData) -> int:
+        """Residuals per measurement: 3 (position) or 6 (position and orientation)."""
+        return 6 if (self.base.orientation and data.R_meas is not None) else 3
+
     def residuals_and_jacobian(
         self, theta: np.ndarray, data: FitData, rows: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Residuals ``(3m,)``, Jacobian ``(3m, n)``, and the base Jacobians ``J_x (m, 3, nb)``, ``J_q (m, 3, N)``.
+        """Residuals ``(d m,)`` row by row, Jacobian ``(d m, n)``, and the base Jacobians ``J_x (m, d, nb)``,
+        ``J_q (m, d, N)`` (``d`` = :meth:`per_row`).
 
         ``rows`` index the campaign rows of ``data`` (signals are stored for every campaign row).
         """
         x = theta[: self.nb]
         m = data.m
+        dd = self.per_row(data)
         dq = self.joint_offsets(theta, rows, 0)
-        d = FitData(q=data.q + dq, p_mm=data.p_mm, target_index=data.target_index)
+        d = data.with_q(data.q + dq)
         r, Jb = self.base.residuals_and_jacobian(x, d)
-        Jx = Jb.reshape(m, 3, self.nb)
-        Jq = self.base.joint_jacobian(x, d.q, d.target_index)
-        J = np.zeros((3 * m, self.n))
+        r, Jb = by_row(r, m, dd), by_row(Jb, m, dd)
+        Jx = Jb.reshape(m, dd, self.nb)
+        Jq_p, Jq_w = self.base.joint_jacobians(x, d)
+        Jq = Jq_p if Jq_w is None else np.concatenate([Jq_p, Jq_w], axis=1)
+        J = np.zeros((dd * m, self.n))
         J[:, : self.nb] = Jb
-        Jv = J.reshape(m, 3, self.n)
-        rv = r.reshape(m, 3).copy()
+        Jv = J.reshape(m, dd, self.n)
+        rv = r.reshape(m, dd).copy()
         for a, sl in zip(self.accepted, self.slices, strict=True):
             c = a.cand
             if c.shape == "joint":
@@ -109,11 +133,20 @@ class ExtendedModel:
             elif c.shape == "param":
                 idx = [self.base.index(p) for p in a.params]
                 S = c.S[rows]  # (m, s)
-                cols = Jx[:, :, idx][:, :, :, None] * S[:, None, None, :]  # (m, 3, P, s)
-                cols = cols.reshape(m, 3, -1)
+                cols = Jx[:, :, idx][:, :, :, None] * S[:, None, None, :]  # (m, d, P, s)
+                cols = cols.reshape(m, dd, -1)
                 Jv[:, :, sl] = cols
                 rv += np.einsum("mij,j->mi", cols, theta[sl])
         return rv.ravel(), J, Jx, Jq
+
+
+def by_row(a: np.ndarray, m: int, d: int) -> np.ndarray:
+    """Reorder residuals (or Jacobian rows) from the geometric model's layout ``[positions (3m), rotations
+    (3m)]`` to row by row ``[p_1, w_1, p_2, w_2, ...]`` (unchanged when ``d == 3``)."""
+    if d == 3:
+        return a
+    rest = a.shape[1:]
+    return a.reshape(2, m, 3, *rest).swapaxes(0, 1).reshape(6 * m, *rest)
 
 
 @dataclass
@@ -125,13 +158,23 @@ class Fit:
     free: np.ndarray
     r_w: np.ndarray  # (M,) whitened residuals
     J_w: np.ndarray  # (M, k) whitened Jacobian on the free parameters
-    Jx: np.ndarray
-    Jq: np.ndarray
+    Jx: np.ndarray  # (m, d, nb)
+    Jq: np.ndarray  # (m, d, N)
     cov: np.ndarray  # (k, k) covariance of the free parameters (s² (JᵀJ)⁻¹), in their units
     s2: float
-    sigma: float
+    sigma: float  # position noise (mm, per coordinate)
     eliminated: tuple[str, ...]
     rows: np.ndarray | None = None  # campaign rows fitted
+    w: np.ndarray | None = None  # (M,) weights (1/sigma) of every residual; None: 1/sigma for all
+
+    @property
+    def d(self) -> int:
+        """Residuals per measurement row (3, or 6 with orientations)."""
+        return int(self.Jx.shape[1])
+
+    @property
+    def weights(self) -> np.ndarray:
+        return np.full(self.M, 1.0 / self.sigma) if self.w is None else self.w
 
     @property
     def M(self) -> int:
@@ -151,7 +194,13 @@ class Fit:
 
     @property
     def residuals_mm(self) -> np.ndarray:
-        return (self.r_w * self.sigma).reshape(-1, 3)
+        """Position residuals ``(m, 3)`` mm."""
+        return (self.r_w / self.weights).reshape(-1, self.d)[:, :3]
+
+    @property
+    def residuals_rad(self) -> np.ndarray | None:
+        """Orientation residuals ``(m, 3)`` rad (rotation vectors), or None without orientations."""
+        return (self.r_w / self.weights).reshape(-1, self.d)[:, 3:] if self.d == 6 else None
 
     @property
     def rms_mm(self) -> float:
@@ -159,7 +208,7 @@ class Fit:
 
     @property
     def noise_floor_mm(self) -> float:
-        """Expected RMS of the 3-D residual of a correct model: ``sigma sqrt(3 dof / M)``."""
+        """Expected RMS of the 3-D position residual of a correct model: ``sigma sqrt(3 dof / M)``."""
         return float(self.sigma * np.sqrt(3.0 * self.dof / self.M))
 
     def stderr(self, name: str) -> float:
@@ -189,13 +238,19 @@ def fit_model(
     fixed: set[str],
     rank_tol: float,
     max_iter: int = 100,
+    sigma_rad: float | None = None,
 ) -> Fit:
-    """Identifiability analysis of the extended model, then Levenberg-Marquardt on its identifiable parameters."""
+    """Identifiability analysis of the extended model, then Levenberg-Marquardt on its identifiable parameters.
+
+    sigma : position noise (mm); sigma_rad : orientation noise (rad) when the model uses orientations."""
 
     def fun(th: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         r, J, _, _ = model.residuals_and_jacobian(th, data, rows)
         return r, J
 
+    d = model.per_row(data)
+    w_row = np.array([1.0 / sigma] * 3 + ([1.0 / (sigma_rad or 1.0)] * 3 if d == 6 else []))
+    w = np.tile(w_row, data.m)
     _r0, J0 = fun(theta0)
     kinds = list(model.base.kinds) + ["effect"] * (model.n - model.nb)
     order = [i for i, k in enumerate(kinds) if k == "base"]
@@ -203,13 +258,13 @@ def fit_model(
     order += [i for i, k in enumerate(kinds) if k == "kinematic"]
     order += [i for i, k in enumerate(kinds) if k == "effect"]
     order = [i for i in order if model.names[i] not in fixed]
-    ident = analyse(J0 / sigma, model.names, order, rtol=rank_tol)
+    ident = analyse(J0 * w[:, None], model.names, order, rtol=rank_tol)
     free = np.sort(ident.kept)
-    lm = levenberg_marquardt(fun, theta0, free, 1.0 / sigma, max_iter=max_iter, ftol=1e-12, xtol=1e-10)
+    lm = levenberg_marquardt(fun, theta0, free, w, max_iter=max_iter, ftol=1e-12, xtol=1e-10)
     theta = lm.x
     r, J, Jx, Jq = model.residuals_and_jacobian(theta, data, rows)
-    r_w = r / sigma
-    J_w = J[:, free] / sigma
+    r_w = r * w
+    J_w = J[:, free] * w[:, None]
     dof = max(len(r_w) - len(free), 1)
     s2 = float(r_w @ r_w) / dof
     JtJ = J_w.T @ J_w
@@ -230,4 +285,5 @@ def fit_model(
         sigma=sigma,
         eliminated=tuple(e.name for e in ident.eliminated),
         rows=np.asarray(rows),
+        w=w,
     )

@@ -24,7 +24,7 @@ from scipy import stats
 from robocal.data.contract import Campaign
 from robocal.discovery.candidates import Candidate, SkippedCandidate, build_library, with_beta
 from robocal.discovery.config import DiscoveryConfig
-from robocal.discovery.model import Accepted, ExtendedModel, Fit, fit_model
+from robocal.discovery.model import Accepted, ExtendedModel, Fit, by_row, fit_model
 from robocal.errors import ConfigError
 from robocal.identification.calibrate import CalibrationConfig, calibrate, fit_data, present_targets
 from robocal.identification.model import CalibrationModel, FitData
@@ -108,11 +108,12 @@ def _resolve_fixed(names: tuple[str, ...], patterns: tuple[str, ...]) -> set[str
 def regressor(cand: Candidate, fit: Fit, rows: np.ndarray, data: FitData) -> tuple[np.ndarray, tuple[str, ...]]:
     """Whitened regressor ``(M, q)`` of a candidate at the current fit, and (param shape) the parameters it drifts."""
     m = len(rows)
-    sig = fit.sigma
+    w = fit.weights[:, None]
+    dd = fit.d
     if cand.shape == "joint":
         assert cand.joint is not None
         Z = fit.Jq[:, :, cand.joint - 1][:, :, None] * cand.S[rows][:, None, :]
-        return Z.reshape(3 * m, -1) / sig, ()
+        return Z.reshape(dd * m, -1) * w, ()
     if cand.shape == "param":
         model = fit.model
         ident = {model.names[i] for i in fit.free}
@@ -122,17 +123,26 @@ def regressor(cand: Candidate, fit: Fit, rows: np.ndarray, data: FitData) -> tup
             params = tuple(p for p in cand.params if p in ident)
         idx = [model.base.index(p) for p in params]
         Z = fit.Jx[:, :, idx][:, :, :, None] * cand.S[rows][:, None, None, :]
-        return Z.reshape(3 * m, -1) / sig, params
+        return Z.reshape(dd * m, -1) * w, params
     # structure: the beta column of the robot with that beta free, at the current parameters
     assert cand.joint is not None
     rob = with_beta(fit.model.robot, cand.joint)
-    mod = CalibrationModel(rob, fit.model.base.target_names, orientation=False, T_ref=fit.model.base.T_ref)
+    b = fit.model.base
+    mod = CalibrationModel(
+        rob,
+        b.target_names,
+        orientation=b.orientation,
+        T_ref=b.T_ref,
+        tool_R_ref=b.tool_R_ref,
+        stations=b.station_names,
+        station_T_ref=b.station_T_ref,
+    )
     x = np.array(
         [dict(zip(fit.model.base.names, fit.theta[: fit.model.nb], strict=True)).get(n, 0.0) for n in mod.names]
     )
     dq = fit.model.joint_offsets(fit.theta, rows, 0)
-    _, J = mod.residuals_and_jacobian(x, FitData(data.q + dq, data.p_mm, data.target_index))
-    return J[:, [mod.index(f"beta{cand.joint}")]] / sig, ()
+    _, J = mod.residuals_and_jacobian(x, data.with_q(data.q + dq))
+    return by_row(J[:, [mod.index(f"beta{cand.joint}")]], m, dd) * w, ()
 
 
 def _basis(J_w: np.ndarray) -> np.ndarray:
@@ -221,25 +231,110 @@ def _wald_log10_p(fit: Fit, acc: Accepted) -> float:
 
 
 def discover(campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig | None = None) -> DiscoveryResult:
-    """Run the discovery on the campaign's calibration rows (all rows when there is no validation split)."""
+    """Run the discovery on the campaign's calibration rows (all rows when there is no validation split).
+
+    Gross errors: the geometric calibration's outlier test (``cfg.outliers``) gives the first kept rows; the
+    search runs on them; every calibration row is then tested again against the *extended* model (a row the
+    geometric model could not explain may be explained now, and a blunder hidden by a large model error
+    stands out once the effects are modelled), and the search is repeated from scratch on the new kept rows
+    until the set is stable (at most three rounds). No effect is ever fitted to a flagged row.
+
+    Noise: the search weights positions by the noise the data show (the calibration's ``fit.noise.used_mm``:
+    the configured value or, when the campaign allows a model-free estimate, the larger of the two), and
+    "unexplained" is judged against it.
+    """
+    from robocal.identification import robust
+    from robocal.identification.calibrate import describe_outliers, present_stations
+
     cfg = cfg or DiscoveryConfig()
     t0 = time.perf_counter()
     has_val = bool(np.any(campaign.split == "validation"))
-    rows = np.flatnonzero(campaign.split == "calibration") if has_val else np.arange(campaign.n_rows)
-    if len(rows) == 0:
+    rows_all = np.flatnonzero(campaign.split == "calibration") if has_val else np.arange(campaign.n_rows)
+    if len(rows_all) == 0:
         raise ConfigError(f"campaign {campaign.source} has no calibration rows")
-    cal = campaign.subset(rows)
+    cal = campaign.subset(rows_all)
+    use_rot = cfg.use_orientation is not False and cal.quat is not None
     targets = present_targets(cal)
-    data = fit_data(cal, use_orientation=False, targets=targets)
-    geo = calibrate(cal, robot, CalibrationConfig(noise_mm=cfg.noise_mm, fixed=cfg.fixed, use_orientation=False))
+    data_all = fit_data(cal, use_orientation=use_rot, targets=targets, stations=present_stations(cal))
+    ccfg = CalibrationConfig(
+        noise_mm=cfg.noise_mm,
+        noise_deg=cfg.noise_deg,
+        fixed=cfg.fixed,
+        use_orientation=use_rot,
+        outliers=cfg.outliers,
+        outlier_alpha=cfg.outlier_alpha,
+    )
+    geo = calibrate(cal, robot, ccfg)
+    noise = geo.fit["noise"]
+    sigma = float(noise["used_mm"])
+    sigma_rad = float(np.deg2rad(cfg.noise_deg))
     library, skipped = build_library(campaign, robot, cfg)
+    kept = np.asarray(geo.extra["kept"], dtype=bool).copy()
+    m = cal.n_rows
+    res: DiscoveryResult | None = None
+    test = None
+    rounds = 0
+    for rounds in range(1, 4):  # noqa: B007 (reported)
+        idx = np.flatnonzero(kept)
+        res = _search(campaign, robot, cfg, rows_all[idx], data_all.rows(idx), geo, library, skipped, sigma, sigma_rad)
+        if cfg.outliers != "auto":
+            break
+        fit = res.final
+        r, J, _, _ = fit.model.residuals_and_jacobian(fit.theta, data_all, rows_all)
+        w = np.tile(fit.weights[: fit.d], m)
+        test = robust.row_test(
+            r * w, J[:, fit.free] * w[:, None], np.repeat(np.arange(m), fit.d), m, kept, ccfg.outlier_alpha
+        )
+        if np.array_equal(~test.flagged, kept):
+            break
+        kept = ~test.flagged
+    assert res is not None
+    # every calibration row's residual under the final model, for the outlier list
+    fit = res.final
+    r, _, _, _ = fit.model.residuals_and_jacobian(fit.theta, data_all, rows_all)
+    rr = r.reshape(m, fit.d)
+    if isinstance(cfg.outliers, tuple):
+        outliers = describe_outliers(cal, ~kept, rr[:, :3], rr[:, 3:] if fit.d == 6 else None, None, listed=True)
+    elif test is not None:
+        outliers = describe_outliers(cal, ~kept, rr[:, :3], rr[:, 3:] if fit.d == 6 else None, test)
+    else:
+        outliers = []
+    res.extra.update(
+        outliers=outliers,
+        outlier_rounds=rounds,
+        noise=noise,
+        sigma_mm=sigma,
+        uses_orientation=use_rot,
+        geometric_calibration=geo,
+        kept_rows=rows_all[kept],
+    )
+    res.wall_time_s = time.perf_counter() - t0
+    return res
+
+
+def _search(
+    campaign: Campaign,
+    robot: RobotDescription,
+    cfg: DiscoveryConfig,
+    rows: np.ndarray,
+    data: FitData,
+    geo: Any,
+    library: list[Candidate],
+    skipped: list[SkippedCandidate],
+    sigma: float,
+    sigma_rad: float,
+) -> DiscoveryResult:
+    """Forward selection on the campaign rows ``rows`` (their fit data ``data``), from the geometric fit ``geo``."""
+    t0 = time.perf_counter()
+    cal = campaign.subset(rows)
+    targets = geo.model.target_names
     T_ref = geo.model.T_ref
     fixed = _resolve_fixed(geo.model.names, cfg.fixed)
 
     def refit(accepted: list[Accepted], prev: Fit | None) -> Fit:
-        model = ExtendedModel(robot, targets, T_ref, accepted)
+        model = ExtendedModel(robot, targets, T_ref, accepted, like=geo.model)
         theta0 = model.map_from(prev.model.names, prev.theta) if prev is not None else model.map_from(geo.names, geo.x)
-        return fit_model(model, theta0, data, rows, cfg.noise_mm, fixed, cfg.rank_tol, cfg.max_iter)
+        return fit_model(model, theta0, data, rows, sigma, fixed, cfg.rank_tol, cfg.max_iter, sigma_rad=sigma_rad)
 
     fit = refit([], None)
     geometric = fit
@@ -249,7 +344,7 @@ def discover(campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig |
     steps: list[Step] = []
     unident: dict[str, float] = {}
     remaining = list(library)
-    groups = np.repeat(np.asarray(cal.pose_id).astype(str), 3)
+    groups = np.repeat(np.asarray(cal.pose_id).astype(str), fit.d)
     for _ in range(cfg.max_steps):
         Q = _basis(fit.J_w)
         scored: list[tuple[Score, Candidate, np.ndarray, tuple[str, ...]]] = []

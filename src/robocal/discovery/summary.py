@@ -79,9 +79,9 @@ def effect_displacement(fit: Fit, acc: Accepted) -> np.ndarray:
     th = fit.theta[sl]
     if c.shape == "joint":
         assert c.joint is not None
-        return fit.Jq[:, :, c.joint - 1] * (c.S[_rows(fit)] @ th)[:, None]
+        return fit.Jq[:, :3, c.joint - 1] * (c.S[_rows(fit)] @ th)[:, None]
     idx = [model.base.index(p) for p in acc.params]
-    cols = fit.Jx[:, :, idx][:, :, :, None] * c.S[_rows(fit)][:, None, None, :]
+    cols = fit.Jx[:, :3, idx][:, :, :, None] * c.S[_rows(fit)][:, None, None, :]
     return np.einsum("mij,j->mi", cols.reshape(m, 3, -1), th)
 
 
@@ -110,7 +110,7 @@ def state_drift(res: DiscoveryResult, acc: Accepted) -> dict[str, Any]:
     sl = model.slices[model.accepted.index(acc)]
     idx = [model.base.index(p) for p in acc.params]
     m = len(rows)
-    G = (fit.Jx[:, :, idx][:, :, :, None] * c.S[rows][:, None, None, :]).reshape(m, 3, -1)
+    G = (fit.Jx[:, :3, idx][:, :, :, None] * c.S[rows][:, None, None, :]).reshape(m, 3, -1)
     names = list(acc.coef_names)
     C = fit.cov_of(names)
     C = np.where(np.isfinite(C), C, 0.0)  # fixed (unidentifiable) coefficients carry no variance
@@ -145,10 +145,11 @@ def locate(res: DiscoveryResult) -> dict[str, Any]:
     """Where the leftover lives: joints (a flexible joint-angle error per joint), workspace region, time span."""
     fit = res.final
     camp = res.campaign.subset(res.rows)
-    r = fit.r_w.reshape(-1, 3)
+    dd = fit.d
+    r = fit.r_w.reshape(-1, dd)
     m = r.shape[0]
     per_row = np.sum(r**2, axis=1)
-    expect = 3.0 * fit.dof / fit.M
+    expect = dd * fit.dof / fit.M
     excess = float(fit.rss - fit.dof)
     out: dict[str, Any] = {"excess_chi2": excess, "chi2": fit.rss, "dof": fit.dof}
     # joints: share of the excess a generic joint-angle error (smooth in every joint angle) would explain
@@ -159,7 +160,7 @@ def locate(res: DiscoveryResult) -> dict[str, Any]:
     Q = U0[:, s0 > 1e-10 * s0[0]]
     joints = []
     for j in range(n):
-        Z = (fit.Jq[:, :, j][:, :, None] * B[:, None, :]).reshape(3 * m, -1) / fit.sigma
+        Z = (fit.Jq[:, :, j][:, :, None] * B[:, None, :]).reshape(dd * m, -1) * fit.weights[:, None]
         Z = Z - Q @ (Q.T @ Z)
         U, s, _ = np.linalg.svd(Z, full_matrices=False)
         Uk = U[:, s > 1e-6 * (s[0] if len(s) else 1.0)]
@@ -272,7 +273,11 @@ def summary(res: DiscoveryResult, validation: dict[str, Any] | None = None) -> d
         "rms_before_mm": res.geometric.rms_mm,
         "rms_after_mm": fit.rms_mm,
         "noise_floor_mm": fit.noise_floor_mm,
-        "noise_mm": res.config.noise_mm,
+        "noise_mm": float(res.extra.get("sigma_mm", res.config.noise_mm)),
+        "noise": res.extra.get("noise"),
+        "outliers": res.extra.get("outliers", []),
+        "n_rows_total": len(res.rows) + len(res.extra.get("outliers", [])),
+        "uses_orientation": bool(res.extra.get("uses_orientation", False)),
         "chi2": fit.rss,
         "dof": fit.dof,
         "chi2_p_value": res.chi2_p_value,

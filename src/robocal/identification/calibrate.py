@@ -38,7 +38,16 @@ class CalibrationConfig:
     fixed : parameter names (shell patterns allowed, e.g. ``"beta*"``) held at nominal.
     max_iter, ftol, xtol : Levenberg-Marquardt stopping rules.
     use_orientation : use measured orientations when present (``None`` = when present).
-    registration_iters : alternations of point-set registration and tool estimation for the initial frames.
+    registration_iters : alternations of point-set registration and tool estimation for the initial frames
+        (a start: the frames and tools are then fitted to convergence with the nominal kinematics, which gives
+        the true "before calibration" figures).
+    outliers : ``"auto"`` (gross errors found by the test in :mod:`robocal.identification.robust`), ``"off"``,
+        or a list of file rows (header = row 1) to leave out.
+    outlier_alpha : family-wise false-flag rate of the outlier test over the rows of a campaign.
+    noise_model : ``"constant"`` (``noise_mm`` for every point), ``"u_mm"`` (each point's ``u_mm`` column over
+        ``u_coverage``), or ``"distance"`` (``noise_mm + noise_mm_per_m · range``, as trackers state it).
+    u_coverage : coverage factor of the ``u_mm`` column (2 for a U95 export).
+    noise_mm_per_m : distance term of the ``distance`` noise model, mm per metre of tracker range.
     """
 
     noise_mm: float = 0.015
@@ -50,6 +59,11 @@ class CalibrationConfig:
     xtol: float = 1e-10
     use_orientation: bool | None = None
     registration_iters: int = 20
+    outliers: str | tuple[int, ...] = "auto"
+    outlier_alpha: float = 0.001
+    noise_model: str = "constant"
+    u_coverage: float = 2.0
+    noise_mm_per_m: float = 0.0
 
     @classmethod
     def from_mapping(cls, cfg: Any) -> CalibrationConfig:
@@ -63,22 +77,60 @@ class CalibrationConfig:
             raise ConfigError(f"unknown calibration setting(s) {unknown}; known: {sorted(known)}")
         if "fixed" in data:
             data["fixed"] = tuple(data["fixed"] or ())
+        if "outliers" in data:
+            o = data["outliers"]
+            if isinstance(o, str):
+                if o not in ("auto", "off"):
+                    raise ConfigError(
+                        f"The 'outliers' calibration setting must be 'auto', 'off' or a list of file rows. Got {o!r}."
+                    )
+            else:
+                try:
+                    rows = tuple(int(v) for v in (o or ()))
+                except (TypeError, ValueError):
+                    raise ConfigError(
+                        f"The 'outliers' calibration setting must be 'auto', 'off' or a list of file rows. Got {o!r}."
+                    ) from None
+                if any(r < 2 for r in rows):
+                    raise ConfigError(f"The 'outliers' calibration setting lists rows {rows}; data rows start at 2.")
+                data["outliers"] = rows
         out = cls(**data)
-        for name in ("noise_mm", "noise_deg", "rank_tol"):
+        for name in ("noise_mm", "noise_deg", "rank_tol", "u_coverage"):
             if not float(getattr(out, name)) > 0:
                 raise ConfigError(f"The '{name}' calibration setting must be > 0. Got {getattr(out, name)!r} instead.")
+        if not 0 < out.outlier_alpha < 1:
+            raise ConfigError(f"The 'outlier_alpha' calibration setting must be in (0, 1). Got {out.outlier_alpha!r}.")
+        if out.noise_model not in NOISE_MODELS:
+            raise ConfigError(
+                f"The 'noise_model' calibration setting must be one of {NOISE_MODELS}. Got {out.noise_model!r}."
+            )
+        if out.noise_mm_per_m < 0:
+            raise ConfigError(f"The 'noise_mm_per_m' calibration setting must be >= 0. Got {out.noise_mm_per_m!r}.")
         return out
 
 
-def fit_data(campaign: Campaign, use_orientation: bool = True, targets: tuple[str, ...] | None = None) -> FitData:
-    """Arrays for fitting; ``target_index`` refers to ``targets`` (default: the campaign's target names)."""
+NOISE_MODELS = ("constant", "u_mm", "distance")
+
+
+def fit_data(
+    campaign: Campaign,
+    use_orientation: bool = True,
+    targets: tuple[str, ...] | None = None,
+    stations: tuple[str, ...] | None = None,
+) -> FitData:
+    """Arrays for fitting; ``target_index`` refers to ``targets`` (default: the campaign's target names),
+    ``station_index`` to ``stations`` (default: the campaign's stations)."""
     R = quat_to_matrix(campaign.quat) if (use_orientation and campaign.quat is not None) else None
     if targets is None:
         ti = campaign.target_index
     else:
         lookup = {t: k for k, t in enumerate(targets)}
         ti = np.array([lookup[str(t)] for t in campaign.target], dtype=int)
-    return FitData(q=campaign.q, p_mm=campaign.p_mm, target_index=ti, R_meas=R)
+    st_names = campaign.station_names if stations is None else stations
+    slook = {t: k for k, t in enumerate(st_names)}
+    assert campaign.station is not None
+    si = np.array([slook[str(t)] for t in campaign.station], dtype=int)
+    return FitData(q=campaign.q, p_mm=campaign.p_mm, target_index=ti, R_meas=R, station_index=si)
 
 
 def present_targets(campaign: Campaign) -> tuple[str, ...]:
@@ -87,25 +139,37 @@ def present_targets(campaign: Campaign) -> tuple[str, ...]:
     return tuple(t for t in campaign.target_names if t in seen)
 
 
+def present_stations(campaign: Campaign) -> tuple[str, ...]:
+    """Tracker stations that occur in the campaign's rows, in order of appearance."""
+    return campaign.station_names
+
+
 def register_frames(
     model: CalibrationModel, data: FitData, iters: int = 20, tool_init: np.ndarray | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
     """Closed-form initial ``tracker_T_base`` and tool offsets from the nominal kinematics.
 
-    Alternates Kabsch registration of the nominal target points onto the measurements with a linear
-    least-squares solve for each target's flange offset. Returns ``(T (4, 4), tools (K, 3))``.
+    Alternates Kabsch registration of the nominal target points onto the measurements (one per tracker
+    station) with a linear least-squares solve for each target's flange offset. Returns
+    ``(T (4, 4), tools (K, 3))``, or ``(T (S, 4, 4), tools)`` when the model has ``S > 1`` stations.
     """
     T_flange = fk(model.chain, data.q)
     Rf, of = T_flange[:, :3, :3], T_flange[:, :3, 3]
     K = len(model.target_names)
     tools = np.zeros((K, 3)) if tool_init is None else np.array(tool_init, dtype=float).reshape(K, 3)
-    T = np.eye(4)
+    groups = data.station_rows(model.n_stations)
+    S = len(groups)
+    T = np.tile(np.eye(4), (S, 1, 1))
     for _ in range(max(1, iters)):
         pts = of + np.einsum("mij,mj->mi", Rf, tools[data.target_index])
-        T_new = kabsch(pts, data.p_mm)
-        # measured points in the base frame, then solve Rf t = p_base - of per target in least squares:
-        # the Rf are rotations (Rfᵀ Rf = I), so the normal equations give the mean of Rfᵀ (p_base - of)
-        p_base = (data.p_mm - T_new[:3, 3]) @ T_new[:3, :3]
+        T_new = T.copy()
+        p_base = np.zeros_like(data.p_mm)
+        for s, idx in enumerate(groups):
+            if len(idx) >= 3:
+                T_new[s] = kabsch(pts[idx], data.p_mm[idx])
+            # measured points in the base frame, then solve Rf t = p_base - of per target in least squares:
+            # the Rf are rotations (Rfᵀ Rf = I), so the normal equations give the mean of Rfᵀ (p_base - of)
+            p_base[idx] = (data.p_mm[idx] - T_new[s, :3, 3]) @ T_new[s, :3, :3]
         local = np.einsum("mji,mj->mi", Rf, p_base - of)
         sums = np.zeros((K, 3))
         np.add.at(sums, data.target_index, local)
@@ -115,7 +179,7 @@ def register_frames(
         tools, T = new_tools, T_new
         if change < 1e-4:  # mm / unitless: Levenberg-Marquardt refines from here
             break
-    return T, tools
+    return (T[0] if S == 1 else T), tools
 
 
 @dataclass
@@ -298,13 +362,18 @@ def _resolve_fixed(names: tuple[str, ...], patterns: tuple[str, ...]) -> set[str
 
 
 def fit_statistics(
-    r_pos: np.ndarray, cfg: CalibrationConfig, n_params: int, r_rot: np.ndarray | None = None
+    r_pos: np.ndarray,
+    cfg: CalibrationConfig,
+    n_params: int,
+    r_rot: np.ndarray | None = None,
+    sigma_mm: np.ndarray | None = None,
 ) -> dict[str, Any]:
-    """RMS / mean / max of 3-D errors and chi² against the configured noise."""
+    """RMS / mean / max of 3-D errors and chi² against the configured noise (``sigma_mm`` (m,): per point)."""
     e = np.linalg.norm(r_pos, axis=1)
     m = r_pos.shape[0]
     M = 3 * m
-    chi2 = float(np.sum(r_pos**2) / cfg.noise_mm**2)
+    sig = np.full(m, cfg.noise_mm) if sigma_mm is None else np.asarray(sigma_mm, dtype=float)
+    chi2 = float(np.sum((r_pos / sig[:, None]) ** 2))
     if r_rot is not None:
         M += 3 * m
         chi2 += float(np.sum(r_rot**2) / np.deg2rad(cfg.noise_deg) ** 2)
@@ -316,7 +385,7 @@ def fit_statistics(
         "rms_position_mm": float(np.sqrt(np.mean(e**2))),
         "mean_position_mm": float(np.mean(e)),
         "max_position_mm": float(np.max(e)),
-        "noise_floor_rms_mm": float(cfg.noise_mm * np.sqrt(3.0 * dof / M)) if r_rot is None else None,
+        "noise_floor_rms_mm": float(np.sqrt(np.mean(sig**2)) * np.sqrt(3.0 * dof / M)) if r_rot is None else None,
         "chi2": chi2,
         "dof": int(dof),
         "reduced_chi2": chi2 / dof,
@@ -333,6 +402,87 @@ def fit_statistics(
     return out
 
 
+def point_sigma(campaign: Campaign, cfg: CalibrationConfig) -> np.ndarray:
+    """Per-point noise (1 sigma per coordinate, mm) under the configured noise model, ``(m,)``."""
+    m = campaign.n_rows
+    if cfg.noise_model == "u_mm":
+        if campaign.u_mm is None:
+            raise ConfigError(
+                f"The 'noise_model' calibration setting is 'u_mm' but {campaign.poses_file} has no u_mm column"
+            )
+        return np.asarray(campaign.u_mm, dtype=float) / cfg.u_coverage
+    if cfg.noise_model == "distance":
+        # the tracker sits at the origin of its own frame: the range is the norm of the measured point
+        return cfg.noise_mm + cfg.noise_mm_per_m * np.linalg.norm(campaign.p_mm, axis=1) / 1000.0
+    return np.full(m, cfg.noise_mm)
+
+
+def _outlier_rows(cal: Campaign, rows_listed: tuple[int, ...]) -> np.ndarray:
+    """The kept mask for an explicit list of file rows (each must be a calibration row of the campaign)."""
+    present = {int(r): i for i, r in enumerate(cal.row_number)}
+    missing = [r for r in rows_listed if r not in present]
+    if missing:
+        raise ConfigError(
+            f"The 'outliers' calibration setting lists row(s) {missing} of {cal.poses_file}, which are not "
+            "calibration rows of the campaign"
+        )
+    kept = np.ones(cal.n_rows, dtype=bool)
+    kept[[present[r] for r in rows_listed]] = False
+    return kept
+
+
+def describe_outliers(
+    cal: Campaign,
+    flagged: np.ndarray,
+    r_pos: np.ndarray,
+    r_rot: np.ndarray | None,
+    test: Any,
+    listed: bool = False,
+) -> list[dict[str, Any]]:
+    """One object per flagged row: file row, pose, target, station, residual and why it was flagged."""
+    out = []
+    for i in np.flatnonzero(flagged):
+        o: dict[str, Any] = {
+            "row": int(cal.row_number[i]),
+            "pose_id": str(cal.pose_id[i]),
+            "target": str(cal.target[i]),
+            "station": str(cal.station[i]) if cal.station is not None else None,
+            "residual_mm": round(float(np.linalg.norm(r_pos[i])), 6),
+            "residual_xyz_mm": [round(float(v), 6) for v in r_pos[i]],
+        }
+        if r_rot is not None:
+            o["residual_deg"] = round(float(np.rad2deg(np.linalg.norm(r_rot[i]))), 6)
+        if listed:
+            o["reason"] = "listed in the 'outliers' calibration setting"
+        else:
+            o["F"] = round(float(test.F[i]), 3)
+            o["p_value"] = float(f"{test.p_value[i]:.3g}")
+            o["reason"] = (
+                f"studentised row residual F = {test.F[i]:.4g} > {test.threshold_F:.4g} "
+                f"(p = {test.p_value[i]:.2g} < {test.alpha:g}/{len(flagged)} rows, Bonferroni)"
+            )
+        out.append(o)
+    return out
+
+
+def _rigid_fit(
+    model: CalibrationModel,
+    data: FitData,
+    x: np.ndarray,
+    rigid: np.ndarray,
+    weights: np.ndarray,
+    rows: np.ndarray,
+    kept: np.ndarray,
+) -> np.ndarray:
+    """Frames and tools fitted to convergence with the kinematics held as in ``x`` (nominal: the "before")."""
+    from robocal.identification import robust
+
+    def fun(xx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return model.residuals_and_jacobian(xx, data)
+
+    return robust.least_squares_on(fun, x, rigid, weights, rows, kept, max_iter=100, ftol=1e-14, xtol=1e-12).x
+
+
 def calibrate(
     campaign: Campaign,
     robot: RobotDescription,
@@ -341,10 +491,16 @@ def calibrate(
 ) -> CalibrationResult:
     """Geometric calibration from the campaign's calibration rows.
 
-    Steps: closed-form frames (registration + tool offsets) -> identifiable parameter set on the
-    unit-column-scaled Jacobian -> Levenberg-Marquardt on the nonlinear model -> covariance
-    ``s² (JᵀJ)⁻¹`` with ``s²`` the residual variance, correlations and chi² against the tracker noise.
+    Steps: closed-form frames (registration + tool offsets, one frame per tracker station) -> the nominal
+    model's best rigid fit (frames and tools fitted to convergence with the nominal kinematics: the "before"
+    figures) -> identifiable parameter set on the unit-column-scaled Jacobian -> Levenberg-Marquardt on the
+    nonlinear model -> gross errors found and left out by the rule of :mod:`robocal.identification.robust`
+    -> covariance ``s² (JᵀJ)⁻¹`` on the kept rows with ``s²`` the residual variance, correlations and chi²
+    against the tracker noise.
     """
+    from robocal.identification import robust
+    from robocal.identification.noise import noise_report
+
     cfg = config or CalibrationConfig()
     t0 = time.perf_counter()
     cal = campaign.calibration() if np.any(campaign.split == "validation") else campaign
@@ -352,9 +508,12 @@ def calibrate(
         raise ConfigError(f"campaign {campaign.source} has no calibration rows")
     use_rot = (cfg.use_orientation is not False) and cal.quat is not None
     targets = present_targets(cal)
-    data = fit_data(cal, use_rot, targets)
-    model0 = CalibrationModel(robot, targets, orientation=False)
-    T_ref, tools0 = register_frames(model0, data, cfg.registration_iters)
+    stations = present_stations(cal)
+    data = fit_data(cal, use_rot, targets, stations)
+    model0 = CalibrationModel(robot, targets, orientation=False, stations=stations)
+    T_reg, tools0 = register_frames(model0, data, cfg.registration_iters)
+    T_st = T_reg.reshape(-1, 4, 4)
+    T_ref = T_st[0]
     tool_R_ref = None
     if use_rot:
         assert data.R_meas is not None
@@ -362,19 +521,35 @@ def calibrate(
         tool_R_ref = np.zeros((len(targets), 3, 3))
         for k in range(len(targets)):
             sel = data.target_index == k
-            Msum = np.einsum("mji,jk,mkl->il", Rf[sel], T_ref[:3, :3], data.R_meas[sel])
+            Msum = np.einsum("mji,mjk,mkl->il", Rf[sel], T_st[data.station_index[sel], :3, :3], data.R_meas[sel])
             U, _, Vt = np.linalg.svd(Msum)
             tool_R_ref[k] = U @ np.diag([1, 1, np.linalg.det(U @ Vt)]) @ Vt
-    model = CalibrationModel(robot, targets, orientation=use_rot, T_ref=T_ref, tool_R_ref=tool_R_ref)
+    model = CalibrationModel(
+        robot, targets, orientation=use_rot, T_ref=T_ref, tool_R_ref=tool_R_ref, stations=stations, station_T_ref=T_st
+    )
+    m = data.m
+    sig = point_sigma(cal, cfg)
+    weights = np.repeat(1.0 / sig, 3)
+    if use_rot:
+        weights = np.concatenate([weights, np.full(3 * m, 1.0 / np.deg2rad(cfg.noise_deg))])
+    rows = robust.row_index(m, 3, use_rot)
+    fixed = _resolve_fixed(model.names, tuple(cfg.fixed))
+
+    if isinstance(cfg.outliers, tuple):
+        kept = _outlier_rows(cal, cfg.outliers)
+    else:
+        kept = np.ones(m, dtype=bool)
+
+    # the nominal model's best rigid fit: frames and tools to convergence (the true "before")
     if x0 is None:
         x = model.zeros()
         x[model.n_chain : model.n_chain + 3 * len(targets)] = tools0.ravel()
+        rigid = np.array([i for i, k in enumerate(model.kinds) if k in ("base", "tool", "tool_rot")])
+        rigid = np.array([i for i in rigid if model.names[i] not in fixed], dtype=int)
+        x = _rigid_fit(model, data, x, rigid, weights, rows, kept)
     else:
+        rigid = np.zeros(0, dtype=int)
         x = np.asarray(x0, dtype=float).copy()
-    fixed = _resolve_fixed(model.names, tuple(cfg.fixed))
-    weights = np.full(3 * data.m, 1.0 / cfg.noise_mm)
-    if use_rot:
-        weights = np.concatenate([weights, np.full(3 * data.m, 1.0 / np.deg2rad(cfg.noise_deg))])
 
     r0, J0 = model.residuals_and_jacobian(x, data)
     x_init = x.copy()
@@ -388,14 +563,47 @@ def calibrate(
 
     ident = analyse(J0 * weights[:, None], model.names, _candidate_order(model, fixed), rtol=cfg.rank_tol)
     free = np.sort(ident.kept)
-    lm = levenberg_marquardt(fun, x, free, weights, max_iter=cfg.max_iter, ftol=cfg.ftol, xtol=cfg.xtol)
+    lm_kw = dict(max_iter=cfg.max_iter, ftol=cfg.ftol, xtol=cfg.xtol)
+    if kept.all():
+        lm = levenberg_marquardt(fun, x, free, weights, **lm_kw)  # type: ignore[arg-type]
+    else:
+        lm = robust.least_squares_on(fun, x, free, weights, rows, kept, **lm_kw)  # type: ignore[arg-type]
+    test = None
+    outlier_rounds = 0
+    if cfg.outliers == "auto":
+        test = robust.row_test(lm.r, lm.J, rows, m, kept, cfg.outlier_alpha)
+        screen = robust.robust_screen(lm.r, rows, m, cfg.outlier_alpha, len(free))
+        if test.flagged.any() or screen.any():
+            # masking and swamping: restart from an M-estimate, flag from there, then iterate the exact test
+            x_rob = robust.irls_cauchy(fun, x_init, free, weights, rows, m)
+            r_rob, _ = fun(x_rob)
+            kept = ~robust.robust_screen(weights * r_rob, rows, m, cfg.outlier_alpha, len(free))
+            for outlier_rounds in range(1, 8):  # noqa: B007 (reported)
+                lm = robust.least_squares_on(fun, x_rob, free, weights, rows, kept, **lm_kw)  # type: ignore[arg-type]
+                test = robust.row_test(lm.r, lm.J, rows, m, kept, cfg.outlier_alpha)
+                if np.array_equal(~test.flagged, kept):
+                    break
+                kept = ~test.flagged
+            if kept.sum() * (6 if use_rot else 3) <= len(free):
+                raise ConfigError(
+                    f"the outlier test left {int(kept.sum())} of {m} rows of {cal.poses_file}: too few to fit "
+                    f"{len(free)} parameters; check the data or set calibration.outliers: off"
+                )
     x = lm.x
+    x_analysis = x_init  # where the identifiability analysis ran
+    if len(rigid) and not kept.all():
+        # the "before" figures: the nominal model's best rigid fit on the kept rows
+        x_init = _rigid_fit(model, data, x_init, rigid, weights, rows, kept)
+        r0, _ = model.residuals_and_jacobian(x_init, data)
     k = len(free)
-    M = len(lm.r)
+    kr = kept[rows]
+    Mk = int(kr.sum())
     # the reduced chi² of the whitened fit scales the covariance; with no residual degree of freedom left
     # (as many identified parameters as residuals) it cannot be estimated: use the configured noise instead
-    s2 = 2.0 * lm.cost / (M - k) if M > k else 1.0
-    JtJ = lm.J.T @ lm.J
+    rk = lm.r[kr]
+    s2 = float(rk @ rk) / (Mk - k) if Mk > k else 1.0
+    Jk = lm.J[kr]
+    JtJ = Jk.T @ Jk
     try:
         cov_w = np.linalg.inv(JtJ)
     except np.linalg.LinAlgError:
@@ -406,9 +614,24 @@ def calibrate(
     stderr = np.full(model.n, np.nan)
     stderr[free] = np.sqrt(np.diag(cov))
     r_all = lm.r / weights
-    r_pos = r_all[: 3 * data.m].reshape(-1, 3)
-    r_rot = r_all[3 * data.m :].reshape(-1, 3) if use_rot else None
-    fit = fit_statistics(r_pos, cfg, k, r_rot)
+    r_pos = r_all[: 3 * m].reshape(-1, 3)
+    r_rot = r_all[3 * m :].reshape(-1, 3) if use_rot else None
+    sig_k = None if cfg.noise_model == "constant" else sig[kept]
+    fit = fit_statistics(r_pos[kept], cfg, k, None if r_rot is None else r_rot[kept], sigma_mm=sig_k)
+    if isinstance(cfg.outliers, tuple):
+        outliers = describe_outliers(cal, ~kept, r_pos, r_rot, None, listed=True)
+        rule = "rows listed in the 'outliers' calibration setting"
+    elif test is not None:
+        outliers = describe_outliers(cal, ~kept, r_pos, r_rot, test)
+        rule = (
+            f"studentised row residuals (F test, {test.d} residuals per row), Bonferroni over {m} rows at "
+            f"family-wise alpha {cfg.outlier_alpha:g}; robust start (Cauchy IRLS) when a row stood out"
+        )
+    else:
+        outliers = []
+        rule = "off"
+    chi2_pos = float(np.sum((r_pos[kept] / sig[kept, None]) ** 2))
+    dof_pos = max(3 * int(kept.sum()) - k, 1) if not use_rot else max(int(fit["dof"]) // 2, 1)
     fit.update(
         {
             "n_identified": k,
@@ -421,10 +644,24 @@ def calibrate(
             "wall_time_s": time.perf_counter() - t0,
             "solver_time_s": lm.wall_time_s,
             "targets": list(targets),
+            "stations": list(stations),
             "uses_orientation": use_rot,
-            "stderr_scale": "residual variance" if M > k else "configured noise (no degree of freedom left)",
+            "stderr_scale": "residual variance" if Mk > k else "configured noise (no degree of freedom left)",
+            "outliers": outliers,
+            "outlier_rule": rule,
+            "n_rows_total": int(m),
+            "outlier_rounds": int(outlier_rounds),
+            "noise": noise_report(cal, kept, chi2_pos, dof_pos, cfg.noise_mm),
         }
     )
+    before_pos = r0[: 3 * m].reshape(-1, 3)
+    e0 = np.linalg.norm(before_pos[kept], axis=1)
+    fit["before"] = {
+        "rms_position_mm": float(np.sqrt(np.mean(e0**2))),
+        "mean_position_mm": float(np.mean(e0)),
+        "max_position_mm": float(np.max(e0)),
+        "definition": "nominal kinematics with frames and tools fitted to convergence (best rigid fit), kept rows",
+    }
     return CalibrationResult(
         model=model,
         x=x,
@@ -438,34 +675,93 @@ def calibrate(
         residuals_deg=None if r_rot is None else np.rad2deg(r_rot),
         config=cfg,
         lm=lm,
-        extra={"x_init": x_init, "residuals_before_mm": r0[: 3 * data.m].reshape(-1, 3)},
+        extra={
+            "x_init": x_init,
+            "x_analysis": x_analysis,
+            "residuals_before_mm": before_pos,
+            "kept": kept,
+            "row_test": test,
+        },
     )
 
 
 def validate(result: CalibrationResult, campaign: Campaign, x: np.ndarray | None = None) -> dict[str, Any]:
-    """Errors of the calibrated model on the campaign's validation rows.
-
-    A validation target not seen in calibration takes its tool offset from its own row at all-zero
-    joints when there is one (that row is then left out of the statistics); otherwise its offset is
-    fitted from the validation rows with the robot fixed. The result says which.
-    """
+    """Errors of the calibrated model on the campaign's validation rows (see :func:`validate_rows`)."""
     val = campaign.validation()
     if val.n_rows == 0:
         return {"n_rows": 0}
     model = result.model
     x = result.x if x is None else x
-    known = {t: k for k, t in enumerate(model.target_names)}
-    T = model.base_transform(x)
     eta = x[: model.chain.n_params]
-    T_fl = T @ fk(model.chain, val.q, eta)  # tracker_T_flange (m, 4, 4)
-    pred = np.zeros((val.n_rows, 3))
-    keep = np.ones(val.n_rows, dtype=bool)
+    base_T_flange = fk(model.chain, val.q, eta)
+    stations = {s: model.base_transform(x, k) for k, s in enumerate(model.station_names)}
+    tools = {t: model.tools(x)[k] for k, t in enumerate(model.target_names)}
+    tool_R = None
+    if model.orientation:
+        tool_R = {t: R for t, R in zip(model.target_names, model.tool_rotations(x), strict=True)}
+    return validate_rows(val, base_T_flange, stations, tools, tool_R)
+
+
+def validate_rows(
+    val: Campaign,
+    base_T_flange: np.ndarray,
+    stations: dict[str, np.ndarray],
+    tools: dict[str, np.ndarray],
+    tool_R: dict[str, np.ndarray] | None = None,
+    dp_mm: np.ndarray | None = None,
+) -> dict[str, Any]:
+    """Errors of a model's predictions on validation rows, with the tool and station handling every caller
+    shares (geometric calibration and discovery alike).
+
+    base_T_flange : (m, 4, 4) the model's flange pose of every validation row in the robot base frame;
+    stations : {station: tracker_T_base} of the calibration; tools : {target: (3,) flange offset};
+    tool_R : {target: (3, 3)} with orientation data, else None; dp_mm : (m, 3) a displacement the model adds
+    to each predicted point (tracker frame; e.g. a parameter drift modelled to first order), or None.
+
+    A validation station the calibration never saw is registered (rigidly, Kabsch) on every other pose of its
+    rows (the 1st, 3rd, ... in file order) and evaluated on the others; those registration rows are left out
+    of the statistics. A validation target not seen in calibration takes its tool offset from its own row at
+    all-zero joints when there is one (that row is then left out of the statistics); otherwise its offset is
+    fitted from the validation rows with the robot fixed. The result says which.
+    """
+    m = val.n_rows
+    keep = np.ones(m, dtype=bool)
+    assert val.station is not None
+    T_st = np.zeros((m, 4, 4))
+    station_source: dict[str, str] = {}
+    for s in val.station_names:
+        rows = np.flatnonzero(val.station == s)
+        if s in stations:
+            T_st[rows] = stations[s]
+            station_source[s] = "calibration"
+            continue
+        poses = list(dict.fromkeys(val.pose_id[rows].tolist()))
+        reg_poses = set(poses[::2])
+        known_rows = rows[np.isin(val.target[rows], list(tools))]
+        reg = known_rows[np.isin(val.pose_id[known_rows], list(reg_poses))]
+        if len(reg) < 3 or len(poses) < 4:
+            raise ConfigError(
+                f"validation station {s!r} of {val.poses_file} was not measured in calibration and has too few "
+                f"rows of calibrated targets ({len(reg)} for registration, {len(poses)} poses; need >= 3 and >= 4) "
+                "to register it on half of its poses"
+            )
+        pts = np.stack(
+            [base_T_flange[i, :3, 3] + base_T_flange[i, :3, :3] @ tools[str(val.target[i])] for i in reg]
+        )
+        T_st[rows] = kabsch(pts, val.p_mm[reg])
+        keep[rows[np.isin(val.pose_id[rows], list(reg_poses))]] = False
+        station_source[s] = (
+            f"not in calibration: registered on {len(reg_poses)} of its {len(poses)} poses (every other pose in "
+            "file order), evaluated on the others"
+        )
+    T_fl = T_st @ base_T_flange  # tracker_T_flange (m, 4, 4)
+    pred = np.zeros((m, 3))
     tool_source: dict[str, str] = {}
     tools_used: dict[str, list[float]] = {}
     for name in val.target_names:
         rows = np.flatnonzero(val.target == name)
-        if name in known:
-            t = model.tools(x)[known[name]]
+        if name in tools:
+            t = np.asarray(tools[name], dtype=float)
             tool_source[name] = "calibration"
         else:
             zero = rows[np.all(np.abs(val.q[rows]) < 1e-12, axis=1)]
@@ -481,7 +777,11 @@ def validate(result: CalibrationResult, campaign: Campaign, x: np.ndarray | None
                 tool_source[name] = "fitted from the validation rows with the robot fixed"
         tools_used[name] = [float(v) for v in t]
         pred[rows] = T_fl[rows, :3, 3] + np.einsum("mij,j->mi", T_fl[rows, :3, :3], t)
+    if dp_mm is not None:
+        pred = pred + dp_mm
     err = pred - val.p_mm
+    if not keep.any():
+        raise ConfigError(f"no validation row of {val.poses_file} is left to evaluate after registration")
     e = np.linalg.norm(err[keep], axis=1)
     out: dict[str, Any] = {
         "n_rows": int(keep.sum()),
@@ -493,8 +793,10 @@ def validate(result: CalibrationResult, campaign: Campaign, x: np.ndarray | None
         "errors_mm": err,
         "kept_rows": keep,
     }
-    if val.quat is not None and model.orientation and all(t in known for t in val.target_names):
-        _, R = model.predict(x, val.q, np.array([known[t] for t in val.target]))
+    if len(station_source) > 1 or any(v != "calibration" for v in station_source.values()):
+        out["station_source"] = station_source
+    if val.quat is not None and tool_R is not None and all(t in tools for t in val.target_names):
+        R = T_fl[:, :3, :3] @ np.stack([tool_R[str(t)] for t in val.target])
         rv = matrix_to_rotvec(R @ np.swapaxes(quat_to_matrix(val.quat), -1, -2))
         eo = np.rad2deg(np.linalg.norm(rv[keep], axis=1))
         out.update(
@@ -514,4 +816,5 @@ __all__ = [
     "load_calibration",
     "register_frames",
     "validate",
+    "validate_rows",
 ]

@@ -9,7 +9,10 @@ Full parameter vector ``x`` (layout in :class:`CalibrationModel.names`):
   registration), zero at the reference;
 - ``tool_<T>_x/y/z`` (mm): the target's position in the flange frame, per target;
 - with orientation data, ``tool_<T>_rx/ry/rz`` (rad): the target frame
-  ``flange_R_target = R_ref_T · Rot_x Rot_y Rot_z``.
+  ``flange_R_target = R_ref_T · Rot_x Rot_y Rot_z``;
+- with several tracker stations, ``station_<S>_tx/ty/tz/rx/ry/rz`` for every station after the first: its own
+  ``tracker_T_base`` in the same form (its own reference frame). The first station's frame keeps the
+  ``base_*`` names and is *the* ``tracker_T_base`` of the calibration.
 
 Residuals are predicted minus measured: positions (mm) flattened row-major ``[x1, y1, z1, x2, ...]``,
 then (when orientation is used) rotation vectors of ``R_pred R_meas^T`` (rad).
@@ -17,7 +20,7 @@ then (when orientation is used) rotation vectors of ``R_pred R_meas^T`` (rad).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -48,17 +51,39 @@ class FitData:
     """Measurements prepared for fitting.
 
     q : (m, n) rad; p_mm : (m, 3) tracker frame; target_index : (m,) int;
-    R_meas : (m, 3, 3) or None (target orientation in the tracker frame).
+    R_meas : (m, 3, 3) or None (target orientation in the tracker frame);
+    station_index : (m,) int into the model's stations, or None (all rows from the first station).
     """
 
     q: np.ndarray
     p_mm: np.ndarray
     target_index: np.ndarray
     R_meas: np.ndarray | None = None
+    station_index: np.ndarray | None = None
 
     @property
     def m(self) -> int:
         return self.q.shape[0]
+
+    def with_q(self, q: np.ndarray) -> FitData:
+        """The same measurements at other joint angles (e.g. corrected by a joint-level effect)."""
+        return replace(self, q=q)
+
+    def rows(self, idx: np.ndarray) -> FitData:
+        """The measurements of rows ``idx``."""
+        return FitData(
+            q=self.q[idx],
+            p_mm=self.p_mm[idx],
+            target_index=self.target_index[idx],
+            R_meas=None if self.R_meas is None else self.R_meas[idx],
+            station_index=None if self.station_index is None else self.station_index[idx],
+        )
+
+    def station_rows(self, n_stations: int) -> list[np.ndarray]:
+        """Row indices of each station (``n_stations`` lists; the first holds every row without station data)."""
+        if n_stations <= 1 or self.station_index is None:
+            return [np.arange(self.m)]
+        return [np.flatnonzero(self.station_index == s) for s in range(n_stations)]
 
 
 class CalibrationModel:
@@ -71,6 +96,8 @@ class CalibrationModel:
         orientation: bool = False,
         T_ref: np.ndarray | None = None,
         tool_R_ref: np.ndarray | None = None,
+        stations: tuple[str, ...] | list[str] = (),
+        station_T_ref: np.ndarray | None = None,
     ) -> None:
         self.robot = robot
         self.chain = build_chain(robot)
@@ -78,6 +105,12 @@ class CalibrationModel:
         self.target_names = tuple(target_names)
         self.orientation = bool(orientation)
         self.T_ref = np.eye(4) if T_ref is None else np.asarray(T_ref, dtype=float)
+        self.station_names: tuple[str, ...] = tuple(stations) or ("S1",)
+        S = len(self.station_names)
+        if station_T_ref is None:
+            station_T_ref = np.tile(self.T_ref, (S, 1, 1))
+        self.station_T_ref = np.asarray(station_T_ref, dtype=float).reshape(S, 4, 4).copy()
+        self.station_T_ref[0] = self.T_ref
         K = len(self.target_names)
         self.tool_R_ref = np.tile(np.eye(3), (K, 1, 1)) if tool_R_ref is None else np.asarray(tool_R_ref, float)
         names = list(self.full_chain.param_names)
@@ -89,14 +122,43 @@ class CalibrationModel:
             for t in self.target_names:
                 names += [f"tool_{t}_rx", f"tool_{t}_ry", f"tool_{t}_rz"]
                 kinds += ["tool_rot"] * 3
+        self.n_local = len(names)  # the parameters of one station's view of the model
+        for st in self.station_names[1:]:
+            names += [f"station_{st}_{c}" for c in ("tx", "ty", "tz", "rx", "ry", "rz")]
+            kinds += ["base"] * 6
         self.names: tuple[str, ...] = tuple(names)
         self.kinds: tuple[str, ...] = tuple(kinds)
         pk = self.chain.param_kind
         units = ["mm" if k == "length" else "rad" for k in pk]
         units += ["mm"] * 3 + ["rad"] * 3 + ["mm"] * (3 * K) + (["rad"] * (3 * K) if self.orientation else [])
+        units += (["mm"] * 3 + ["rad"] * 3) * (S - 1)
         self.units: tuple[str, ...] = tuple(units)
         self.n_chain = self.full_chain.n_params  # kinematic + base
         self.n = len(self.names)
+
+    # ------------------------------------------------------------------ stations
+    @property
+    def n_stations(self) -> int:
+        return len(self.station_names)
+
+    def station_columns(self, s: int) -> np.ndarray:
+        """Columns of the full parameter vector holding station ``s``'s six frame parameters."""
+        if s == 0:
+            P = self.chain.n_params
+            return np.arange(P, P + 6)
+        k0 = self.n_local + 6 * (s - 1)
+        return np.arange(k0, k0 + 6)
+
+    def local_columns(self, s: int) -> np.ndarray:
+        """For station ``s``: the full-vector column of each parameter of its single-station view."""
+        cols = np.arange(self.n_local)
+        if s:
+            P = self.chain.n_params
+            cols[P : P + 6] = self.station_columns(s)
+        return cols
+
+    def _local(self, x: np.ndarray, s: int) -> np.ndarray:
+        return x[..., self.local_columns(s)]
 
     # ------------------------------------------------------------------ layout helpers
     def index(self, name: str) -> int:
@@ -118,13 +180,15 @@ class CalibrationModel:
         K = len(self.target_names)
         if not self.orientation:
             return self.tool_R_ref.copy()
-        a = x[self.n_chain + 3 * K :].reshape(K, 3)
+        a = x[self.n_chain + 3 * K : self.n_chain + 6 * K].reshape(K, 3)
 
         return self.tool_R_ref @ rotx(a[:, 0]) @ roty(a[:, 1]) @ rotz(a[:, 2])
 
-    def base_transform(self, x: np.ndarray) -> np.ndarray:
-        """``tracker_T_base`` (4, 4) for the parameter vector ``x``."""
-        st = propagate(self.full_chain_base_only, np.zeros((1, self.chain.n_joints)), x[: self.n_chain], self.T_ref)
+    def base_transform(self, x: np.ndarray, station: int = 0) -> np.ndarray:
+        """``tracker_T_base`` (4, 4) of a station (the first by default) for the parameter vector ``x``."""
+        xl = self._local(np.asarray(x, dtype=float), station)
+        T_ref = self.station_T_ref[station]
+        st = propagate(self.full_chain_base_only, np.zeros((1, self.chain.n_joints)), xl[: self.n_chain], T_ref)
         T = np.eye(4)
         T[:3, :3] = st.R.reshape(3, 3)
         T[:3, 3] = np.asarray(st.o).reshape(3)
@@ -151,7 +215,28 @@ class CalibrationModel:
         an empty array is returned).
         """
         x = np.asarray(x, dtype=float)
-        st = propagate(self.full_chain, q, x[..., : self.n_chain], self.T_ref)
+        return self.predict_stations(x, FitData(q, np.zeros((len(q), 3)), np.asarray(target_index)))
+
+    def predict_stations(self, x: np.ndarray, data: FitData) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`predict` of the rows of ``data``, each in its own station's tracker frame."""
+        groups = data.station_rows(self.n_stations)
+        if len(groups) == 1:
+            return self._predict1(x, data.q, data.target_index, self.T_ref)
+        m = data.m
+        p = np.zeros((*x.shape[:-1], m, 3))
+        R = np.zeros((m, 3, 3))
+        for s, idx in enumerate(groups):
+            if len(idx):
+                ps, Rs = self._predict1(self._local(x, s), data.q[idx], data.target_index[idx], self.station_T_ref[s])
+                p[..., idx, :] = ps
+                if x.ndim == 1:
+                    R[idx] = Rs
+        return p, (R if x.ndim == 1 else np.empty(0))
+
+    def _predict1(
+        self, x: np.ndarray, q: np.ndarray, target_index: np.ndarray, T_ref: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        st = propagate(self.full_chain, q, x[..., : self.n_chain], T_ref)
         t = self.tools(x)[..., target_index, :]
         p = st.o + st.x * t[..., 0:1] + st.y * t[..., 1:2] + st.z * t[..., 2:3]
         if x.ndim == 2:
@@ -161,7 +246,7 @@ class CalibrationModel:
 
     def residuals(self, x: np.ndarray, data: FitData) -> np.ndarray:
         """Residual vector (predicted - measured), shape ``(3m,)`` or ``(6m,)`` with orientation."""
-        p, R = self.predict(x, data.q, data.target_index)
+        p, R = self.predict_stations(x, data)
         r = (p - data.p_mm).ravel()
         if self.orientation and data.R_meas is not None:
             rv = matrix_to_rotvec(R @ np.swapaxes(data.R_meas, -1, -2))
@@ -170,22 +255,43 @@ class CalibrationModel:
 
     def batch_position_residuals(self, X: np.ndarray, data: FitData) -> np.ndarray:
         """Position residuals for a population ``X (pop, n)``: shape ``(pop, 3m)``."""
-        p, _ = self.predict(X, data.q, data.target_index)
+        p, _ = self.predict_stations(X, data)
         return (p - data.p_mm).reshape(X.shape[0], -1)
 
     def residuals_and_jacobian(self, x: np.ndarray, data: FitData) -> tuple[np.ndarray, np.ndarray]:
         """Residuals (as :meth:`residuals`) and their analytic Jacobian ``(M, n)``."""
         x = np.asarray(x, dtype=float)
+        groups = data.station_rows(self.n_stations)
+        if len(groups) == 1:
+            return self._rj1(x, data, self.T_ref)
+        m = data.m
+        use_rot = self.orientation and data.R_meas is not None
+        M = 3 * m * (2 if use_rot else 1)
+        r = np.zeros(M)
+        J = np.zeros((M, self.n))
+        for s, idx in enumerate(groups):
+            if not len(idx):
+                continue
+            rs, Js = self._rj1(self._local(x, s), data.rows(idx), self.station_T_ref[s])
+            ms = len(idx)
+            pos = (3 * idx[:, None] + np.arange(3)).ravel()
+            out_rows = np.concatenate([pos, 3 * m + pos]) if use_rot else pos
+            r[out_rows] = rs
+            J[np.ix_(out_rows, self.local_columns(s))] = Js[: 6 * ms if use_rot else 3 * ms]
+        return r, J
+
+    def _rj1(self, x: np.ndarray, data: FitData, T_ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`residuals_and_jacobian` of one station's rows, on its single-station parameter vector."""
         m = data.m
         K = len(self.target_names)
-        st = propagate(self.full_chain, data.q, x[: self.n_chain], self.T_ref, record=True)
+        st = propagate(self.full_chain, data.q, x[: self.n_chain], T_ref, record=True)
         t = self.tools(x)[data.target_index]
         p = st.o + st.x * t[:, 0:1] + st.y * t[:, 1:2] + st.z * t[:, 2:3]
         J_eta, W_eta, _, _ = point_jacobians(self.full_chain, st, p)
         use_rot = self.orientation and data.R_meas is not None
         M = 3 * m * (2 if use_rot else 1)
-        J = np.zeros((M, self.n))
-        Jp = J[: 3 * m].reshape(m, 3, self.n)
+        J = np.zeros((M, self.n_local))
+        Jp = J[: 3 * m].reshape(m, 3, self.n_local)
         Jp[:, :, : self.n_chain] = J_eta
         Rf = np.stack([st.x, st.y, st.z], axis=-1)  # (m, 3, 3)
         rows = np.arange(m)
@@ -198,10 +304,10 @@ class CalibrationModel:
             R = Rf @ Rt[data.target_index]
             rv = matrix_to_rotvec(R @ np.swapaxes(data.R_meas, -1, -2))
             r = np.concatenate([r, rv.ravel()])
-            Jw = J[3 * m :].reshape(m, 3, self.n)
+            Jw = J[3 * m :].reshape(m, 3, self.n_local)
             Jw[:, :, : self.n_chain] = W_eta
             # tool rotation Rot_x(a) Rot_y(b) Rot_z(c) after R_ref: world axes
-            a = x[self.n_chain + 3 * K :].reshape(K, 3)[data.target_index]
+            a = x[self.n_chain + 3 * K : self.n_chain + 6 * K].reshape(K, 3)[data.target_index]
             A = Rf @ self.tool_R_ref[data.target_index]
             ux = A[:, :, 0]
             B = A @ rotx(a[:, 0])
@@ -215,10 +321,44 @@ class CalibrationModel:
             Jw[:] = so3_left_jacobian_inv(rv) @ Jw
         return r, J
 
-    def joint_jacobian(self, x: np.ndarray, q: np.ndarray, target_index: np.ndarray) -> np.ndarray:
-        """Jacobian of target positions w.r.t. the joint angles, ``(m, 3, n)`` mm/rad (tracker frame)."""
-        st = propagate(self.full_chain, q, x[: self.n_chain], self.T_ref, record=True)
-        t = self.tools(x)[target_index]
-        p = st.o + st.x * t[:, 0:1] + st.y * t[:, 1:2] + st.z * t[:, 2:3]
-        _, _, J_q, _ = point_jacobians(self.full_chain, st, p)
+    def joint_jacobians(self, x: np.ndarray, data: FitData) -> tuple[np.ndarray, np.ndarray | None]:
+        """Jacobians of the residuals w.r.t. the joint angles: positions ``(m, 3, n)`` mm/rad and, when the model
+        uses orientations, the rotation residuals ``(m, 3, n)`` (with the same left-Jacobian correction as
+        :meth:`residuals_and_jacobian`), else None."""
+        q = data.q
+        m, n = q.shape
+        use_rot = self.orientation and data.R_meas is not None
+        J_q = np.zeros((m, 3, n))
+        W_q = np.zeros((m, 3, n)) if use_rot else None
+        for s, idx in enumerate(data.station_rows(self.n_stations)):
+            if not len(idx):
+                continue
+            xl = self._local(np.asarray(x, dtype=float), s)
+            st = propagate(self.full_chain, q[idx], xl[: self.n_chain], self.station_T_ref[s], record=True)
+            t = self.tools(xl)[data.target_index[idx]]
+            p = st.o + st.x * t[:, 0:1] + st.y * t[:, 1:2] + st.z * t[:, 2:3]
+            _, _, Jq, Wq = point_jacobians(self.full_chain, st, p)
+            J_q[idx] = Jq
+            if W_q is not None:
+                assert data.R_meas is not None
+                Rf = np.stack([st.x, st.y, st.z], axis=-1)
+                R = Rf @ self.tool_rotations(xl)[data.target_index[idx]]
+                rv = matrix_to_rotvec(R @ np.swapaxes(data.R_meas[idx], -1, -2))
+                W_q[idx] = so3_left_jacobian_inv(rv) @ Wq
+        return J_q, W_q
+
+    def joint_jacobian(
+        self, x: np.ndarray, q: np.ndarray, target_index: np.ndarray, station_index: np.ndarray | None = None
+    ) -> np.ndarray:
+        """Jacobian of target positions w.r.t. the joint angles, ``(m, 3, n)`` mm/rad (each row's tracker frame)."""
+        groups = FitData(q, q[:, :3], target_index, station_index=station_index).station_rows(self.n_stations)
+        J_q = np.zeros((len(q), 3, q.shape[1]))
+        for s, idx in enumerate(groups):
+            if not len(idx):
+                continue
+            xl = self._local(np.asarray(x, dtype=float), s)
+            st = propagate(self.full_chain, q[idx], xl[: self.n_chain], self.station_T_ref[s], record=True)
+            t = self.tools(xl)[target_index[idx]]
+            p = st.o + st.x * t[:, 0:1] + st.y * t[:, 1:2] + st.z * t[:, 2:3]
+            J_q[idx] = point_jacobians(self.full_chain, st, p)[2]
         return J_q

@@ -328,6 +328,8 @@ def simulate(
         t = tools[rows.target_index[sel]]
         p[sel] = st.o + st.x * t[:, 0:1] + st.y * t[:, 1:2] + st.z * t[:, 2:3]
         R[sel] = st.R @ tool_R[rows.target_index[sel]]
+    # tracker stations: the tracker moved (leap-frog): pose k is measured from station k mod S
+    station_of = _stations(sc, truth, rows, p, R, T_base)
     if rows.dp_tracker_mm is not None:
         p = p + rows.dp_tracker_mm
     noise = rng("noise")
@@ -335,6 +337,7 @@ def simulate(
     p_meas = p + noise.normal(0, sigma, p.shape)
     sigma_o = np.deg2rad(float(sc.get("noise_deg", 0.005)))
     quat = matrix_to_quat(rotvec_to_matrix(noise.normal(0, sigma_o, (m, 3))) @ R) if orientation else None
+    _gross_errors(sc, truth, rows, p_meas, rng("gross"), tnames)
 
     # write files
     out = Path(out_dir)
@@ -365,6 +368,9 @@ def simulate(
         cols.append([str(int(x)) for x in v] if name.startswith("dir") else _fmt(v, 6))
     header.append("split")
     cols.append(list(map(str, rows.split)))
+    if station_of is not None:
+        header.append("station")
+        cols.append(list(station_of))
     lines = [",".join(header)] + [",".join(r) for r in zip(*cols, strict=True)]
     write_text(out / "poses.csv", "\n".join(lines) + "\n")
     if ctx.temperature_log is not None:
@@ -382,6 +388,71 @@ def simulate(
         lambda pth: pth.write_text(yaml.safe_dump({**sc, "seed": seed}, sort_keys=True)),
     )
     return truth
+
+
+def _stations(
+    sc: Mapping[str, Any], truth: dict[str, Any], rows: Rows, p: np.ndarray, R: np.ndarray, T_base: np.ndarray
+) -> np.ndarray | None:
+    """``stations: {S2: {xyz_mm, rpy_deg}, ...}``: more tracker placements besides ``tracker`` (station S1).
+    Pose number k (in plan order) is measured from station ``k mod S``; ``p`` and ``R`` are moved into that
+    station's frame in place. Returns the station of every row, or None without extra stations."""
+    extra = dict(sc.get("stations") or {})
+    if not extra:
+        return None
+    names = ["S1", *map(str, extra)]
+    Ts = [T_base]
+    for nm, c in extra.items():
+        c = dict(c or {})
+        if "xyz_mm" not in c or "rpy_deg" not in c:
+            raise ConfigError(f"The 'stations.{nm}' scenario setting needs xyz_mm and rpy_deg")
+        Ts.append(
+            homogeneous(
+                matrix_from_rpy(np.deg2rad(np.asarray(c["rpy_deg"], dtype=float))),
+                np.asarray(c["xyz_mm"], dtype=float),
+            )
+        )
+    poses = list(dict.fromkeys(map(str, rows.pose_id)))
+    k_of = {pid: k for k, pid in enumerate(poses)}
+    st = np.array([k_of[str(pid)] % len(names) for pid in rows.pose_id])
+    inv_base = np.linalg.inv(T_base)
+    for s in range(1, len(names)):
+        sel = st == s
+        D = Ts[s] @ inv_base
+        p[sel] = p[sel] @ D[:3, :3].T + D[:3, 3]
+        R[sel] = D[:3, :3] @ R[sel]
+    truth["stations_T_base"] = {nm: T.tolist() for nm, T in zip(names, Ts, strict=True)}
+    return np.array(names, dtype=object)[st]
+
+
+def _gross_errors(
+    sc: Mapping[str, Any], truth: dict[str, Any], rows: Rows, p_meas: np.ndarray, rng: np.random.Generator, tnames: list
+) -> None:
+    """``gross_errors: {n, min_mm, max_mm}``: ``n`` calibration rows displaced in a random direction by a
+    magnitude uniform in ``[min_mm, max_mm]`` (a beam break, a bumped reflector). Listed in the truth."""
+    cfg = dict(sc.get("gross_errors") or {})
+    n = int(cfg.get("n", 0))
+    if n <= 0:
+        return
+    lo, hi = float(cfg.get("min_mm", 0.5)), float(cfg.get("max_mm", 3.0))
+    cal = np.flatnonzero(np.asarray(rows.split) == "calibration")
+    if n > len(cal):
+        raise ConfigError(f"The 'gross_errors.n' scenario setting asks for {n} rows; the campaign has {len(cal)}")
+    pick = np.sort(rng.choice(cal, size=n, replace=False))
+    out = []
+    for i in pick:
+        u = rng.normal(size=3)
+        u /= np.linalg.norm(u)
+        mag = rng.uniform(lo, hi)
+        p_meas[i] += mag * u
+        out.append(
+            {
+                "row": int(i) + 2,
+                "pose_id": str(rows.pose_id[i]),
+                "target": tnames[int(rows.target_index[i])],
+                "magnitude_mm": float(mag),
+            }
+        )
+    truth["gross_errors"] = out
 
 
 def _column_order(name: str) -> tuple[int, int]:

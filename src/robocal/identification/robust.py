@@ -1,0 +1,177 @@
+"""Gross measurement errors: a robust start, a stated outlier test, and the final fit on the kept rows.
+
+A gross error (beam break, bumped reflector, a target seated in the wrong nest, a joint angle logged from the
+previous move) is a whole *row* that is wrong: its 3 position residuals (and 3 orientation residuals with a
+6-DoF probe) are tested together.
+
+The rule (Pope's tau test / Baarda's data snooping generalised to row blocks, with a Bonferroni correction):
+
+* the model is fitted by least squares on the kept rows (whitened residuals ``r``, Jacobian ``J``, ``d``
+  residuals per row, ``dof = M - k``);
+* a **kept** row ``i`` is tested with its externally studentised block residual
+  ``F_i = [r_iᵀ (I - H_ii)⁻¹ r_i / d] / s²_(i)``, ``s²_(i) = (RSS - r_iᵀ (I - H_ii)⁻¹ r_i) / (dof - d)``
+  (``H_ii`` the row's block of the hat matrix; the leave-one-row-out variance, so a blunder does not hide
+  itself by inflating the scale), which is ``F(d, dof - d)``-distributed for a correct row;
+* an **excluded** row is tested with its prediction residual ``F_i = [r_iᵀ (I + H̃_ii)⁻¹ r_i / d] / s²``,
+  ``H̃_ii = J_i (JᵀJ)⁻¹ J_iᵀ``, ``F(d, dof)``-distributed for a correct row (so a row flagged early is let
+  back in when the final model explains it);
+* a row is flagged when its p-value is below ``alpha / m`` (family-wise false-flag rate ``alpha`` over the
+  ``m`` rows tested).
+
+Because least squares spreads a large blunder over its neighbours (masking, swamping), a first look uses a
+robust scale (the median of the row sums of squares); when it or the exact test flags anything, the fit
+restarts from an M-estimator (Cauchy loss on the row norm, by iteratively reweighted least squares), flags from
+there, refits by least squares on the kept rows, and repeats the exact test until the flagged set is stable.
+A clean campaign costs one extra test after the usual fit.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import special
+
+from robocal.identification.solver import LMResult, levenberg_marquardt
+
+#: Cauchy tuning constant (95 % efficiency at the normal distribution), in units of the per-component scale
+CAUCHY_C = 2.385
+
+Fun = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
+
+
+@dataclass(frozen=True)
+class RowTest:
+    """The outlier test of every row: statistic, its p-value, and the threshold it was compared with."""
+
+    F: np.ndarray  # (m,)
+    p_value: np.ndarray  # (m,)
+    flagged: np.ndarray  # (m,) bool
+    threshold_F: float  # F above which a kept row is flagged (for the report)
+    alpha: float
+    d: int
+
+
+def row_index(m: int, d_pos: int, with_rot: bool) -> np.ndarray:
+    """Row of every residual of the layout ``[positions (3m), rotations (3m)]``."""
+    idx = np.repeat(np.arange(m), d_pos)
+    return np.concatenate([idx, idx]) if with_rot else idx
+
+
+def _blocks(rw: np.ndarray, Jw: np.ndarray, rows: np.ndarray, m: int, d: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per-row residual blocks ``(m, d)`` and Jacobian blocks ``(m, d, k)`` (rows in their original order)."""
+    order = np.argsort(rows, kind="stable")
+    return rw[order].reshape(m, d), Jw[order].reshape(m, d, -1)
+
+
+def row_test(
+    rw: np.ndarray,
+    Jw: np.ndarray,
+    rows: np.ndarray,
+    m: int,
+    kept: np.ndarray,
+    alpha: float,
+    cov_w: np.ndarray | None = None,
+) -> RowTest:
+    """The exact test of every row at a least-squares fit on the ``kept`` rows.
+
+    rw, Jw : whitened residuals ``(M,)`` and Jacobian on the free parameters ``(M, k)`` of *all* rows (the
+    excluded ones predicted); rows : (M,) the row of every residual; kept : (m,) bool; cov_w : ``(JᵀJ)⁻¹`` of
+    the kept rows (computed when None).
+    """
+    d = int(len(rw) // m)
+    R, JB = _blocks(rw, Jw, rows, m, d)
+    k = Jw.shape[1]
+    if cov_w is None:
+        Jk = JB[kept].reshape(-1, k)
+        cov_w = np.linalg.pinv(Jk.T @ Jk)
+    H = np.einsum("mik,kl,mjl->mij", JB, cov_w, JB)  # (m, d, d)
+    eye = np.eye(d)
+    sign = np.where(kept, -1.0, 1.0)[:, None, None]
+    C = eye + sign * H
+    # a kept row with H_ii -> I (a row only it determines) has no residual to test: treat as not flagged
+    try:
+        q = np.einsum("mi,mi->m", R, np.linalg.solve(C, R[..., None])[..., 0])
+    except np.linalg.LinAlgError:
+        q = np.einsum("mi,mij,mj->m", R, np.linalg.pinv(C), R)
+    n_kept = int(kept.sum())
+    dof = n_kept * d - k
+    rss = float(np.sum(R[kept] ** 2))
+    F = np.zeros(m)
+    p = np.ones(m)
+    if dof > d:
+        s2_del = np.maximum((rss - q) / (dof - d), 1e-300)
+        s2 = max(rss / dof, 1e-300)
+        F = np.where(kept, (q / d) / s2_del, (q / d) / s2)
+        df2 = np.where(kept, dof - d, dof)
+        p = special.fdtrc(d, df2, F)
+    thr = alpha / max(m, 1)
+    flagged = p < thr
+    thr_F = float(special.fdtri(d, max(dof - d, 1), 1.0 - thr)) if dof > d else float("inf")
+    return RowTest(F=F, p_value=p, flagged=flagged, threshold_F=thr_F, alpha=alpha, d=d)
+
+
+def robust_screen(rw: np.ndarray, rows: np.ndarray, m: int, alpha: float, n_params: int) -> np.ndarray:
+    """A first look with a robust scale: rows whose sum of squares is beyond the Bonferroni threshold of
+    ``s² F(d, dof)``, ``s²`` from the median row sum of squares. Returns the flagged mask ``(m,)``."""
+    d = int(len(rw) // m)
+    ss = np.bincount(rows, weights=rw**2, minlength=m)
+    s2 = float(np.median(ss) / special.chdtri(d, 0.5))
+    if not s2 > 0:
+        return np.zeros(m, dtype=bool)
+    dof = max(m * d - n_params, 1)
+    thr_F = special.fdtri(d, dof, 1.0 - alpha / max(m, 1))
+    return np.asarray(ss / (d * s2) > thr_F)
+
+
+def irls_cauchy(
+    fun: Fun,
+    x0: np.ndarray,
+    free: np.ndarray,
+    weights: np.ndarray,
+    rows: np.ndarray,
+    m: int,
+    iters: int = 12,
+    max_iter: int = 30,
+) -> np.ndarray:
+    """An M-estimate (Cauchy loss on each row's whitened norm) by iteratively reweighted least squares.
+
+    Each row's weight is ``1 / (1 + e²/c²)`` with ``e²`` its mean squared whitened residual over the robust
+    (median) scale. Returns the parameters; the final fit and statistics are the caller's (least squares on
+    the kept rows).
+    """
+    d = int(len(weights) // m)
+    x = np.array(x0, dtype=float)
+    med = special.chdtri(d, 0.5)
+    for _ in range(iters):
+        r, _ = fun(x)
+        rw = weights * r
+        ss = np.bincount(rows, weights=rw**2, minlength=m)
+        s2 = max(float(np.median(ss) / med), 1e-300)
+        omega = 1.0 / (1.0 + ss / (d * s2) / CAUCHY_C**2)
+        lm = levenberg_marquardt(fun, x, free, weights * np.sqrt(omega[rows]), max_iter=max_iter)
+        step = np.abs(lm.x - x)[free].max() if len(free) else 0.0
+        x = lm.x
+        if step < 1e-7:
+            break
+    return x
+
+
+def least_squares_on(
+    fun: Fun,
+    x0: np.ndarray,
+    free: np.ndarray,
+    weights: np.ndarray,
+    rows: np.ndarray,
+    kept: np.ndarray,
+    **kw: float,
+) -> LMResult:
+    """Levenberg-Marquardt with the excluded rows' residuals weighted zero (the returned ``r`` and ``J`` hold
+    every row: whitened by ``weights``, the excluded ones as predictions)."""
+    w_kept = weights * kept[rows]
+    lm = levenberg_marquardt(fun, x0, free, w_kept, **kw)  # type: ignore[arg-type]
+    r, J = fun(lm.x)
+    lm.r = weights * r
+    lm.J = weights[:, None] * J[:, free]
+    return lm
