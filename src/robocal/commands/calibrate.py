@@ -34,5 +34,8 @@ def run(args: argparse.Namespace) -> int:
         v = summary["validation"]
         line += f"; validation mean {v['mean_position_mm']:.4f} / max {v['max_position_mm']:.4f} mm"
     print(line)
+    from robocal.identification.robust import outlier_line
+
+    print(outlier_line(fit.get("outliers", []), fit.get("n_rows_total")))
     print(f"wrote {args.out}/calibration.json and summary.json")
     return 0

@@ -1,5 +1,8 @@
 """``robocal closed-loop [--scenario thermal] [--seed 0] [--bundle DIR] --out DIR``: drive the twin's warm-up
-through the compensation service; report compensated vs uncompensated vs oracle error (plot, HTML, MLflow)."""
+through the compensation service; report compensated vs uncompensated vs oracle error (plot, HTML, MLflow).
+
+``--scenario discovered``: the twin's cell with a gear error and a backlash the geometry misses, discovered by
+``robocal discover`` and served from the discovered model's bundle, against the geometry-only bundle."""
 
 from __future__ import annotations
 
@@ -7,7 +10,11 @@ import argparse
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--scenario", default="thermal", help="twin scenario with the thermal effect (name or YAML)")
+    p.add_argument(
+        "--scenario",
+        default="thermal",
+        help="twin scenario with the thermal effect (name or YAML), or 'discovered' (gear + backlash, discover)",
+    )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--bundle", default=None, help="bundle to serve (default: fitted from the scenario's campaign)")
     p.add_argument("--out", default="reports/closed_loop", help="output directory")
@@ -19,6 +26,19 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from robocal.serve.closed_loop import main_summary_line, run_closed_loop, write_report
+
+    if args.scenario == "discovered":
+        from robocal.serve.closed_loop_effects import run_discovered_closed_loop
+
+        r = run_discovered_closed_loop(args.out, seed=args.seed, n_targets=args.targets)
+        e = r["mean_error_mm"]
+        print(
+            f"discovered {r['effects_named']}: mean error at {r['n_compared']} targets: uncompensated "
+            f"{e['uncompensated']:.4f} mm, geometric bundle {e['geometric']:.4f} mm, discovered bundle "
+            f"{e['discovered']:.4f} mm, oracle {e['oracle']:.4f} mm; refused {r['refused']}"
+        )
+        print(f"wrote {args.out}/closed_loop_discovered.json")
+        return 0 if e["discovered"] <= 1.3 * e["oracle"] else 1
 
     res = run_closed_loop(
         args.scenario,

@@ -33,5 +33,14 @@ def run(args: argparse.Namespace) -> int:
         f"discover: named [{named or 'nothing'}]; RMS {s['rms_before_mm']:.4f} -> {s['rms_after_mm']:.4f} mm "
         f"(noise floor {s['noise_floor_mm']:.4f}); unexplained: {s['unexplained']}"
     )
-    print(f"wrote {args.out}/discovery.json")
+    from robocal.identification.robust import outlier_line
+
+    print(outlier_line(s.get("outliers", []), s.get("n_rows_total")))
+    if "validation" in s:
+        vg, vd = s["validation"]["geometric"], s["validation"]["discovered"]
+        print(
+            f"validation ({vd['n_rows']} rows): mean {vg['mean_position_mm']:.4f} mm geometric -> "
+            f"{vd['mean_position_mm']:.4f} mm discovered"
+        )
+    print(f"wrote {args.out}/discovery.json, calibration.json (the discovered model) and compensation.csv")
     return 0

@@ -150,6 +150,8 @@ def build_library(
                             cause=f"torsional elasticity of the joint-{j + 1} reducer under load (dq = c·tau)",
                             signal=desc, shape="joint", S=sig[:, None],
                             coef_names=("c",), coef_units=(unit,),
+                            extra={"source": "torque" if desc.startswith("reported torque") else
+                                   "current" if desc.startswith("motor current") else "gravity"},
                         )
                     )  # fmt: skip
         elif effect == "gear":

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -90,6 +91,19 @@ def write_report(res: DiscoveryResult, summ: dict[str, Any], path: Path) -> Path
             "threshold log10 p (Bonferroni)": summ["selection"]["threshold_log10_p"],
         }
     )
+    if summ.get("outliers"):
+        rep.note(
+            f"{len(summ['outliers'])} calibration row(s) flagged as gross errors against the final model and left "
+            "out (no effect was fitted to them): "
+            + "; ".join(
+                f"row {o['row']} (pose {o['pose_id']}, {o['target']}, {o['residual_mm']:.3f} mm)"
+                for o in summ["outliers"]
+            ),
+            kind="warn",
+        )
+    if summ.get("noise"):
+        nz = summ["noise"]
+        rep.paragraph(f"Noise used for weights and for 'unexplained': {nz['used_mm']:.4f} mm — {nz['used_because']}.")
     if summ["unexplained"]:
         w = summ["unexplained_where"]
         rep.note(
@@ -200,6 +214,48 @@ def write_report(res: DiscoveryResult, summ: dict[str, Any], path: Path) -> Path
     return rep.save(path)
 
 
+def write_product(res: DiscoveryResult, summ: dict[str, Any], out: Path) -> None:
+    """The discovered model as the product: ``calibration.json`` (geometry + joint-level effects, readable by
+    ``robocal serve --make-bundle --calibration`` and every reader of a calibration) and ``compensation.csv``
+    (the corrected joints and command for the campaign's validation poses, or all its poses without a split)."""
+    from robocal.compensation import write_compensation_csv
+    from robocal.discovery.effects import compensate_targets, extended_calibration
+    from robocal.identification.calibrate import load_calibration
+
+    fit_stats = {k: summ[k] for k in ("rms_before_mm", "rms_after_mm", "noise_floor_mm", "chi2", "dof", "outliers")}
+    cal_dict = extended_calibration(res.final, res.robot, fit_stats)
+    write_json(out / "calibration.json", cal_dict)
+    cal = load_calibration(json.loads(json.dumps(cal_dict)), res.robot)
+    camp = res.campaign
+    sel = camp.split == "validation" if np.any(camp.split == "validation") else np.ones(camp.n_rows, dtype=bool)
+    sub = camp.subset(sel & np.isin(camp.target.astype(str), cal.model.target_names))
+    if sub.n_rows == 0:
+        return
+    first = {}
+    for i, (pid, t) in enumerate(zip(sub.pose_id, sub.target, strict=True)):
+        first.setdefault(str(pid), (i, str(t)))
+    idx = np.array([i for i, _ in first.values()])
+    tgt = [t for _, t in first.values()]
+    qc = np.zeros((len(idx), sub.n_joints))
+    cmd = np.zeros((len(idx), 4, 4))
+    res_mm = np.zeros((len(idx), 3))
+    for t in dict.fromkeys(tgt):
+        rows = np.array([k for k, tt in enumerate(tgt) if tt == t])
+        r = idx[rows]
+        comp, c = compensate_targets(
+            cal,
+            sub.q[r],
+            t,
+            sub.payload_kg[r],
+            None if sub.tau_Nm is None else sub.tau_Nm[r],
+            None if sub.current_A is None else sub.current_A[r],
+            None if sub.direction is None else sub.direction[r],
+        )
+        qc[rows], cmd[rows], res_mm[rows] = comp.q, c, comp.error_before_mm
+    ids = [f"{p}/{t}" for p, t in zip(first, tgt, strict=True)]
+    write_compensation_csv(out / "compensation.csv", ids, qc, cmd, res_mm)
+
+
 def run_discovery(
     data_dir: str | Path,
     robot: str | Path | RobotDescription,
@@ -217,6 +273,7 @@ def run_discovery(
     summ = summary(res, validation_errors(res))
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    write_product(res, summ, out)
     write_json(out / "discovery.json", summ)
     if report:
         write_report(res, summ, out / "report.html")

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import fnmatch
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -271,6 +271,11 @@ class CalibrationResult:
             "tool_rotations": {
                 k: R.tolist() for k, R in zip(self.model.target_names, self.model.tool_rotations(self.x), strict=True)
             },
+            "stations": list(self.model.station_names),
+            "stations_T_base": {
+                s: self.model.base_transform(self.x, k).tolist() for k, s in enumerate(self.model.station_names)
+            },
+            "station_T_ref": self.model.station_T_ref.tolist(),
             "T_ref": self.model.T_ref.tolist(),
             "tool_R_ref": self.model.tool_R_ref.tolist(),
             "orientation": self.model.orientation,
@@ -291,13 +296,24 @@ class CalibrationResult:
 
 
 def load_calibration(data: dict[str, Any], robot: RobotDescription) -> CalibrationResult:
-    """Rebuild a :class:`CalibrationResult` (enough to predict and compensate) from :meth:`to_dict` output."""
+    """Rebuild a :class:`CalibrationResult` (enough to predict and compensate) from :meth:`to_dict` output.
+
+    A calibration written by discovery also carries joint-level ``effects`` (in ``extra["effects"]``) and, when
+    it freed a Hayati beta, the robot's ``beta_free``."""
+    if "beta_free" in data:
+        bf = np.array(data["beta_free"], dtype=bool)
+        if bf.shape != np.shape(robot.beta_free):
+            raise ConfigError(f"calibration 'beta_free' has {bf.shape[0]} joints; robot {robot.name!r} has another")
+        robot = replace(robot, beta_free=bf)
+    stations = tuple(data.get("stations") or ())
     model = CalibrationModel(
         robot,
         tuple(data["tools_mm"].keys()),
         orientation=bool(data.get("orientation", False)),
         T_ref=np.array(data["T_ref"]),
         tool_R_ref=np.array(data["tool_R_ref"]),
+        stations=stations,
+        station_T_ref=np.array(data["station_T_ref"]) if "station_T_ref" in data else None,
     )
     if list(model.names) != list(data["names"]):
         raise ConfigError(
@@ -327,7 +343,11 @@ def load_calibration(data: dict[str, Any], robot: RobotDescription) -> Calibrati
         singular_values=np.array([]),
         names=model.names,
     )
-    cfg = CalibrationConfig(**{**data["config"], "fixed": tuple(data["config"].get("fixed", ()))})
+    cfg_d = {k: v for k, v in data["config"].items() if k in CalibrationConfig.__dataclass_fields__}
+    cfg_d["fixed"] = tuple(cfg_d.get("fixed", ()))
+    if isinstance(cfg_d.get("outliers"), list):
+        cfg_d["outliers"] = tuple(cfg_d["outliers"])
+    cfg = CalibrationConfig(**cfg_d)
     return CalibrationResult(
         model,
         x,
@@ -340,6 +360,7 @@ def load_calibration(data: dict[str, Any], robot: RobotDescription) -> Calibrati
         np.zeros((0, 3)),
         None,
         cfg,
+        extra={"effects": list(data.get("effects") or [])},
     )
 
 
@@ -745,9 +766,7 @@ def validate_rows(
                 f"rows of calibrated targets ({len(reg)} for registration, {len(poses)} poses; need >= 3 and >= 4) "
                 "to register it on half of its poses"
             )
-        pts = np.stack(
-            [base_T_flange[i, :3, 3] + base_T_flange[i, :3, :3] @ tools[str(val.target[i])] for i in reg]
-        )
+        pts = np.stack([base_T_flange[i, :3, 3] + base_T_flange[i, :3, :3] @ tools[str(val.target[i])] for i in reg])
         T_st[rows] = kabsch(pts, val.p_mm[reg])
         keep[rows[np.isin(val.pose_id[rows], list(reg_poses))]] = False
         station_source[s] = (

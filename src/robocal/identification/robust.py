@@ -175,3 +175,13 @@ def least_squares_on(
     lm.r = weights * r
     lm.J = weights[:, None] * J[:, free]
     return lm
+
+
+def outlier_line(outliers: list[dict], total: int | None = None) -> str:
+    """One console line naming the flagged rows (file row, pose, target, residual), or saying there are none."""
+    if not outliers:
+        return "gross errors: none flagged" + (f" among {total} rows" if total else "")
+    items = ", ".join(
+        f"row {o['row']} (pose {o['pose_id']}, {o['target']}, {o['residual_mm']:.3f} mm)" for o in outliers
+    )
+    return f"gross errors: {len(outliers)} row(s) left out of the fit: {items}"

@@ -87,8 +87,11 @@ def matrix_to_rotvec(R: np.ndarray) -> np.ndarray:
     out = w * factor[..., None]
     near_pi = th > np.pi - 1e-3
     if np.any(near_pi):
-        # axis from the largest diagonal element of (R + I) / 2
-        B = (R[near_pi] + np.eye(3)) / 2.0
+        # axis from the symmetric part: (R + Rᵀ)/2 = cos th I + (1 - cos th) a aᵀ, so a aᵀ is exact (the skew part,
+        # O(pi - th), must not enter: taking a column of (R + I)/2 did, and left an O(pi - th) axis error)
+        Rn = R[near_pi]
+        c = cos[near_pi][..., None, None]
+        B = ((Rn + np.swapaxes(Rn, -1, -2)) / 2.0 - c * np.eye(3)) / (1.0 - c)
         idx = np.argmax(np.diagonal(B, axis1=-2, axis2=-1), axis=-1)
         axis = B[np.arange(len(idx)), :, idx]
         axis /= np.linalg.norm(axis, axis=-1, keepdims=True)

@@ -50,15 +50,65 @@ def geometric_report(
             "effect (run `robocal discover`).",
             kind="warn",
         )
-    before = np.linalg.norm(result.extra["residuals_before_mm"], axis=1)
-    after = np.linalg.norm(result.residuals_mm, axis=1)
-    cal = campaign.calibration() if validation else campaign
+    rep.heading("Gross errors")
+    outliers = fit.get("outliers", [])
+    if outliers:
+        rep.note(
+            f"{len(outliers)} of {fit.get('n_rows_total', fit['n_rows'])} calibration rows were left out of the fit "
+            f"by the rule: {fit.get('outlier_rule')}. Check them at the cell (beam break, bumped or re-seated "
+            "reflector, a joint angle logged from the previous move).",
+            kind="warn",
+        )
+        rep.table(
+            [
+                [o["row"], o["pose_id"], o["target"], o.get("station") or "", f"{o['residual_mm']:.4f}", o["reason"]]
+                for o in outliers
+            ],
+            columns=["file row", "pose", "target", "station", "residual (mm)", "why"],
+            caption="Flagged rows: the residual is the kept fit's prediction minus the measurement",
+        )
+    else:
+        rep.paragraph(f"None flagged. Rule: {fit.get('outlier_rule', 'off')}.")
+    noise = fit.get("noise")
+    if noise:
+        rep.heading("Measurement noise", level=3)
+        rows_n = [["configured", f"{noise['configured_mm']:.4f}", "", "", "the calibration setting noise_mm"]]
+        for name, r in noise["routes"].items():
+            rows_n.append(
+                [
+                    name.replace("_", " "),
+                    f"{r['sigma_mm']:.4f}",
+                    f"{r['ci95_mm'][0]:.4f} – {r['ci95_mm'][1]:.4f}",
+                    str(r["dof"]),
+                    r["source"],
+                ]
+            )
+        rep.table(
+            rows_n,
+            columns=["route", "σ per coordinate (mm)", "95 % interval (mm)", "dof", "from"],
+            caption=f"Noise the data imply; used to judge residuals: {noise['used_mm']:.4f} mm, "
+            f"{noise['used_because']}",
+        )
+    kept = result.extra.get("kept")
+    if kept is None:
+        kept = np.ones(len(result.residuals_mm), dtype=bool)
+    before = np.linalg.norm(result.extra["residuals_before_mm"], axis=1)[kept]
+    after = np.linalg.norm(result.residuals_mm, axis=1)[kept]
+    cal_all = campaign.calibration() if validation else campaign
+    cal = cal_all.subset(kept)
     labels = [f"{p}/{t}" for p, t in zip(cal.pose_id, cal.target, strict=True)]
+    b = fit.get("before")
+    if b:
+        rep.paragraph(
+            f"Before calibration: RMS {b['rms_position_mm']:.4f} mm, mean {b['mean_position_mm']:.4f} mm, max "
+            f"{b['max_position_mm']:.4f} mm — {b['definition']}."
+        )
     rep.figure(
         plots.error_per_pose(before, after, labels),
-        "Calibration rows: 3-D error before (nominal kinematics, registered frames) and after calibration",
+        "Calibration rows (kept): 3-D error before (nominal kinematics, frames and tools fitted to convergence) "
+        "and after calibration",
     )
-    rep.figure(plots.error_histogram(before, after), "Calibration rows: error histograms")
+    rep.figure(plots.error_histogram(before, after), "Calibration rows (kept): error histograms")
     if validation and validation_before:
         rep.heading("Validation")
         rep.kv(
@@ -78,7 +128,7 @@ def geometric_report(
         vl = [f"{p}/{t}" for p, t in zip(val.pose_id[keep], val.target[keep], strict=True)]
         rep.figure(plots.error_per_pose(vb, va, vl), "Validation rows: 3-D error before and after")
     rep.heading("Residuals against joint angles")
-    rep.figure(plots.residuals_vs_joints(cal.q, result.residuals_mm), "Calibration residuals (x, y, z) per joint")
+    rep.figure(plots.residuals_vs_joints(cal.q, result.residuals_mm[kept]), "Calibration residuals (x, y, z) per joint")
     rep.heading("Parameters")
     table = result.parameter_table()
     rep.table(
@@ -106,9 +156,20 @@ def geometric_report(
         rep.paragraph("None: every candidate parameter is identifiable from these poses.")
     T = result.tracker_T_base
     rep.heading("Frames and tools")
+    stations = {
+        f"station {s}: tracker→base xyz (mm)": np.array2string(
+            result.model.base_transform(result.x, k)[:3, 3], precision=4
+        )
+        for k, s in enumerate(result.model.station_names)
+        if k > 0
+    }
     rep.kv(
         {
-            "tracker→base xyz (mm)": np.array2string(T[:3, 3], precision=4),
+            "tracker→base xyz (mm)"
+            + (f" (station {result.model.station_names[0]})" if stations else ""): np.array2string(
+                T[:3, 3], precision=4
+            ),
+            **stations,
             **{f"tool {k} (mm, flange frame)": np.array2string(v, precision=4) for k, v in result.tools.items()},
         }
     )

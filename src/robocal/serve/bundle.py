@@ -7,7 +7,9 @@ Layout::
                            "calibration": "calibration.json", "thermal": "thermal.json" | null,
                            "compliance": "compliance.json" | null, "created": ISO time,
                            "sha256": {file name: hex digest, ...}}
-      calibration.json    geometric calibration (robocal.identification.calibrate.CalibrationResult.to_dict)
+      calibration.json    geometric calibration (robocal.identification.calibrate.CalibrationResult.to_dict);
+                          a calibration written by ``robocal discover`` also carries its joint-level effects
+                          (gear, backlash, compliance), applied like the compliance model's deflection
       thermal.json        optional: robocal.thermal.model.ThermalModel
       compliance.json     optional: robocal.compliance.model.ComplianceModel
       robot.yaml          optional: the robot description when ``robot`` names a file
@@ -118,6 +120,7 @@ class Bundle:
     t_hi: np.ndarray | None = None
     manifest: dict[str, Any] = field(default_factory=dict)
     bundle_id: str = ""
+    effects: tuple[dict[str, Any], ...] = ()  # discovered joint-level effects (robocal.discovery.effects)
 
     @property
     def default_tool(self) -> str:
@@ -135,6 +138,7 @@ class Bundle:
             "tools": list(self.tools),
             "thermal": self.thermal is not None,
             "compliance": self.compliance is not None,
+            "effects": [e["key"] for e in self.effects],
             "sensors": list(self.sensors),
             "temperature_range_C": None
             if self.t_lo is None or self.t_hi is None
@@ -228,6 +232,7 @@ def load_bundle(path: str | Path, loaders: Mapping[str, Loader] | None = None) -
         t_hi=t_hi,
         manifest=manifest,
         bundle_id=digest,
+        effects=tuple(cal.extra.get("effects") or ()),
     )
 
 

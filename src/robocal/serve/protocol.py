@@ -165,11 +165,13 @@ class Targets:
     quat: np.ndarray  # (m, 4)
     current_A: np.ndarray | None
     tau_Nm: np.ndarray | None
+    direction: np.ndarray | None = None
 
 
 def parse_targets(raw: Any, n: int, max_targets: int) -> Targets:
     """``targets``: a non-empty list of ``{"q_deg": [n]}`` or ``{"xyz_mm": [3], "quat_wxyz": [4],
-    "q_seed_deg": [n]}``, each optionally with ``current_A`` / ``tau_Nm`` ([n])."""
+    "q_seed_deg": [n]}``, each optionally with ``current_A`` / ``tau_Nm`` ([n]) and ``dir`` ([n] of -1 / +1, the
+    approach direction of each joint, for a discovered backlash)."""
     if not isinstance(raw, list) or not raw:
         raise RequestError("bad_request", "'targets' must be a non-empty list of objects")
     if len(raw) > max_targets:
@@ -179,15 +181,15 @@ def parse_targets(raw: Any, n: int, max_targets: int) -> Targets:
     q = np.zeros((m, n))
     xyz = np.zeros((m, 3))
     quat = np.tile([1.0, 0.0, 0.0, 0.0], (m, 1))
-    cur = tau = None
+    cur = tau = direc = None
     for k, t in enumerate(raw):
         if not isinstance(t, dict):
             raise RequestError("bad_request", f"targets[{k}] must be an object")
         if "q_deg" in t:
-            extra = set(t) - {"q_deg", "current_A", "tau_Nm"}
+            extra = set(t) - {"q_deg", "current_A", "tau_Nm", "dir"}
             q[k] = _vector(t["q_deg"], n, f"targets[{k}].q_deg")
         elif "xyz_mm" in t:
-            extra = set(t) - {"xyz_mm", "quat_wxyz", "q_seed_deg", "current_A", "tau_Nm"}
+            extra = set(t) - {"xyz_mm", "quat_wxyz", "q_seed_deg", "current_A", "tau_Nm", "dir"}
             kind[k] = 1
             xyz[k] = _vector(t["xyz_mm"], 3, f"targets[{k}].xyz_mm")
             qu = _vector(t.get("quat_wxyz"), 4, f"targets[{k}].quat_wxyz")
@@ -208,10 +210,16 @@ def parse_targets(raw: Any, n: int, max_targets: int) -> Targets:
             if tau is None:
                 tau = np.full((m, n), np.nan)
             tau[k] = _vector(t["tau_Nm"], n, f"targets[{k}].tau_Nm")
-    for arr, name in ((cur, "current_A"), (tau, "tau_Nm")):
+        if "dir" in t:
+            if direc is None:
+                direc = np.full((m, n), np.nan)
+            direc[k] = _vector(t["dir"], n, f"targets[{k}].dir")
+            if not np.isin(direc[k], (-1.0, 1.0)).all():
+                raise RequestError("bad_request", f"targets[{k}].dir must hold -1 or +1 per joint")
+    for arr, name in ((cur, "current_A"), (tau, "tau_Nm"), (direc, "dir")):
         if arr is not None and np.isnan(arr).any():
             raise RequestError("bad_request", f"'{name}' must be given for every target or for none")
-    return Targets(kind, q, xyz, quat, cur, tau)
+    return Targets(kind, q, xyz, quat, cur, tau, direc)
 
 
 def parse_temperatures(raw: Any, sensors: tuple[str, ...]) -> np.ndarray:
@@ -381,14 +389,32 @@ class Service:
         cc = self._compiled(bundle, temps)
         cc_nom = self._compiled(bundle, None, nominal=True)
         joint_offset = None
-        if bundle.compliance is not None:
+        effects = list(bundle.effects)
+        if effects:
+            from robocal.discovery.effects import joint_offsets as effect_offsets
+            from robocal.discovery.effects import needs
+
+            given = {"tau_Nm": tg.tau_Nm, "current_A": tg.current_A, "dir": tg.direction}
+            missing = sorted(f for f in needs(effects) if given[f] is None)
+            if missing:
+                raise RequestError(
+                    "bad_request",
+                    f"the bundle's discovered effects {[e['key'] for e in effects]} need {missing} with every target",
+                )
+        if bundle.compliance is not None or effects:
             pay = np.full(m, payload)
             comp = bundle.compliance
 
             def joint_offset(qc: np.ndarray, rows: np.ndarray) -> np.ndarray:
                 cur = None if tg.current_A is None else tg.current_A[rows]
                 tau = None if tg.tau_Nm is None else tg.tau_Nm[rows]
-                return np.asarray(comp.joint_offsets(qc, pay[rows], cur, tau), dtype=float)
+                dq = np.zeros_like(qc)
+                if comp is not None:
+                    dq += np.asarray(comp.joint_offsets(qc, pay[rows], cur, tau), dtype=float)
+                if effects:
+                    di = None if tg.direction is None else tg.direction[rows]
+                    dq += effect_offsets(effects, robot, qc, pay[rows], tau, cur, di)
+                return dq
 
         sv = cfg.solver
         kw = dict(

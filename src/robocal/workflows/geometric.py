@@ -96,6 +96,10 @@ def run_calibration(
             "rz_mm": result.residuals_mm[:, 2],
         }
     )
+    kept = result.extra.get("kept")
+    if kept is not None:
+        rows["row"] = cal.row_number
+        rows["outlier"] = ~np.asarray(kept, dtype=bool)
     if val and val_before:
         v = camp.validation()
         keep = val["kept_rows"]

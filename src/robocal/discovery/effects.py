@@ -1,0 +1,220 @@
+"""Discovered effects as a product: the extended model written as a calibration, and its joint-level effects
+evaluated for any commanded configuration (offline compensation and the online service).
+
+A joint-level effect ``dq_j = S(q, payload, torque, current, direction) · c`` is added to the commanded joint
+angles, exactly as the discovery fitted it (``q_true = q_cmd + dq``) and as the compensation's
+``joint_offset`` hook expects. Signals:
+
+* ``angle``: ``sin(h q_j), cos(h q_j)`` of the commanded angle (gear transmission error);
+* ``gravity``: the gravity torque of joint ``j`` from the robot description's masses and the payload;
+* ``torque`` / ``current``: the torque or motor current the controller reports (given with the target);
+* ``direction``: the approach direction ``±1`` of joint ``j`` (backlash; given with the target).
+
+Parameter drifts (thermal, drift) need the temperatures or the time of the moment: they are written under
+``not_compensated`` with the reason, never applied silently.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from robocal.discovery.model import Accepted, Fit
+from robocal.identification.calibrate import CalibrationConfig, CalibrationResult
+from robocal.identification.identifiability import Eliminated, Identifiability
+from robocal.robot import RobotDescription
+
+SIGNALS = ("angle", "gravity", "torque", "current", "direction")
+
+
+def signal_kind(acc: Accepted) -> str | None:
+    """The signal of a joint-level effect (one of :data:`SIGNALS`), None for parameter or structure effects."""
+    c = acc.cand
+    if c.shape != "joint":
+        return None
+    if c.effect == "gear":
+        return "angle"
+    if c.effect == "backlash":
+        return "direction"
+    if c.effect == "compliance":
+        return str(c.extra.get("source", "gravity"))
+    raise ValueError(f"unknown joint-level effect {c.effect!r}")
+
+
+def effect_records(fit: Fit) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+    """The accepted effects of a discovery fit as JSON records: ``(joint_level, not_compensated)``."""
+    model = fit.model
+    joint_level: list[dict[str, Any]] = []
+    other: list[dict[str, Any]] = []
+    for acc, sl in zip(model.accepted, model.slices, strict=True):
+        c = acc.cand
+        kind = signal_kind(acc)
+        if kind is None:
+            if c.shape == "structure":
+                continue  # lives in the geometry (beta), already in the calibration
+            other.append(
+                {
+                    "key": c.key,
+                    "effect": c.effect,
+                    "reason": "a parameter drift with "
+                    + ("the temperatures" if c.effect == "thermal" else "time")
+                    + ": it needs the state of the moment, not the commanded joints; "
+                    "use the thermal pipeline's model for online compensation",
+                }
+            )
+            continue
+        assert c.joint is not None
+        joint_level.append(
+            {
+                "key": c.key,
+                "effect": c.effect,
+                "joint": int(c.joint),
+                "harmonic": None if c.harmonic is None else int(c.harmonic),
+                "signal": kind,
+                "coefficients": [float(v) for v in fit.theta[sl]],
+                "coefficient_names": list(c.coef_names),
+                "units": list(c.coef_units),
+            }
+        )
+    return joint_level, other
+
+
+def joint_offsets(
+    effects: list[dict[str, Any]],
+    robot: RobotDescription,
+    q: np.ndarray,
+    payload_kg: np.ndarray | float | None = None,
+    tau_Nm: np.ndarray | None = None,
+    current_A: np.ndarray | None = None,
+    direction: np.ndarray | None = None,
+) -> np.ndarray:
+    """Joint deflection ``dq (m, n)`` rad of the effects at commanded joints ``q (m, n)`` rad.
+
+    Raises ValueError naming the missing signal when an effect needs torques, currents or directions that are
+    not given.
+    """
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    m, n = q.shape
+    dq = np.zeros((m, n))
+    grav = None
+    for e in effects:
+        j = int(e["joint"]) - 1
+        c = np.asarray(e["coefficients"], dtype=float)
+        kind = e["signal"]
+        if kind == "angle":
+            h = int(e["harmonic"])
+            S = np.column_stack([np.sin(h * q[:, j]), np.cos(h * q[:, j])])
+        elif kind == "gravity":
+            if grav is None:
+                from robocal.kinematics.gravity import gravity_torques
+
+                pay = np.broadcast_to(np.asarray(0.0 if payload_kg is None else payload_kg, dtype=float), (m,))
+                grav = gravity_torques(robot, q, pay)
+            S = grav[:, j : j + 1]
+        elif kind in ("torque", "current", "direction"):
+            arr = {"torque": tau_Nm, "current": current_A, "direction": direction}[kind]
+            if arr is None:
+                field = {"torque": "tau_Nm", "current": "current_A", "direction": "dir"}[kind]
+                raise ValueError(
+                    f"the effect {e['key']} needs '{field}' (the {kind} of joint {j + 1}) with each target"
+                )
+            S = np.asarray(arr, dtype=float).reshape(m, n)[:, j : j + 1]
+        else:
+            raise ValueError(f"unknown effect signal {kind!r} in {e.get('key')}; known: {SIGNALS}")
+        dq[:, j] += S @ c
+    return dq
+
+
+def needs(effects: list[dict[str, Any]]) -> set[str]:
+    """The per-target signals the effects need besides the joints: ``tau_Nm``, ``current_A``, ``dir``."""
+    names = {"torque": "tau_Nm", "current": "current_A", "direction": "dir"}
+    return {names[e["signal"]] for e in effects if e["signal"] in names}
+
+
+def extended_calibration(fit: Fit, robot: RobotDescription, summary_fit: dict[str, Any]) -> dict[str, Any]:
+    """The discovered model written as a calibration (the geometric format of
+    :meth:`CalibrationResult.to_dict`, so every reader of ``calibration.json`` takes it) with its joint-level
+    effects under ``effects`` and the rest under ``effects_not_compensated``."""
+    model = fit.model
+    base = model.base
+    nb = model.nb
+    x = fit.theta[:nb].copy()
+    free_b = np.array([i for i in fit.free if i < nb], dtype=int)
+    identified = np.zeros(base.n, dtype=bool)
+    identified[free_b] = True
+    pos = [int(np.flatnonzero(fit.free == i)[0]) for i in free_b]
+    cov = fit.cov[np.ix_(pos, pos)]
+    stderr = np.full(base.n, np.nan)
+    stderr[free_b] = np.sqrt(np.diag(cov))
+    elim = tuple(
+        Eliminated(n, (), 0.0, "not identifiable in the extended model") for n in fit.eliminated if n in base.names
+    )
+    Jn = fit.J_w[:, pos] / np.maximum(np.linalg.norm(fit.J_w[:, pos], axis=0), 1e-300)
+    ident = Identifiability(
+        kept=free_b,
+        eliminated=elim,
+        rank=len(free_b),
+        singular_values=np.linalg.svd(Jn, compute_uv=False),
+        names=base.names,
+    )
+    res = CalibrationResult(
+        model=base,
+        x=x,
+        identified=identified,
+        stderr=stderr,
+        covariance=cov,
+        identifiability=ident,
+        fixed_by_user=(),
+        fit=summary_fit,
+        residuals_mm=fit.residuals_mm,
+        residuals_deg=None,
+        config=CalibrationConfig(noise_mm=fit.sigma),
+    )
+    out = res.to_dict()
+    joint_level, other = effect_records(fit)
+    out["effects"] = joint_level
+    out["effects_not_compensated"] = other
+    if not np.array_equal(base.robot.beta_free, robot.beta_free):
+        out["beta_free"] = [bool(v) for v in base.robot.beta_free]
+    out["source"] = "robocal discover: geometry and every named effect, fitted jointly"
+    return out
+
+
+def compensate_targets(
+    cal: CalibrationResult,
+    q_target: np.ndarray,
+    target: str | None = None,
+    payload_kg: np.ndarray | float = 0.0,
+    tau_Nm: np.ndarray | None = None,
+    current_A: np.ndarray | None = None,
+    direction: np.ndarray | None = None,
+    **newton: Any,
+) -> tuple[Any, np.ndarray]:
+    """Offline compensation with a calibration and its discovered joint-level effects (robot base frame): the
+    joints that put the real tool where the nominal controller expects it at ``q_target (m, n)`` rad.
+
+    Returns the :class:`robocal.compensation.Compensation` and the nominal Cartesian command ``(m, 4, 4)``
+    (what the nominal controller must be sent so that its inverse kinematics yields the corrected joints).
+    ``newton``: stopping rules of :func:`robocal.compensation.compensate` (``max_iter``, ``tol_mm``, ``tol_rad``)."""
+    from robocal.compensation import ActualRobot, compensate, desired_poses
+    from robocal.kinematics.chain import fk
+
+    model = cal.model
+    k = 0 if target is None else model.target_names.index(target)
+    tool = model.tools(cal.x)[k]
+    tool_R = model.tool_rotations(cal.x)[k]
+    effects = list(cal.extra.get("effects") or [])
+    m = len(q_target)
+    pay = np.broadcast_to(np.asarray(payload_kg, dtype=float), (m,))
+
+    def offset(q: np.ndarray) -> np.ndarray:
+        return joint_offsets(effects, model.robot, q, pay, tau_Nm, current_A, direction)
+
+    actual = ActualRobot(model.chain, cal.kinematic_errors, np.eye(4), tool, tool_R, offset if effects else None)
+    nominal = ActualRobot(model.chain, np.zeros(model.chain.n_params), np.eye(4), tool, tool_R)
+    p_d, R_d = desired_poses(nominal, q_target)
+    comp = compensate(actual, q_target, p_d, R_d, **newton)
+    T_tool = np.eye(4)
+    T_tool[:3, :3], T_tool[:3, 3] = tool_R, tool
+    return comp, fk(model.chain, comp.q) @ T_tool
