@@ -8,12 +8,13 @@ import json
 import numpy as np
 import pytest
 
-from .conftest import make_campaign
 from robocal.discovery.effects import compensate_targets
 from robocal.discovery.workflow import run_discovery
 from robocal.identification.calibrate import load_calibration
 from robocal.serve.bundle import load_bundle, write_bundle
 from robocal.serve.protocol import Service, ServiceConfig, SolverConfig
+
+from .conftest import make_campaign
 
 EFFECTS = {
     "gear": {"joint": 4, "harmonics": [{"harmonic": 1, "amplitude_deg": 0.02, "phase_deg": 30.0}]},
@@ -32,7 +33,7 @@ def product(tmp_path_factory):
 
 
 def test_calibration_carries_the_named_effects(product):
-    tmp, robot, truth, summ = product
+    tmp, _robot, truth, summ = product
     assert sorted(n["key"] for n in summ["named"]) == ["backlash:j2", "gear:j4:h1"]
     cal = json.loads((tmp / "out" / "calibration.json").read_text())
     eff = {e["key"]: e for e in cal["effects"]}

@@ -34,7 +34,7 @@ def gross(tmp_path_factory, kr16):
 
 
 def test_every_gross_error_is_flagged_and_named(gross):
-    camp, truth, res = gross
+    _camp, truth, res = gross
     flagged = {o["row"]: o for o in res.fit["outliers"]}
     assert sorted(flagged) == sorted(g["row"] for g in truth["gross_errors"])
     for g in truth["gross_errors"]:

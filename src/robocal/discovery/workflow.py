@@ -43,7 +43,8 @@ def _validate_fit(res: DiscoveryResult, fit: Fit) -> dict[str, Any]:
     if params:
         # the drift's first-order displacement; a target or station the fit never saw uses the first one's
         ti = np.array([base.target_names.index(t) if t in base.target_names else 0 for t in val.target])
-        si = np.array([base.station_names.index(s) if s in base.station_names else 0 for s in val.station])
+        st_names = [] if val.station is None else list(val.station)
+        si = np.array([base.station_names.index(s) if s in base.station_names else 0 for s in st_names], dtype=int)
         _, Jb = base.residuals_and_jacobian(x, FitData(q, val.p_mm, ti, None, si))
         Jx = Jb.reshape(val.n_rows, 3, model.nb)
         dp = np.zeros((val.n_rows, 3))
@@ -231,7 +232,7 @@ def write_product(res: DiscoveryResult, summ: dict[str, Any], out: Path) -> None
     sub = camp.subset(sel & np.isin(camp.target.astype(str), cal.model.target_names))
     if sub.n_rows == 0:
         return
-    first = {}
+    first: dict[str, tuple[int, str]] = {}
     for i, (pid, t) in enumerate(zip(sub.pose_id, sub.target, strict=True)):
         first.setdefault(str(pid), (i, str(t)))
     idx = np.array([i for i, _ in first.values()])

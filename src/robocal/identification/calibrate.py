@@ -537,12 +537,13 @@ def calibrate(
     T_ref = T_st[0]
     tool_R_ref = None
     if use_rot:
-        assert data.R_meas is not None
+        assert data.R_meas is not None and data.station_index is not None
         Rf = fk(model0.chain, data.q)[:, :3, :3]
         tool_R_ref = np.zeros((len(targets), 3, 3))
         for k in range(len(targets)):
             sel = data.target_index == k
-            Msum = np.einsum("mji,mjk,mkl->il", Rf[sel], T_st[data.station_index[sel], :3, :3], data.R_meas[sel])
+            Rs = T_st[:, :3, :3][data.station_index[sel]]
+            Msum = np.einsum("mji,mjk,mkl->il", Rf[sel], Rs, data.R_meas[sel])
             U, _, Vt = np.linalg.svd(Msum)
             tool_R_ref[k] = U @ np.diag([1, 1, np.linalg.det(U @ Vt)]) @ Vt
     model = CalibrationModel(
@@ -584,11 +585,11 @@ def calibrate(
 
     ident = analyse(J0 * weights[:, None], model.names, _candidate_order(model, fixed), rtol=cfg.rank_tol)
     free = np.sort(ident.kept)
-    lm_kw = dict(max_iter=cfg.max_iter, ftol=cfg.ftol, xtol=cfg.xtol)
+    lm_kw: dict[str, Any] = {"max_iter": cfg.max_iter, "ftol": cfg.ftol, "xtol": cfg.xtol}
     if kept.all():
-        lm = levenberg_marquardt(fun, x, free, weights, **lm_kw)  # type: ignore[arg-type]
+        lm = levenberg_marquardt(fun, x, free, weights, max_iter=cfg.max_iter, ftol=cfg.ftol, xtol=cfg.xtol)
     else:
-        lm = robust.least_squares_on(fun, x, free, weights, rows, kept, **lm_kw)  # type: ignore[arg-type]
+        lm = robust.least_squares_on(fun, x, free, weights, rows, kept, **lm_kw)
     test = None
     outlier_rounds = 0
     if cfg.outliers == "auto":
@@ -600,7 +601,7 @@ def calibrate(
             r_rob, _ = fun(x_rob)
             kept = ~robust.robust_screen(weights * r_rob, rows, m, cfg.outlier_alpha, len(free))
             for outlier_rounds in range(1, 8):  # noqa: B007 (reported)
-                lm = robust.least_squares_on(fun, x_rob, free, weights, rows, kept, **lm_kw)  # type: ignore[arg-type]
+                lm = robust.least_squares_on(fun, x_rob, free, weights, rows, kept, **lm_kw)
                 test = robust.row_test(lm.r, lm.J, rows, m, kept, cfg.outlier_alpha)
                 if np.array_equal(~test.flagged, kept):
                     break

@@ -27,14 +27,14 @@ def fit_noise(chi2: float, dof: int, noise_mm: float, position_only: bool = True
     """Per-coordinate noise implied by a fit's chi² (computed with ``noise_mm``), with a 95 % interval."""
     red = chi2 / max(dof, 1)
     lo_q, hi_q = special.chdtri(max(dof, 1), 0.025), special.chdtri(max(dof, 1), 0.975)
-    out = {
+    out: dict[str, Any] = {
         "sigma_mm": float(noise_mm * np.sqrt(red)),
         "ci95_mm": [float(noise_mm * np.sqrt(chi2 / lo_q)), float(noise_mm * np.sqrt(chi2 / hi_q))],
         "dof": int(dof),
         "source": "fit residuals (reduced chi-square x configured noise; includes any model misfit)",
     }
     if not position_only:
-        out["source"] += "; positions and orientations together, each scaled by its configured noise"
+        out["source"] = str(out["source"]) + "; positions and orientations together, each scaled by its noise"
     return out
 
 

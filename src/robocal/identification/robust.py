@@ -29,6 +29,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from scipy import special
@@ -165,12 +166,12 @@ def least_squares_on(
     weights: np.ndarray,
     rows: np.ndarray,
     kept: np.ndarray,
-    **kw: float,
+    **kw: Any,
 ) -> LMResult:
     """Levenberg-Marquardt with the excluded rows' residuals weighted zero (the returned ``r`` and ``J`` hold
     every row: whitened by ``weights``, the excluded ones as predictions)."""
     w_kept = weights * kept[rows]
-    lm = levenberg_marquardt(fun, x0, free, w_kept, **kw)  # type: ignore[arg-type]
+    lm = levenberg_marquardt(fun, x0, free, w_kept, **kw)
     r, J = fun(lm.x)
     lm.r = weights * r
     lm.J = weights[:, None] * J[:, free]
