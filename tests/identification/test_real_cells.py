@@ -193,3 +193,19 @@ def test_fk_unchanged_for_one_station(gross):
     p, _ = m.predict(res.x[: m.n], q, np.array([0]))
     T = res.model.base_transform(res.x) @ fk(m.chain, q, res.kinematic_errors)[0]
     assert np.allclose(p[0], T[:3, 3] + T[:3, :3] @ res.tools["T1"], atol=1e-9)
+
+
+def test_systematic_misfit_is_not_called_blunders(tmp_path_factory, kr16):
+    """A warm-up the geometric model cannot follow makes many rows stand out: a model error, not gross errors.
+    No row is left out; the rows are reported as suspects and the rule says to run discovery."""
+    camp, _ = _campaign(
+        tmp_path_factory, kr16, 0, **{k: v for k, v in load_scenario("thermal").items() if k not in ("name", "seed")}
+    )
+    res = calibrate(camp, kr16)
+    fit = res.fit
+    assert fit["outliers"] == [] and fit["n_rows"] == fit["n_rows_total"]
+    assert len(fit["outlier_suspects"]) > 0.05 * fit["n_rows_total"]
+    assert "robocal discover" in fit["outlier_rule"]
+    # with the cap lifted the same rows would be left out: the cap is what decides
+    lifted = calibrate(camp, kr16, CalibrationConfig(outlier_max_share=0.5))
+    assert len(lifted.fit["outliers"]) == len(fit["outlier_suspects"])

@@ -285,6 +285,10 @@ def discover(campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig |
         test = robust.row_test(
             r * w, J[:, fit.free] * w[:, None], np.repeat(np.arange(m), fit.d), m, kept, ccfg.outlier_alpha
         )
+        if test.flagged.sum() > ccfg.outlier_max_share * m:
+            # more rows stand out than gross errors can be: a model error the library cannot name, not blunders
+            test = robust.RowTest(test.F, test.p_value, ~kept, test.threshold_F, test.alpha, test.d)
+            break
         if np.array_equal(~test.flagged, kept):
             break
         kept = ~test.flagged

@@ -44,6 +44,9 @@ class CalibrationConfig:
     outliers : ``"auto"`` (gross errors found by the test in :mod:`robocal.identification.robust`), ``"off"``,
         or a list of file rows (header = row 1) to leave out.
     outlier_alpha : family-wise false-flag rate of the outlier test over the rows of a campaign.
+    outlier_max_share : gross errors are rare: when more than this share of the rows stands out, the residuals
+        are a model error, not blunders (e.g. a warm-up the geometric model cannot follow); then no row is left
+        out, the rows are reported as suspects and the fit says to run discovery.
     noise_model : ``"constant"`` (``noise_mm`` for every point), ``"u_mm"`` (each point's ``u_mm`` column over
         ``u_coverage``), or ``"distance"`` (``noise_mm + noise_mm_per_m · range``, as trackers state it).
     u_coverage : coverage factor of the ``u_mm`` column (2 for a U95 export).
@@ -61,6 +64,7 @@ class CalibrationConfig:
     registration_iters: int = 20
     outliers: str | tuple[int, ...] = "auto"
     outlier_alpha: float = 0.001
+    outlier_max_share: float = 0.05
     noise_model: str = "constant"
     u_coverage: float = 2.0
     noise_mm_per_m: float = 0.0
@@ -98,6 +102,10 @@ class CalibrationConfig:
         for name in ("noise_mm", "noise_deg", "rank_tol", "u_coverage"):
             if not float(getattr(out, name)) > 0:
                 raise ConfigError(f"The '{name}' calibration setting must be > 0. Got {getattr(out, name)!r} instead.")
+        if not 0 <= out.outlier_max_share < 1:
+            raise ConfigError(
+                f"The 'outlier_max_share' calibration setting must be in [0, 1). Got {out.outlier_max_share!r}."
+            )
         if not 0 < out.outlier_alpha < 1:
             raise ConfigError(f"The 'outlier_alpha' calibration setting must be in (0, 1). Got {out.outlier_alpha!r}.")
         if out.noise_model not in NOISE_MODELS:
@@ -486,6 +494,11 @@ def describe_outliers(
     return out
 
 
+def _split_resid(r: np.ndarray, m: int, use_rot: bool) -> tuple[np.ndarray, np.ndarray | None]:
+    """Unwhitened residuals ``[positions (3m), rotations (3m)]`` as ``(m, 3)`` positions and rotations."""
+    return r[: 3 * m].reshape(-1, 3), (r[3 * m :].reshape(-1, 3) if use_rot else None)
+
+
 def _rigid_fit(
     model: CalibrationModel,
     data: FitData,
@@ -592,6 +605,7 @@ def calibrate(
         lm = robust.least_squares_on(fun, x, free, weights, rows, kept, **lm_kw)
     test = None
     outlier_rounds = 0
+    suspects: list[dict[str, Any]] = []
     if cfg.outliers == "auto":
         test = robust.row_test(lm.r, lm.J, rows, m, kept, cfg.outlier_alpha)
         screen = robust.robust_screen(lm.r, rows, m, cfg.outlier_alpha, len(free))
@@ -606,10 +620,14 @@ def calibrate(
                 if np.array_equal(~test.flagged, kept):
                     break
                 kept = ~test.flagged
-            if kept.sum() * (6 if use_rot else 3) <= len(free):
-                raise ConfigError(
-                    f"the outlier test left {int(kept.sum())} of {m} rows of {cal.poses_file}: too few to fit "
-                    f"{len(free)} parameters; check the data or set calibration.outliers: off"
+            if (~kept).sum() > cfg.outlier_max_share * m:
+                # too many to be blunders: a systematic model error; keep every row and say so
+                suspects = describe_outliers(cal, ~kept, *_split_resid(lm.r / weights, m, use_rot), test)
+                kept = np.ones(m, dtype=bool)
+                lm = levenberg_marquardt(fun, x, free, weights, max_iter=cfg.max_iter, ftol=cfg.ftol, xtol=cfg.xtol)
+                test = robust.row_test(lm.r, lm.J, rows, m, kept, cfg.outlier_alpha)
+                test = robust.RowTest(
+                    test.F, test.p_value, np.zeros(m, dtype=bool), test.threshold_F, test.alpha, test.d
                 )
     x = lm.x
     x_analysis = x_init  # where the identifiability analysis ran
@@ -652,6 +670,11 @@ def calibrate(
     else:
         outliers = []
         rule = "off"
+    if suspects:
+        rule += (
+            f"; {len(suspects)} of {m} rows stood out, more than the {cfg.outlier_max_share:.0%} gross errors can "
+            "be: the model misses a systematic effect (run robocal discover); no row was left out"
+        )
     chi2_pos = float(np.sum((r_pos[kept] / sig[kept, None]) ** 2))
     dof_pos = max(3 * int(kept.sum()) - k, 1) if not use_rot else max(int(fit["dof"]) // 2, 1)
     fit.update(
@@ -671,6 +694,7 @@ def calibrate(
             "stderr_scale": "residual variance" if Mk > k else "configured noise (no degree of freedom left)",
             "outliers": outliers,
             "outlier_rule": rule,
+            "outlier_suspects": suspects,
             "n_rows_total": int(m),
             "outlier_rounds": int(outlier_rounds),
             "noise": noise_report(cal, kept, chi2_pos, dof_pos, cfg.noise_mm),

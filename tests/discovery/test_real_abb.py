@@ -1,0 +1,58 @@
+"""Discovery on real data: the ABB IRB 120 of Wu et al. (../shared/data/abb-irb120; skipped without it).
+
+The geometric model validates at 0.317 mm mean on target T4 (issue 12: the extended model must reach
+<= 0.25 mm, validated exactly as ``calibrate`` validates: T4's tool from its zero-joint row, the same rows).
+With the repository's robot description (link masses: an engineering estimate), discovery names the gravity
+compliance of joints 2 and 3: the joints that carry the arm's weight, deflecting the way it pulls.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import pytest
+
+from robocal.data import read_campaign
+from robocal.discovery.search import discover
+from robocal.discovery.summary import summary
+from robocal.discovery.workflow import validation_errors
+from robocal.identification.calibrate import calibrate, validate
+from robocal.robot import load_robot
+
+
+@functools.lru_cache(maxsize=1)
+def _run(folder: str):
+    robot = load_robot("abb_irb120")
+    camp = read_campaign(folder, robot)
+    res = discover(camp, robot)
+    return camp, robot, summary(res, validation_errors(res))
+
+
+@pytest.fixture()
+def abb_discovery(shared_dir):
+    d = shared_dir / "data" / "abb-irb120"
+    if not (d / "poses.csv").is_file():
+        pytest.skip(f"{d} has no poses.csv")
+    return _run(str(d))
+
+
+def test_discovered_model_validates_better_on_t4(abb_discovery):
+    camp, robot, s = abb_discovery
+    v = s["validation"]
+    # the geometric part is validated exactly as calibrate validates it (same rows, same T4 tool handling)
+    geo = calibrate(camp, robot, None)
+    ref = validate(geo, camp)
+    assert v["geometric"]["n_rows"] == ref["n_rows"] == 10
+    assert v["geometric"]["tool_source"]["T4"] == ref["tool_source"]["T4"]
+    assert v["discovered"]["mean_position_mm"] <= 0.25, v
+    assert v["discovered"]["max_position_mm"] < v["geometric"]["max_position_mm"]
+
+
+def test_named_effects_are_physical(abb_discovery):
+    _, _, s = abb_discovery
+    named = {n["key"]: n for n in s["named"]}
+    assert {"compliance:j2", "compliance:j3"} <= set(named)
+    for k in ("compliance:j2", "compliance:j3"):
+        c = named[k]["estimates"]["c_rad_per_Nm"]
+        # a compliance (not a stiffening) clearly above its standard error
+        assert c["value"] > 5 * c["stderr"] > 0
