@@ -81,3 +81,19 @@ def test_closed_loop_compensates_the_discovered_effects(tmp_path):
     # level (both limited by the 15 um tracker noise of the measurement): within 1.3x of it
     assert e["discovered"] <= 1.3 * e["oracle"], e
     assert e["geometric"] > 3 * e["discovered"], e
+
+
+def test_orientations_reveal_a_wrist_gear(tmp_path):
+    """A joint-6 gear error barely moves a reflector near the flange axis, but turns the tool: with the 6-DoF
+    probe's orientations discovery names it; from the positions alone it cannot (the issue: discovery used to
+    fit positions only)."""
+    from robocal.discovery.config import DiscoveryConfig
+    from robocal.discovery.search import discover
+
+    eff = {"gear": {"joint": 6, "harmonics": [{"harmonic": 1, "amplitude_deg": 0.01, "phase_deg": 30.0}]}}
+    camp, robot, _ = make_campaign(tmp_path, "geometric", 0, eff, orientation=True)
+    with_rot = discover(camp, robot, DiscoveryConfig(noise_deg=0.005))  # the twin's orientation noise
+    assert with_rot.extra["uses_orientation"]
+    assert [a.cand.key for a in with_rot.accepted] == ["gear:j6:h1"]
+    pos_only = discover(camp, robot, DiscoveryConfig(use_orientation=False))
+    assert pos_only.accepted == []
