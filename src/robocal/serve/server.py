@@ -34,8 +34,13 @@ Every request may carry ``"id"`` (string or integer, echoed in the reply) and ``
         {"q_deg": [q1, ..., qn]},               # joint target (what the nominal controller would use)
         {"xyz_mm": [x, y, z], "quat_wxyz": [w, x, y, z], "q_seed_deg": [...]},
                                                 # tool pose in the robot base frame + IK seed
-        ...],                                   # each may add "current_A": [n] or "tau_Nm": [n]
+        ...],                                   # each may add "current_A": [n] or "tau_Nm": [n], and
+                                                # "dir": [n] of -1/+1 (approach direction; needed when the
+                                                # bundle's calibration holds a discovered backlash)
     }
+
+A bundle whose calibration was written by ``robocal discover`` applies its joint-level effects (gear,
+backlash, compliance) like the compliance model's deflection; ``info`` lists them under ``effects``.
 
 Reply to ``correct``::
 
