@@ -16,7 +16,6 @@ data show, not the configured value.
 
 from __future__ import annotations
 
-import itertools
 from typing import Any
 
 import numpy as np
@@ -85,18 +84,15 @@ def repeat_noise(
     pose_id: np.ndarray, target: np.ndarray, timestamp_s: np.ndarray, p_mm: np.ndarray, window_s: float = 600.0
 ) -> dict[str, Any] | None:
     """Noise from the same pose and target measured again within ``window_s`` (None when there is no pair)."""
-    key: dict[tuple[str, str], list[int]] = {}
-    for i, (pid, t) in enumerate(zip(map(str, pose_id), map(str, target), strict=True)):
-        key.setdefault((pid, t), []).append(i)
-    diffs = []
-    for idx in key.values():
-        idx = sorted(idx, key=lambda i: timestamp_s[i])
-        for a, b in itertools.pairwise(idx):
-            if timestamp_s[b] - timestamp_s[a] <= window_s:
-                diffs.append(p_mm[b] - p_mm[a])
-    if len(diffs) < 2:
+    pid = np.asarray(pose_id).astype(str)
+    tg = np.asarray(target).astype(str)
+    order = np.lexsort((timestamp_s, tg, pid))  # by pose, target, then time
+    same = (pid[order][1:] == pid[order][:-1]) & (tg[order][1:] == tg[order][:-1])
+    close = np.diff(np.asarray(timestamp_s, dtype=float)[order]) <= window_s
+    pair = np.flatnonzero(same & close)
+    if len(pair) < 2:
         return None
-    D = np.asarray(diffs)
+    D = p_mm[order][pair + 1] - p_mm[order][pair]
     dof = D.size
     ss = float(np.sum(D**2))
     lo_q, hi_q = special.chdtri(dof, 0.025), special.chdtri(dof, 0.975)

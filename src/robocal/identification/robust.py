@@ -87,7 +87,7 @@ def row_test(
     if cov_w is None:
         Jk = JB[kept].reshape(-1, k)
         cov_w = np.linalg.pinv(Jk.T @ Jk)
-    H = np.einsum("mik,kl,mjl->mij", JB, cov_w, JB)  # (m, d, d)
+    H = (JB @ cov_w) @ np.swapaxes(JB, 1, 2)  # (m, d, d)
     eye = np.eye(d)
     sign = np.where(kept, -1.0, 1.0)[:, None, None]
     C = eye + sign * H
@@ -170,6 +170,8 @@ def least_squares_on(
 ) -> LMResult:
     """Levenberg-Marquardt with the excluded rows' residuals weighted zero (the returned ``r`` and ``J`` hold
     every row: whitened by ``weights``, the excluded ones as predictions)."""
+    if kept.all():
+        return levenberg_marquardt(fun, x0, free, weights, **kw)
     w_kept = weights * kept[rows]
     lm = levenberg_marquardt(fun, x0, free, w_kept, **kw)
     r, J = fun(lm.x)
