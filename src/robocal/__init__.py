@@ -1,3 +1,58 @@
-"""robocal: industrial robot calibration from laser-tracker measurements."""
+"""robocal: industrial robot calibration from laser-tracker measurements.
+
+The public API (imported lazily: ``import robocal`` itself reads and loads nothing heavy)::
+
+    import robocal
+
+    robot = robocal.load_robot("kr16_2")                       # or a YAML path
+    campaign = robocal.read_campaign("path/to/campaign", robot)  # the data contract, checked
+    result = robocal.calibrate(campaign, robot)                # geometric calibration (gross errors handled)
+    print(result.fit["rms_position_mm"], result.fit["outliers"])
+    print(robocal.validate(result, campaign))                  # errors on the validation rows
+    found = robocal.discover(campaign, robot)                  # what the model misses, named
+    comp, command = robocal.compensate(result, q_rad)          # corrected joints for targets q (m, n) rad
+
+``simulate`` / ``load_scenario`` write twin campaigns with a known truth; ``load_calibration`` reads a
+``calibration.json`` back (including the effects discovery wrote into it).
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
 
 __version__ = "0.1.0"
+
+#: public name -> "module:attribute"
+_API = {
+    "read_campaign": "robocal.data.contract:read_campaign",
+    "Campaign": "robocal.data.contract:Campaign",
+    "load_robot": "robocal.robot:load_robot",
+    "RobotDescription": "robocal.robot:RobotDescription",
+    "calibrate": "robocal.identification.calibrate:calibrate",
+    "validate": "robocal.identification.calibrate:validate",
+    "CalibrationConfig": "robocal.identification.calibrate:CalibrationConfig",
+    "CalibrationResult": "robocal.identification.calibrate:CalibrationResult",
+    "load_calibration": "robocal.identification.calibrate:load_calibration",
+    "discover": "robocal.discovery.search:discover",
+    "DiscoveryConfig": "robocal.discovery.config:DiscoveryConfig",
+    "compensate": "robocal.discovery.effects:compensate_targets",
+    "simulate": "robocal.sim.twin:simulate",
+    "load_scenario": "robocal.sim.twin:load_scenario",
+}
+
+__all__ = ["__version__", *_API]
+
+
+def __getattr__(name: str) -> Any:
+    spec = _API.get(name)
+    if spec is None:
+        raise AttributeError(f"module 'robocal' has no attribute {name!r}")
+    mod, attr = spec.split(":")
+    value = getattr(importlib.import_module(mod), attr)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(__all__)
