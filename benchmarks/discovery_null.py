@@ -3,7 +3,9 @@
     python benchmarks/discovery_null.py                    # null: 200 seeds without a hidden effect
     python benchmarks/discovery_null.py --mode outside     # a joint-4 error driven by q1 and q5 (outside the library)
     python benchmarks/discovery_null.py --mode power       # gear joint 4 harmonic 1: detection rate vs amplitude
+    python benchmarks/discovery_null.py --mode power-outside  # the q1-q5 coupling: proposal rate vs amplitude
     python benchmarks/discovery_null.py --mode runtime     # seconds per discovery run on 100 poses
+    (--poses 80 | 200, --amplitude for --mode outside)
 
 Prints the figures quoted in the issue: runs naming anything (null), wrong names / "unexplained" (outside),
 the amplitude at which detection falls below 90 % (power), runtime.
@@ -59,26 +61,39 @@ def run_one(effects: dict, seed: int, tmp: Path, n_poses: int = 80):  # type: ig
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--mode", choices=["null", "outside", "power", "runtime"], default="null")
+    ap.add_argument("--mode", choices=["null", "outside", "power", "power-outside", "runtime"], default="null")
     ap.add_argument("--seeds", type=int, default=200)
+    ap.add_argument("--poses", type=int, default=80)
+    ap.add_argument("--amplitude", type=float, default=0.02)
     ap.add_argument("--first-seed", type=int, default=1000)
     args = ap.parse_args(argv)
     seeds = range(args.first_seed, args.first_seed + args.seeds)
     with tempfile.TemporaryDirectory() as tmpd:
         tmp = Path(tmpd)
         if args.mode in ("null", "outside"):
-            eff = {} if args.mode == "null" else {"bench_q1q5": {"amplitude_deg": 0.02}}
-            n_named, n_unexpl, labels, times = 0, 0, {}, []
+            eff = {} if args.mode == "null" else {"bench_q1q5": {"amplitude_deg": args.amplitude}}
+            n_named, n_prop, n_right, n_unexpl, labels, times, ratio = 0, 0, 0, 0, {}, [], []
             for s in seeds:
-                res, dt = run_one(eff, s, tmp)
+                res, dt = run_one(eff, s, tmp, n_poses=args.poses)
                 times.append(dt)
-                if res.accepted:
-                    n_named += 1
-                    for a in res.accepted:
-                        labels[a.cand.key] = labels.get(a.cand.key, 0) + 1
+                named = [a for a in res.accepted if a.cand.effect != "proposed"]
+                prop = [a for a in res.accepted if a.cand.effect == "proposed"]
+                n_named += bool(named)
+                n_prop += bool(prop)
+                n_right += [a.cand.key for a in prop] == ["proposed:j4:sin(2q1)·cos(q5)"]
+                for a in res.accepted:
+                    labels[a.cand.key] = labels.get(a.cand.key, 0) + 1
                 n_unexpl += int(res.unexplained)
-            print(f"mode {args.mode}: {len(seeds)} seeds; runs naming anything: {n_named}; names: {labels}")
-            print(f"  'unexplained' flagged: {n_unexpl}/{len(seeds)}; median run {np.median(times):.3f} s")
+                ratio.append(res.final.rms_mm / res.final.noise_floor_mm)
+            r = np.array(ratio)
+            print(
+                f"mode {args.mode} ({args.poses} poses): {len(seeds)} seeds; runs naming anything: {n_named}; "
+                f"proposing anything: {n_prop}; proposing exactly dθ4 = A·sin(2q1)·cos(q5): {n_right}; keys: {labels}"
+            )
+            print(
+                f"  'unexplained' flagged: {n_unexpl}/{len(seeds)}; final RMS / floor: median {np.median(r):.3f}, "
+                f"max {r.max():.3f}, > 1.1 in {int(np.sum(r > 1.1))}; median run {np.median(times):.3f} s"
+            )
         elif args.mode == "power":
             n = min(args.seeds, 30)
             print(f"gear joint 4, harmonic 1, random phase; {n} seeds per amplitude")
@@ -90,13 +105,27 @@ def main(argv: list[str] | None = None) -> int:
                     eff = {
                         "gear": {"joint": 4, "harmonics": [{"harmonic": 1, "amplitude_deg": amp, "phase_deg": phase}]}
                     }
-                    res, _ = run_one(eff, s, tmp)
+                    res, _ = run_one(eff, s, tmp, n_poses=args.poses)
                     hits += int([a.cand.key for a in res.accepted] == ["gear:j4:h1"])
                 rate = hits / n
-                print(f"  amplitude {amp:.3f} deg: detected (exactly gear j4 h1) {hits}/{n} = {rate:.0%}")
+                print(f"  amplitude {amp:.3f} deg, {args.poses} poses: exactly gear j4 h1 in {hits}/{n} = {rate:.0%}")
                 if rate >= 0.9 and below is None:
                     below = amp
-            print(f"  smallest amplitude with >= 90 % detection: {below} deg")
+            print(f"  smallest amplitude with >= 90 % detection ({args.poses} poses): {below} deg")
+        elif args.mode == "power-outside":
+            n = min(args.seeds, 30)
+            print(f"dθ4 = A·sin(2q1)·cos(q5) (outside the library); {n} seeds per amplitude, {args.poses} poses")
+            below = None
+            for amp in (0.005, 0.0075, 0.01, 0.015, 0.02):
+                hits = 0
+                for s in range(args.first_seed, args.first_seed + n):
+                    res, _ = run_one({"bench_q1q5": {"amplitude_deg": amp}}, s, tmp, n_poses=args.poses)
+                    hits += int([a.cand.key for a in res.accepted] == ["proposed:j4:sin(2q1)·cos(q5)"])
+                rate = hits / n
+                print(f"  amplitude {amp:.4f} deg: proposed exactly {hits}/{n} = {rate:.0%}")
+                if rate >= 0.9 and below is None:
+                    below = amp
+            print(f"  smallest amplitude with >= 90 % proposals ({args.poses} poses): {below} deg")
         else:
             times = []
             for s in list(seeds)[:20]:

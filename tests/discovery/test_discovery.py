@@ -200,11 +200,12 @@ class _Q1Q5:
         rows.dq[:, 3] += self.amp * np.sin(2 * rows.q_cmd[:, 0]) * np.cos(rows.q_cmd[:, 4])
 
 
-def test_out_of_library_is_unexplained(tmp_path):
+def test_out_of_library_is_unexplained_without_the_dictionary(tmp_path):
     assert "test_q1q5" in EFFECTS
     for seed in (21, 22, 23):
         camp, robot, _ = make_campaign(tmp_path, "geometric", seed, {"test_q1q5": {"amplitude_deg": 0.02}})
-        s = summary(discover(camp, robot))
+        s = summary(discover(camp, robot, DiscoveryConfig(dictionary=False)))
+        assert s["proposed"] == []
         assert named(s) == [], seed
         assert s["unexplained"], seed
         # where it lives: a joint-angle error is located on joint 4 or confused with one neighbour (a position
@@ -249,3 +250,29 @@ def test_cli_writes_discovery_json(tmp_path):
     assert set(d["named"][0]["estimates"]["band_deg"]) == {"value", "stderr", "unit"}
     assert d["steps"][0]["rms_after_mm"] < d["steps"][0]["rms_before_mm"]
     assert (tmp_path / "out" / "report.html").stat().st_size > 10_000
+
+
+def test_out_of_library_effect_gets_its_equation(tmp_path):
+    """The same hidden effect with the dictionary on: proposed (not named) as dθ4 = A · sin(2q1)·cos(q5), with
+    the amplitude within 3 standard errors, and the residual back at the floor."""
+    for seed in (21, 22):
+        camp, robot, _ = make_campaign(tmp_path, "geometric", seed, {"test_q1q5": {"amplitude_deg": 0.025}})
+        s = summary(discover(camp, robot))
+        assert named(s) == [], seed
+        assert len(s["proposed"]) == 1, s["proposed"]
+        p = s["proposed"][0]
+        assert p["joint"] == 4 and [t["signal"] for t in p["terms"]] == ["sin(2q1)·cos(q5)"], p
+        c = p["terms"][0]["coefficient_deg"]
+        assert abs(c["value"] - 0.025) < 3 * c["stderr"], c
+        assert p["equation"].startswith("dθ4 = 0.0") and "sin(2q1)·cos(q5)" in p["equation"]
+        assert p["selection"]["log10_p"] < p["selection"]["threshold_log10_p"]
+        assert not s["unexplained"]
+        assert s["rms_after_mm"] < 1.1 * s["noise_floor_mm"]
+
+
+def test_dictionary_proposes_nothing_on_clean_campaigns(tmp_path):
+    # 200 null seeds: none proposed (benchmarks/discovery_null.py --mode dictionary); four here
+    for seed in (31, 32, 33, 34):
+        camp, robot, _ = make_campaign(tmp_path, "geometric", seed, {})
+        s = summary(discover(camp, robot))
+        assert s["proposed"] == [] and named(s) == [], seed

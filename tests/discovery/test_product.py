@@ -97,3 +97,43 @@ def test_orientations_reveal_a_wrist_gear(tmp_path):
     assert [a.cand.key for a in with_rot.accepted] == ["gear:j6:h1"]
     pos_only = discover(camp, robot, DiscoveryConfig(use_orientation=False))
     assert pos_only.accepted == []
+
+
+def test_a_proposed_equation_reaches_the_service(tmp_path):
+    """A proposed equation whose terms the commanded joints give is written into calibration.json as a
+    joint-level effect and evaluated by the same code offline and online."""
+    from robocal.discovery.effects import joint_offsets
+    from robocal.sim.twin import EFFECTS, register_effect
+
+    if "test_q1q5_product" not in EFFECTS:
+
+        @register_effect("test_q1q5_product")
+        class _Coupled:
+            name = "test_q1q5_product"
+
+            def __init__(self, cfg):
+                self.amp = np.deg2rad(float(cfg["amplitude_deg"]))
+
+            def plan(self, rows, ctx):
+                return rows
+
+            def apply(self, rows, ctx):
+                rows.dq[:, 3] += self.amp * np.sin(2 * rows.q_cmd[:, 0]) * np.cos(rows.q_cmd[:, 4])
+
+    camp, robot, _ = make_campaign(tmp_path, "geometric", 3, {"test_q1q5_product": {"amplitude_deg": 0.03}})
+    summ = run_discovery(None, robot, tmp_path / "out", report=False, campaign=camp)
+    assert [p["joint"] for p in summ["proposed"]] == [4] and summ["proposed"][0]["compensated_online"]
+    cal_d = json.loads((tmp_path / "out" / "calibration.json").read_text())
+    (eff,) = [e for e in cal_d["effects"] if e["key"].startswith("proposed:j4")]
+    assert eff["signal"] == "dictionary"
+    q = np.deg2rad(QS)
+    dq = joint_offsets([eff], robot, q)
+    true = np.deg2rad(0.03) * np.sin(2 * q[:, 0]) * np.cos(q[:, 4])
+    se = np.deg2rad(summ["proposed"][0]["terms"][0]["coefficient_deg"]["stderr"])
+    assert np.abs(dq[:, 3] - true).max() < 3 * se and np.abs(np.delete(dq, 3, axis=1)).max() == 0.0
+    b = load_bundle(write_bundle(tmp_path / "bundle", robot.name, tmp_path / "out" / "calibration.json"))
+    cfg = ServiceConfig(solver=SolverConfig(max_iter=50, tol_mm=1e-11, tol_deg=1e-11))
+    reply = json.loads(Service(b, cfg).handle_line(json.dumps({"targets": [{"q_deg": QS[0].tolist()}]}).encode()))
+    cal = load_calibration(cal_d, robot)
+    comp, _ = compensate_targets(cal, q[:1], max_iter=50, tol_mm=1e-11, tol_rad=1e-13)
+    assert np.abs(np.array(reply["results"][0]["q_deg"]) - np.rad2deg(comp.q[0])).max() < 2e-9

@@ -35,7 +35,12 @@ class DiscoveryConfig:
     min_signal_std : a signal whose standard deviation (in its unit) is below this does not vary: skipped.
     fixed : calibration parameters held at nominal (shell patterns), as in the geometric calibration.
     rank_tol : rank tolerance of the identifiability analysis of the (extended) model.
-    seed : seed of the cross-validation folds.
+    seed : seed of the cross-validation folds (and of the dictionary's resamples).
+    dictionary : after the library, propose equations from the term dictionary (:mod:`robocal.discovery.dictionary`).
+    dictionary_harmonics : harmonics 1..H of every joint angle; dictionary_product_harmonics : of the products of
+        two joints' harmonics; dictionary_max_terms : terms per proposal; dictionary_max_proposals : proposals;
+        dictionary_resamples / dictionary_stability : stability selection (half the poses per resample; a term
+        must be chosen in this share of them).
     """
 
     noise_mm: float = 0.015
@@ -57,6 +62,13 @@ class DiscoveryConfig:
     rank_tol: float = 1e-6
     max_iter: int = 100
     seed: int = 0
+    dictionary: bool = True
+    dictionary_harmonics: int = 3
+    dictionary_product_harmonics: int = 2
+    dictionary_max_terms: int = 2
+    dictionary_max_proposals: int = 2
+    dictionary_resamples: int = 40
+    dictionary_stability: float = 0.7
 
     @classmethod
     def from_mapping(cls, cfg: Mapping[str, Any] | None) -> DiscoveryConfig:
@@ -100,6 +112,22 @@ class DiscoveryConfig:
             raise ConfigError(f"The 'discovery.cv_folds' setting must be 0 (off) or >= 2. Got {out.cv_folds}.")
         if out.thermal_components < 1:
             raise ConfigError(f"The 'discovery.thermal_components' setting must be >= 1. Got {out.thermal_components}.")
+        for key in (
+            "dictionary_harmonics",
+            "dictionary_product_harmonics",
+            "dictionary_max_terms",
+            "dictionary_resamples",
+        ):
+            if int(getattr(out, key)) < 1:
+                raise ConfigError(f"The 'discovery.{key}' setting must be >= 1. Got {getattr(out, key)!r}.")
+        if out.dictionary_max_proposals < 0:
+            raise ConfigError(
+                f"The 'discovery.dictionary_max_proposals' setting must be >= 0. Got {out.dictionary_max_proposals}."
+            )
+        if not 0.5 <= out.dictionary_stability <= 1.0:
+            raise ConfigError(
+                f"The 'discovery.dictionary_stability' setting must be in [0.5, 1]. Got {out.dictionary_stability}."
+            )
         if out.max_steps < 0:
             raise ConfigError(f"The 'discovery.max_steps' setting must be >= 0. Got {out.max_steps}.")
         return out

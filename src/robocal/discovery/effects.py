@@ -25,7 +25,7 @@ from robocal.identification.calibrate import CalibrationConfig, CalibrationResul
 from robocal.identification.identifiability import Eliminated, Identifiability
 from robocal.robot import RobotDescription
 
-SIGNALS = ("angle", "gravity", "torque", "current", "direction")
+SIGNALS = ("angle", "gravity", "torque", "current", "direction", "dictionary")
 
 
 def signal_kind(acc: Accepted) -> str | None:
@@ -39,6 +39,14 @@ def signal_kind(acc: Accepted) -> str | None:
         return "direction"
     if c.effect == "compliance":
         return str(c.extra.get("source", "gravity"))
+    if c.effect == "proposed":
+        from robocal.discovery.dictionary import Term
+
+        ok = all(
+            Term(tuple((f["kind"], f["index"], f["harmonic"]) for f in t["factors"])).from_joints_only
+            for t in c.extra["terms"]
+        )
+        return "dictionary" if ok else None
     raise ValueError(f"unknown joint-level effect {c.effect!r}")
 
 
@@ -53,20 +61,22 @@ def effect_records(fit: Fit) -> tuple[list[dict[str, Any]], list[dict[str, Any]]
         if kind is None:
             if c.shape == "structure":
                 continue  # lives in the geometry (beta), already in the calibration
-            other.append(
-                {
-                    "key": c.key,
-                    "effect": c.effect,
-                    "reason": "a parameter drift with "
+            if c.effect == "proposed":
+                why = "a proposed equation with a term the commanded joints do not give (temperature, time, torque)"
+            else:
+                why = (
+                    "a parameter drift with "
                     + ("the temperatures" if c.effect == "thermal" else "time")
                     + ": it needs the state of the moment, not the commanded joints; "
-                    "use the thermal pipeline's model for online compensation",
-                }
-            )
+                    "use the thermal pipeline's model for online compensation"
+                )
+            other.append({"key": c.key, "effect": c.effect, "reason": why})
             continue
         assert c.joint is not None
+        rec_terms = {"terms": c.extra["terms"]} if kind == "dictionary" else {}
         joint_level.append(
             {
+                **rec_terms,
                 "key": c.key,
                 "effect": c.effect,
                 "joint": int(c.joint),
@@ -105,6 +115,23 @@ def joint_offsets(
         if kind == "angle":
             h = int(e["harmonic"])
             S = np.column_stack([np.sin(h * q[:, j]), np.cos(h * q[:, j])])
+        elif kind == "dictionary":
+            from robocal.discovery.dictionary import evaluate_factor
+
+            if grav is None and any(f["kind"] == "gravity" for t in e["terms"] for f in t["factors"]):
+                from robocal.kinematics.gravity import gravity_torques
+
+                pay = np.broadcast_to(np.asarray(0.0 if payload_kg is None else payload_kg, dtype=float), (m,))
+                grav = gravity_torques(robot, q, pay)
+            S = np.column_stack(
+                [
+                    np.prod(
+                        [evaluate_factor((f["kind"], f["index"], f["harmonic"]), q, grav) for f in t["factors"]],
+                        axis=0,
+                    )
+                    for t in e["terms"]
+                ]
+            )
         elif kind == "gravity":
             if grav is None:
                 from robocal.kinematics.gravity import gravity_torques

@@ -394,6 +394,8 @@ def _search(
                 before.residuals_mm, fit.residuals_mm,
             )
         )  # fmt: skip
+    if cfg.dictionary:
+        fit, accepted = _propose(campaign, robot, cfg, rows, data, fit, accepted, steps, groups, refit)
     return DiscoveryResult(
         robot=robot,
         config=cfg,
@@ -410,3 +412,81 @@ def _search(
         threshold_log10_p=log_thr,
         wall_time_s=time.perf_counter() - t0,
     )
+
+
+def _propose(
+    campaign: Campaign,
+    robot: RobotDescription,
+    cfg: DiscoveryConfig,
+    rows: np.ndarray,
+    data: FitData,
+    fit: Fit,
+    accepted: list[Accepted],
+    steps: list[Step],
+    groups: np.ndarray,
+    refit: Any,
+) -> tuple[Fit, list[Accepted]]:
+    """The dictionary stage (:mod:`robocal.discovery.dictionary`): after the library, propose equations."""
+    from robocal.discovery.dictionary import build_dictionary, log10_threshold, reading, select
+
+    dic = build_dictionary(campaign, robot, cfg.dictionary_harmonics, cfg.dictionary_product_harmonics)
+    if dic.F.shape[1] == 0:
+        return fit, accepted
+    for k in range(cfg.dictionary_max_proposals):
+        Q = _basis(fit.J_w)
+        props = select(
+            fit.Jq,
+            fit.weights,
+            dic.F[rows],
+            fit.r_w,
+            Q,
+            groups,
+            cfg.dictionary_max_terms,
+            cfg.dictionary_resamples,
+            cfg.dictionary_stability,
+            cfg.absorbed_tol,
+            cfg.seed + 1000 * k,
+        )
+        best: tuple[Score, Candidate] | None = None
+        scores: list[Score] = []
+        for p in props:
+            terms = [dic.terms[a] for a in p.atoms]
+            labels = tuple(t.label for t in terms)
+            cand = Candidate(
+                "proposed:j{}:{}".format(p.joint, "+".join(labels)),
+                "proposed",
+                p.joint,
+                None,
+                cause=reading(p.joint, terms),
+                signal=" + ".join(labels),
+                shape="joint",
+                S=dic.F[:, p.atoms],
+                coef_names=labels,
+                coef_units=("rad",) * len(terms),
+                extra={"terms": [t.to_dict() for t in terms], "stability": p.stability, "n_columns": p.n_columns},
+            )
+            Z, _ = regressor(cand, fit, rows, data)
+            thr = log10_threshold(cfg.alpha, p.n_columns, len(terms))
+            sc, Uk = score_candidate(cand, Z, Q, fit, cfg, thr)
+            cand.extra["threshold_log10_p"] = thr
+            if sc.passes and cfg.cv_folds >= 2:
+                sc.cv_gain = cross_validation_gain(fit, Uk, groups, cfg.cv_folds, cfg.seed)
+                if sc.cv_gain <= 0:
+                    sc.status = "failed cross-validation"
+            scores.append(sc)
+            if sc.passes and sc.status == "tested" and (best is None or sc.log10_p < best[0].log10_p):
+                best = (sc, cand)
+        if best is None:
+            steps.append(Step(None, "dictionary: nothing proposed", fit.rms_mm, fit.rms_mm, fit.rss, fit.rss,
+                              fit.dof, scores))  # fmt: skip
+            break
+        sc, cand = best
+        sc.status = "accepted"
+        before = fit
+        accepted = [*accepted, Accepted(cand)]
+        fit = refit(accepted, fit)
+        steps.append(
+            Step(cand.key, f"proposed equation for joint {cand.joint}", before.rms_mm, fit.rms_mm, before.rss,
+                 fit.rss, fit.dof, scores, [], before.residuals_mm, fit.residuals_mm)
+        )  # fmt: skip
+    return fit, accepted

@@ -243,8 +243,12 @@ def summary(res: DiscoveryResult, validation: dict[str, Any] | None = None) -> d
     """The ``discovery.json`` content."""
     fit = res.final
     named = []
+    proposed = []
     for acc in res.accepted:
         c = acc.cand
+        if c.effect == "proposed":
+            proposed.append(proposal_dict(res, acc))
+            continue
         step = next((st for st in res.steps if st.accepted == c.key), None)
         sc = next((s for s in step.scores if s.key == c.key), None) if step else None
         named.append(
@@ -269,6 +273,7 @@ def summary(res: DiscoveryResult, validation: dict[str, Any] | None = None) -> d
     out: dict[str, Any] = {
         "robot": res.robot.name,
         "named": named,
+        "proposed": proposed,
         "steps": [_step_dict(k + 1, st, res) for k, st in enumerate(res.steps)],
         "rms_before_mm": res.geometric.rms_mm,
         "rms_after_mm": fit.rms_mm,
@@ -314,3 +319,42 @@ def summary(res: DiscoveryResult, validation: dict[str, Any] | None = None) -> d
     if validation is not None:
         out["validation"] = validation
     return out
+
+
+def proposal_dict(res: DiscoveryResult, acc: Accepted) -> dict[str, Any]:
+    """A proposed equation (dictionary stage) with its estimates, standard errors and selection evidence."""
+    fit = res.final
+    c = acc.cand
+    names = list(acc.coef_names)
+    val = np.array([fit.theta[fit.model.index(n)] for n in names])
+    C = fit.cov_of(names)
+    se = np.sqrt(np.where(np.isfinite(np.diag(C)), np.diag(C), np.nan))
+    terms = []
+    parts = []
+    for k, t in enumerate(c.extra["terms"]):
+        v, e = float(val[k] * _DEG), float(se[k] * _DEG)
+        terms.append({**t, "coefficient_deg": _est(v, e, "deg")})
+        sign = "-" if v < 0 else ("+" if k else "")
+        parts.append(f"{sign} {abs(v):.4f}° ± {e:.4f}° · {t['signal']}".strip())
+    step = next((st for st in res.steps if st.accepted == c.key), None)
+    sc = next((x for x in step.scores if x.key == c.key), None) if step else None
+    sel = {} if sc is None else sc.to_dict()
+    sel.update(
+        threshold_log10_p=c.extra.get("threshold_log10_p"),
+        dictionary_columns=c.extra.get("n_columns"),
+        stability=c.extra.get("stability"),
+    )
+    from robocal.discovery.dictionary import Term
+
+    applicable = all(Term(tuple((f["kind"], f["index"], f["harmonic"]) for f in t["factors"])).from_joints_only
+                     for t in c.extra["terms"])  # fmt: skip
+    return {
+        "joint": c.joint,
+        "key": c.key,
+        "equation": f"dθ{c.joint} = " + " ".join(parts),
+        "terms": terms,
+        "reading": c.cause,
+        "selection": sel,
+        "rms_of_effect_mm": float(np.sqrt(np.mean(np.sum(effect_displacement(fit, acc) ** 2, axis=1)))),
+        "compensated_online": applicable,
+    }

@@ -155,6 +155,51 @@ def write_report(res: DiscoveryResult, summ: dict[str, Any], path: Path) -> Path
             [{"effect": n["key"], "cause": n["cause"], "signal": n["signal"]} for n in summ["named"]],
             caption="Physical causes and signals",
         )
+    if summ.get("proposed"):
+        rep.heading("Proposed equations (beyond the library)")
+        rep.paragraph(
+            "When no library effect explains what is left, each joint's error is offered a dictionary of terms "
+            "(harmonics and products of joint angles, gravity torques, torques, currents, temperatures, time); "
+            "orthogonal matching pursuit with stability selection proposes a few terms, which must then pass the "
+            "library's gate with a Bonferroni threshold over the dictionary's size."
+        )
+        rep.table(
+            [
+                {
+                    "joint": p["joint"],
+                    "equation": p["equation"],
+                    "log10 p / threshold": f"{p['selection'].get('log10_p', float('nan')):.1f} / "
+                    f"{p['selection']['threshold_log10_p']:.1f}",
+                    "stability": ", ".join(f"{v:.2f}" for v in p["selection"]["stability"]),
+                    "online": "yes" if p["compensated_online"] else "no (needs a signal the joints do not give)",
+                    "reading": p["reading"],
+                }
+                for p in summ["proposed"]
+            ],
+            caption="Coefficients ± 1 standard error from the joint fit with the geometry and the named effects",
+        )
+        for p, acc in zip(summ["proposed"], [a for a in res.accepted if a.cand.effect == "proposed"], strict=True):
+            step = next((st for st in res.steps if st.accepted == acc.cand.key), None)
+            if step is None or step.residuals_before_mm is None or step.residuals_after_mm is None:
+                continue
+            j = int(p["joint"]) - 1
+            Jj = res.final.Jq[:, :3, j]  # mm/rad: each row's position change per radian of joint j
+            nrm = np.maximum(np.sum(Jj**2, axis=1), 1e-12)
+
+            def joint_equiv(r_mm: np.ndarray, Jj: np.ndarray = Jj, nrm: np.ndarray = nrm) -> np.ndarray:
+                return np.rad2deg(np.sum(Jj * r_mm, axis=1) / nrm)
+
+            term = acc.cand.S[res.rows][:, 0]
+            fig = plots.term_before_after(
+                term,
+                joint_equiv(step.residuals_before_mm),
+                joint_equiv(step.residuals_after_mm),
+                xlabel=p["terms"][0]["signal"],
+                ylabel=f"residual as a joint-{j + 1} angle (deg)",
+            )
+            rep.figure(fig, caption=f"Joint {j + 1}: the residual against {p['terms'][0]['signal']}, before and "
+                       "after the proposed term")  # fmt: skip
+            plt.close(fig)
     rep.heading("Steps")
     rep.table(
         [

@@ -464,3 +464,29 @@ def save_figure(fig: Figure, path: str | Path, dpi: int = 150) -> Path:
     with plt.rc_context({"svg.hashsalt": "robocal"}):  # stable SVG element ids
         fig.savefig(buf, format=fmt, dpi=dpi, metadata=meta)
     return write_bytes(path, buf.getvalue())
+
+
+@_styled
+def term_before_after(term: Any, before: Any, after: Any, xlabel: str, ylabel: str) -> Figure:
+    """A residual against a proposed term's value, before and after the term is in the model (two panels).
+
+    term, before, after : array_like, shape (m,)
+    """
+    func = "term_before_after"
+    x = _vector(term, func, "term")
+    b = _vector(before, func, "before", n=x.size)
+    a = _vector(after, func, "after", n=x.size)
+    fig = Figure(figsize=(9.0, 3.4), layout="constrained")
+    axes = fig.subplots(1, 2, sharey=True)
+    for ax, y, title, color in ((axes[0], b, "before", "C3"), (axes[1], a, "after", "C0")):
+        ax.scatter(x, y, s=9, color=color, alpha=0.8)
+        if x.size > 2 and np.ptp(x) > 0:
+            k = np.polyfit(x, y, 1)
+            xs = np.linspace(x.min(), x.max(), 2)
+            ax.plot(xs, np.polyval(k, xs), color="k", lw=1, label=f"slope {k[0]:.3g}")
+            ax.legend(loc="upper left", bbox_to_anchor=(0.0, -0.22), frameon=False)
+        ax.axhline(0.0, color="0.5", lw=0.8)
+        ax.set_title(title)
+        ax.set_xlabel(xlabel)
+    axes[0].set_ylabel(ylabel)
+    return fig

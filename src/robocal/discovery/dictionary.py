@@ -1,0 +1,257 @@
+"""Discovery beyond the library: propose the equation of a joint-level error no candidate holds.
+
+When the library's forward selection stops, every joint's error ``dq_j`` is offered a dictionary of terms built
+from the signals the campaign has:
+
+* harmonics 1..H of every joint angle, ``sin(h q_i)``, ``cos(h q_i)``;
+* products of harmonics of two joints, ``{sin,cos}(h q_i) · {sin,cos}(k q_l)`` (i < l, h, k <= H2);
+* the gravity torque of every joint (robot masses and payload), reported torques and motor currents;
+* the principal components of the temperatures, their time derivatives, and the time since the start.
+
+In error-Jacobian form each term ``f`` on joint ``j`` is the column ``J_q[:, :, j] · f`` (whitened, every
+measured residual): hundreds to thousands of columns. What the current model explains is projected out; a
+column it absorbs is dropped. Sparse selection is scikit-learn's orthogonal matching pursuit (a few terms out of
+thousands), made stable by resampling whole poses: a term enters a proposal only when it is chosen in at least
+``dictionary_stability`` of the resamples. A proposal (the stable terms of one joint) is then tested through
+the same gate as a library effect (:func:`robocal.discovery.search.score_candidate`): the nested F-test with a
+Bonferroni threshold over the number of ways to pick that many terms from the dictionary (the selection's
+multiple testing), the BIC, the share of the excess chi², and whole-pose cross-validation; it is refitted
+jointly with the geometry by the same Levenberg-Marquardt and reported as an equation, apart from the named
+effects.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from math import comb
+from typing import Any
+
+import numpy as np
+
+from robocal.data.contract import Campaign
+from robocal.robot import RobotDescription
+
+#: a factor of a term: ("sin" | "cos", joint 1-based, harmonic) or (signal kind, index 1-based or 0, 0)
+Factor = tuple[str, int, int]
+
+
+@dataclass(frozen=True)
+class Term:
+    """One dictionary function of the campaign's signals: a product of factors."""
+
+    factors: tuple[Factor, ...]
+
+    @property
+    def label(self) -> str:
+        return "·".join(_factor_label(f) for f in self.factors)
+
+    @property
+    def from_joints_only(self) -> bool:
+        """Evaluable from the commanded joints (and the payload): what a controller or the service can apply."""
+        return all(f[0] in ("sin", "cos", "gravity") for f in self.factors)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"signal": self.label, "factors": [{"kind": k, "index": i, "harmonic": h} for k, i, h in self.factors]}
+
+
+def _factor_label(f: Factor) -> str:
+    kind, i, h = f
+    if kind in ("sin", "cos"):
+        return f"{kind}({'' if h == 1 else h}q{i})"
+    return {
+        "gravity": f"tau_g{i}",
+        "tau": f"tau{i}",
+        "current": f"i{i}",
+        "temperature": f"T_PC{i}",
+        "dtemperature": f"dT_PC{i}/dt",
+        "time": "t_h",
+    }[kind]
+
+
+@dataclass
+class Dictionary:
+    """The dictionary's functions evaluated on every campaign row: ``F (m_all, K)``, one :class:`Term` per column."""
+
+    terms: list[Term]
+    F: np.ndarray
+    skipped: list[str] = field(default_factory=list)
+
+
+def evaluate_factor(
+    f: Factor,
+    q: np.ndarray,
+    grav: np.ndarray | None = None,
+    tau: np.ndarray | None = None,
+    current: np.ndarray | None = None,
+) -> np.ndarray:
+    """One factor at joints ``q (m, n)`` rad (gravity torques, torques, currents given where needed)."""
+    kind, i, h = f
+    if kind == "sin":
+        return np.sin(h * q[:, i - 1])
+    if kind == "cos":
+        return np.cos(h * q[:, i - 1])
+    arr = {"gravity": grav, "tau": tau, "current": current}.get(kind)
+    if arr is None:
+        raise ValueError(f"the term factor {_factor_label(f)} needs a signal that was not given")
+    return np.asarray(arr)[:, i - 1]
+
+
+def build_dictionary(
+    campaign: Campaign, robot: RobotDescription, harmonics: int = 3, product_harmonics: int = 2
+) -> Dictionary:
+    """The dictionary of a campaign (see the module docstring)."""
+    q = campaign.q
+    n = q.shape[1]
+    terms: list[Term] = []
+    cols: list[np.ndarray] = []
+    skipped: list[str] = []
+    moving = [i for i in range(n) if np.ptp(q[:, i]) > 1e-6]
+    for i in moving:
+        for h in range(1, harmonics + 1):
+            for fn in ("sin", "cos"):
+                terms.append(Term(((fn, i + 1, h),)))
+                cols.append(evaluate_factor((fn, i + 1, h), q))
+    for a_pos, a in enumerate(moving):
+        for b in moving[a_pos + 1 :]:
+            for h in range(1, product_harmonics + 1):
+                for k in range(1, product_harmonics + 1):
+                    for fa in ("sin", "cos"):
+                        for fb in ("sin", "cos"):
+                            t = Term(((fa, a + 1, h), (fb, b + 1, k)))
+                            terms.append(t)
+                            cols.append(evaluate_factor(t.factors[0], q) * evaluate_factor(t.factors[1], q))
+    if robot.has_dynamics:
+        from robocal.kinematics.gravity import gravity_torques
+
+        g = gravity_torques(robot, q, campaign.payload_kg)
+        for i in range(n):
+            if np.std(g[:, i]) > 1e-9:
+                terms.append(Term((("gravity", i + 1, 0),)))
+                cols.append(g[:, i])
+    else:
+        skipped.append("gravity torques: the robot description has no link masses")
+    for kind, arr in (("tau", campaign.tau_Nm), ("current", campaign.current_A)):
+        if arr is not None:
+            for i in range(n):
+                if np.std(arr[:, i]) > 1e-9:
+                    terms.append(Term(((kind, i + 1, 0),)))
+                    cols.append(np.asarray(arr[:, i], dtype=float))
+    if campaign.temperatures is not None:
+        T = np.asarray(campaign.temperatures, dtype=float)
+        dT = T - T.mean(axis=0)
+        if np.all(np.isfinite(dT)) and float(np.max(np.std(T, axis=0))) > 0.05:
+            _, s, Vt = np.linalg.svd(dT, full_matrices=False)
+            t_s = np.asarray(campaign.timestamp_s, dtype=float)
+            for k in range(min(2, len(s))):
+                if s[k] <= 0.01 * s[0]:
+                    continue
+                pc = dT @ Vt[k]
+                terms.append(Term((("temperature", k + 1, 0),)))
+                cols.append(pc)
+                order = np.argsort(t_s, kind="stable")
+                d = np.zeros_like(pc)
+                if len(np.unique(t_s)) > 2:
+                    d[order] = np.gradient(pc[order], t_s[order] / 3600.0 + 1e-9 * np.arange(len(order)))
+                    terms.append(Term((("dtemperature", k + 1, 0),)))
+                    cols.append(d)
+    t_all = np.asarray(campaign.timestamp_s, dtype=float)
+    if np.ptp(t_all) > 1.0:
+        terms.append(Term((("time", 0, 0),)))
+        cols.append((t_all - t_all.mean()) / 3600.0)
+    F = np.column_stack(cols) if cols else np.zeros((campaign.n_rows, 0))
+    return Dictionary(terms, F, skipped)
+
+
+@dataclass
+class Proposal:
+    """Stable terms of one joint, with the selection evidence."""
+
+    joint: int  # 1-based
+    atoms: list[int]  # dictionary columns (term indices)
+    stability: list[float]
+    n_columns: int  # dictionary columns offered (all joints), after the absorbed ones were dropped
+
+
+def select(
+    Jq: np.ndarray,
+    w: np.ndarray,
+    F_rows: np.ndarray,
+    r_w: np.ndarray,
+    Q: np.ndarray,
+    groups: np.ndarray,
+    max_terms: int,
+    n_resamples: int,
+    stability: float,
+    absorbed_tol: float,
+    seed: int,
+) -> list[Proposal]:
+    """Stability selection with orthogonal matching pursuit over every joint's dictionary columns.
+
+    Jq : (m, d, n) joint Jacobian of the residuals at the current fit; w : (M,) residual weights; F_rows :
+    (m, K) the dictionary at the fitted rows; r_w : (M,) whitened residuals; Q : (M, k) orthonormal basis of the
+    current model's whitened Jacobian; groups : (M,) pose of every residual (resampling unit).
+    """
+    from sklearn.linear_model import orthogonal_mp
+
+    m, d, n = Jq.shape
+    K = F_rows.shape[1]
+    # columns (M, n K): joint j's block is J_q[:, :, j] · F, whitened
+    Z = (Jq[:, :, :, None] * F_rows[:, None, None, :]).reshape(m * d, n * K) * w[:, None]
+    norms = np.linalg.norm(Z, axis=0)
+    Zp = Z - Q @ (Q.T @ Z)
+    pn = np.linalg.norm(Zp, axis=0)
+    keep = pn > absorbed_tol * np.maximum(norms, 1e-300)
+    idx = np.flatnonzero(keep)
+    if len(idx) == 0:
+        return []
+    X = Zp[:, idx] / pn[idx]
+    rng = np.random.default_rng(seed)
+    uniq = np.unique(groups)
+    counts = np.zeros(len(idx))
+    for _ in range(n_resamples):
+        pick = rng.choice(len(uniq), size=len(uniq) // 2, replace=False)
+        rows = np.isin(groups, uniq[pick])
+        coef = orthogonal_mp(X[rows], r_w[rows], n_nonzero_coefs=max_terms, precompute=False)
+        counts[np.flatnonzero(coef)] += 1
+    freq = counts / n_resamples
+    stable = np.flatnonzero(freq >= stability)
+    out: dict[int, Proposal] = {}
+    for s_i in stable[np.argsort(-freq[stable])]:
+        col = int(idx[s_i])
+        j, atom = divmod(col, K)
+        p = out.setdefault(j, Proposal(j + 1, [], [], len(idx)))
+        p.atoms.append(atom)
+        p.stability.append(float(freq[s_i]))
+    return list(out.values())
+
+
+def log10_threshold(alpha: float, n_columns: int, n_terms: int) -> float:
+    """Bonferroni over the ways of choosing ``n_terms`` of ``n_columns`` dictionary columns."""
+    return float(np.log10(alpha) - np.log10(max(comb(max(n_columns, 1), max(n_terms, 1)), 1)))
+
+
+READINGS = {
+    "own": "a periodic error of the joint's own angle: transmission (gear) error or encoder eccentricity",
+    "other": "the joint's error follows another joint's angle: a coupling (cable or hose drag, a load that "
+    "moves with the other axis, an axis misalignment the geometry cannot hold)",
+    "pair": "the joint's error follows two other joints together: a configuration-dependent load (the moment "
+    "of a link whose direction depends on both) or a coupled elasticity",
+    "gravity": "proportional to a gravity torque: compliance (elastic deflection under the arm's weight)",
+    "tau": "proportional to a reported torque: compliance under load",
+    "current": "proportional to a motor current: compliance under load",
+    "temperature": "follows the temperatures: thermal expansion or tilt",
+    "dtemperature": "follows the rate of temperature change: a transient thermal gradient",
+    "time": "grows with time: drift of the tracker or the base",
+}
+
+
+def reading(joint: int, terms: list[Term]) -> str:
+    """The physical reading of a proposal (its dominant term first)."""
+    t = terms[0]
+    kinds = [f[0] for f in t.factors]
+    if kinds[0] in ("sin", "cos"):
+        js = sorted({f[1] for f in t.factors})
+        key = "own" if js == [joint] else ("pair" if len(js) >= 2 else "other")
+    else:
+        key = kinds[0]
+    return READINGS[key]
