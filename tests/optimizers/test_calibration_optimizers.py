@@ -35,7 +35,7 @@ def twin(tmp_path_factory, kr16):
     simulate(load_scenario("geometric"), out, seed=5)
     camp = read_campaign(out, kr16)
     cfg = CalibrationConfig()
-    gn = calibrate(camp, kr16, replace(cfg, max_iter=30))
+    gn = calibrate(camp, kr16, replace(cfg, max_iter=30, method="gn"))
     base = calibrate(camp, kr16, replace(cfg, max_iter=0))
     cal = camp.calibration()
     data = fit_data(cal, False, present_targets(cal))

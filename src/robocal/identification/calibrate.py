@@ -41,6 +41,8 @@ class CalibrationConfig:
     registration_iters : alternations of point-set registration and tool estimation for the initial frames
         (a start: the frames and tools are then fitted to convergence with the nominal kinematics, which gives
         the true "before calibration" figures).
+    method : ``"lm"`` (Levenberg-Marquardt, the default) or ``"gn"`` (Gauss-Newton with a line search): the
+        identification's least-squares method (:mod:`robocal.identification.solver`).
     outliers : ``"auto"`` (gross errors found by the test in :mod:`robocal.identification.robust`), ``"off"``,
         or a list of file rows (header = row 1) to leave out.
     outlier_alpha : family-wise false-flag rate of the outlier test over the rows of a campaign.
@@ -62,6 +64,7 @@ class CalibrationConfig:
     xtol: float = 1e-10
     use_orientation: bool | None = None
     registration_iters: int = 20
+    method: str = "lm"
     outliers: str | tuple[int, ...] = "auto"
     outlier_alpha: float = 0.001
     outlier_max_share: float = 0.05
@@ -108,6 +111,8 @@ class CalibrationConfig:
             )
         if not 0 < out.outlier_alpha < 1:
             raise ConfigError(f"The 'outlier_alpha' calibration setting must be in (0, 1). Got {out.outlier_alpha!r}.")
+        if out.method not in ("lm", "gn"):
+            raise ConfigError(f"The 'method' calibration setting must be 'lm' or 'gn'. Got {out.method!r} instead.")
         if out.noise_model not in NOISE_MODELS:
             raise ConfigError(
                 f"The 'noise_model' calibration setting must be one of {NOISE_MODELS}. Got {out.noise_model!r}."
@@ -514,7 +519,8 @@ def _rigid_fit(
     def fun(xx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return model.residuals_and_jacobian(xx, data)
 
-    return robust.least_squares_on(fun, x, rigid, weights, rows, kept, max_iter=100, ftol=1e-14, xtol=1e-12).x
+    # an auxiliary fit: Levenberg-Marquardt starting undamped (lam0 = 0), the fastest on this small problem
+    return robust.least_squares_on(fun, x, rigid, weights, rows, kept, max_iter=100, ftol=1e-14, xtol=1e-12, lam0=0.0).x
 
 
 def calibrate(
@@ -598,9 +604,11 @@ def calibrate(
 
     ident = analyse(J0 * weights[:, None], model.names, _candidate_order(model, fixed), rtol=cfg.rank_tol)
     free = np.sort(ident.kept)
-    lm_kw: dict[str, Any] = {"max_iter": cfg.max_iter, "ftol": cfg.ftol, "xtol": cfg.xtol}
+    lm_kw: dict[str, Any] = {"max_iter": cfg.max_iter, "ftol": cfg.ftol, "xtol": cfg.xtol, "method": cfg.method}
     if kept.all():
-        lm = levenberg_marquardt(fun, x, free, weights, max_iter=cfg.max_iter, ftol=cfg.ftol, xtol=cfg.xtol)
+        lm = levenberg_marquardt(
+            fun, x, free, weights, max_iter=cfg.max_iter, ftol=cfg.ftol, xtol=cfg.xtol, method=cfg.method
+        )
     else:
         lm = robust.least_squares_on(fun, x, free, weights, rows, kept, **lm_kw)
     test = None
@@ -624,7 +632,9 @@ def calibrate(
                 # too many to be blunders: a systematic model error; keep every row and say so
                 suspects = describe_outliers(cal, ~kept, *_split_resid(lm.r / weights, m, use_rot), test)
                 kept = np.ones(m, dtype=bool)
-                lm = levenberg_marquardt(fun, x, free, weights, max_iter=cfg.max_iter, ftol=cfg.ftol, xtol=cfg.xtol)
+                lm = levenberg_marquardt(
+                    fun, x, free, weights, max_iter=cfg.max_iter, ftol=cfg.ftol, xtol=cfg.xtol, method=cfg.method
+                )
                 test = robust.row_test(lm.r, lm.J, rows, m, kept, cfg.outlier_alpha)
                 test = robust.RowTest(
                     test.F, test.p_value, np.zeros(m, dtype=bool), test.threshold_F, test.alpha, test.d

@@ -151,7 +151,7 @@ def irls_cauchy(
         ss = np.bincount(rows, weights=rw**2, minlength=m)
         s2 = max(float(np.median(ss) / med), 1e-300)
         omega = 1.0 / (1.0 + ss / (d * s2) / CAUCHY_C**2)
-        lm = levenberg_marquardt(fun, x, free, weights * np.sqrt(omega[rows]), max_iter=max_iter)
+        lm = levenberg_marquardt(fun, x, free, weights * np.sqrt(omega[rows]), max_iter=max_iter, lam0=0.0)
         step = np.abs(lm.x - x)[free].max() if len(free) else 0.0
         x = lm.x
         if step < 1e-7:

@@ -1,8 +1,13 @@
 """Gauss-Newton / Levenberg-Marquardt for small dense nonlinear least squares.
 
-Works on a subset of free variables, in scaled units, with whitened residuals. Each iteration
-first tries the Gauss-Newton step (lambda -> 0 after successes) and damps it (Marquardt scaling)
-only when the cost does not decrease.
+Works on a subset of free variables, in scaled units, with whitened residuals. Two methods:
+
+* ``"lm"`` (Levenberg-Marquardt): every step solves ``(JᵀJ + λ diag(JᵀJ)) dz = -Jᵀr`` (Marquardt scaling),
+  starting from ``λ = lam0`` (1e-6 by default: Madsen, Nielsen & Tingleff's choice when the start is believed
+  close to the minimum, as calibrate's converged rigid fit is; 1e-3 when it is not); λ shrinks tenfold after a
+  step that lowers the cost and grows tenfold until one does;
+* ``"gn"`` (Gauss-Newton): the undamped step ``JᵀJ dz = -Jᵀr`` with a backtracking line search (halved until
+  the cost falls).
 """
 
 from __future__ import annotations
@@ -18,7 +23,7 @@ STATUS_MESSAGES = {
     0: "the maximum number of iterations was reached",
     1: "the relative cost reduction fell below ftol",
     2: "the scaled step fell below xtol",
-    3: "the damping grew without reducing the cost (at a minimum to working precision)",
+    3: "no damped (lm) or shortened (gn) step reduced the cost (at a minimum to working precision)",
 }
 
 
@@ -60,7 +65,8 @@ def levenberg_marquardt(
     max_iter: int = 100,
     ftol: float = 1e-12,
     xtol: float = 1e-10,
-    lam0: float = 0.0,
+    lam0: float | None = None,
+    method: str = "lm",
 ) -> LMResult:
     """Minimise ``0.5 * |w * r(x)|²`` over ``x[free]``.
 
@@ -75,7 +81,12 @@ def levenberg_marquardt(
         Residual weights (1 / sigma).
     scale : ndarray, shape (n,), optional
         Typical magnitude per variable; steps are measured in ``x / scale``. Default: column norms.
+    lam0 : initial damping of ``"lm"`` (default 1e-6); ignored by ``"gn"``.
+    method : ``"lm"`` or ``"gn"`` (module docstring).
     """
+    if method not in ("lm", "gn"):
+        raise ValueError(f"The 'method' parameter must be 'lm' or 'gn'. Got {method!r} instead.")
+    damped = method == "lm"
     t0 = time.perf_counter()
     x = np.array(x0, dtype=float)
     free = np.asarray(free, dtype=int)
@@ -92,7 +103,7 @@ def levenberg_marquardt(
         s = 1.0 / d
     else:
         s = np.asarray(scale, dtype=float)[free]
-    lam = lam0
+    lam = (1e-6 if lam0 is None else float(lam0)) if damped else 0.0
     status = 0
     nit = 0
     if not (np.all(np.isfinite(r)) and np.all(np.isfinite(Jf))):
@@ -113,13 +124,16 @@ def levenberg_marquardt(
             status = 1
             nit -= 1
             break
+        alpha = 1.0
         for _ in range(30):
-            Hd = H + lam * np.diag(np.diag(H)) if lam > 0 else H
-            try:
-                L = np.linalg.cholesky(Hd)
-                dz = -np.linalg.solve(L.T, np.linalg.solve(L, g))
-            except np.linalg.LinAlgError:
-                dz = -np.linalg.lstsq(Hd, g, rcond=None)[0]
+            if damped or alpha == 1.0:
+                Hd = H + lam * np.diag(np.diag(H)) if lam > 0 else H
+                try:
+                    L = np.linalg.cholesky(Hd)
+                    dz_full = -np.linalg.solve(L.T, np.linalg.solve(L, g))
+                except np.linalg.LinAlgError:
+                    dz_full = -np.linalg.lstsq(Hd, g, rcond=None)[0]
+            dz = dz_full if damped else alpha * dz_full
             x_new = x.copy()
             x_new[free] += s * dz
             r_new, J_new = fun(x_new)
@@ -130,11 +144,15 @@ def levenberg_marquardt(
             if np.isfinite(cost_new) and cost_new <= cost * (1.0 + 1e-14):
                 accepted = True
                 break
-            lam = max(lam * 10.0, 1e-6)
+            if damped:
+                lam = max(lam * 10.0, 1e-6)
+            else:
+                alpha /= 2.0
         if not accepted:
             status = 3
             break
-        lam = lam / 10.0 if lam > 1e-9 else 0.0
+        if damped:
+            lam = lam / 10.0 if lam > 1e-12 else 0.0
         dcost = cost - cost_new
         x, r, cost = x_new, r_new, cost_new
         Jf = (w[:, None] if w.ndim else w) * J_new[:, free]

@@ -52,7 +52,8 @@ def history_in_objective(costs: list[float], problem: Problem, m: int) -> tuple[
 
 
 class GaussNewton(EstimatorParams):
-    """Gauss-Newton (``lam0 = 0``) on ``problem.residuals`` / ``problem.jacobian``.
+    """Gauss-Newton (undamped steps with a backtracking line search) on ``problem.residuals`` /
+    ``problem.jacobian``.
 
     Parameters
     ----------
@@ -109,6 +110,7 @@ class GaussNewton(EstimatorParams):
             ftol=float(self.ftol),
             xtol=float(self.xtol),
             lam0=self._lam0(),
+            method=self.name,
         )
         m = lm.r.size
         cost = float(fitness_from_residuals(lm.r[None, :], problem.objective)[0])
@@ -150,14 +152,14 @@ class LevenbergMarquardt(GaussNewton):
     ----------
     max_iter, ftol, xtol
         As :class:`GaussNewton`.
-    lam0 : float, default 0.0
-        Initial damping (Marquardt scaling); 0 is ``calibrate()``'s behaviour.
+    lam0 : float, default 1e-3
+        Initial damping (Marquardt scaling), adapted tenfold per step, as ``calibrate()`` does.
     """
 
     name = "lm"
 
     def __init__(
-        self, *, max_iter: int | None = None, ftol: float = 1e-12, xtol: float = 1e-10, lam0: float = 0.0
+        self, *, max_iter: int | None = None, ftol: float = 1e-12, xtol: float = 1e-10, lam0: float = 1e-3
     ) -> None:
         super().__init__(max_iter=max_iter, ftol=ftol, xtol=xtol)
         self.lam0 = lam0

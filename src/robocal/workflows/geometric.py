@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Mapping
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -62,6 +63,8 @@ def run_calibration(
     camp = campaign if campaign is not None else read_campaign(data_dir, rob, split=split_config(split))
     outcome = None
     if optimizer is None or optimizer.get("name") in ("gn", "lm"):
+        if optimizer is not None:  # gn and lm are two methods of the same least-squares core
+            cfg = replace(cfg, method=str(optimizer["name"]))
         result = calibrate(camp, rob, cfg)
     else:
         from robocal.workflows.optimizers import fit_with_optimizer

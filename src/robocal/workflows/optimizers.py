@@ -187,7 +187,7 @@ def fit_with_optimizer(
         if options["polish"]:
             raise ConfigError(f"The config key 'optimizer.polish' must be false for a gradient optimizer ({name!r}).")
         settings = {k: optimizer[k] for k in ("max_iter", "ftol", "xtol") if k in optimizer}
-        cres = calibrate(campaign, robot, replace(cfg, **settings))
+        cres = calibrate(campaign, robot, replace(cfg, method=str(name), **settings))
         return FitOutcome(str(name), cres, cres, None, None, options, {"optimizer_s": cres.fit["solver_time_s"]})
     opt = make_optimizer(optimizer)  # validates name and keys
     if name == "ipopt" and options["objective"] != "nonlinear":
