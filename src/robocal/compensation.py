@@ -13,14 +13,15 @@ All arrays are batched over targets: ``q`` is ``(m, n)`` rad, positions ``(m, 3)
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from robocal.io import atomic_write
-from robocal.kinematics.chain import Chain, ChainState, point_jacobians, propagate
-from robocal.kinematics.transforms import matrix_to_quat, matrix_to_rotvec, so3_left_jacobian_inv
+from robocal.kinematics.chain import Chain, ChainState, propagate
+from robocal.kinematics.transforms import matrix_to_quat
 
 
 @dataclass(frozen=True)
@@ -38,10 +39,10 @@ class ActualRobot:
     tracker_T_base: np.ndarray
     tool_mm: np.ndarray
     tool_R: np.ndarray
-    joint_offset: object | None = None
+    joint_offset: Callable[[np.ndarray], np.ndarray] | None = None
 
     def pose(self, q_cmd: np.ndarray, record: bool = False) -> tuple[np.ndarray, np.ndarray, ChainState]:
-        q = q_cmd if self.joint_offset is None else q_cmd + self.joint_offset(q_cmd)  # type: ignore[operator]
+        q = q_cmd if self.joint_offset is None else q_cmd + self.joint_offset(q_cmd)
         st = propagate(self.chain, q, self.eta, self.tracker_T_base, record=record)
         t = self.tool_mm
         p = st.o + st.x * t[0] + st.y * t[1] + st.z * t[2]
@@ -88,60 +89,47 @@ def compensate(
     max_iter: int = 20,
     tol_mm: float = 1e-7,
     tol_rad: float = 1e-9,
+    max_step_rad: float = 0.05,
+    stall: bool = True,
 ) -> Compensation:
     """Joint targets ``q*`` with ``actual.pose(q*) = (p_desired, R_desired)``.
 
     With ``R_desired`` the full 6-D tool pose is matched (6 equations, a square system for a 6-axis
-    arm); without it only the tool position (minimum-norm joint correction).
+    arm); without it only the tool position (minimum-norm joint correction). ``max_step_rad`` and ``stall``
+    as :func:`robocal.serve.engine.solve` (inverse kinematics over a large move: a larger step, no stall rule).
+
+    One Newton for everything: this is the online service's solver (:func:`robocal.serve.engine.solve`, the
+    chain folded at ``actual.eta`` and the tracker frame; damped normal equations, steps clipped, a target that
+    stops converging near a singularity reported unconverged), so the controller CSV, the thermal and compliance
+    compensation, program filtering and the service give the same corrections.
     """
+    from robocal.kinematics.transforms import homogeneous
+    from robocal.serve.engine import compile_chain, solve
+
     q0 = np.asarray(q_target, dtype=float)
-    q = q0.copy()
-    m = q.shape[0]
-    use_rot = R_desired is not None
-    p, R, _ = actual.pose(q)
-    e_p0 = p - p_desired
-    e_r0 = matrix_to_rotvec(R @ np.swapaxes(R_desired, -1, -2)) if R_desired is not None else np.zeros((m, 3))
-    converged = np.zeros(m, dtype=bool)
-    it = 0
-    for it in range(1, max_iter + 1):
-        p, R, st = actual.pose(q, record=True)
-        e_p = p - p_desired
-        if use_rot:
-            assert R_desired is not None
-            e_r = matrix_to_rotvec(R @ np.swapaxes(R_desired, -1, -2))
-        else:
-            e_r = np.zeros((m, 3))
-        converged = (np.abs(e_p).max(axis=1) < tol_mm) & (np.abs(e_r).max(axis=1) < tol_rad)
-        if converged.all():
-            it -= 1
-            break
-        _, _, J_q, W_q = point_jacobians(actual.chain, st, p)
-        if use_rot:
-            A = np.concatenate([J_q, so3_left_jacobian_inv(e_r) @ W_q], axis=1)  # (m, 6, n)
-            b = np.concatenate([e_p, e_r], axis=1)
-        else:
-            A, b = J_q, e_p
-        # minimum-norm least-squares step per target: dq = -A^+ b (scale rotation rows to mm at 1 m)
-        w = np.ones(A.shape[1])
-        if use_rot:
-            w[3:] = 1000.0
-        Aw = A * w[None, :, None]
-        bw = b * w[None, :]
-        dq = -np.einsum("mij,mj->mi", np.linalg.pinv(Aw), bw)
-        # joint offset (deflection) depends on q only weakly: treated as fixed within a Newton step
-        q = q + np.where(converged[:, None], 0.0, dq)
-    p, R, _ = actual.pose(q)
-    res_p = p - p_desired
-    res_r = matrix_to_rotvec(R @ np.swapaxes(R_desired, -1, -2)) if R_desired is not None else np.zeros((m, 3))
+    cc = compile_chain(actual.chain, np.asarray(actual.eta, dtype=float), actual.tracker_T_base)
+    tool_T = homogeneous(np.asarray(actual.tool_R, dtype=float), np.asarray(actual.tool_mm, dtype=float))
+    offset = None
+    if actual.joint_offset is not None:
+        fn = actual.joint_offset
+        q_all = q0.copy()
+
+        # the engine asks for the rows still iterating; the callable takes every row (its signals are per row)
+        def offset(qs: np.ndarray, rows: np.ndarray) -> np.ndarray:
+            q_all[rows] = qs
+            return np.asarray(fn(q_all), dtype=float)[rows]
+
+    sol = solve(cc, tool_T, q0, np.asarray(p_desired, dtype=float), R_desired, offset, max_iter=max_iter,
+                tol_mm=tol_mm, tol_rad=tol_rad, max_step_rad=max_step_rad, stall=stall)  # fmt: skip
     return Compensation(
         q_target=q0,
-        q=q,
-        converged=converged,
-        residual_mm=res_p,
-        residual_rad=res_r,
-        error_before_mm=e_p0,
-        error_before_rad=e_r0,
-        iterations=it,
+        q=sol.q,
+        converged=sol.converged,
+        residual_mm=sol.residual_mm,
+        residual_rad=sol.residual_rad,
+        error_before_mm=sol.error_before_mm,
+        error_before_rad=sol.error_before_rad,
+        iterations=sol.iterations,
     )
 
 

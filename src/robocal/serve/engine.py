@@ -251,6 +251,7 @@ def solve(
     max_step_rad: float = 0.05,
     rot_weight_mm: float = 1000.0,
     compiled: bool | None = None,
+    stall: bool = True,
 ) -> Solution:
     """Newton iterations from ``q_start`` (m, n) until the robot ``cc`` with tool ``tool_T`` (4, 4) and joint
     deflection ``joint_offset(q_cmd, rows) -> dq`` (added to the commanded joints; ``rows`` are the
@@ -264,11 +265,16 @@ def solve(
 
     ``compiled`` : run the same iteration compiled with numba (:mod:`robocal.serve.fastsolve`), per target;
     None = when numba is available and there is no ``joint_offset``; False = this numpy reference path.
+    ``stall`` : stop a target whose error stops halving (compensation: a small correction is expected, and a
+    target that needs a large one is near a singularity); False for inverse kinematics over large moves
+    (numpy path only).
     """
     from robocal.serve import fastsolve
 
     if compiled is None:
-        compiled = fastsolve.AVAILABLE and joint_offset is None
+        compiled = fastsolve.AVAILABLE and joint_offset is None and stall
+    if compiled and not stall:
+        raise ValueError("the compiled solver always applies the stall rule (stall=True)")
     if compiled:
         if joint_offset is not None or fastsolve.newton is None:
             raise ValueError("the compiled solver needs numba and no joint_offset")
@@ -330,7 +336,7 @@ def solve(
         conv[active] = ok
         # Newton contracts quadratically near a regular solution: a target whose error stops halving
         # (after the first steps, which may be clipped) is near a singularity and stops here, unconverged
-        stalled = (size > 0.5 * last[active]) & (it >= 3)
+        stalled = (size > 0.5 * last[active]) & (it >= 3) & stall
         last[active] = size
         keep = ~(ok | stalled)
         if not keep.any() or it == max_iter:

@@ -121,7 +121,8 @@ class ComplianceEffect:
         pts = iso9283_cube_points(center, side)
         tool = np.asarray(next(iter(ctx.truth["tools_mm"].values())), dtype=float)
         nominal = ActualRobot(ctx.chain, np.zeros(ctx.chain.n_params), np.eye(4), tool, np.eye(3))
-        comp = compensate(nominal, np.tile(seed, (5, 1)), pts, max_iter=60, tol_mm=1e-6)
+        # inverse kinematics from a seed (a large move, not a small correction): no stall rule
+        comp = compensate(nominal, np.tile(seed, (5, 1)), pts, max_iter=60, tol_mm=1e-6, stall=False)
         if not comp.converged.all():
             raise ConfigError(
                 f"compliance effect: the ISO cube (centre {center.tolist()}, side {side}) is out of reach"
