@@ -9,7 +9,9 @@ the first, and under ``failing`` for each):
                   ``length_mm`` or turns it by 1 rad in every direction);
 ``wrist``         ``|q_wrist| < singularity.min_wrist_deg`` (axes 4 and 6 aligned);
 ``volume``        a target outside the working volume (a box, or the ISO 9283 cube);
-``self_collision`` two link capsules at least ``collision.skip`` bodies apart closer than their radii;
+``self_collision`` two link capsules at least ``collision.skip`` bodies apart closer than their radii (pairs
+                  joined by a chain shorter than their radii, e.g. through a zero-length wrist link, are not
+                  checked: they overlap by construction);
 ``tracker_range`` no target within the tracker's distance range;
 ``line_of_sight`` fewer than ``tracker.min_targets_visible`` targets whose acceptance cone contains the
                   tracker (and, with capsules on, whose beam passes clear of the arm).
@@ -87,13 +89,18 @@ def segment_distance(p1: np.ndarray, q1: np.ndarray, p2: np.ndarray, q2: np.ndar
     return np.sqrt(np.sum(diff * diff, -1))
 
 
-def link_segments(chain: Chain, st_origins: list[np.ndarray | None], flange: np.ndarray, targets: np.ndarray) -> list:
+def link_segments(
+    chain: Chain, st_origins: list[np.ndarray | None], flange: np.ndarray, targets: np.ndarray
+) -> list[tuple[int, np.ndarray, np.ndarray]]:
     """Capsule segments ``(body, start (C, 3), end (C, 3))``: base to joint 1, joint i to joint i+1 (body i),
     the last joint to the flange and the flange to each target (body n, the tool)."""
-    joint_origins = [st_origins[e] for e, k in enumerate(chain.kinds) if k != FIXED and chain.joint[e] >= 0]
     C = flange.shape[0]
-    base = np.zeros((C, 3))
-    segs = [(0, base, np.broadcast_to(joint_origins[0], (C, 3)))]
+    joint_origins: list[np.ndarray] = []
+    for e, k in enumerate(chain.kinds):
+        o = st_origins[e]
+        if k != FIXED and chain.joint[e] >= 0 and o is not None:
+            joint_origins.append(np.broadcast_to(o, (C, 3)))
+    segs: list[tuple[int, np.ndarray, np.ndarray]] = [(0, np.zeros((C, 3)), joint_origins[0])]
     n = len(joint_origins)
     for i in range(n - 1):
         segs.append((i + 1, joint_origins[i], joint_origins[i + 1]))
@@ -165,13 +172,18 @@ def evaluate(robot: RobotDescription, chain: Chain, q: np.ndarray, cfg: PlanConf
     if cfg.collision.enabled:
         rad = _radii(cfg, n)
         hit = np.zeros(C, dtype=bool)
+        length = [np.linalg.norm(np.broadcast_to(s1 - s0, (C, 3)), axis=-1) for _, s0, s1 in segs]
         for a in range(len(segs)):
             for b in range(a + 1, len(segs)):
                 ba, bb = segs[a][0], segs[b][0]
                 if abs(ba - bb) < cfg.collision.skip:
                     continue
+                reach = rad[ba] + rad[bb]
+                # capsules joined through short bodies (zero-length wrist links, an elbow offset) overlap by
+                # construction: a pair counts only when the chain between them is longer than their radii
+                gap = sum((length[k] for k in range(a + 1, b) if ba < segs[k][0] < bb), np.zeros(C))
                 dist = segment_distance(segs[a][1], segs[a][2], segs[b][1], segs[b][2])
-                hit |= dist < rad[ba] + rad[bb] + cfg.collision.clearance_mm
+                hit |= (dist < reach + cfg.collision.clearance_mm) & (gap >= reach)
         fails["self_collision"] = hit
     else:
         fails["self_collision"] = np.zeros(C, dtype=bool)
@@ -218,9 +230,7 @@ def _radii(cfg: PlanConfig, n: int) -> np.ndarray:
     return r
 
 
-def screen(
-    robot: RobotDescription, chain: Chain, q: np.ndarray, cfg: PlanConfig, chunk: int = 25000
-) -> Screened:
+def screen(robot: RobotDescription, chain: Chain, q: np.ndarray, cfg: PlanConfig, chunk: int = 25000) -> Screened:
     """Run every check on ``q`` (C, n) rad in chunks; keep the accepted configurations, count the refused."""
     keep_q, vis, tg, Rs, sm = [], [], [], [], []
     refused = dict.fromkeys(REASONS, 0)

@@ -91,7 +91,8 @@ def build_report(result: PlanResult) -> Any:
     d = result.to_dict()
     rep = Report(
         f"Measurement plan: {pr.robot.name}, {len(result.idx)} poses",
-        f"{cfg.criterion}-optimal by exchange over {pr.cand.n} accepted of {pr.cand.n_sampled} candidates, seed {cfg.seed}",
+        f"{cfg.criterion}-optimal by exchange over {pr.cand.n} accepted of {pr.cand.n_sampled} candidates, "
+        f"seed {cfg.seed}",
     )
     rep.heading("Summary")
     pred = result.prediction

@@ -425,7 +425,13 @@ def plan_poses(
             else:
                 init = prev[:N] if len(prev) >= N else prev
                 e_idx = exchange(
-                    pr.F, N, cfg.criterion, crng, L=pr.L, init=init, max_exchanges=cfg.max_exchanges,
+                    pr.F,
+                    N,
+                    cfg.criterion,
+                    crng,
+                    L=pr.L,
+                    init=init,
+                    max_exchanges=cfg.max_exchanges,
                     active_set=cfg.active_set,
                 ).idx
             prev = e_idx
@@ -439,8 +445,11 @@ def plan_poses(
                     "random_region_rms_mm": float(np.median(rr_ok)) if rr_ok else None,
                 }
             )
-        ok = [r["n_poses"] for r in rows if r["planned_region_rms_mm"] is not None
-              and r["planned_region_rms_mm"] <= cfg.accuracy_mm]
+        ok = [
+            r["n_poses"]
+            for r in rows
+            if r["planned_region_rms_mm"] is not None and r["planned_region_rms_mm"] <= cfg.accuracy_mm
+        ]
         n_needed = min(ok) if ok else None
     t3 = time.perf_counter()
     timings = {
