@@ -52,12 +52,18 @@ def write_plan(result: PlanResult, out_dir: str | Path, report: bool | None = No
 
 
 def run_plan(
-    robot: RobotDescription | str,
+    robot: RobotDescription | str | Mapping[str, Any],
     config: PlanConfig | Mapping[str, Any] | None,
     out_dir: str | Path,
     report: bool | None = None,
 ) -> dict[str, Any]:
-    """Plan and write the outputs; returns the metrics a stage logs (criteria, predicted errors, timings)."""
+    """Plan and write the outputs; returns the metrics a stage logs (criteria, predicted errors, timings).
+
+    The pipeline stage ``plan`` is meant to call it as
+    ``run_plan(ctx.cfg["robot"], {**ctx.cfg["plan"], **cell_from_scenario(ctx.cfg["scenario"])}, ctx.out)``
+    (``robocal.plan.planner.cell_from_scenario``: the twin's tracker, targets, noise and joint ranges), and the
+    ``simulate`` stage then measures ``reports/plan/plan.csv`` with ``scenario.poses_deg`` set to that path.
+    """
     result = plan_poses(robot, config)
     summary = write_plan(result, out_dir, report)
     pred = summary["planned"]

@@ -30,7 +30,7 @@ from robocal.kinematics.chain import build_chain
 from robocal.plan.config import PlanConfig
 from robocal.plan.constraints import REASONS, Screened, sample_configurations, sampling_limits, screen
 from robocal.plan.design import criterion_value, exchange, information, observability
-from robocal.robot import RobotDescription, load_robot
+from robocal.robot import RobotDescription, load_robot, robot_from_dict
 
 #: the settings that relax each refusal reason (named in the error when nothing is left)
 RELAX = {
@@ -149,10 +149,45 @@ def _nothing_left(screened: Screened, what: str) -> ConfigError:
     )
 
 
-def build_problem(robot: RobotDescription | str, config: PlanConfig | Mapping[str, Any] | None = None) -> Problem:
+def as_robot(robot: RobotDescription | str | Mapping[str, Any]) -> RobotDescription:
+    """A description from itself, a name / YAML path, or a mapping (the pipeline's ``robot`` section)."""
+    if isinstance(robot, RobotDescription):
+        return robot
+    if isinstance(robot, Mapping):
+        return robot_from_dict(dict(robot), source="params: robot")
+    return load_robot(robot)
+
+
+def cell_from_scenario(scenario: Mapping[str, Any]) -> dict[str, Any]:
+    """Plan settings describing the twin's cell of a scenario: tracker position in the robot base frame (from
+    ``tracker.xyz_mm`` / ``rpy_deg``, the base in the tracker frame), the targets (normal along flange z), the
+    noise, orientation (6-DoF probe), the joint ranges and the number of calibration poses."""
+    from robocal.kinematics.transforms import homogeneous, inv_transform, matrix_from_rpy
+
+    tr = dict(scenario.get("tracker") or {})
+    T = homogeneous(
+        matrix_from_rpy(np.deg2rad(np.asarray(tr.get("rpy_deg", [0.3, -0.5, 135.0]), dtype=float))),
+        np.asarray(tr.get("xyz_mm", [2500.0, 1200.0, -350.0]), dtype=float),
+    )
+    out: dict[str, Any] = {"tracker": {"position_mm": inv_transform(T)[:3, 3].tolist()}}
+    targets = scenario.get("targets") or {"T1": [0.0, 0.0, 120.0]}
+    out["targets"] = {str(k): {"position_mm": list(v), "normal": [0.0, 0.0, 1.0]} for k, v in targets.items()}
+    for src, dst in (("noise_mm", "noise_mm"), ("orientation", "orientation"), ("n_poses", "n_poses")):
+        if scenario.get(src) is not None:
+            out[dst] = scenario[src]
+    if scenario.get("orientation") and scenario.get("noise_deg") is not None:
+        out["noise_deg"] = scenario["noise_deg"]
+    if scenario.get("joint_ranges_deg") is not None:
+        out["ranges_deg"] = scenario["joint_ranges_deg"]
+    return out
+
+
+def build_problem(
+    robot: RobotDescription | str | Mapping[str, Any], config: PlanConfig | Mapping[str, Any] | None = None
+) -> Problem:
     """Candidates, constraints, Jacobian blocks, identifiable set and region for ``plan_poses``."""
     cfg = config if isinstance(config, PlanConfig) else PlanConfig.from_mapping(config)
-    robot = robot if isinstance(robot, RobotDescription) else load_robot(robot)
+    robot = as_robot(robot)
     t0 = time.perf_counter()
     chain = build_chain(robot)
     limits = sampling_limits(robot, cfg.ranges_deg)
@@ -258,8 +293,63 @@ def predict(problem: Problem, idx: np.ndarray, rng: np.random.Generator | None =
 
 def _curve_grid(n: int, n_min: int, n_cand: int) -> list[int]:
     hi = min(max(4 * n, 120), n_cand)
-    grid = np.unique(np.round(np.geomspace(n_min, hi, 14)).astype(int))
+    grid = np.unique(np.round(np.geomspace(n_min, hi, 10)).astype(int))
     return sorted({int(v) for v in grid if n_min <= v <= n_cand} | ({n} if n <= n_cand else set()))
+
+
+def region_rms(problem: Problem, idx: np.ndarray) -> float | None:
+    """Predicted RMS 3-D error of the calibrated model over the region (mm), or None when M is singular."""
+    M = information(problem.F, idx)
+    s, _ = np.linalg.slogdet(M)
+    if s <= 0:
+        return None
+    try:
+        cov_s = np.linalg.inv(M)
+    except np.linalg.LinAlgError:
+        return None
+    v = float(np.sum(cov_s * problem.L))
+    return float(np.sqrt(v)) if v > 0 else None
+
+
+def poses_needed_curve(
+    problem: Problem, idx: np.ndarray, rng: np.random.Generator, n_sub: int = 5000, n_random: int = 5
+) -> list[dict[str, Any]]:
+    """Predicted RMS error over the region against the number of poses, planned and random.
+
+    Each size is planned by the same exchange and criterion, warm-started from the previous size, over a
+    random subset of ``n_sub`` accepted candidates plus the plan (so the curve is quick; with fewer choices
+    it can only be slightly pessimistic). Random: the median of ``n_random`` draws from all accepted candidates.
+    """
+    pr = problem
+    cfg = pr.config
+    C = pr.cand.n
+    sub = np.unique(np.concatenate([rng.choice(C, size=min(n_sub, C), replace=False), idx]))
+    Fs = pr.F[sub]
+    n = len(idx)
+    rows = []
+    prev = np.searchsorted(sub, idx)
+    for N in _curve_grid(n, pr.n_min, C):
+        if N == n:
+            e_idx = idx
+            prev = np.searchsorted(sub, idx)
+        else:
+            init = prev[:N] if len(prev) >= N else prev
+            e = exchange(
+                Fs, N, cfg.criterion, rng, L=pr.L, init=init, max_exchanges=cfg.max_exchanges, active_set=cfg.active_set
+            )
+            prev = e.idx
+            e_idx = sub[e.idx]
+        rr = [region_rms(pr, np.sort(rng.choice(C, size=N, replace=False))) for _ in range(n_random)]
+        rr_ok = [r for r in rr if r is not None]
+        rows.append(
+            {
+                "n_poses": N,
+                "planned_region_rms_mm": region_rms(pr, e_idx),
+                "random_region_rms_mm": float(np.median(rr_ok)) if rr_ok else None,
+                "random_singular": n_random - len(rr_ok),
+            }
+        )
+    return rows
 
 
 @dataclass
@@ -340,7 +430,7 @@ def _spread(R: np.ndarray) -> dict[str, float]:
 
 
 def plan_poses(
-    robot: RobotDescription | str,
+    robot: RobotDescription | str | Mapping[str, Any],
     config: PlanConfig | Mapping[str, Any] | None = None,
     curve: bool = True,
 ) -> PlanResult:
@@ -417,34 +507,7 @@ def plan_poses(
     rows: list[dict[str, Any]] = []
     n_needed = None
     if curve:
-        prev = idx
-        crng = rng_stream(cfg.seed, "curve")
-        for N in _curve_grid(n, pr.n_min, pr.cand.n):
-            if N == n:
-                e_idx = idx
-            else:
-                init = prev[:N] if len(prev) >= N else prev
-                e_idx = exchange(
-                    pr.F,
-                    N,
-                    cfg.criterion,
-                    crng,
-                    L=pr.L,
-                    init=init,
-                    max_exchanges=cfg.max_exchanges,
-                    active_set=cfg.active_set,
-                ).idx
-            prev = e_idx
-            pp = predict(pr, e_idx)
-            rr = [predict(pr, np.sort(crng.choice(pr.cand.n, size=N, replace=False))) for _ in range(5)]
-            rr_ok = [r["region_rms_mm"] for r in rr if "region_rms_mm" in r]
-            rows.append(
-                {
-                    "n_poses": N,
-                    "planned_region_rms_mm": pp.get("region_rms_mm"),
-                    "random_region_rms_mm": float(np.median(rr_ok)) if rr_ok else None,
-                }
-            )
+        rows = poses_needed_curve(pr, idx, rng_stream(cfg.seed, "curve"))
         ok = [
             r["n_poses"]
             for r in rows
