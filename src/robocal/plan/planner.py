@@ -373,6 +373,7 @@ class PlanResult:
         return [f"plan{k:04d}" for k in range(len(self.idx))]
 
     def to_dict(self) -> dict[str, Any]:
+        """Everything ``plan.json`` holds; no timings, so the same seed writes the same bytes."""
         pr = self.problem
         cfg = pr.config
         pred = {k: v for k, v in self.prediction.items() if k != "region_sigma_mm"}
@@ -408,7 +409,6 @@ class PlanResult:
                 "predicted_max_mm": self.prediction.get("region_max_mm"),
             },
             "targets_visible": {t.name: int(self.visible[:, k].sum()) for k, t in enumerate(cfg.targets)},
-            "timings_s": self.timings,
         }
 
 
