@@ -315,3 +315,11 @@ def test_build_problem_is_the_same_for_the_same_seed(kr16):
     a = build_problem(kr16, {**SETTINGS, "collision": {}})
     b = build_problem(kr16, {**SETTINGS, "collision": {}})
     assert np.array_equal(a.cand.q, b.cand.q) and np.array_equal(a.F, b.F)
+
+
+def test_iso9283_cube_volume(kr16):
+    cube = {"kind": "iso9283", "center_mm": [600.0, 600.0, 900.0], "side_mm": 1000.0}
+    res = plan_poses(kr16, {**SETTINGS, "volume": cube, "collision": {}, "n_candidates": 8000}, curve=False)
+    _, p = _tool_points(kr16, res.q)
+    assert np.all(np.abs(p - np.array([600.0, 600.0, 900.0])) <= 500.0)
+    assert res.problem.cand.refused["volume"] > 0
