@@ -1,6 +1,7 @@
 """The digital twin: writes measurement campaigns in the data contract, with a truth file.
 
-A scenario (a mapping, e.g. ``conf/scenario/geometric.yaml``) says which robot, how many poses,
+A scenario (a mapping, e.g. ``conf/scenario/geometric.yaml``) says which robot, how many poses (or which:
+``poses_deg`` / ``validation_poses_deg``, a list or a ``plan.csv`` path, see :func:`given_poses`),
 the size of the geometric errors, where the tracker stands, which targets sit on the tool, the
 tracker noise and which optional effects act. The true robot is the nominal one plus random
 joint-level errors; effects add joint-angle offsets (compliance, gear errors, backlash) or make the
@@ -217,6 +218,44 @@ def sample_poses(
     return rng.uniform(mid - half, mid + half, size=(n, robot.n_joints))
 
 
+def given_poses(value: Any, robot: RobotDescription, key: str) -> np.ndarray | None:
+    """Joint configurations ``(n, N)`` rad from a scenario setting: a list of ``[q1_deg, ..., qN_deg]`` or the
+    path of a CSV with ``q1_deg`` ... ``qN_deg`` columns (e.g. ``robocal plan``'s ``plan.csv``; one row per pose
+    and target there, so repeated pose ids are read once). ``None`` when the setting is absent."""
+    if value is None:
+        return None
+    n = robot.n_joints
+    if isinstance(value, str | Path):
+        import pandas as pd
+
+        path = Path(value)
+        if not path.exists():
+            raise ConfigError(f"The '{key}' scenario setting names {str(path)!r}, which does not exist")
+        df = pd.read_csv(path)
+        cols = [f"q{j + 1}_deg" for j in range(n)]
+        missing = [c for c in cols if c not in df.columns]
+        if missing:
+            raise ConfigError(f"The '{key}' scenario setting's file {path} lacks the column(s) {missing}")
+        if "pose_id" in df.columns:
+            df = df.drop_duplicates("pose_id")
+        arr = df[cols].to_numpy(dtype=float)
+    else:
+        try:
+            arr = np.asarray(value, dtype=float)
+        except (TypeError, ValueError):
+            raise ConfigError(f"The '{key}' scenario setting must be a list of {n} joint angles per pose") from None
+    if arr.ndim != 2 or arr.shape[1] != n or len(arr) == 0 or not np.all(np.isfinite(arr)):
+        raise ConfigError(
+            f"The '{key}' scenario setting must give {n} finite joint angles (deg) per pose. Got shape {arr.shape}."
+        )
+    q = np.deg2rad(arr)
+    lim = robot.q_limits
+    bad = np.flatnonzero(np.any((q < lim[:, 0] - 1e-9) | (q > lim[:, 1] + 1e-9), axis=1))
+    if bad.size:
+        raise ConfigError(f"The '{key}' scenario setting has poses outside {robot.name}'s joint limits: {bad.tolist()}")
+    return q
+
+
 def _fmt(v: np.ndarray, nd: int) -> list[str]:
     return [f"{x:.{nd}f}" for x in np.asarray(v, dtype=float)]
 
@@ -265,7 +304,19 @@ def simulate(
     n_cal = int(sc.get("n_poses", 80))
     n_val = int(sc.get("n_validation_poses", 20))
     frac = float(sc.get("joint_range_fraction", 0.9))
-    q_all = sample_poses(robot, n_cal + n_val, rng("poses"), frac, sc.get("joint_ranges_deg"))
+    q_cal = given_poses(sc.get("poses_deg"), robot, "poses_deg")
+    q_val = given_poses(sc.get("validation_poses_deg"), robot, "validation_poses_deg")
+    if q_cal is None and q_val is None:
+        q_all = sample_poses(robot, n_cal + n_val, rng("poses"), frac, sc.get("joint_ranges_deg"))
+    else:
+        # a given pose list (e.g. robocal plan's plan.csv) replaces the random draw of that split
+        n_cal = n_cal if q_cal is None else len(q_cal)
+        n_val = n_val if q_val is None else len(q_val)
+        n_draw = (n_cal if q_cal is None else 0) + (n_val if q_val is None else 0)
+        drawn = sample_poses(robot, n_draw, rng("poses"), frac, sc.get("joint_ranges_deg"))
+        q_cal = drawn[:n_cal] if q_cal is None else q_cal
+        q_val = drawn[n_draw - n_val :] if q_val is None else q_val
+        q_all = np.concatenate([q_cal, q_val])
     q_all = np.deg2rad(np.round(np.rad2deg(q_all), 6))  # what the controller reports, 1e-6 deg
     pose_ids = [f"p{k:04d}" for k in range(n_cal + n_val)]
     K = len(tnames)
