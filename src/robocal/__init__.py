@@ -11,6 +11,7 @@ The public API (imported lazily: ``import robocal`` itself reads and loads nothi
     print(robocal.validate(result, campaign))                  # errors on the validation rows
     found = robocal.discover(campaign, robot)                  # what the model misses, named
     comp, command = robocal.compensate(result, q_rad)          # corrected joints for targets q (m, n) rad
+    planned = robocal.plan("kr16_2", {"n_poses": 40})          # the poses to measure, before the tracker is on
 
 ``simulate`` / ``load_scenario`` write twin campaigns with a known truth; ``load_calibration`` reads a
 ``calibration.json`` back (including the effects discovery wrote into it).
@@ -37,6 +38,7 @@ _API = {
     "discover": "robocal.discovery.search:discover",
     "DiscoveryConfig": "robocal.discovery.config:DiscoveryConfig",
     "compensate": "robocal.discovery.effects:compensate_targets",
+    "plan": "robocal.plan.planner:plan_poses",
     "simulate": "robocal.sim.twin:simulate",
     "load_scenario": "robocal.sim.twin:load_scenario",
 }
