@@ -54,7 +54,9 @@ def chain_key(chain: Chain) -> str:
 
 def position_data(data: FitData) -> FitData:
     """``data`` without orientations (the population objectives use positions only)."""
-    return FitData(q=data.q, p_mm=data.p_mm, target_index=data.target_index, R_meas=None)
+    return FitData(
+        q=data.q, p_mm=data.p_mm, target_index=data.target_index, R_meas=None, station_index=data.station_index
+    )
 
 
 # --------------------------------------------------------------------------------------------------------
@@ -289,6 +291,8 @@ def calibration_problem(
     # typical magnitude: the change that moves the residual vector by 1 mm (what Gauss-Newton scales by)
     scale = 1.0 / np.where(norms > 0, norms, 1.0)
     try:
+        if model.n_stations > 1:  # the compiled kernel folds one tracker frame
+            raise ValueError("several tracker stations")
         positions: Any = PopulationPositions(model, pdata, backend=backend)
     except ValueError:  # a chain the kernel does not handle: the model's own (slower) method
         positions = lambda X: model.batch_position_residuals(X, pdata)  # noqa: E731
@@ -313,7 +317,8 @@ def calibration_problem(
             residuals=search.nonlinear_residuals,
             jacobian=search.nonlinear_jacobian,
             batch_residuals=search.nonlinear_batch,
-            symbolic=CalibrationSymbolic(model, pdata, x_init, free_pos),
+            # the CasADi mirror folds one tracker frame: several stations have no symbolic form (Ipopt says so)
+            symbolic=CalibrationSymbolic(model, pdata, x_init, free_pos) if model.n_stations == 1 else None,
         )
         return problem, search
     J0 = np.ascontiguousarray(J[:, free_pos])

@@ -130,7 +130,8 @@ class Ipopt(EstimatorParams):
         if sym is None or not isinstance(sym, SymbolicResiduals):
             raise ConfigError(
                 "Ipopt needs a Problem with a symbolic form of its residuals ('symbolic', see "
-                f"robocal.optimizers.ipopt.SymbolicResiduals). Got symbolic={sym!r} instead."
+                f"robocal.optimizers.ipopt.SymbolicResiduals). Got symbolic={sym!r} instead. A calibration with "
+                "several tracker stations has none yet: use optimizer=lm or gn."
             )
         if problem.objective not in ("sse", "rms3d"):
             raise ConfigError(
