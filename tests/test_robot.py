@@ -366,3 +366,19 @@ def test_other_bad_descriptions() -> None:
     data = copy.deepcopy(_raw("sr210"))
     data["poe"]["flange_R_at_zero"] = [[1, 0, 0], [0, 1, 0], [0, 0, -1]]
     _raises(data, "flange_R_at_zero")
+
+
+def test_robot_descriptions_ship_with_the_package():
+    """load_robot finds the descriptions inside the installed package (not by a path into a checkout), and
+    Hydra's conf/robot entries are links to the same files."""
+    from pathlib import Path
+
+    import robocal
+    from robocal.robot import load_robot
+
+    pkg = Path(robocal.__file__).resolve().parent / "robots"
+    repo_conf = Path(__file__).resolve().parents[1] / "conf" / "robot"
+    for f in sorted(pkg.glob("*.yaml")):
+        assert Path(load_robot(f.stem).source).resolve() == f.resolve()
+        assert (repo_conf / f.name).resolve() == f.resolve()
+    assert {f.stem for f in pkg.glob("*.yaml")} >= {"kr16_2", "sr210", "abb_irb120"}

@@ -47,7 +47,8 @@ MDH = "mdh_rx_tx_rz_tz_ry"
 #: The product-of-exponentials convention string.
 POE = "poe"
 
-_CONF_ROBOT_DIR = Path(__file__).resolve().parents[2] / "conf" / "robot"
+#: The robot descriptions shipped with the package (``conf/robot/*.yaml`` are links to them, for Hydra).
+_CONF_ROBOT_DIR = Path(__file__).resolve().parent / "robots"
 
 
 @dataclass(frozen=True)
