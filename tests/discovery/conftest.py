@@ -11,7 +11,7 @@ import pytest
 
 from robocal.data.contract import read_campaign
 from robocal.robot import load_robot
-from robocal.sim.twin import load_scenario, simulate
+from robocal.sim.twin import EFFECTS, load_scenario, register_effect, simulate
 
 
 def make_campaign(tmp: Path, scenario: str, seed: int, effects: dict[str, Any] | None = None, **over: Any):
@@ -35,3 +35,21 @@ def named(summary_or_result: Any) -> list[tuple[str, int | None, int | None]]:
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(0)
+
+
+if "test_q1q5" not in EFFECTS:
+
+    @register_effect("test_q1q5")
+    class _Q1Q5:
+        """Outside the library: a joint-4 error driven by the angles of joints 1 and 5 together."""
+
+        name = "test_q1q5"
+
+        def __init__(self, cfg):
+            self.amp = np.deg2rad(float(cfg["amplitude_deg"]))
+
+        def plan(self, rows, ctx):
+            return rows
+
+        def apply(self, rows, ctx):
+            rows.dq[:, 3] += self.amp * np.sin(2 * rows.q_cmd[:, 0]) * np.cos(rows.q_cmd[:, 4])

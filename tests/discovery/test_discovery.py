@@ -13,7 +13,7 @@ from robocal.discovery.config import DiscoveryConfig
 from robocal.discovery.search import discover
 from robocal.discovery.summary import summary
 from robocal.errors import ConfigError
-from robocal.sim.twin import EFFECTS, register_effect
+from robocal.sim.twin import EFFECTS
 
 from .conftest import make_campaign, named
 
@@ -182,22 +182,6 @@ def test_null_names_nothing(tmp_path):
         s = summary(discover(camp, robot))
         assert named(s) == [], seed
         assert s["steps"][0]["accepted"] is None
-
-
-@register_effect("test_q1q5")
-class _Q1Q5:
-    """Outside the library: a joint-4 error driven by the angles of joints 1 and 5 together."""
-
-    name = "test_q1q5"
-
-    def __init__(self, cfg):
-        self.amp = np.deg2rad(float(cfg["amplitude_deg"]))
-
-    def plan(self, rows, ctx):
-        return rows
-
-    def apply(self, rows, ctx):
-        rows.dq[:, 3] += self.amp * np.sin(2 * rows.q_cmd[:, 0]) * np.cos(rows.q_cmd[:, 4])
 
 
 def test_out_of_library_is_unexplained_without_the_dictionary(tmp_path):

@@ -103,24 +103,8 @@ def test_a_proposed_equation_reaches_the_service(tmp_path):
     """A proposed equation whose terms the commanded joints give is written into calibration.json as a
     joint-level effect and evaluated by the same code offline and online."""
     from robocal.discovery.effects import joint_offsets
-    from robocal.sim.twin import EFFECTS, register_effect
 
-    if "test_q1q5_product" not in EFFECTS:
-
-        @register_effect("test_q1q5_product")
-        class _Coupled:
-            name = "test_q1q5_product"
-
-            def __init__(self, cfg):
-                self.amp = np.deg2rad(float(cfg["amplitude_deg"]))
-
-            def plan(self, rows, ctx):
-                return rows
-
-            def apply(self, rows, ctx):
-                rows.dq[:, 3] += self.amp * np.sin(2 * rows.q_cmd[:, 0]) * np.cos(rows.q_cmd[:, 4])
-
-    camp, robot, _ = make_campaign(tmp_path, "geometric", 3, {"test_q1q5_product": {"amplitude_deg": 0.03}})
+    camp, robot, _ = make_campaign(tmp_path, "geometric", 3, {"test_q1q5": {"amplitude_deg": 0.03}})
     summ = run_discovery(None, robot, tmp_path / "out", report=False, campaign=camp)
     assert [p["joint"] for p in summ["proposed"]] == [4] and summ["proposed"][0]["compensated_online"]
     cal_d = json.loads((tmp_path / "out" / "calibration.json").read_text())
