@@ -24,6 +24,7 @@ translation ``dp = u``; rotation ``dp = u x (p - o)``, ``domega = u``.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -185,6 +186,37 @@ class ChainState:
         return np.stack([self.x, self.y, self.z], axis=-1)
 
 
+Frame = tuple[Any, Any, Any, Any]
+
+
+def step(kind: int, v: Any, frame: Frame, Tf: np.ndarray | None = None, cos: Any = np.cos, sin: Any = np.sin) -> Frame:
+    """One element of the chain applied to a frame given by its world axes and origin ``(x, y, z, o)``.
+
+    The one place the element kinds are written down: :func:`propagate` (numpy, batched), the CasADi form of
+    the identification (:mod:`robocal.optimizers.calibration`, with ``casadi.cos`` / ``sin``) and the service's
+    chain folding (:func:`robocal.serve.engine.compile_chain`) all step through it. ``v`` is the element's value
+    (mm or rad; shaped to broadcast against the axes), ``Tf`` the transform of a ``FIXED`` element.
+    """
+    x, y, z, o = frame
+    if kind == FIXED:
+        assert Tf is not None
+        Rf, tf = Tf[:3, :3], Tf[:3, 3]
+        return (
+            x * Rf[0, 0] + y * Rf[1, 0] + z * Rf[2, 0],
+            x * Rf[0, 1] + y * Rf[1, 1] + z * Rf[2, 1],
+            x * Rf[0, 2] + y * Rf[1, 2] + z * Rf[2, 2],
+            o + x * tf[0] + y * tf[1] + z * tf[2],
+        )
+    if kind <= TZ:
+        return x, y, z, o + v * (x, y, z)[kind]
+    c, s = cos(v), sin(v)
+    if kind == RX:
+        return x, c * y + s * z, c * z - s * y, o
+    if kind == RY:
+        return c * x - s * z, y, s * x + c * z, o
+    return c * x + s * y, c * y - s * x, z, o
+
+
 def propagate(
     chain: Chain,
     q: np.ndarray,
@@ -218,17 +250,10 @@ def propagate(
     o = T0[:3, 3].copy()
     axes: list[np.ndarray | None] = []
     origins: list[np.ndarray | None] = []
+    frame: Frame = (x, y, z, o)
     for e, kind in enumerate(chain.kinds):
         if kind == FIXED:
-            Tf = chain.fixed[e]
-            assert Tf is not None
-            Rf, tf = Tf[:3, :3], Tf[:3, 3]
-            o = o + x * tf[0] + y * tf[1] + z * tf[2]
-            x, y, z = (
-                x * Rf[0, 0] + y * Rf[1, 0] + z * Rf[2, 0],
-                x * Rf[0, 1] + y * Rf[1, 1] + z * Rf[2, 1],
-                x * Rf[0, 2] + y * Rf[1, 2] + z * Rf[2, 2],
-            )
+            frame = step(FIXED, 0.0, frame, chain.fixed[e])
             if record:
                 axes.append(None)
                 origins.append(None)
@@ -241,21 +266,10 @@ def propagate(
         if p >= 0 and eta is not None:
             v = v + (eta[:, p : p + 1] if pop else eta[p])
         if record:
-            axes.append((x, y, z)[kind % 3])
-            origins.append(o)
-        if kind <= TZ:
-            vv = v[..., None] if isinstance(v, np.ndarray) else v
-            o = o + vv * (x, y, z)[kind]
-            continue
-        c, s = np.cos(v), np.sin(v)
-        if isinstance(c, np.ndarray):
-            c, s = c[..., None], s[..., None]
-        if kind == RX:
-            y, z = c * y + s * z, c * z - s * y
-        elif kind == RY:
-            x, z = c * x - s * z, s * x + c * z
-        else:
-            x, y = c * x + s * y, c * y - s * x
+            axes.append(frame[kind % 3])
+            origins.append(frame[3])
+        frame = step(kind, v[..., None] if isinstance(v, np.ndarray) else v, frame)
+    x, y, z, o = frame
     return ChainState(x=x, y=y, z=z, o=o, axes=axes, origins=origins)
 
 

@@ -28,7 +28,7 @@ import numpy as np
 
 from robocal.errors import ConfigError
 from robocal.identification.model import CalibrationModel, FitData
-from robocal.kinematics.chain import FIXED, RX, RY, TZ, Chain
+from robocal.kinematics.chain import FIXED, Chain, step
 from robocal.optimizers.fastfk import PopulationPositions
 from robocal.optimizers.protocol import Problem, check_real
 
@@ -60,7 +60,7 @@ def position_data(data: FitData) -> FitData:
 
 
 # --------------------------------------------------------------------------------------------------------
-# symbolic (CasADi) forward kinematics, mirroring robocal.kinematics.chain.propagate element by element
+# symbolic (CasADi) forward kinematics: robocal.kinematics.chain.step on CasADi expressions
 # --------------------------------------------------------------------------------------------------------
 
 _FUNCTIONS: dict[tuple[Any, ...], Any] = {}
@@ -76,34 +76,16 @@ def _casadi_point_function(model: CalibrationModel) -> Any:
     q = ca.SX.sym("q", chain.n_joints)
     T0 = ca.SX.sym("T0", 3, 4)
     sel = ca.SX.sym("sel", K)
-    X, Y, Z, O = T0[:, 0], T0[:, 1], T0[:, 2], T0[:, 3]
+    frame = (T0[:, 0], T0[:, 1], T0[:, 2], T0[:, 3])
     for e, kind in enumerate(chain.kinds):
-        if kind == FIXED:
-            Tf = chain.fixed[e]
-            assert Tf is not None
-            Rf, tf = Tf[:3, :3], Tf[:3, 3]
-            O = O + X * tf[0] + Y * tf[1] + Z * tf[2]
-            X, Y, Z = (
-                X * Rf[0, 0] + Y * Rf[1, 0] + Z * Rf[2, 0],
-                X * Rf[0, 1] + Y * Rf[1, 1] + Z * Rf[2, 1],
-                X * Rf[0, 2] + Y * Rf[1, 2] + Z * Rf[2, 2],
-            )
-            continue
         v: Any = float(chain.nominal[e])
-        if chain.joint[e] >= 0:
-            v = v + q[int(chain.joint[e])]
-        if chain.param[e] >= 0:
-            v = v + xs[int(chain.param[e])]
-        if kind <= TZ:
-            O = O + v * (X, Y, Z)[kind]
-            continue
-        c, s = ca.cos(v), ca.sin(v)
-        if kind == RX:
-            Y, Z = c * Y + s * Z, c * Z - s * Y
-        elif kind == RY:
-            X, Z = c * X - s * Z, s * X + c * Z
-        else:
-            X, Y = c * X + s * Y, c * Y - s * X
+        if kind != FIXED:
+            if chain.joint[e] >= 0:
+                v = v + q[int(chain.joint[e])]
+            if chain.param[e] >= 0:
+                v = v + xs[int(chain.param[e])]
+        frame = step(kind, v, frame, chain.fixed[e], ca.cos, ca.sin)  # the same element code as propagate
+    X, Y, Z, O = frame
     tools = ca.reshape(xs[model.n_chain : model.n_chain + 3 * K], 3, K)
     t = ca.mtimes(tools, sel)
     p = O + X * t[0] + Y * t[1] + Z * t[2]

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from robocal.kinematics.chain import FIXED, RX, RY, RZ, TZ, Chain
+from robocal.kinematics.chain import FIXED, RX, RY, RZ, Chain, Frame, step
 from robocal.kinematics.transforms import matrix_to_rotvec
 
 #: Column pairs rotated by an elementary rotation (u' = c u + s v, v' = c v - s u) and the axis column.
@@ -35,19 +35,6 @@ _DIAG = {k: np.arange(k) for k in range(1, 13)}
 #: index pairs of the skew part (vee) and of the cross product components
 _VI, _VJ = np.array([2, 0, 1]), np.array([1, 2, 0])
 _C1, _C2 = np.array([1, 2, 0]), np.array([2, 0, 1])
-
-
-def _element(kind: int, v: float) -> np.ndarray:
-    T = np.eye(4)
-    if kind <= TZ:
-        T[kind, 3] = v
-        return T
-    c, s = np.cos(v), np.sin(v)
-    a, b, _ = _PAIR[kind]
-    # columns a, b of the identity rotated: e_a' = c e_a + s e_b, e_b' = c e_b - s e_a
-    T[a, a], T[b, a] = c, s
-    T[a, b], T[b, b] = -s, c
-    return T
 
 
 @dataclass(frozen=True)
@@ -79,6 +66,13 @@ def compile_chain(chain: Chain, eta: np.ndarray | None = None, T0: np.ndarray | 
     if eta.shape != (chain.n_params,):
         raise ValueError(f"The 'eta' parameter must have shape ({chain.n_params},). Got {eta.shape} instead.")
     acc = np.eye(4) if T0 is None else np.asarray(T0, dtype=float).copy()
+    frame: Frame = (acc[:3, 0], acc[:3, 1], acc[:3, 2], acc[:3, 3])  # the running rigid transform, by columns
+
+    def matrix(f: Frame) -> np.ndarray:
+        T = np.eye(4)
+        T[:3, 0], T[:3, 1], T[:3, 2], T[:3, 3] = f
+        return T
+
     first: np.ndarray | None = None
     joints: list[int] = []
     kinds: list[int] = []
@@ -86,9 +80,7 @@ def compile_chain(chain: Chain, eta: np.ndarray | None = None, T0: np.ndarray | 
     after: list[np.ndarray] = []
     for e, kind in enumerate(chain.kinds):
         if kind == FIXED:
-            Tf = chain.fixed[e]
-            assert Tf is not None
-            acc = acc @ Tf
+            frame = step(FIXED, 0.0, frame, chain.fixed[e])
             continue
         v = float(chain.nominal[e])
         p = int(chain.param[e])
@@ -99,18 +91,18 @@ def compile_chain(chain: Chain, eta: np.ndarray | None = None, T0: np.ndarray | 
             if kind not in _PAIR:
                 raise ValueError(f"joint {j + 1} drives a translation element; only revolute joints are supported")
             if first is None:
-                first = acc
+                first = matrix(frame)
             else:
-                after.append(acc)
+                after.append(matrix(frame))
             joints.append(j)
             kinds.append(kind)
             offsets.append(v)
-            acc = np.eye(4)
+            frame = (np.eye(3)[:, 0], np.eye(3)[:, 1], np.eye(3)[:, 2], np.zeros(3))
             continue
-        acc = acc @ _element(kind, v)
+        frame = step(kind, v, frame)  # the chain's own element code (robocal.kinematics.chain.step)
     if first is None:
         raise ValueError("the chain has no joint")
-    after.append(acc)
+    after.append(matrix(frame))
     if sorted(joints) != list(range(chain.n_joints)):
         raise ValueError(f"each joint must drive exactly one element; got joints {joints}")
     n = len(joints)
