@@ -265,7 +265,12 @@ def robot_from_dict(data: dict[str, Any], source: str = "<dict>") -> RobotDescri
 
 
 def load_robot(name_or_path: str | Path, conf_dir: str | Path | None = None) -> RobotDescription:
-    """Load a robot by name (``conf/robot/<name>.yaml``) or from a YAML path."""
+    """Load a robot by name (``conf/robot/<name>.yaml``), from a YAML path, or from a URDF
+    (``robot.urdf`` or ``robot.urdf#BASE:TIP``, see :mod:`robocal.cell.urdf`)."""
+    if str(name_or_path).endswith(".urdf") or ".urdf#" in str(name_or_path):
+        from robocal.cell.urdf import robot_from_ref
+
+        return robot_from_ref(name_or_path)
     p = Path(name_or_path)
     if p.suffix in (".yaml", ".yml") or p.exists():
         path = p
