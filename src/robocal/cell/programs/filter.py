@@ -115,6 +115,7 @@ def nominal_ik(
         rand = config_seeds(prog.dialect, t.config, limits, rng, n_seeds)
         S = np.vstack([*(np.asarray(s)[None] for s in seeds), rand])
         ns = len(S)
+        S = _damped_ik(cc_nom, t.tool, S, T_goal)
         sol = solve(
             cc_nom,
             t.tool,
@@ -147,6 +148,46 @@ def nominal_ik(
             raise ProgramError(f"target {t.name}: inverse kinematics did not converge", t.file, t.line)
         q[k] = best
         prev = best
+    return q
+
+
+def _damped_ik(cc: Any, tool: np.ndarray, q0: np.ndarray, T_goal: np.ndarray, iters: int = 80) -> np.ndarray:
+    """Global phase of the nominal inverse kinematics: damped least squares from far starts (steps clipped to
+    0.3 rad, damping adapted per start); the service's Newton then polishes the result."""
+    from robocal.serve.engine import forward
+
+    q = np.array(q0, dtype=float)
+    m, n = q.shape
+    lam = np.full(m, 1e2)
+    w_rot = 500.0  # mm per rad
+
+    def err(qq: np.ndarray) -> tuple[np.ndarray, Any, Any, Any]:
+        p, R, U, O = forward(cc, qq, tool, record=True)
+        E = R @ T_goal[:3, :3].T
+        w = 0.5 * np.stack([E[:, 2, 1] - E[:, 1, 2], E[:, 0, 2] - E[:, 2, 0], E[:, 1, 0] - E[:, 0, 1]], axis=1)
+        return np.concatenate([p - T_goal[:3, 3], w_rot * w], axis=1), p, U, O
+
+    e, p, U, O = err(q)
+    cost = np.einsum("mi,mi->m", e, e)
+    for _ in range(iters):
+        D = p[:, :, None] - O
+        Jp = np.cross(U, D, axis=1)
+        J = np.concatenate([Jp, w_rot * U], axis=1)  # (m, 6, n)
+        JT = np.swapaxes(J, 1, 2)
+        N = JT @ J + lam[:, None, None] * np.eye(n)
+        dq = -np.linalg.solve(N, JT @ e[:, :, None])[:, :, 0]
+        big = np.abs(dq).max(axis=1, keepdims=True)
+        dq *= np.minimum(1.0, 0.3 / np.maximum(big, 1e-300))
+        qn = q + dq
+        en, pn, Un, On = err(qn)
+        cn = np.einsum("mi,mi->m", en, en)
+        better = cn < cost
+        q[better], e[better], p[better], U[better], O[better], cost[better] = (
+            qn[better], en[better], pn[better], Un[better], On[better], cn[better]
+        )
+        lam = np.where(better, lam * 0.3, lam * 4.0).clip(1e-6, 1e8)
+        if (cost < 1e-8).all():
+            break
     return q
 
 

@@ -34,12 +34,13 @@ from robocal.kinematics.transforms import matrix_to_quat, quat_to_matrix
 
 _DATA_TYPES = ("robtarget", "jointtarget", "tooldata", "wobjdata")
 _DECL = re.compile(
-    r"^\s*(?:(?:LOCAL|TASK)\s+)?(CONST|PERS|VAR)\s+(\w+)\s+(\w+)\s*(\{[^}]*\})?\s*(?::=\s*)?",
+    r"\s*(?:(?:LOCAL|TASK)\s+)?(CONST|PERS|VAR)\s+(\w+)\s+(\w+)\s*(\{[^}]*\})?\s*(?::=\s*)?",
     re.IGNORECASE | re.DOTALL,
 )
 _MOVES = {"movel": 1, "movej": 1, "movec": 2, "moveabsj": 1}
 _MOVE_FAMILY = re.compile(r"^(Move|Trigg|Search|Arc|Spot|Paint|Cap)\w*$", re.IGNORECASE)
 _NUM = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
+_LEAF = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?(?![\w.])|[-+]?[\w.]+")
 
 
 def _mask(text: str, file: Path) -> str:
@@ -170,7 +171,7 @@ def parse_value(code: str, start: int, end: int, file: Path, text: str) -> Node:
         if code[i] == '"':
             i = code.index('"', i + 1) + 1
             return Node(s, i, leaf=code[s:i])
-        m = re.compile(r"[-+]?[\w.]+(?:[eE][-+]?\d+)?").match(code, i)
+        m = _LEAF.match(code, i)
         if not m:
             raise ProgramError(f"cannot read the value at {code[i : i + 20]!r}", file, line_of(text, i))
         i = m.end()
