@@ -151,22 +151,42 @@ def arm_configuration(cc: Any, q: np.ndarray) -> dict[str, np.ndarray]:
     q = np.atleast_2d(q)
     _, _, U, O = forward(cc, q, np.eye(4), record=True)
     assert U is not None and O is not None
-    u1, u3, u4, u5 = U[:, :, 0], U[:, :, 2], U[:, :, 3], U[:, :, 4]
-    o1, o2, o3, o4, o5 = (O[:, :, k] for k in range(5))
-    # wrist centre: the point of axis 5 nearest to axis 4
-    w = o5 - o4
-    b = np.einsum("mi,mi->m", u4, u5)
-    d = np.einsum("mi,mi->m", u4, w)
-    e = np.einsum("mi,mi->m", u5, w)
-    den = np.maximum(1.0 - b**2, 1e-12)
-    t5 = (b * d - e) / den
-    wc = o5 + t5[:, None] * u5
+    u1, u3 = U[:, :, 0], U[:, :, 2]
+    o1, o2, o3 = O[:, :, 0], O[:, :, 1], O[:, :, 2]
+    wc = _wrist_centre(U, O)
     # "forward" of axis 1: base x turned by q1 about axis 1
     fwd = np.einsum("mij,j->mi", rotvec_to_matrix(u1 * q[:, 0:1]), np.array([1.0, 0.0, 0.0]))
     shoulder = np.einsum("mi,mi->m", wc - o1, fwd) < 0
     elbow = np.einsum("mi,mi->m", np.cross(o3 - o2, wc - o3), u3) > 0
     wrist = q[:, 4] < 0
     return {"shoulder": shoulder, "elbow": elbow, "wrist": wrist}
+
+
+def elbow_angle(cc: Any, q: np.ndarray) -> np.ndarray:
+    """Signed angle (m,) rad of the forearm (axis 3 -> wrist centre) from the stretched arm (axis 2 -> axis 3),
+    about axis 3: its sign is the elbow flag of :func:`arm_configuration`; near 0 the arm is stretched (a
+    singularity, where the configuration flips)."""
+    from robocal.serve.engine import forward
+
+    q = np.atleast_2d(q)
+    _, _, U, O = forward(cc, q, np.eye(4), record=True)
+    assert U is not None and O is not None
+    wc = _wrist_centre(U, O)
+    a, b, u3 = O[:, :, 2] - O[:, :, 1], wc - O[:, :, 2], U[:, :, 2]
+    a = a - np.einsum("mi,mi->m", a, u3)[:, None] * u3
+    b = b - np.einsum("mi,mi->m", b, u3)[:, None] * u3
+    return np.arctan2(np.einsum("mi,mi->m", np.cross(a, b), u3), np.einsum("mi,mi->m", a, b))
+
+
+def _wrist_centre(U: np.ndarray, O: np.ndarray) -> np.ndarray:
+    """The point of axis 5 nearest to axis 4, (m, 3), from joint axes and origins (m, 3, n)."""
+    u4, u5, o4, o5 = U[:, :, 3], U[:, :, 4], O[:, :, 3], O[:, :, 4]
+    w = o5 - o4
+    b = np.einsum("mi,mi->m", u4, u5)
+    d = np.einsum("mi,mi->m", u4, w)
+    e = np.einsum("mi,mi->m", u5, w)
+    t5 = (b * d - e) / np.maximum(1.0 - b**2, 1e-12)
+    return o5 + t5[:, None] * u5
 
 
 def kuka_status_turn(cc: Any, q: np.ndarray, status_high: int = 0) -> tuple[np.ndarray, np.ndarray]:

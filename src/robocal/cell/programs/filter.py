@@ -112,25 +112,28 @@ def nominal_ik(
         assert t.T_base_tcp is not None and t.tool is not None and t.base is not None
         T_goal = t.base @ t.T_base_tcp  # robot base -> TCP
         seeds = [s for s in (prev, last_axis) if s is not None]
-        rand = config_seeds(prog.dialect, t.config, limits, rng, n_seeds)
-        S = np.vstack([*(np.asarray(s)[None] for s in seeds), rand])
-        ns = len(S)
-        S = _damped_ik(cc_nom, t.tool, S, T_goal)
-        sol = solve(
-            cc_nom,
-            t.tool,
-            S,
-            np.tile(T_goal[:3, 3], (ns, 1)),
-            np.tile(T_goal[:3, :3], (ns, 1, 1)),
-            None,
-            max_iter=60,
-            tol_mm=1e-7,
-            tol_rad=1e-10,
-            max_step_rad=0.2,
-        )
-        qs = sol.q
-        ok = sol.converged & np.all((qs >= limits[:, 0]) & (qs <= limits[:, 1]), axis=1)
-        ok &= config_matches(prog.dialect, cc_nom, qs, t.config)
+        for attempt in range(3):  # more starts when none lands on the stated configuration
+            rand = config_seeds(prog.dialect, t.config, limits, rng, n_seeds * 4**attempt)
+            S = np.vstack([*(np.asarray(s)[None] for s in seeds), rand])
+            ns = len(S)
+            S = _damped_ik(cc_nom, t.tool, S, T_goal, iters=80 * (attempt + 1))
+            sol = solve(
+                cc_nom,
+                t.tool,
+                S,
+                np.tile(T_goal[:3, 3], (ns, 1)),
+                np.tile(T_goal[:3, :3], (ns, 1, 1)),
+                None,
+                max_iter=60,
+                tol_mm=1e-7,
+                tol_rad=1e-10,
+                max_step_rad=0.2,
+            )
+            qs = sol.q
+            ok = sol.converged & np.all((qs >= limits[:, 0]) & (qs <= limits[:, 1]), axis=1)
+            ok &= config_matches(prog.dialect, cc_nom, qs, t.config)
+            if ok.any():
+                break
         if not ok.any():
             why = "no inverse kinematics solution"
             if sol.converged.any():
