@@ -147,7 +147,7 @@ def program_round_trip(dialect: str, robot_name: str, n_targets: int, seed: int,
     return {
         "dialect": dialect,
         "robot": robot_name,
-        "targets": int(len(e_f)),
+        "targets": len(e_f),
         "refused": res.n_refused,
         "flagged": res.n_flagged,
         "validation_mean_mm": val,
@@ -210,7 +210,8 @@ def main() -> None:
             ok = r["filtered_mean_mm"] <= 1.2 * r["validation_mean_mm"]
             print(
                 f"{dialect.upper():5s} {robot:10s} {r['targets']} Cartesian targets ({r['refused']} refused, "
-                f"{r['flagged']} flagged): executed by the true robot, mean error filtered {r['filtered_mean_mm']:.4f} mm "
+                f"{r['flagged']} flagged): executed by the true robot, mean error filtered "
+                f"{r['filtered_mean_mm']:.4f} mm "
                 f"(max {r['filtered_max_mm']:.4f}; {r['filtered_accepted_mean_mm']:.4f} over the {r['accepted']} "
                 f"accepted), unfiltered {r['unfiltered_mean_mm']:.4f} mm "
                 f"({r['unfiltered_rigid_mean_mm']:.4f} after a best rigid fit); calibration validation mean "

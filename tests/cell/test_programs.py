@@ -58,7 +58,7 @@ def _krl_by_hand(cc, folder: Path) -> Path:
     src = (
         "&ACCESS RVP\r\n&REL 12\r\nDEF Weld7( )\r\n"
         ";FOLD INI;%{PE}\r\n  BAS (#INITMOV,0 )\r\n;ENDFOLD (INI)\r\n"
-        "; Zelle 3 \xc4nderung: \"don't touch\" ; twice\r\n"
+        '; Zelle 3 \xc4nderung: "don\'t touch" ; twice\r\n'
         "$TOOL=TOOL_DATA[2]   ; welding torch\r\n"
         "$base = base_data[1]\r\n"
         "PTP XHOME\r\n"
@@ -76,16 +76,11 @@ def _krl_by_hand(cc, folder: Path) -> Path:
         f"decl e6pos XP1={{{_xyzabc(T[0])},S 'B{S[0]:b}',T 'B{Tn[0]:b}',E1 0.0}} ; bits\r\n"
         f"DECL GLOBAL E6POS XP3={{E6POS: {_xyzabc(T[2])},S {S[2]},T {Tn[2]}}}\r\n"
         f"POS XP4={{{_xyzabc(T[3])},S {S[3]},T {Tn[3]}}}\r\n"
-        "DECL FDAT FP1={TOOL_NO 2,BASE_NO 1,IPO_FRAME #BASE,POINT2[] \" \",TQ_STATE FALSE}\r\n"
+        'DECL FDAT FP1={TOOL_NO 2,BASE_NO 1,IPO_FRAME #BASE,POINT2[] " ",TQ_STATE FALSE}\r\n'
         "DECL E6POS XUNUSED={X 1,Y 2,Z 3,A 0,B 0,C 0,S 2,T 0}\r\n"
         "ENDDAT\r\n"
     )
-    cfg = (
-        "DEFDAT  $CONFIG\r\n"
-        f"TOOL_DATA[2]={{{_xyzabc(TOOL, 4)}}}\r\n"
-        f"BASE_DATA[1]={{{_xyzabc(BASE, 4)}}}\r\n"
-        "ENDDAT\r\n"
-    )
+    cfg = f"DEFDAT  $CONFIG\r\nTOOL_DATA[2]={{{_xyzabc(TOOL, 4)}}}\r\nBASE_DATA[1]={{{_xyzabc(BASE, 4)}}}\r\nENDDAT\r\n"
     folder.mkdir(parents=True, exist_ok=True)
     (folder / "Weld7.src").write_bytes(src.encode("cp1252"))
     (folder / "Weld7.dat").write_bytes(dat.encode("cp1252"))
@@ -108,7 +103,7 @@ def _rapid_by_hand(cc, folder: Path) -> Path:
         "%%%\n  VERSION:1\n  LANGUAGE:ENGLISH\n%%%\n\n"
         "MODULE Glue ! the glue station\n"
         f"  PERS tooldata tNozzle := [TRUE, {_pose_text(TOOL, 4)},\n      [1,[0,0,50],[1,0,0,0],0,0,0]];\n"
-        f"  TASK PERS wobjdata wTable := [FALSE, TRUE, \"\", {_pose_text(BASE, 4)}, ! user frame\n"
+        f'  TASK PERS wobjdata wTable := [FALSE, TRUE, "", {_pose_text(BASE, 4)}, ! user frame\n'
         "      [[0,0,0],[1,0,0,0]]];\n"
         "  CONST jointtarget jHome := [[0,0,0,0,30,0],[9E+09,9E+09,9E+09,9E+09,9E+09,9E+09]];\n"
         f"  CONST robtarget pA := {rt(0)};\n"
@@ -121,7 +116,7 @@ def _rapid_by_hand(cc, folder: Path) -> Path:
         "    MoveJ pA, v1000, z50, tNozzle\\WObj:=wTable;\n"
         f"    moveL {rt(1)}, v200, z1, tNozzle \\WObj:=wTable; ! inline\n"
         "    MoveC \\Conc, pB, pC, v100\\T:=3, fine,\n          tNozzle\\WObj:=wTable;\n"
-        "    TPWrite \"done; MoveL p99, v1, fine, tool0;\";\n"
+        '    TPWrite "done; MoveL p99, v1, fine, tool0;";\n'
         "  ENDPROC\n"
         "ENDMODULE\n"
     )
@@ -221,12 +216,12 @@ def test_refusals_follow_the_service_rules(tmp_path, bundle, cc_nom):
 
 def test_thermal_bundle_needs_a_temperature_and_uses_it(tmp_path, bundle, cc_nom):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "serve"))
+    from dataclasses import replace
+
     from standins import StandinThermal
 
     from robocal.cell.programs.filter import parse_temperatures
     from robocal.errors import ConfigError
-
-    from dataclasses import replace
 
     s = 2
     G = np.random.default_rng(0).normal(0, 1, (bundle.chain.n_params, s)) * 2e-3

@@ -64,7 +64,7 @@ def test_urdf_errors_name_the_thing(tmp_path):
         robot_from_urdf(DATA / "ur5_robot.urdf", "tool0", "base_link")
     bad = tmp_path / "bad.urdf"
     bad.write_text("<robot name='x'><link name='a'/>")
-    with pytest.raises(ConfigError, match="bad.urdf"):
+    with pytest.raises(ConfigError, match=r"bad\.urdf"):
         robot_from_urdf(bad)
 
 

@@ -131,7 +131,9 @@ def chain_path(urdf: Any, base: str | None, tip: str | None, source: str) -> tup
         if j is None:
             raise ConfigError(f"{source}: link {tip!r} is not below link {base!r}")
         if j.type not in (*_REVOLUTE, "fixed"):
-            raise ConfigError(f"{source}: joint {j.name!r} is {j.type}; only revolute, continuous and fixed are supported")
+            raise ConfigError(
+                f"{source}: joint {j.name!r} is {j.type}; only revolute, continuous and fixed are supported"
+            )
         if getattr(j, "mimic", None) is not None:
             raise ConfigError(f"{source}: joint {j.name!r} mimics another joint; not supported")
         axis = np.array([1.0, 0.0, 0.0]) if j.axis is None else np.asarray(j.axis, dtype=float)
@@ -456,9 +458,7 @@ def export_calibration(
         T[:3, :3], T[:3, 3] = Rs[k], t
         tools[tname] = T
     d = Path(out_dir)
-    u = write_calibrated_urdf(
-        robot, cal.kinematic_errors, d / f"{name}.urdf", tools, urdf_path, base_link, tip_link
-    )
+    u = write_calibrated_urdf(robot, cal.kinematic_errors, d / f"{name}.urdf", tools, urdf_path, base_link, tip_link)
     y = write_text(
         d / f"{name}.yaml",
         yaml.safe_dump(calibration_yaml(cal, urdf_path, base_link, tip_link), sort_keys=False),

@@ -51,7 +51,8 @@ class Target:
     """One motion target of a program.
 
     name : str (declared name, or ``"<inline>"``); kind : ``"pose"`` (Cartesian, in the base frame) or ``"axis"``;
-    file : Path; line : int (1-based: the declared name, or the inline value); span : (start, end) character offsets of the value text;
+    file : Path; line : int (1-based: the declared name, or the inline value); span : (start, end) character
+    offsets of the value text;
     T_base_tcp : (4, 4) mm, pose targets; q_deg : (n,) axis targets; config : dialect-specific configuration
     (KUKA ``{"S": int, "T": int}``, ABB ``{"cf": [cf1, cf4, cf6, cfx]}``); tool : (4, 4) flange_T_tcp;
     base : (4, 4) robot base -> target frame; used_at : [(file, line)] of the motions using it;

@@ -92,9 +92,7 @@ def read_program(path: str | Path) -> Program:
     raise ProgramError(f"unknown program type {p.suffix!r}: KRL .src/.dat or RAPID .mod", p)
 
 
-def nominal_ik(
-    prog: Program, cc_nom: Any, limits: np.ndarray, seed: int = 0, n_seeds: int = N_SEEDS
-) -> np.ndarray:
+def nominal_ik(prog: Program, cc_nom: Any, limits: np.ndarray, seed: int = 0, n_seeds: int = N_SEEDS) -> np.ndarray:
     """Joints (m, n) rad the nominal controller uses for each target (see the module docstring, step 1)."""
     from robocal.serve.engine import forward, solve
 
@@ -146,7 +144,7 @@ def nominal_ik(
         ref = prev if prev is not None else (last_axis if last_axis is not None else np.mean(limits, axis=1))
         cand = qs[ok]
         best = cand[np.argmin(np.abs(cand - ref).sum(axis=1))]
-        p, R, _, _ = forward(cc_nom, best[None], t.tool)
+        p, _, _, _ = forward(cc_nom, best[None], t.tool)
         if np.abs(p[0] - T_goal[:3, 3]).max() > 1e-5:
             raise ProgramError(f"target {t.name}: inverse kinematics did not converge", t.file, t.line)
         q[k] = best
@@ -186,7 +184,12 @@ def _damped_ik(cc: Any, tool: np.ndarray, q0: np.ndarray, T_goal: np.ndarray, it
         cn = np.einsum("mi,mi->m", en, en)
         better = cn < cost
         q[better], e[better], p[better], U[better], O[better], cost[better] = (
-            qn[better], en[better], pn[better], Un[better], On[better], cn[better]
+            qn[better],
+            en[better],
+            pn[better],
+            Un[better],
+            On[better],
+            cn[better],
         )
         lam = np.where(better, lam * 0.3, lam * 4.0).clip(1e-6, 1e8)
         if (cost < 1e-8).all():
@@ -349,8 +352,7 @@ def filter_program(
             r.append(
                 "outside the joint limits: "
                 + ", ".join(
-                    f"{robot.joint_names[j]}={np.rad2deg(q_t[k, j]):.4f} deg "
-                    f"(corrected {np.rad2deg(q_c[k, j]):.4f})"
+                    f"{robot.joint_names[j]}={np.rad2deg(q_t[k, j]):.4f} deg (corrected {np.rad2deg(q_c[k, j]):.4f})"
                     for j in js
                 )
             )

@@ -46,7 +46,8 @@ _EXT = tuple(f"e{i}" for i in range(1, 7))
 _AXES = tuple(f"a{i}" for i in range(1, 7))
 
 _DECL = re.compile(
-    r"^[ \t]*(?:DECL[ \t]+)?(?:GLOBAL[ \t]+)?(?:DECL[ \t]+)?(E6POS|POS|E6AXIS|AXIS|FRAME|FDAT)[ \t]+(\w+)[ \t]*=[ \t]*(\{)",
+    r"^[ \t]*(?:DECL[ \t]+)?(?:GLOBAL[ \t]+)?(?:DECL[ \t]+)?(E6POS|POS|E6AXIS|AXIS|FRAME|FDAT)[ \t]+(\w+)"
+    r"[ \t]*=[ \t]*(\{)",
     re.IGNORECASE | re.MULTILINE,
 )
 _DATA = re.compile(r"^[ \t]*(TOOL_DATA|BASE_DATA)\[[ \t]*(\d+)[ \t]*\][ \t]*=[ \t]*(\{)", re.IGNORECASE | re.MULTILINE)
@@ -128,7 +129,9 @@ def parse_aggregate(s: str, file: Path, line: int) -> tuple[str | None, dict[str
 
 
 def _split_top(s: str) -> list[str]:
-    parts, depth, cur, in_str = [], 0, [], False
+    parts: list[str] = []
+    cur: list[str] = []
+    depth, in_str = 0, False
     for ch in s:
         if ch == '"':
             in_str = not in_str
@@ -266,13 +269,15 @@ def read_krl(src: str | Path) -> Any:
                 raise ProgramError(f"target {name!r} is {what} (looked in {dat.name if dat else 'no .dat'})", src, line)
             if d.file != dat:
                 raise ProgramError(
-                    f"target {name!r} is declared in {d.file.name}, which is not written; declare it in the program's .dat",
+                    f"target {name!r} is declared in {d.file.name}, which is not written; "
+                    "declare it in the program's .dat",
                     src,
                     line,
                 )
             key = name.lower()
             if key in targets:
                 t = targets[key]
+                assert t.tool is not None and t.base is not None
                 if not (np.allclose(t.tool, tool) and np.allclose(t.base, base)):
                     raise ProgramError(
                         f"target {name!r} is used with {tool_name}/{base_name} here and with "

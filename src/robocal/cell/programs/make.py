@@ -76,7 +76,7 @@ def krl_program(
         ";ENDFOLD (BASISTECH EXT)",
         ";ENDFOLD (EXTERNAL DECLARATIONS)",
         f"DECL E6AXIS XHOME={{{axis},E1 0.0,E2 0.0,E3 0.0,E4 0.0,E5 0.0,E6 0.0}}",
-        "DECL FDAT FHOME={TOOL_NO 1,BASE_NO 1,IPO_FRAME #BASE,POINT2[] \" \",TQ_STATE FALSE}",
+        'DECL FDAT FHOME={TOOL_NO 1,BASE_NO 1,IPO_FRAME #BASE,POINT2[] " ",TQ_STATE FALSE}',
         "DECL PDAT PDEFAULT={VEL 100.0,ACC 100.0,APO_DIST 100.0,APO_MODE #CDIS}",
     ]
     for k in range(len(q)):
@@ -97,7 +97,7 @@ def krl_program(
             src.append("  wait sec 0.5 ; mid-program pause, mixed case on purpose")
         dat += [
             f"DECL E6POS X{p}={{{_xyzabc(T[k])},S {S[k]},T {Tn[k]},E1 0.0,E2 0.0,E3 0.0,E4 0.0,E5 0.0,E6 0.0}}",
-            f"DECL FDAT F{p}={{TOOL_NO 1,BASE_NO 1,IPO_FRAME #BASE,POINT2[] \" \",TQ_STATE FALSE}}",
+            f'DECL FDAT F{p}={{TOOL_NO 1,BASE_NO 1,IPO_FRAME #BASE,POINT2[] " ",TQ_STATE FALSE}}',
             f"DECL LDAT LCPDAT{k + 1}={{VEL 2.0,ACC 100.0,APO_DIST 100.0,APO_FAC 50.0,ORI_TYP #VAR,CIRC_TYP #BASE}}",
         ]
     src += [
@@ -149,7 +149,7 @@ def rapid_module(
         f"MODULE {name}",
         "    ! written for the twin round trip; comments, case and layout are as a pendant would leave them",
         f"    PERS tooldata tGripper:=[TRUE,{_pose_text(tool, 4)},[2.5,[0,0,60],[1,0,0,0],0,0,0]];",
-        "    TASK PERS wobjdata wobjFixture:=[FALSE,TRUE,\"\",",
+        '    TASK PERS wobjdata wobjFixture:=[FALSE,TRUE,"",',
         f"        {_pose_text(base, 4)},   ! uframe: the fixture",
         "        [[0,0,0],[1,0,0,0]]];",
         "    CONST jointtarget jHome:=[[" + ",".join(f"{v:.4f}" for v in home) + f"],{ext}];",
@@ -157,7 +157,9 @@ def rapid_module(
     for k in range(len(q)):
         decl = "CONST robtarget" if k % 4 else "LOCAL CONST robtarget"
         lines.append(
-            f"    {decl} p{(k + 1) * 10}:={_pose_text(T[k])[:-1]},[" + ",".join(str(int(v)) for v in cf[k]) + f"],{ext}];"
+            f"    {decl} p{(k + 1) * 10}:={_pose_text(T[k])[:-1]},["
+            + ",".join(str(int(v)) for v in cf[k])
+            + f"],{ext}];"
         )
     lines += ["", "    PROC main()", "        ConfJ \\On;", "        MoveAbsJ jHome\\NoEOffs, v1000, fine, tGripper;"]
     for k in range(len(q)):

@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from robocal.cell.programs.common import ProgramError, Program, Target, frame, line_of, read_text
+from robocal.cell.programs.common import Program, ProgramError, Target, frame, line_of, read_text
 from robocal.kinematics.transforms import matrix_to_quat, quat_to_matrix
 
 _DATA_TYPES = ("robtarget", "jointtarget", "tooldata", "wobjdata")
@@ -238,7 +238,9 @@ def read_rapid(path: str | Path) -> Program:
             raise ProgramError(f"motion instruction {word} is not supported by the filter", file, line)
         am = re.match(r"(\w+)\s*(?:\.\s*\w+\s*)*:=", code[st:en])
         if am and am.group(1).lower() in data and data[am.group(1).lower()].typ in ("robtarget", "jointtarget"):
-            raise ProgramError(f"target {am.group(1)} is assigned at run time; its value is not known before the run", file, line)
+            raise ProgramError(
+                f"target {am.group(1)} is assigned at run time; its value is not known before the run", file, line
+            )
     if not order:
         raise ProgramError("no motion target found", file)
     return Program("rapid", {file: text}, order, file)
@@ -340,7 +342,9 @@ def _move(
         pos.append((span, opts))
     need = n_pts + 3  # points, speed, zone, tool
     if len(pos) < need:
-        raise ProgramError(f"{word}: expected {need} arguments (targets, speed, zone, tool), got {len(pos)}", file, line)
+        raise ProgramError(
+            f"{word}: expected {need} arguments (targets, speed, zone, tool), got {len(pos)}", file, line
+        )
     tool_name = code[pos[n_pts + 2][0][0] : pos[n_pts + 2][0][1]].strip()
     wobj_name = "wobj0"
     for _, opts in pos:
@@ -360,10 +364,13 @@ def _move(
                 what = "not declared" if d is None else f"a {d.typ}"
                 raise ProgramError(f"{word} target {arg!r} is {what}; expected a {want}", file, line)
             if d.array or d.node is None:
-                raise ProgramError(f"{word} target {arg!r}: arrays and targets without a value are not supported", file, line)
+                raise ProgramError(
+                    f"{word} target {arg!r}: arrays and targets without a value are not supported", file, line
+                )
             key = arg.lower()
             if key in targets:
                 t = targets[key]
+                assert t.tool is not None and t.base is not None
                 if not (np.allclose(t.tool, tool) and np.allclose(t.base, base)):
                     raise ProgramError(
                         f"target {arg} is used with {tool_name}/{wobj_name} here and with {t.tool_name}/{t.base_name} "
@@ -376,14 +383,18 @@ def _move(
             t = _target(d.name, want, d.node, file, text, d.line)
             targets[key] = t
         else:
-            raise ProgramError(f"{word} target {arg.strip()[:40]!r} is an expression; only names and values", file, line)
+            raise ProgramError(
+                f"{word} target {arg.strip()[:40]!r} is an expression; only names and values", file, line
+            )
         t.tool, t.base, t.tool_name, t.base_name = tool, base, tool_name, wobj_name
         t.used_at.append((str(file), line))
         order.append(t)
 
 
 def _target(name: str, typ: str, node: Node, file: Path, text: str, line: int) -> Target:
-    t = Target(name=name, kind="pose" if typ == "robtarget" else "axis", file=file, line=line, span=(node.start, node.end))
+    t = Target(
+        name=name, kind="pose" if typ == "robtarget" else "axis", file=file, line=line, span=(node.start, node.end)
+    )
     t.data = {"node": node, "text": text}
     if typ == "robtarget":
         t.T_base_tcp = _pose(node, file, text, f"robtarget {name}")
