@@ -307,3 +307,61 @@ def test_filter_command_end_to_end(tmp_path, bundle, cc_nom, capsys):
     for name, txt in (("K.src", s), ("K.dat", d), ("$config.dat", c)):
         (tmp_path / name).write_text(txt)
     assert main(["filter", str(tmp_path / "K.src"), "--bundle", str(bundle.path), "--out", str(tmp_path / "k")]) == 0
+
+
+def _check_lands(bundle, res, prog, dq_fn):
+    """The calibrated robot, deflected by ``dq_fn(q_cmd)``, puts the TCP where the nominal one meant it."""
+    from robocal.serve.engine import compile_chain, forward
+
+    cc = compile_chain(bundle.chain, bundle.eta0)
+    cc0 = compile_chain(bundle.chain)
+    q_c = np.deg2rad(res.q_corrected_deg)
+    q_t = np.deg2rad(res.q_nominal_deg)
+    for k, t in enumerate(prog.targets):
+        p_meant, _, _, _ = forward(cc0, q_t[k][None], t.tool)
+        p_real, _, _, _ = forward(cc, q_c[k][None] + dq_fn(q_c[k][None], k), t.tool)
+        # the service's Newton stops at tol_mm = 1e-4 per coordinate
+        assert np.linalg.norm(p_real - p_meant) < 1e-3
+
+
+def test_compliance_at_the_stated_payload(tmp_path, bundle, cc_nom):
+    from dataclasses import replace
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "serve"))
+    from standins import StandinCompliance
+
+    comp = StandinCompliance(np.array([0.0, 2e-5, 1.5e-5, 0.0, 1e-5, 0.0]))  # rad/kg
+    b = replace(bundle, compliance=comp)
+    prog = read_program(_krl_by_hand(cc_nom, tmp_path / "p"))
+    r0 = filter_program(prog, b, payload_kg=0.0)
+    r10 = filter_program(prog, b, payload_kg=10.0)
+    assert np.allclose(r0.q_corrected_deg, filter_program(prog, bundle).q_corrected_deg, atol=1e-9)
+    assert np.abs(r10.q_corrected_deg - r0.q_corrected_deg).max() > 1e-3  # 10 kg * 2e-5 rad/kg ~ 0.01 deg
+    _check_lands(bundle, r10, prog, lambda q, k: comp.joint_offsets(q, np.array([10.0])))
+
+
+def test_discovered_effects_and_backlash_direction_from_the_program(tmp_path, bundle, cc_nom):
+    from dataclasses import replace
+
+    from robocal.discovery.effects import joint_offsets
+    from robocal.errors import ConfigError
+
+    gear = {"key": "gear_j2_h1", "effect": "gear", "joint": 2, "harmonic": 1, "signal": "angle",
+            "coefficients": [3e-4, -1e-4]}  # fmt: skip
+    lash = {"key": "backlash_j3", "effect": "backlash", "joint": 3, "harmonic": None, "signal": "direction",
+            "coefficients": [2e-4]}  # fmt: skip
+    b = replace(bundle, effects=(gear, lash))
+    prog = read_program(_krl_by_hand(cc_nom, tmp_path / "p"))
+    res = filter_program(prog, b)
+    q_t = np.deg2rad(res.q_nominal_deg)
+    direction = np.sign(np.diff(np.vstack([q_t[:1], q_t]), axis=0))
+    direction[direction == 0] = 1.0
+    _check_lands(
+        bundle,
+        res,
+        prog,
+        lambda q, k: joint_offsets([gear, lash], bundle.robot, q, 0.0, None, None, direction[k][None]),
+    )
+    torque = {**gear, "key": "compliance_j2", "signal": "torque", "coefficients": [1e-6]}
+    with pytest.raises(ConfigError, match="tau_Nm"):
+        filter_program(prog, replace(bundle, effects=(torque,)))
