@@ -137,3 +137,24 @@ def test_urdf_round_trip_through_a_calibration(tmp_path):
     meta = yaml.safe_load(y.read_text())
     assert meta["urdf"]["sha256"] == REAL[1][3] and meta["urdf"]["tip_link"] == "tool0"
     assert set(meta["tools_mm"]) == {"T1"}
+
+
+def test_urdf_command(tmp_path, capsys):
+    import robocal
+    from robocal.cli import main
+    from robocal.io import write_json
+
+    ref = f"{DATA / 'ur5_robot.urdf'}#base_link:tool0"
+    robot = robocal.load_robot(ref)
+    sc = robocal.load_scenario("geometric")
+    sc.update(n_poses=30, n_validation_poses=0)
+    robocal.simulate(sc, tmp_path / "camp", seed=7, robot=robot)
+    cal = robocal.calibrate(robocal.read_campaign(tmp_path / "camp", robot), robot)
+    write_json(tmp_path / "calibration.json", cal.to_dict())
+    rc = main(["urdf", "--robot", ref, "--calibration", str(tmp_path / "calibration.json"), "--out", str(tmp_path)])
+    assert rc == 0 and "robocal_tool" not in capsys.readouterr().err
+    urdf = load_urdf(tmp_path / "robot_calibrated.urdf")
+    q = _random_q(robot, 10, 8)
+    T = urdf_fk(urdf, q, "tool0", "base_link", list(robot.joint_names))
+    assert np.abs(fk(build_chain(robot), q, cal.kinematic_errors)[:, :3, 3] - T[:, :3, 3]).max() < TOL_MM
+    assert main(["urdf", "--robot", ref, "--calibration", str(tmp_path / "nope.json"), "--out", str(tmp_path)]) == 2
