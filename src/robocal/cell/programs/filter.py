@@ -23,6 +23,14 @@ For each target (in the order the program moves to them):
 
 A target the nominal controller cannot reach (no inverse kinematics solution with its configuration) is an
 error naming the file and line, and nothing is written.
+
+Limits of the inverse kinematics: it is numerical (a damped least-squares phase from up to 3 x 48 starts, then
+the service's Newton), not the controller's closed form, so it finds the solution with the stated configuration
+with high probability, not certainty; a target within a fraction of a degree of a configuration boundary (the
+stretched elbow, the wrist centre on axis 1, axis 5 at 0) may be reported unreachable or solved on the wrong
+side. A target without configuration data (a KRL POS without S/T) takes the solution nearest to the previous
+target, as the controller's PTP does. The configuration rules are those of
+:mod:`robocal.cell.programs.common`.
 """
 
 from __future__ import annotations
