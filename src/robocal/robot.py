@@ -48,6 +48,10 @@ MDH = "mdh_rx_tx_rz_tz_ry"
 POE = "poe"
 
 _CONF_ROBOT_DIR = Path(__file__).resolve().parents[2] / "conf" / "robot"
+#: reader of ``*.urdf`` / ``*.urdf#BASE:TIP`` names, "module:function", resolved when a URDF is loaded (as
+#: robocal.serve.bundle.DEFAULT_LOADERS): the pipeline stages build robots from params with robot_from_dict and
+#: never read a URDF, so they do not depend on robocal.cell.urdf
+URDF_READER = "robocal.cell.urdf:robot_from_ref"
 
 
 @dataclass(frozen=True)
@@ -268,9 +272,11 @@ def load_robot(name_or_path: str | Path, conf_dir: str | Path | None = None) -> 
     """Load a robot by name (``conf/robot/<name>.yaml``), from a YAML path, or from a URDF
     (``robot.urdf`` or ``robot.urdf#BASE:TIP``, see :mod:`robocal.cell.urdf`)."""
     if str(name_or_path).endswith(".urdf") or ".urdf#" in str(name_or_path):
-        from robocal.cell.urdf import robot_from_ref
+        import importlib
 
-        return robot_from_ref(name_or_path)
+        mod, func = URDF_READER.split(":")
+        robot: RobotDescription = getattr(importlib.import_module(mod), func)(name_or_path)
+        return robot
     p = Path(name_or_path)
     if p.suffix in (".yaml", ".yml") or p.exists():
         path = p
