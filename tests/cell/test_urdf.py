@@ -43,6 +43,30 @@ def test_urdf_in_matches_the_parsers_fk(name, base, tip, digest):
     assert np.abs(T_ours[:, :3, :3] - T_urdf[:, :3, :3]).max() < 1e-12
 
 
+def test_copies_equal_the_packaged_files_when_installed():
+    """The copies in data/ are the wheels' files (checked when rtb-data / example-robot-data are installed)."""
+    import importlib.util
+    import sysconfig
+
+    checked = 0
+    spec = importlib.util.find_spec("rtbdata")
+    if spec is not None and spec.submodule_search_locations:
+        root = Path(next(iter(spec.submodule_search_locations)))
+        for ours, theirs in (
+            ("kuka_kr16_2.urdf", "xacro/kuka_description/kuka_kr16/urdf/kr16_2.urdf"),
+            ("abb_irb140.urdf", "xacro/abb_irb140_description/urdf/irb140.urdf"),
+        ):
+            assert (root / theirs).read_bytes() == (DATA / ours).read_bytes()
+            checked += 1
+    purelib = Path(sysconfig.get_paths()["purelib"])
+    erd = purelib / "cmeel.prefix/share/example-robot-data/robots/ur_description/urdf/ur5_robot.urdf"
+    if erd.is_file():
+        assert erd.read_bytes() == (DATA / "ur5_robot.urdf").read_bytes()
+        checked += 1
+    if not checked:
+        pytest.skip("neither rtb-data nor example-robot-data is installed (the sha256 checks above still hold)")
+
+
 def test_urdf_limits_and_load_robot_dispatch():
     robot = load_robot(f"{DATA / 'kuka_kr16_2.urdf'}#base_link:tool0")
     # the URDF's limits, rad -> deg: joint_a2 lower -2.70526034059 rad = -155 deg

@@ -465,14 +465,26 @@ def write_filtered(result: FilterResult, out_dir: str | Path) -> list[Path]:
     """Write the filtered program files (same names) and ``<program>_filter.csv`` into ``out_dir``, which must
     not be the program's folder (the original is never overwritten). Every file is written atomically, after
     everything was computed."""
-    from robocal.io import write_bytes, write_text
+    import os
+    import tempfile
 
     out = Path(out_dir)
     for p in result.texts:
         if (out / p.name).resolve() == p.resolve():
             raise ConfigError(f"--out {out} would overwrite the original {p}; choose another folder")
-    written = []
-    for p, txt in result.texts.items():
-        written.append(write_bytes(out / p.name, txt.encode("latin-1")))
-    written.append(write_text(out / f"{result.program.main.stem}_filter.csv", result.table))
-    return written
+    files = {out / p.name: txt.encode("latin-1") for p, txt in result.texts.items()}
+    files[out / f"{result.program.main.stem}_filter.csv"] = result.table.encode("utf-8")
+    out.mkdir(parents=True, exist_ok=True)
+    tmps: list[tuple[Path, Path]] = []
+    try:  # every file complete beside its target first, then all renamed (a failure leaves no new file)
+        for target, data in files.items():
+            fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=out)
+            with os.fdopen(fd, "wb") as f:
+                f.write(data)
+            tmps.append((Path(tmp), target))
+        for tmp, target in tmps:
+            os.replace(tmp, target)
+    finally:
+        for tmp, _ in tmps:
+            tmp.unlink(missing_ok=True)
+    return list(files)
