@@ -478,10 +478,10 @@ def write_filtered(result: FilterResult, out_dir: str | Path) -> list[Path]:
     tmps: list[tuple[Path, Path]] = []
     try:  # every file complete beside its target first, then all renamed (a failure leaves no new file)
         for target, data in files.items():
-            fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=out)
+            fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=out)
             with os.fdopen(fd, "wb") as f:
                 f.write(data)
-            tmps.append((Path(tmp), target))
+            tmps.append((Path(tmp_name), target))
         for tmp, target in tmps:
             os.replace(tmp, target)
     finally:
