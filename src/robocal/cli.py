@@ -25,6 +25,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "compliance": ("robocal.commands.compliance", "heavy-load joint compliance and compensation (Mao 2021)"),
     "thermal": ("robocal.commands.thermal", "thermal fit, screening and compensation of a warm-up campaign"),
     "plan": ("robocal.commands.plan", "plan the calibration poses before measuring (D/A/I-optimal, constraints)"),
+    "filter": ("robocal.commands.filter", "a KRL or RAPID program with every target corrected by a calibration bundle"),
+    "urdf": ("robocal.commands.urdf", "the calibrated kinematics written as a URDF (+ the calibration as YAML)"),
 }
 
 

@@ -49,6 +49,10 @@ POE = "poe"
 
 #: The robot descriptions shipped with the package (``conf/robot/*.yaml`` are links to them, for Hydra).
 _CONF_ROBOT_DIR = Path(__file__).resolve().parent / "robots"
+#: reader of ``*.urdf`` / ``*.urdf#BASE:TIP`` names, "module:function", resolved when a URDF is loaded (as
+#: robocal.serve.bundle.DEFAULT_LOADERS): the pipeline stages build robots from params with robot_from_dict and
+#: never read a URDF, so they do not depend on robocal.cell.urdf
+URDF_READER = "robocal.cell.urdf:robot_from_ref"
 
 
 @dataclass(frozen=True)
@@ -266,7 +270,14 @@ def robot_from_dict(data: dict[str, Any], source: str = "<dict>") -> RobotDescri
 
 
 def load_robot(name_or_path: str | Path, conf_dir: str | Path | None = None) -> RobotDescription:
-    """Load a robot by name (``conf/robot/<name>.yaml``) or from a YAML path."""
+    """Load a robot by name (``conf/robot/<name>.yaml``), from a YAML path, or from a URDF
+    (``robot.urdf`` or ``robot.urdf#BASE:TIP``, see :mod:`robocal.cell.urdf`)."""
+    if str(name_or_path).endswith(".urdf") or ".urdf#" in str(name_or_path):
+        import importlib
+
+        mod, func = URDF_READER.split(":")
+        robot: RobotDescription = getattr(importlib.import_module(mod), func)(name_or_path)
+        return robot
     p = Path(name_or_path)
     if p.suffix in (".yaml", ".yml") or p.exists():
         path = p

@@ -1,0 +1,257 @@
+"""What the KRL and RAPID readers share: targets with their place in the text, frames, configurations, errors.
+
+A reader returns a :class:`Program`: the files' bytes, and every motion target with the exact character span
+of its value in its file, its tool and base (work object) frames, its configuration data and where it is used.
+A writer replaces only those spans; every other byte of every file is copied as it is.
+
+Configuration data (KUKA Status/Turn, ABB confdata) are computed from the robot model's geometry with one set
+of rules (:func:`arm_configuration`), the same when reading and when writing:
+
+* shoulder: the wrist centre (the point of axis 5 nearest to axis 4) lies behind axis 1 (KUKA Status bit 0,
+  "overhead"; ABB cfx 4);
+* elbow: joint 3 is bent positively past the stretched arm (the sign of ``((o3 - o2) x (wc - o3)) · u3``; KUKA
+  Status bit 1; ABB cfx 2 is its negation);
+* wrist: axis 5 negative (KUKA Status bit 2, ABB cfx 1);
+* KUKA Turn bit i: axis i+1 negative; ABB cf1, cf4, cf6: the quadrant ``floor(q / 90 deg)`` of axes 1, 4, 6.
+
+Limits: these rules match the vendors' definitions for 6-axis arms with a spherical wrist whose joint zero and
+sign conventions are those of the robot model; they were not checked against a controller, so a program
+taught on a real cell must be read with a robot description that uses the controller's axis conventions.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from robocal.errors import RobocalError
+
+
+class ProgramError(RobocalError, ValueError):
+    """A robot program that cannot be filtered; the message names the file and the line."""
+
+    def __init__(self, message: str, file: str | Path | None = None, line: int | None = None) -> None:
+        self.file = None if file is None else str(file)
+        self.line = line
+        self.reason = message
+        where = []
+        if file is not None:
+            where.append(f"{file}")
+        if line is not None:
+            where.append(f"line {line}")
+        super().__init__(f"{', '.join(where)}: {message}" if where else message)
+
+
+@dataclass
+class Target:
+    """One motion target of a program.
+
+    name : str (declared name, or ``"<inline>"``); kind : ``"pose"`` (Cartesian, in the base frame) or ``"axis"``;
+    file : Path; line : int (1-based: the declared name, or the inline value); span : (start, end) character
+    offsets of the value text;
+    T_base_tcp : (4, 4) mm, pose targets; q_deg : (n,) axis targets; config : dialect-specific configuration
+    (KUKA ``{"S": int, "T": int}``, ABB ``{"cf": [cf1, cf4, cf6, cfx]}``); tool : (4, 4) flange_T_tcp;
+    base : (4, 4) robot base -> target frame; used_at : [(file, line)] of the motions using it;
+    data : what the writer needs to re-render the value.
+    """
+
+    name: str
+    kind: str
+    file: Path
+    line: int
+    span: tuple[int, int]
+    T_base_tcp: np.ndarray | None = None
+    q_deg: np.ndarray | None = None
+    config: dict[str, Any] = field(default_factory=dict)
+    tool: np.ndarray | None = None
+    base: np.ndarray | None = None
+    tool_name: str = ""
+    base_name: str = ""
+    used_at: list[tuple[str, int]] = field(default_factory=list)
+    data: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass
+class Program:
+    """A parsed program: ``texts`` {path: text (latin-1 decoded, so bytes round-trip)}, the targets in motion
+    order (a target used twice appears once, at its first use), the dialect (``"krl"`` or ``"rapid"``)."""
+
+    dialect: str
+    texts: dict[Path, str]
+    targets: list[Target]
+    main: Path
+
+
+def read_text(path: Path) -> str:
+    """The file as text with every byte kept (latin-1 maps bytes 0-255 one to one)."""
+    return path.read_bytes().decode("latin-1")
+
+
+def line_of(text: str, pos: int) -> int:
+    return text.count("\n", 0, pos) + 1
+
+
+def apply_edits(text: str, edits: list[tuple[int, int, str]]) -> str:
+    """Replace the spans ``(start, end, new)`` (non-overlapping) of ``text``; everything else is kept."""
+    out, last = [], 0
+    for s, e, new in sorted(edits):
+        if s < last:
+            raise ValueError("overlapping edits")
+        out.append(text[last:s])
+        out.append(new)
+        last = e
+    out.append(text[last:])
+    return "".join(out)
+
+
+# --------------------------------------------------------------------------------------------- frames
+
+
+def rot_zyx_deg(a: float, b: float, c: float) -> np.ndarray:
+    """KUKA A, B, C (deg): ``R = Rz(A) Ry(B) Rx(C)``."""
+    from robocal.kinematics.transforms import matrix_from_rpy
+
+    return np.asarray(matrix_from_rpy(np.deg2rad([c, b, a])))
+
+
+def abc_deg(R: np.ndarray) -> tuple[float, float, float]:
+    """KUKA A, B, C (deg) of a rotation, accurate near B = +-90 deg."""
+    from robocal.cell.urdf import _rpy
+
+    roll, pitch, yaw = _rpy(R)
+    return math.degrees(yaw), math.degrees(pitch), math.degrees(roll)
+
+
+def frame(R: np.ndarray, t: Any) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = np.asarray(t, dtype=float)
+    return T
+
+
+def inv(T: np.ndarray) -> np.ndarray:
+    out = np.eye(4)
+    out[:3, :3] = T[:3, :3].T
+    out[:3, 3] = -T[:3, :3].T @ T[:3, 3]
+    return out
+
+
+# --------------------------------------------------------------------------------------------- configuration
+
+
+def arm_configuration(cc: Any, q: np.ndarray) -> dict[str, np.ndarray]:
+    """Shoulder (wrist centre behind axis 1), elbow (joint 3 bent positively) and wrist (axis 5 < 0) flags
+    ``(m,)`` bool of joints ``q`` (m, n) rad on the compiled nominal chain ``cc`` (6-axis arms)."""
+    from robocal.kinematics.transforms import rotvec_to_matrix
+    from robocal.serve.engine import forward
+
+    q = np.atleast_2d(q)
+    _, _, U, O = forward(cc, q, np.eye(4), record=True)
+    assert U is not None and O is not None
+    u1, u3 = U[:, :, 0], U[:, :, 2]
+    o1, o2, o3 = O[:, :, 0], O[:, :, 1], O[:, :, 2]
+    wc = _wrist_centre(U, O)
+    # "forward" of axis 1: base x turned by q1 about axis 1
+    fwd = np.einsum("mij,j->mi", rotvec_to_matrix(u1 * q[:, 0:1]), np.array([1.0, 0.0, 0.0]))
+    shoulder = np.einsum("mi,mi->m", wc - o1, fwd) < 0
+    elbow = np.einsum("mi,mi->m", np.cross(o3 - o2, wc - o3), u3) > 0
+    wrist = q[:, 4] < 0
+    return {"shoulder": shoulder, "elbow": elbow, "wrist": wrist}
+
+
+def elbow_angle(cc: Any, q: np.ndarray) -> np.ndarray:
+    """Signed angle (m,) rad of the forearm (axis 3 -> wrist centre) from the stretched arm (axis 2 -> axis 3),
+    about axis 3: its sign is the elbow flag of :func:`arm_configuration`; near 0 the arm is stretched (a
+    singularity, where the configuration flips)."""
+    from robocal.serve.engine import forward
+
+    q = np.atleast_2d(q)
+    _, _, U, O = forward(cc, q, np.eye(4), record=True)
+    assert U is not None and O is not None
+    wc = _wrist_centre(U, O)
+    a, b, u3 = O[:, :, 2] - O[:, :, 1], wc - O[:, :, 2], U[:, :, 2]
+    a = a - np.einsum("mi,mi->m", a, u3)[:, None] * u3
+    b = b - np.einsum("mi,mi->m", b, u3)[:, None] * u3
+    return np.arctan2(np.einsum("mi,mi->m", np.cross(a, b), u3), np.einsum("mi,mi->m", a, b))
+
+
+def _wrist_centre(U: np.ndarray, O: np.ndarray) -> np.ndarray:
+    """The point of axis 5 nearest to axis 4, (m, 3), from joint axes and origins (m, 3, n)."""
+    u4, u5, o4, o5 = U[:, :, 3], U[:, :, 4], O[:, :, 3], O[:, :, 4]
+    w = o5 - o4
+    b = np.einsum("mi,mi->m", u4, u5)
+    d = np.einsum("mi,mi->m", u4, w)
+    e = np.einsum("mi,mi->m", u5, w)
+    t5 = (b * d - e) / np.maximum(1.0 - b**2, 1e-12)
+    return o5 + t5[:, None] * u5
+
+
+def kuka_status_turn(cc: Any, q: np.ndarray, status_high: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """KUKA Status (bits 0-2 from the arm configuration, higher bits ``status_high`` kept) and Turn of joints
+    ``q`` (m, n) rad."""
+    c = arm_configuration(cc, q)
+    s = c["shoulder"].astype(int) + 2 * c["elbow"].astype(int) + 4 * c["wrist"].astype(int) + (status_high & ~7)
+    t = np.zeros(len(q), dtype=int)
+    for j in range(q.shape[1]):
+        t += (q[:, j] < 0).astype(int) << j
+    return s, t
+
+
+def abb_confdata(cc: Any, q: np.ndarray) -> np.ndarray:
+    """ABB confdata ``[cf1, cf4, cf6, cfx]`` (m, 4) int of joints ``q`` (m, n) rad."""
+    c = arm_configuration(cc, q)
+    quad = np.floor(q[:, [0, 3, 5]] / (np.pi / 2)).astype(int)
+    cfx = 4 * c["shoulder"].astype(int) + 2 * (~c["elbow"]).astype(int) + c["wrist"].astype(int)
+    return np.column_stack([quad, cfx])
+
+
+def config_matches(dialect: str, cc: Any, q: np.ndarray, config: dict[str, Any]) -> np.ndarray:
+    """Which joints ``q`` (m, n) rad have the target's configuration (all True when it states none)."""
+    m = len(q)
+    if dialect == "krl":
+        ok = np.ones(m, dtype=bool)
+        s, t = kuka_status_turn(cc, q)
+        if config.get("S") is not None:
+            ok &= (s & 7) == (int(config["S"]) & 7)
+        if config.get("T") is not None:
+            mask = (1 << q.shape[1]) - 1
+            ok &= (t & mask) == (int(config["T"]) & mask)
+        return ok
+    cf = config.get("cf")
+    if cf is None:
+        return np.ones(m, dtype=bool)
+    return np.all(abb_confdata(cc, q) == np.asarray(cf, dtype=int)[None, :], axis=1)
+
+
+def config_seeds(
+    dialect: str, config: dict[str, Any], limits: np.ndarray, rng: np.random.Generator, k: int
+) -> np.ndarray:
+    """``k`` random joint seeds (k, n) rad inside ``limits`` (n, 2) rad that agree with the signs and quadrants
+    the configuration states (the remaining joints uniform)."""
+    n = len(limits)
+    lo, hi = limits[:, 0].copy(), limits[:, 1].copy()
+    if dialect == "krl" and config.get("T") is not None:
+        t = int(config["T"])
+        for j in range(n):
+            if (t >> j) & 1:
+                hi[j] = min(hi[j], 0.0)
+            else:
+                lo[j] = max(lo[j], 0.0)
+    elif dialect == "rapid" and config.get("cf") is not None:
+        cf = [int(v) for v in config["cf"]]
+        for j, qd in zip((0, 3, 5), cf[:3], strict=True):
+            lo[j] = max(lo[j], qd * np.pi / 2)
+            hi[j] = min(hi[j], (qd + 1) * np.pi / 2)
+        if cf[3] & 1:
+            hi[4] = min(hi[4], 0.0)
+        else:
+            lo[4] = max(lo[4], 0.0)
+    bad = lo >= hi
+    lo[bad], hi[bad] = limits[bad, 0], limits[bad, 1]
+    # keep away from the wrist singularity (axis 5 = 0) and the limits
+    span = hi - lo
+    return lo + span * (0.05 + 0.9 * rng.random((k, n)))

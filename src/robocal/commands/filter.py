@@ -1,0 +1,56 @@
+"""``robocal filter PROGRAM --bundle DIR --out DIR [--temperature T ...] [--payload-kg KG]``: a robot program
+(KUKA KRL ``.src`` + ``.dat``, ABB RAPID ``.mod``) with every target corrected by a calibration bundle, written
+beside the original with a per-target table (see :mod:`robocal.cell.programs.filter`)."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("program", help="KRL NAME.src (its NAME.dat and a $config.dat beside it are read) or RAPID .mod")
+    p.add_argument("--bundle", required=True, help="calibration bundle directory (robocal serve --make-bundle)")
+    p.add_argument("--out", required=True, help="output folder (not the program's): the filtered files + table")
+    p.add_argument(
+        "--temperature",
+        action="append",
+        metavar="DEGC|SENSOR=DEGC",
+        help="the cell's temperature for a thermal bundle: one value for every sensor, or SENSOR=degC (repeat)",
+    )
+    p.add_argument("--payload-kg", type=float, default=0.0, help="payload for compliance and gravity effects")
+    p.add_argument(
+        "--tcp-from-bundle",
+        metavar="TOOL",
+        help="the program's TCP is this bundle tool (calibrated with the robot), not the program's tool data",
+    )
+    p.add_argument("--strict", action="store_true", help="fail (write nothing) when any target is refused")
+
+
+def run(args: argparse.Namespace) -> int:
+    from robocal.cell.programs.common import ProgramError
+    from robocal.cell.programs.filter import filter_program, parse_temperatures, read_program, write_filtered
+    from robocal.serve.bundle import load_bundle
+
+    if args.payload_kg < 0:
+        raise ProgramError(f"--payload-kg must be >= 0, got {args.payload_kg}")
+    bundle = load_bundle(args.bundle)
+    temps = parse_temperatures(args.temperature, bundle.sensors)
+    prog = read_program(args.program)
+    res = filter_program(prog, bundle, temps, args.payload_kg, args.tcp_from_bundle)
+    if args.strict and res.n_refused:
+        k = res.status.index("refused")
+        t = prog.targets[k]
+        raise ProgramError(f"target {t.name} refused: {'; '.join(res.reasons[k])} (--strict)", t.file, t.line)
+    written = write_filtered(res, args.out)
+    m = len(res.status)
+    print(
+        f"filter: {m} targets, {m - res.n_refused - res.n_flagged} corrected, {res.n_flagged} flagged, "
+        f"{res.n_refused} refused (left as written); predicted error before: mean "
+        f"{res.predicted_error_mm.mean():.4f} mm, max {res.predicted_error_mm.max():.4f} mm"
+    )
+    for k, s in enumerate(res.status):
+        if s != "ok":
+            t = prog.targets[k]
+            print(f"  {s}: {t.name} ({t.file.name}:{t.line}): {'; '.join(res.reasons[k])}")
+    print("wrote " + ", ".join(str(p) for p in written))
+    return 0

@@ -1,0 +1,35 @@
+"""``robocal urdf --robot ROBOT --calibration FILE --out DIR``: the calibrated kinematics as a URDF (joint origins
+corrected, the calibration's tools as fixed frames) plus the calibration as a small YAML
+(see :mod:`robocal.cell.urdf`). ROBOT is ``path/robot.urdf#BASE:TIP`` (the original URDF is copied with its
+joint origins corrected, never modified) or any robot name / YAML (a fresh URDF is written)."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--robot", required=True, help="robot.urdf#BASE:TIP, a conf/robot name or a YAML path")
+    p.add_argument("--calibration", required=True, help="calibration.json (robocal calibrate or discover)")
+    p.add_argument("--out", required=True, help="output folder: <name>.urdf and <name>.yaml")
+    p.add_argument("--name", default="robot_calibrated", help="file name stem (default robot_calibrated)")
+
+
+def run(args: argparse.Namespace) -> int:
+    import json
+    from pathlib import Path
+
+    from robocal.cell.urdf import export_calibration
+    from robocal.errors import ConfigError
+    from robocal.identification.calibrate import load_calibration
+    from robocal.robot import load_robot
+
+    robot = load_robot(args.robot)
+    path = Path(args.calibration)
+    try:
+        cal = load_calibration(json.loads(path.read_text(encoding="utf-8")), robot)
+    except (OSError, json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
+        raise ConfigError(f"cannot load the calibration {path}: {type(exc).__name__}: {exc}") from None
+    u, y = export_calibration(cal, args.out, name=args.name)
+    print(f"urdf: wrote {u} (calibrated joint origins, tools {list(cal.tools)} as fixed frames) and {y}")
+    return 0
