@@ -25,6 +25,7 @@ import numpy as np
 from robocal.errors import ConfigError
 from robocal.identification.calibrate import CalibrationResult
 from robocal.identification.model import CalibrationModel, FitData
+from robocal.identification.solver import levenberg_marquardt
 from robocal.robot import RobotDescription
 
 _W = np.array([[0, 0, 1], [0, -1, 0], [0, -1, 0], [1, 0, 0], [0, -1, 0], [1, 0, 0]], dtype=float)
@@ -115,24 +116,32 @@ def controller_parameters(result: CalibrationResult, q: np.ndarray, target_index
         rob = with_lengths(robot, L0 + zz[:5], robot.theta_offset + zz[5:])
         return CalibrationModel(rob, gm.target_names, T_ref=gm.T_ref)
 
-    r = np.zeros(0)
-    for _ in range(8):
-        mdl = build(z)
-        r, J = mdl.residuals_and_jacobian(y, data)
+    nbt = len(base_tool)
+
+    def unpack(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        yy, zz = y.copy(), z.copy()
+        yy[base_tool] = w[:nbt]
+        zz[free_ctrl] = w[nbt:]
+        return yy, zz
+
+    def fun(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        yy, zz = unpack(w)
+        mdl = build(zz)
+        r, J = mdl.residuals_and_jacobian(yy, data)
         cols = [J[:, i] for i in base_tool]
         for i in free_ctrl:
             if i < 5:
-                dz = np.zeros_like(z)
+                dz = np.zeros_like(zz)
                 dz[i] = 1.0  # positions are affine in L for fixed joints: a unit difference is exact
-                cols.append(build(z + dz).residuals(y, data) - r)
+                cols.append(build(zz + dz).residuals(yy, data) - r)
             else:
                 cols.append(J[:, mdl.index(names[i])])
-        A = np.column_stack(cols)
-        step = np.linalg.lstsq(A, -r, rcond=None)[0]
-        y[base_tool] += step[: len(base_tool)]
-        z[free_ctrl] += step[len(base_tool) :]
-        if np.abs(step).max() < 1e-10:
-            break
+        return r, np.column_stack(cols)
+
+    # Gauss-Newton by the identification's least-squares core (line search; a linear problem in L, so 1-2 steps)
+    w0 = np.concatenate([y[base_tool], z[free_ctrl]])
+    lm = levenberg_marquardt(fun, w0, np.arange(len(w0)), 1.0, max_iter=8, ftol=1e-15, xtol=1e-12, method="gn")
+    y, z = unpack(lm.x)
     r = build(z).residuals(y, data)
     e = np.linalg.norm(r.reshape(-1, 3), axis=1)
     return {

@@ -33,6 +33,7 @@ from robocal.compliance.model import KINDS, ComplianceModel
 from robocal.errors import ConfigError
 from robocal.identification.calibrate import CalibrationResult, fit_data
 from robocal.identification.model import FitData
+from robocal.identification.solver import levenberg_marquardt
 
 if TYPE_CHECKING:
     from robocal.data.contract import Campaign
@@ -164,64 +165,38 @@ def _gauss_newton(
     max_iter: int,
     tol: float,
 ) -> GNResult:
-    """Minimise ``|f(q + S∘c, x) - p|²`` over ``c[joints]`` (and ``x[geo_free]``), damped Gauss-Newton."""
+    """Minimise ``|f(q + S∘c, x) - p|²`` over ``c[joints]`` (and ``x[geo_free]``): Gauss-Newton with a line
+    search, by the identification's least-squares core (:func:`robocal.identification.solver.levenberg_marquardt`,
+    ``method="gn"``) on the stacked vector ``[x, c]``."""
     model = geo.model
-    x = geo.x.copy()
-    c = c0.copy()
+    nx = len(geo.x)
     kc = len(joints)
     kx = len(geo_free)
+    m3 = 3 * data.m
 
-    def evaluate(xx: np.ndarray, cc: np.ndarray, jac: bool) -> tuple[np.ndarray, np.ndarray | None]:
-        dd = FitData(q=data.q + S * cc, p_mm=data.p_mm, target_index=data.target_index)
-        if not jac:
-            return model.residuals(xx, dd)[: 3 * data.m], None
+    def fun(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        xx, cc = z[:nx], z[nx:]
+        dd = data.with_q(data.q + S * cc)
         r, Jx = model.residuals_and_jacobian(xx, dd)
-        Jq = model.joint_jacobian(xx, dd.q, dd.target_index)  # (m, 3, n)
-        Jc = (Jq * S[:, None, :])[:, :, joints].reshape(-1, kc)
-        J = np.concatenate([Jx[: 3 * data.m, geo_free], Jc], axis=1)
-        return r[: 3 * data.m], J
+        Jq = model.joint_jacobian(xx, dd.q, dd.target_index, dd.station_index)  # (m, 3, n)
+        Jc = (Jq * S[:, None, :]).reshape(m3, -1)
+        return r[:m3], np.concatenate([Jx[:m3], Jc], axis=1)
 
-    r, J = evaluate(x, c, True)
-    assert J is not None
-    cost = float(r @ r)
-    nit = 0
-    for _ in range(max_iter):
-        nit += 1
-        scale = np.linalg.norm(J, axis=0)
-        scale[scale == 0] = 1.0
-        step = np.linalg.lstsq(J / scale, -r, rcond=None)[0] / scale
-        t = 1.0
-        accepted = False
-        for _ in range(12):
-            xn = x.copy()
-            xn[geo_free] += t * step[:kx]
-            cn = c.copy()
-            cn[joints] += t * step[kx:]
-            rn, _ = evaluate(xn, cn, False)
-            cn_cost = float(rn @ rn)
-            if cn_cost <= cost:
-                accepted = True
-                break
-            t *= 0.5
-        if not accepted:
-            break
-        x, c = xn, cn
-        done = cost - cn_cost <= tol * max(cost, 1e-300)
-        r, J = evaluate(x, c, True)
-        assert J is not None
-        cost = float(r @ r)
-        if done:
-            break
+    z0 = np.concatenate([geo.x, c0])
+    free = np.concatenate([np.asarray(geo_free, dtype=int), nx + np.asarray(joints, dtype=int)])
+    lm = levenberg_marquardt(fun, z0, free, 1.0, max_iter=max_iter, ftol=tol, xtol=1e-12, method="gn")
+    r = lm.r
     M = len(r)
     k = kx + kc
+    cost = float(r @ r)
     s2 = cost / max(M - k, 1)
-    JtJ = J.T @ J
+    JtJ = lm.J.T @ lm.J
     try:
         cov = s2 * np.linalg.inv(JtJ)
     except np.linalg.LinAlgError:
         cov = s2 * np.linalg.pinv(JtJ)
     res = r.reshape(-1, 3)
-    return GNResult(x, c, cov, res, nit, float(np.sqrt(np.mean(np.sum(res**2, axis=1)))), s2)
+    return GNResult(lm.x[:nx], lm.x[nx:], cov, res, lm.nit, float(np.sqrt(np.mean(np.sum(res**2, axis=1)))), s2)
 
 
 @dataclass
