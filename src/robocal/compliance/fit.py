@@ -33,7 +33,7 @@ from robocal.compliance.model import KINDS, ComplianceModel
 from robocal.errors import ConfigError
 from robocal.identification.calibrate import CalibrationResult, fit_data
 from robocal.identification.model import FitData
-from robocal.identification.solver import levenberg_marquardt
+from robocal.identification.solver import levenberg_marquardt, normal_inverse
 
 if TYPE_CHECKING:
     from robocal.data.contract import Campaign
@@ -190,11 +190,7 @@ def _gauss_newton(
     k = kx + kc
     cost = float(r @ r)
     s2 = cost / max(M - k, 1)
-    JtJ = lm.J.T @ lm.J
-    try:
-        cov = s2 * np.linalg.inv(JtJ)
-    except np.linalg.LinAlgError:
-        cov = s2 * np.linalg.pinv(JtJ)
+    cov = s2 * normal_inverse(lm.J)
     res = r.reshape(-1, 3)
     return GNResult(lm.x[:nx], lm.x[nx:], cov, res, lm.nit, float(np.sqrt(np.mean(np.sum(res**2, axis=1)))), s2)
 

@@ -18,7 +18,7 @@ import numpy as np
 from robocal.discovery.candidates import Candidate, with_beta
 from robocal.identification.identifiability import analyse
 from robocal.identification.model import CalibrationModel, FitData
-from robocal.identification.solver import levenberg_marquardt
+from robocal.identification.solver import levenberg_marquardt, normal_inverse
 from robocal.robot import RobotDescription
 
 
@@ -267,11 +267,7 @@ def fit_model(
     J_w = J[:, free] * w[:, None]
     dof = max(len(r_w) - len(free), 1)
     s2 = float(r_w @ r_w) / dof
-    JtJ = J_w.T @ J_w
-    try:
-        cov_w = np.linalg.inv(JtJ)
-    except np.linalg.LinAlgError:
-        cov_w = np.linalg.pinv(JtJ)
+    cov_w = normal_inverse(J_w)
     return Fit(
         model=model,
         theta=theta,

@@ -13,7 +13,7 @@ from scipy import special
 from robocal.errors import ConfigError
 from robocal.identification.identifiability import Eliminated, Identifiability, analyse
 from robocal.identification.model import CalibrationModel, FitData
-from robocal.identification.solver import LMResult, levenberg_marquardt
+from robocal.identification.solver import LMResult, levenberg_marquardt, normal_inverse
 from robocal.kinematics.chain import fk
 from robocal.kinematics.transforms import (
     inv_transform,
@@ -653,12 +653,7 @@ def calibrate(
     rk = lm.r[kr]
     s2 = float(rk @ rk) / (Mk - k) if Mk > k else 1.0
     Jk = lm.J[kr]
-    JtJ = Jk.T @ Jk
-    try:
-        cov_w = np.linalg.inv(JtJ)
-    except np.linalg.LinAlgError:
-        cov_w = np.linalg.pinv(JtJ)
-    cov = s2 * cov_w
+    cov = s2 * normal_inverse(Jk)
     identified = np.zeros(model.n, dtype=bool)
     identified[free] = True
     stderr = np.full(model.n, np.nan)

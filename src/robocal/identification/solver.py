@@ -164,3 +164,13 @@ def levenberg_marquardt(
             status = 2
             break
     return LMResult(x, cost, r, Jf, nit, nfev, njev, status, time.perf_counter() - t0, history)
+
+
+def normal_inverse(J: np.ndarray) -> np.ndarray:
+    """``(JᵀJ)⁻¹`` of a (whitened) Jacobian, the pseudo-inverse when it is singular: the covariance of the
+    parameters up to the residual variance ``s²`` (every fit's standard errors come from here)."""
+    JtJ = J.T @ J
+    try:
+        return np.linalg.inv(JtJ)
+    except np.linalg.LinAlgError:
+        return np.linalg.pinv(JtJ)
