@@ -194,7 +194,8 @@ def quaternions(R: np.ndarray) -> np.ndarray:
 
 
 def _rotvec(E: np.ndarray) -> np.ndarray:
-    """Rotation vectors of rotations ``E`` (m, 3, 3): exact atan2 form below 179.9 deg, else the general
+    """Rotation vectors of rotations ``E`` (m, 3, 3): the compiled kernel when numba is there (exact atan2 form
+    below 179.9 deg), else (and near 180 deg) the numpy reference
     :func:`~robocal.kinematics.transforms.matrix_to_rotvec`."""
     from robocal.serve import fastsolve
 
@@ -203,13 +204,7 @@ def _rotvec(E: np.ndarray) -> np.ndarray:
         if near_pi.any():
             out[near_pi] = matrix_to_rotvec(E[near_pi])
         return out
-    w = 0.5 * (E[:, _VI, _VJ] - E[:, _VJ, _VI])
-    c = 0.5 * (np.einsum("mii->m", E) - 1.0)
-    s = np.sqrt(np.einsum("mi,mi->m", w, w))
-    th = np.arctan2(s, c)
-    if th.max(initial=0.0) > np.pi - 2e-3:
-        return matrix_to_rotvec(E)
-    return w * (th / np.maximum(s, 1e-300) + (s <= 1e-12))[:, None]
+    return matrix_to_rotvec(E)
 
 
 @dataclass
