@@ -605,12 +605,7 @@ def calibrate(
     ident = analyse(J0 * weights[:, None], model.names, _candidate_order(model, fixed), rtol=cfg.rank_tol)
     free = np.sort(ident.kept)
     lm_kw: dict[str, Any] = {"max_iter": cfg.max_iter, "ftol": cfg.ftol, "xtol": cfg.xtol, "method": cfg.method}
-    if kept.all():
-        lm = levenberg_marquardt(
-            fun, x, free, weights, max_iter=cfg.max_iter, ftol=cfg.ftol, xtol=cfg.xtol, method=cfg.method
-        )
-    else:
-        lm = robust.least_squares_on(fun, x, free, weights, rows, kept, **lm_kw)
+    lm = robust.least_squares_on(fun, x, free, weights, rows, kept, **lm_kw)
     test = None
     outlier_rounds = 0
     suspects: list[dict[str, Any]] = []
@@ -628,13 +623,14 @@ def calibrate(
                 if np.array_equal(~test.flagged, kept):
                     break
                 kept = ~test.flagged
+            else:  # no fixed point in 7 rounds: the last flagged set, fitted and tested once more
+                lm = robust.least_squares_on(fun, x_rob, free, weights, rows, kept, **lm_kw)
+                test = robust.row_test(lm.r, lm.J, rows, m, kept, cfg.outlier_alpha)
             if (~kept).sum() > cfg.outlier_max_share * m:
                 # too many to be blunders: a systematic model error; keep every row and say so
                 suspects = describe_outliers(cal, ~kept, *_split_resid(lm.r / weights, m, use_rot), test)
                 kept = np.ones(m, dtype=bool)
-                lm = levenberg_marquardt(
-                    fun, x, free, weights, max_iter=cfg.max_iter, ftol=cfg.ftol, xtol=cfg.xtol, method=cfg.method
-                )
+                lm = levenberg_marquardt(fun, x, free, weights, **lm_kw)
                 test = robust.row_test(lm.r, lm.J, rows, m, kept, cfg.outlier_alpha)
                 test = robust.RowTest(
                     test.F, test.p_value, np.zeros(m, dtype=bool), test.threshold_F, test.alpha, test.d
