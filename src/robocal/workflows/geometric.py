@@ -11,20 +11,14 @@ import numpy as np
 import pandas as pd
 
 from robocal.data.contract import Campaign, SplitConfig, read_campaign
-from robocal.errors import ConfigError
 from robocal.identification.calibrate import CalibrationConfig, CalibrationResult, calibrate, validate
 from robocal.io import atomic_write, write_json
 from robocal.robot import RobotDescription, load_robot
 
 
 def split_config(split: Mapping[str, Any] | None) -> SplitConfig | None:
-    if not split:
-        return None
-    known = {"method", "validation_fraction", "seed"}
-    unknown = sorted(set(split) - known)
-    if unknown:
-        raise ConfigError(f"unknown split setting(s) {unknown}; known: {sorted(known)}")
-    return SplitConfig(**dict(split))
+    """The split setting, parsed one way (:meth:`SplitConfig.from_mapping`); None: the campaign reader's default."""
+    return SplitConfig.from_mapping(split) if split else None
 
 
 def summarise(result: CalibrationResult, validation: dict[str, Any] | None) -> dict[str, Any]:
