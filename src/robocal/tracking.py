@@ -26,6 +26,7 @@ import contextlib
 import fcntl
 import math
 import os
+import re
 import subprocess
 import sys
 import time
@@ -164,6 +165,15 @@ def flatten(mapping: Mapping[str, Any], prefix: str = "", sep: str = ".") -> dic
         else:
             out[name] = value
     return out
+
+
+_KEY_OK = re.compile(r"[^A-Za-z0-9_\-. :/]")
+
+
+def param_key(key: str) -> str:
+    """``key`` in MLflow's name charset (alphanumerics, ``_ - . space : /``): others become ``_``, ``^`` as in
+    ``T_j6_C^2`` becomes ``_pow`` (so the logged key still reads as the power it is)."""
+    return _KEY_OK.sub("_", key.replace("^", "_pow"))
 
 
 def numeric_metrics(mapping: Mapping[str, Any]) -> dict[str, float]:
@@ -306,8 +316,9 @@ class StageRun:
         return self
 
     def log_params(self, params: Mapping[str, Any]) -> None:
-        """Log a (nested) mapping as flattened parameters (values cut to MLflow's length limit)."""
-        from_flat = {k: ("null" if v is None else str(v)) for k, v in flatten(params).items()}
+        """Log a (nested) mapping as flattened parameters (values cut to MLflow's length limit; keys with
+        characters MLflow refuses, e.g. ``T_j6_C^2``, get them replaced: :func:`param_key`)."""
+        from_flat = {param_key(k): ("null" if v is None else str(v)) for k, v in flatten(params).items()}
 
         def go() -> None:
             from mlflow.entities import Param
@@ -320,7 +331,7 @@ class StageRun:
 
     def log_metrics(self, metrics: Mapping[str, Any], step: int = 0) -> None:
         """Log the numeric leaves of a (nested) mapping as metrics."""
-        values = numeric_metrics(metrics)
+        values = {param_key(k): v for k, v in numeric_metrics(metrics).items()}
 
         def go() -> None:
             from mlflow.entities import Metric
