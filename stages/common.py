@@ -87,6 +87,7 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 os.environ.setdefault("MLFLOW_DISABLE_TELEMETRY", "1")
 
 from robocal.errors import ConfigError, RobocalError  # noqa: E402
+from robocal.io import reproducible, write_json, write_text  # noqa: E402
 from robocal.pipeline import (  # noqa: E402
     PARAMS_FILE,
     STATUS_OK,
@@ -102,6 +103,9 @@ from robocal.pipeline import (  # noqa: E402
 
 #: The repository root: the folder holding ``stages/`` (in DVC's temporary copies too).
 ROOT = Path(__file__).resolve().parents[1]
+#: The full metrics of a stage that returns :class:`Metrics`, in its output folder (the headline ones are in
+#: ``reports/metrics/<stage>.json``).
+DETAILS_FILE = "all_metrics.json"
 #: Tracking settings used when the parameters have no ``tracking`` section.
 TRACKING_DEFAULTS: dict[str, Any] = {"enabled": True, "experiment": "robocal", "uri": None, "required": False}
 
@@ -175,14 +179,38 @@ class Context:
         return skipped(reason)
 
 
-Compute = Callable[[Context], "Mapping[str, Any] | Skipped | None"]
+@dataclass(frozen=True)
+class Metrics:
+    """What ``compute`` may return instead of a plain mapping: a few ``headline`` numbers for the metrics
+    file (``dvc metrics show`` / ``dvc exp show``: keep it short, names unique across stages) and
+    ``details`` that go to MLflow only (the stage's own JSON outputs hold them too). ``status`` is "ok"
+    unless the stage found the result unusable (e.g. "failed": worse than its start)."""
+
+    headline: Mapping[str, Any]
+    details: Mapping[str, Any] = field(default_factory=dict)
+    status: str = STATUS_OK
+
+
+Compute = Callable[[Context], "Mapping[str, Any] | Metrics | Skipped | None"]
 
 
 def _sections(stage: Stage, cfg: Mapping[str, Any], source: str) -> Sections:
-    missing = [s for s in stage.params if s not in cfg]
+    """The declared parameters: whole sections (``robot``) or single keys of a section (``data.campaign``,
+    which gives the stage ``{"data": {"campaign": ...}}`` and nothing else of ``data``)."""
+    missing = [s for s in stage.params if s.split(".", 1)[0] not in cfg]
     if missing:
         raise ConfigError(f"{source}: missing parameter section(s) {missing} needed by stage {stage.name!r}")
-    out = Sections({s: cfg[s] for s in stage.params})
+    out = Sections()
+    for key in stage.params:
+        section, _, rest = key.partition(".")
+        if not rest:
+            out[section] = cfg[section]
+            continue
+        node = out.setdefault(section, {})
+        parts = rest.split(".")
+        for part in parts[:-1]:
+            node = node.setdefault(part, {})
+        node[parts[-1]] = get(cfg, key)
     out.stage = stage.name
     return out
 
@@ -229,25 +257,45 @@ def execute(
         plots.mkdir(parents=True, exist_ok=True)
     ctx = Context(stage, root, sections, out, metrics_path, plots, hydra, tracker)
     t0 = time.perf_counter()
-    with tracker:  # FAILED in MLflow when compute raises; the error then propagates
+    # DVC-tracked outputs (params.yaml mode): same config, same bytes -- no timings in any JSON written,
+    # floats rounded (robocal.io.reproducible). Timings go to MLflow and the console.
+    with tracker, reproducible(not hydra):  # FAILED in MLflow when compute raises; the error then propagates
         tracker.log_params(dict(sections))
         tracker.log_text(_yaml(dict(sections)), "params.yaml")
         tc = time.perf_counter()
         result = compute(ctx)
         times = {"compute_time_s": time.perf_counter() - tc, "wall_time_s": time.perf_counter() - t0}
+        details: Mapping[str, Any] = {}
         if isinstance(result, Skipped):
-            metrics = {**write_skipped(out, result.reason), "skipped": 1, **times}
+            metrics = {**write_skipped(out, result.reason), "skipped": 1}
             print(f"stage {stage.name}: skipped: {result.reason}")
+            if plots is not None:  # an empty plots folder makes DVC warn; say why there is no plot
+                write_text(plots / "skipped.svg", _skipped_svg(result.reason))
+        elif isinstance(result, Metrics):
+            metrics = {"status": result.status, **dict(result.headline)}
+            details = result.details
+            if details:  # the full set, beside the stage's other outputs
+                write_json(out / DETAILS_FILE, {"status": result.status, **dict(details)})
         else:
-            metrics = {"status": STATUS_OK, **dict(result or {}), **times}
+            metrics = {"status": STATUS_OK, **dict(result or {})}
         write_metrics(metrics_path, metrics)
         tracker.set_tags({"robocal.status": metrics["status"]})
-        tracker.log_metrics(metrics)
-        for path in [metrics_path, *([plots] if plots is not None else []), *ctx.artifacts]:
+        tracker.log_metrics({**details, **metrics, **times})
+        for path in [metrics_path, *([plots] if plots is not None and any(plots.iterdir()) else []), *ctx.artifacts]:
             tracker.log_artifact(path, _artifact_dir(path, out, plots))
     wall = time.perf_counter() - t0
     print(f"stage {stage.name}: {metrics['status']} in {wall:.2f} s; metrics {_rel(metrics_path, root)}")
-    return metrics
+    return {**metrics, **times}
+
+
+def _skipped_svg(reason: str) -> str:
+    from html import escape
+
+    return (
+        '<svg xmlns="http://www.w3.org/2000/svg" width="640" height="60" viewBox="0 0 640 60">'
+        '<text x="10" y="35" font-family="sans-serif" font-size="14">'
+        f"stage skipped: {escape(reason)}</text></svg>\n"
+    )
 
 
 def _artifact_dir(path: Path, out: Path, plots: Path | None) -> str | None:

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from robocal.io import is_reproducible
 from robocal.report import plots
 from robocal.report.html import Report
 
@@ -30,6 +32,8 @@ def geometric_report(
         f"model {result.model.robot.convention}; {fit['n_identified']} parameters identified, "
         f"{fit['n_eliminated']} eliminated."
     )
+    for text in (summary or {}).get("problems", []):
+        rep.note(f"FAILED: {text}. Do not use this calibration.", kind="warn")
     rep.heading("Fit")
     kv = {
         "RMS 3-D position error (mm)": f"{fit['rms_position_mm']:.4f}",
@@ -38,7 +42,7 @@ def geometric_report(
         "chi² / dof": f"{fit['chi2']:.1f} / {fit['dof']} (95 % band {fit['chi2_band_95'][0]:.0f}–"
         f"{fit['chi2_band_95'][1]:.0f}; {'inside' if fit['chi2_within_band'] else 'OUTSIDE'})",
         "tracker noise assumed (mm)": f"{result.config.noise_mm}",
-        "iterations / time": f"{fit['nit']} / {fit['wall_time_s'] * 1e3:.1f} ms",
+        "iterations / time": _iterations_time(fit),
         "solver status": fit["message"],
     }
     if "rms_orientation_deg" in fit:
@@ -113,3 +117,12 @@ def geometric_report(
         }
     )
     return rep
+
+
+def _iterations_time(fit: Mapping[str, Any]) -> str:
+    """Iterations and the measured time of the fit (seconds). Pipeline reports (reproducible mode: same config,
+    same bytes) leave the time out and say where it is."""
+    if is_reproducible():
+        return f"{fit['nit']} (time: in the MLflow run and the console, not in files tracked by DVC)"
+    t = float(fit["wall_time_s"])
+    return f"{fit['nit']} / {t:.3f} s" if t >= 0.1 else f"{fit['nit']} / {t * 1e3:.1f} ms"

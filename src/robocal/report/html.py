@@ -30,7 +30,7 @@ from typing import Any, Self
 
 import numpy as np
 
-from robocal.io import write_text
+from robocal.io import is_reproducible, is_timing, write_text
 
 __all__ = ["PNG_SIGNATURE", "Report"]
 
@@ -176,6 +176,8 @@ class Report:
         _check_float_fmt(float_fmt, "Report.kv")
         rows = []
         for k, v in mapping.items():
+            if is_reproducible() and is_timing(k):  # same config, same bytes: timings are not written
+                continue
             text, cls = _format_cell(v, float_fmt)
             td = f'<td class="{cls}">' if cls else "<td>"
             rows.append(f'<tr><th scope="row">{_esc(k)}</th>{td}{text}</td></tr>')
