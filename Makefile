@@ -32,6 +32,7 @@ setup: $(STAMP) ## create .venv and install robocal with its tools
 
 run: $(STAMP) ## set up, then run the default pipeline end to end (dvc repro)
 	$(BIN)/dvc repro
+	@$(BIN)/python -m robocal.tracking flush >/dev/null
 	@echo
 	@echo "reports (stages that skipped have none; reports/<stage>/result.json says why):"
 	@for r in geometric thermal screen validate compliance discovery compare_optimizers; do \
@@ -50,6 +51,7 @@ params: $(STAMP) ## regenerate params.yaml from conf/ (DVC's Hydra composition)
 	$(BIN)/python -m robocal.pipeline params
 
 ui: $(STAMP) ## MLflow UI on http://127.0.0.1:$(UI_PORT) over the repository's mlflow.db
+	$(BIN)/python -m robocal.tracking flush
 	@$(BIN)/python -c "from robocal.tracking import ensure_store; \
 		print('open the runs view: http://127.0.0.1:$(UI_PORT)/#/experiments/' + ensure_store() + '/runs')"
 	$(BIN)/mlflow ui --backend-store-uri "sqlite:///$(CURDIR)/mlflow.db" \

@@ -119,6 +119,9 @@ class Stage:
     out: str
     metrics: str
     plots: str | None = None
+    #: True: the MLflow run is written while the stage runs (it nests runs under it); False: recorded and
+    #: written by a detached flusher (robocal.tracking.PendingRun), which saves the stage MLflow's start-up.
+    inline_tracking: bool = False
 
 
 class Sections(dict):  # type: ignore[type-arg]
@@ -239,19 +242,16 @@ def execute(
     run_name: str | None = None,
 ) -> dict[str, Any]:
     """Run one stage job: tracking run, ``compute``, metrics / skipped result, artifacts. Returns the metrics."""
-    from robocal.tracking import StageRun
+    from robocal.tracking import PendingRun, StageRun
 
     sections = _sections(stage, cfg, "the config" if hydra else PARAMS_FILE)
     tcfg = _tracking(cfg)
-    tracker = StageRun(
-        stage.name,
-        enabled=bool(tcfg["enabled"]),
-        uri=tcfg["uri"],
-        experiment=str(tcfg["experiment"]),
-        required=bool(tcfg["required"]),
-        tags=tags,
-        run_name=run_name,
-    )
+    common = {"enabled": bool(tcfg["enabled"]), "uri": tcfg["uri"], "experiment": str(tcfg["experiment"])}
+    tracker: Any
+    if hydra or stage.inline_tracking or tcfg["required"]:  # nested runs, or the run must exist before exit
+        tracker = StageRun(stage.name, **common, required=bool(tcfg["required"]), tags=tags, run_name=run_name)
+    else:  # recorded now, written to MLflow by a detached flusher: no MLflow import in the stage
+        tracker = PendingRun(stage.name, **common, tags=tags, run_name=run_name)
     out.mkdir(parents=True, exist_ok=True)
     if plots is not None:
         plots.mkdir(parents=True, exist_ok=True)

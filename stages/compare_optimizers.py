@@ -20,6 +20,7 @@ STAGE = Stage(
     out="reports/compare_optimizers",
     metrics="reports/metrics/compare_optimizers.json",
     plots="reports/plots/compare_optimizers",
+    inline_tracking=True,  # one nested MLflow run per optimizer run, under this stage's run
 )
 INPUT = "data/interim"
 #: The algorithms' coefficients (their Hydra group files, read as files: a dependency of the stage).
