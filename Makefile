@@ -57,6 +57,9 @@ ui: $(STAMP) ## MLflow UI on http://127.0.0.1:$(UI_PORT) over the repository's m
 	$(BIN)/mlflow ui --backend-store-uri "sqlite:///$(CURDIR)/mlflow.db" \
 		--default-artifact-root "$(CURDIR)/mlartifacts" --host 127.0.0.1 --port $(UI_PORT)
 
+exps: $(STAMP) ## compare the DVC experiments: the parameters and headline metrics that differ
+	$(BIN)/dvc exp show --no-pager --only-changed --drop '^(data|reports|src|stages|conf)/'
+
 compare: $(STAMP) ## the thermal paper's optimizer comparison (~2 min; not part of make run)
 	$(BIN)/dvc repro experiments/dvc.yaml:compare_optimizers
 	@echo "report: $(CURDIR)/reports/compare_optimizers/report.html"
@@ -71,4 +74,4 @@ sweep: $(STAMP) ## example sweeps: three noise settings in parallel (joblib), th
 	$(BIN)/python stages/geometric_fit.py -m optimizer=gn,lm
 	@echo "results: reports/sweeps/geometric_fit/; compare the nested runs with: make ui"
 
-.PHONY: help setup run test lint params ui compare bench sweep
+.PHONY: help setup run test lint params ui exps compare bench sweep

@@ -241,7 +241,10 @@ def execute(
     tags: Mapping[str, str] | None = None,
     run_name: str | None = None,
 ) -> dict[str, Any]:
-    """Run one stage job: tracking run, ``compute``, metrics / skipped result, artifacts. Returns the metrics."""
+    """Run one stage job: tracking run, ``compute``, metrics / skipped result, artifacts.
+
+    Writes ``metrics_path`` = ``{<stage name>: status, **headline}`` (status "ok", "skipped" or "failed").
+    Returns everything: ``status`` (and ``reason`` of a skip), details, headline numbers and the times."""
     from robocal.tracking import PendingRun, StageRun
 
     sections = _sections(stage, cfg, "the config" if hydra else PARAMS_FILE)
@@ -265,27 +268,31 @@ def execute(
         tc = time.perf_counter()
         result = compute(ctx)
         times = {"compute_time_s": time.perf_counter() - tc, "wall_time_s": time.perf_counter() - t0}
-        details: Mapping[str, Any] = {}
+        details: dict[str, Any] = {}
         if isinstance(result, Skipped):
-            metrics = {**write_skipped(out, result.reason), "skipped": 1}
+            outcome = {**write_skipped(out, result.reason), "skipped": 1}
+            headline: dict[str, Any] = {}
             print(f"stage {stage.name}: skipped: {result.reason}")
             if plots is not None:  # an empty plots folder makes DVC warn; say why there is no plot
                 write_text(plots / "skipped.svg", _skipped_svg(result.reason))
         elif isinstance(result, Metrics):
-            metrics = {"status": result.status, **dict(result.headline)}
-            details = result.details
+            outcome, headline, details = {"status": result.status}, dict(result.headline), dict(result.details)
             if details:  # the full set, beside the stage's other outputs
-                write_json(out / DETAILS_FILE, {"status": result.status, **dict(details)})
+                write_json(out / DETAILS_FILE, {**outcome, **details})
         else:
-            metrics = {"status": STATUS_OK, **dict(result or {})}
-        write_metrics(metrics_path, metrics)
-        tracker.set_tags({"robocal.status": metrics["status"]})
-        tracker.log_metrics({**details, **metrics, **times})
+            outcome, headline = {"status": STATUS_OK}, dict(result or {})
+        status = outcome["status"]
+        # the metrics file: the status under the stage's name (one short, unique column per stage in
+        # `dvc exp show`; the reason of a skip is in <out>/result.json), then the headline numbers
+        write_metrics(metrics_path, {stage.name: status, **headline})
+        tracker.set_tags({"robocal.status": status})
+        everything = {**outcome, **details, **headline}
+        tracker.log_metrics({**everything, **times})
         for path in [metrics_path, *([plots] if plots is not None and any(plots.iterdir()) else []), *ctx.artifacts]:
             tracker.log_artifact(path, _artifact_dir(path, out, plots))
     wall = time.perf_counter() - t0
-    print(f"stage {stage.name}: {metrics['status']} in {wall:.2f} s; metrics {_rel(metrics_path, root)}")
-    return {**metrics, **times}
+    print(f"stage {stage.name}: {status} in {wall:.2f} s; metrics {_rel(metrics_path, root)}")
+    return {**everything, **times}
 
 
 def _skipped_svg(reason: str) -> str:

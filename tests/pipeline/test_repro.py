@@ -26,6 +26,8 @@ from robocal.pipeline import params_text, write_params
 REPO = Path(__file__).resolve().parents[2]
 #: every stage of dvc.yaml (the default campaign is the thermal warm-up: all of them have work to do)
 STAGES = list(yaml.safe_load((REPO / "dvc.yaml").read_text())["stages"])
+#: each stage's output folder (its only `outs:` entry)
+OUT = {name: s["outs"][0] for name, s in yaml.safe_load((REPO / "dvc.yaml").read_text())["stages"].items()}
 pytestmark = pytest.mark.slow
 
 
@@ -139,7 +141,7 @@ def test_first_repro_runs_every_stage(copy: dict[str, Any]) -> None:
     assert sorted(ran) == sorted(STAGES)
     assert ran.index("simulate") < ran.index("prepare") < ran.index("geometric_fit")
     assert ran.index("thermal_fit") < ran.index("screen") < ran.index("validate")
-    status = {s: json.loads((root / f"reports/metrics/{s}.json").read_text())["status"] for s in STAGES}
+    status = {s: json.loads((root / f"reports/metrics/{s}.json").read_text())[s] for s in STAGES}
     # the warm-up has temperatures but no payload: only compliance_fit has nothing to do
     assert status == {s: ("skipped" if s == "compliance_fit" else "ok") for s in STAGES}
     val = json.loads((root / "reports/metrics/validate.json").read_text())
@@ -157,7 +159,7 @@ def test_first_repro_runs_every_stage(copy: dict[str, Any]) -> None:
     report = (root / "reports/geometric/report.html").read_text()
     assert "<img" in report and "http://" not in report.split("<body", 1)[-1][:200_000].replace("http://www.w3", "")
     m = json.loads((root / "reports/metrics/geometric_fit.json").read_text())
-    assert m["status"] == "ok" and 0 < m["fit_rms_mm"] < 0.1
+    assert m["geometric_fit"] == "ok" and 0 < m["fit_rms_mm"] < 0.1
     assert m["val_mean_mm"] < m["val_nominal_mean_mm"]
     assert sorted(p.name for p in (root / "reports/plots/geometric_fit").iterdir()) == [
         "error_histogram.svg",
@@ -267,9 +269,10 @@ def test_a_campaign_without_temperatures_skips_the_thermal_stages(copy: dict[str
     ran = _reproduce(root)
     assert "simulate" in ran and "thermal_fit" in ran
     for stage in ("thermal_fit", "screen", "validate"):
-        m = json.loads((root / f"reports/metrics/{stage}.json").read_text())
+        assert json.loads((root / f"reports/metrics/{stage}.json").read_text()) == {stage: "skipped"}
+        m = json.loads((root / OUT[stage] / "result.json").read_text())
         assert m["status"] == "skipped" and "temperature" in m["reason"], (stage, m)
-    assert json.loads((root / "reports/metrics/geometric_fit.json").read_text())["status"] == "ok"
+    assert json.loads((root / "reports/metrics/geometric_fit.json").read_text())["geometric_fit"] == "ok"
     assert _reproduce(root) == []
 
 
@@ -291,14 +294,15 @@ def test_own_data_in_one_step_as_the_readme_says(copy: dict[str, Any]) -> None:
     res = subprocess.run(command.split(), cwd=root, capture_output=True, text=True, timeout=600)
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
     status = {s: json.loads((root / f"reports/metrics/{s}.json").read_text()) for s in STAGES}
-    assert status["simulate"]["status"] == "skipped" and "abb-irb120" in status["simulate"]["reason"]
+    sim = json.loads((root / "data/raw/default/result.json").read_text())
+    assert status["simulate"]["simulate"] == "skipped" and "abb-irb120" in sim["reason"]
     assert not (root / "data/raw/default/poses.csv").exists()  # the twin did not run
     for stage in ("thermal_fit", "screen", "validate", "compliance_fit"):
-        assert status[stage]["status"] == "skipped", (stage, status[stage])
+        assert status[stage][stage] == "skipped", (stage, status[stage])
     prep = json.loads((root / "data/interim/prepare.json").read_text())
     assert prep["robot"] == "abb_irb120" and prep["n_rows"] == (ABB / "poses.csv").read_text().count("\n") - 1
     geo = status["geometric_fit"]
-    assert geo["status"] == "ok", geo
+    assert geo["geometric_fit"] == "ok", geo
     # calibrated beats nominal on the held-out poses (upstream's test set: 10 configurations of T4)
     assert geo["val_mean_mm"] < geo["val_nominal_mean_mm"], geo
-    assert status["discover"]["status"] == "ok"
+    assert status["discover"]["discover"] == "ok"

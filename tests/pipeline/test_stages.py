@@ -161,7 +161,7 @@ def test_skipped_stage_completes_with_an_explicit_result(common: ModuleType, tmp
     result = json.loads((root / "reports/thermal/result.json").read_text())
     assert result == {"status": "skipped", "reason": "the campaign has no temperatures.csv"}
     metrics = json.loads((root / "reports/metrics/thermal_fit.json").read_text())
-    assert metrics["status"] == "skipped" and metrics["skipped"] == 1
+    assert metrics == {"thermal_fit": "skipped"}  # one short column per stage in `dvc exp show`; why: result.json
 
 
 def test_reading_an_undeclared_section_names_it(

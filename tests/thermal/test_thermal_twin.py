@@ -166,7 +166,8 @@ def test_stages_run_and_skip(twin, tmp_path, monkeypatch) -> None:
     try:
         _run_stage("thermal_fit", root)
         _run_stage("validate", root)
-        met = json.loads((root / "reports/metrics/validate.json").read_text())
+        assert json.loads((root / "reports/metrics/validate.json").read_text())["validate"] == "ok"
+        met = json.loads((root / "reports/validate/all_metrics.json").read_text())  # the full set
         assert met["status"] == "ok"
         assert met["validation"]["proposed"]["mean_position_mm"] < met["validation"]["none"]["mean_position_mm"]
         assert (root / "reports/validate/thermal_model.json").is_file()
@@ -177,7 +178,8 @@ def test_stages_run_and_skip(twin, tmp_path, monkeypatch) -> None:
         _run_stage("thermal_fit", root)
         _run_stage("validate", root)
         for name in ("thermal_fit", "validate"):
-            m = json.loads((root / f"reports/metrics/{name}.json").read_text())
+            assert json.loads((root / f"reports/metrics/{name}.json").read_text()) == {name: "skipped"}
+            m = json.loads((root / f"reports/{name.split('_')[0]}/result.json").read_text())
             assert m["status"] == "skipped" and "no temperature log" in m["reason"]
     finally:
         monkeypatch.chdir(cwd)
