@@ -37,7 +37,7 @@ run: $(STAMP) ## set up, then run the default pipeline end to end (dvc repro)
 	@echo "reports (stages that skipped have none; reports/<stage>/result.json says why):"
 	@for r in geometric thermal screen validate compliance discovery compare_optimizers; do \
 		test -f reports/$$r/report.html && echo "  $(CURDIR)/reports/$$r/report.html"; done; true
-	@echo "metrics: $(BIN)/dvc metrics show    compare experiments: $(BIN)/dvc exp show --only-changed    runs: make ui"
+	@echo "metrics: $(BIN)/dvc metrics show    compare experiments: make exps    runs: make ui"
 
 test: $(STAMP) ## set up, then run the test suite
 	$(BIN)/pytest -q
