@@ -58,7 +58,7 @@ ui: $(STAMP) ## MLflow UI on http://127.0.0.1:$(UI_PORT) over the repository's m
 		--default-artifact-root "$(CURDIR)/mlartifacts" --host 127.0.0.1 --port $(UI_PORT)
 
 exps: $(STAMP) ## compare the DVC experiments: the parameters and headline metrics that differ
-	$(BIN)/dvc exp show --no-pager --only-changed --drop '^(data|reports|src|stages|conf)/'
+	$(BIN)/dvc exp show --no-pager --only-changed --drop '.*/|(robot|scenario)\.(?!name$$)'
 
 compare: $(STAMP) ## the thermal paper's optimizer comparison (~2 min; not part of make run)
 	$(BIN)/dvc repro experiments/dvc.yaml:compare_optimizers
