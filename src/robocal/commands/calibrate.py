@@ -58,9 +58,14 @@ def optimizer_config(value: Any, conf_dir: Path = OPTIMIZER_DIR) -> dict[str, An
 def run(args: argparse.Namespace) -> int:
     from robocal.workflows.geometric import run_calibration
 
-    ov = parse_overrides(args.overrides)
+    # optimizer=<name> and optimizer.<key>=<value> combine (the name is not a mapping parse_overrides can nest)
+    named = [a.split("=", 1)[1] for a in args.overrides or [] if a.startswith("optimizer=")]
+    ov = parse_overrides([a for a in args.overrides or [] if not a.startswith("optimizer=")])
     split = ov.pop("split", None)
-    optimizer = optimizer_config(ov.pop("optimizer", None))
+    keys = ov.pop("optimizer", None)
+    if keys is not None and not isinstance(keys, dict):
+        raise ConfigError(f"The setting 'optimizer' must be a name or optimizer.<key>=<value>. Got {keys!r} instead.")
+    optimizer = optimizer_config({**(keys or {}), "name": named[-1]} if named else keys)
     if optimizer is not None and optimizer.get("name") in ("gn", "lm"):
         for key in ("max_iter", "ftol", "xtol"):  # calibrate()'s stopping rules, as in the pipeline
             ov.setdefault(key, optimizer[key])
