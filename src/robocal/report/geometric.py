@@ -82,7 +82,11 @@ def geometric_report(
         vl = [f"{p}/{t}" for p, t in zip(val.pose_id[keep], val.target[keep], strict=True)]
         rep.figure(plots.error_per_pose(vb, va, vl), "Validation rows: 3-D error before and after")
     rep.heading("Residuals against joint angles")
-    rep.figure(plots.residuals_vs_joints(cal.q, result.residuals_mm), "Calibration residuals (x, y, z) per joint")
+    joints = list(result.model.robot.joint_names)  # the robot's own joint names, as everywhere else
+    rep.figure(
+        plots.residuals_vs_joints(cal.q, result.residuals_mm, joints),
+        "Calibration residuals (x, y, z) against each joint's angle",
+    )
     rep.heading("Parameters")
     table = result.parameter_table()
     rep.table(
