@@ -305,6 +305,28 @@ def validation_report(
     rep.heading("Proposed model (the selected parameters, eq. 28 form)")
     rep.paragraph(f"Selected ({source}): {', '.join(selected) or 'none'}. {EQUATION_UNITS}")
     rep.code("\n".join(proposed.equations(stderr=True)) or "(empty)")
+    ref = dict(zip(fit.model_all.sensors, fit.model_all.T_ref_C.tolist(), strict=True))
+    ref_p = dict(zip(proposed.sensors, proposed.T_ref_C.tolist(), strict=True))
+    by_all = {q.name: q for q in fit.model_all.parameters}
+    both = [q for q in proposed.parameters if q.name in by_all]
+    if both:
+        rep.paragraph(
+            "One parameter, two models: the proposed model re-identifies the drift on the selected parameters only "
+            "(the others held at their cold values) and refits each regression, so a parameter's model here can "
+            "differ from the all-parameter model of the thermal fit (reports/thermal) in its coefficients and even "
+            "its sensors. Side by side:"
+        )
+        rep.table(
+            [
+                {
+                    "parameter": q.name,
+                    "proposed (this page, applied)": q.equation(ref_p).split(" = ", 1)[-1],
+                    "all-parameter model (thermal fit)": by_all[q.name].equation(ref).split(" = ", 1)[-1],
+                }
+                for q in both
+            ],
+            caption="the applied model of each selected parameter beside the thermal fit's",
+        )
     if proposed.parameters:
         rep.paragraph("In absolute temperatures (°C), as the paper prints eq. 28:")
         rep.code("\n".join(proposed.equations(absolute=True)))
