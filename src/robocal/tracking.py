@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import contextlib
 import fcntl
+import functools
 import json
 import math
 import os
@@ -641,7 +642,7 @@ def flush(directory: str | Path | None = None, uri: str | None = None) -> int:
                 break
             for rec in todo:
                 try:
-                    run_id = _retry(lambda rec=rec: _write_record(rec))
+                    run_id = _retry(functools.partial(_write_record, rec))
                 except Exception as exc:
                     failed.add(rec.name)
                     _report(f"writing the pending run {rec} to MLflow", exc)

@@ -335,11 +335,14 @@ def validation_report(
             caption="sensors and order of the proposed model, chosen by leave-one-state-out cross-validation",
             float_fmt="{:.3g}",
         )
-    rows = []
+    rows: list[dict[str, Any]] = []
+    weak: set[str] = set()
     for p in proposed.parameters:
         f = 1.0 if p.kind == "length" else DEG_PER_RAD  # angles in degrees in every table
         for c, e, se in zip(p.coefficients, p.terms, p.stderr, strict=True):
             order = sum(e)
+            if float(se) > 0 and abs(float(c)) < float(se):
+                weak.add(p.name)
             rows.append(
                 {
                     "parameter": p.name,
@@ -352,13 +355,10 @@ def validation_report(
                 }
             )
     rep.table(rows, caption="coefficients with standard errors (angles in degrees)", float_fmt="{:.4g}")
-    weak = sorted(
-        {r["parameter"] for r in rows if r["|coef| / std. error"] is not None and r["|coef| / std. error"] < 1}
-    )
     if weak:
         rep.note(
-            f"Coefficients smaller than their standard error: {', '.join(weak)}. The compensation applies them as "
-            "fitted; they are not distinguishable from zero on this warm-up.",
+            f"Coefficients smaller than their standard error: {', '.join(sorted(weak))}. The compensation applies "
+            "them as fitted; they are not distinguishable from zero on this warm-up.",
             kind="warn",
         )
     for fig, cap in parameter_figures(fit, proposed):
