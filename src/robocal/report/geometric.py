@@ -114,10 +114,12 @@ def geometric_report(
         rep.paragraph("None: every candidate parameter is identifiable from these poses.")
     T = result.tracker_T_base
     rep.heading("Frames and tools")
+    rpy = np.rad2deg(_rpy_zyx(T[:3, :3]))
     rep.kv(
         {
-            "tracker→base xyz (mm)": np.array2string(T[:3, 3], precision=4),
-            **{f"tool {k} (mm, flange frame)": np.array2string(v, precision=4) for k, v in result.tools.items()},
+            "base origin in the tracker frame (mm)": _xyz(T[:3, 3]),
+            "base orientation in the tracker frame (deg)": "roll {:.4f}, pitch {:.4f}, yaw {:.4f}".format(*rpy),
+            **{f"tool {k} in the flange frame (mm)": _xyz(v) for k, v in result.tools.items()},
         }
     )
     return rep
@@ -130,3 +132,15 @@ def _iterations_time(fit: Mapping[str, Any]) -> str:
         return f"{fit['nit']} (time: in the MLflow run and the console, not in files tracked by DVC)"
     t = float(fit["wall_time_s"])
     return f"{fit['nit']} / {t:.3f} s" if t >= 0.1 else f"{fit['nit']} / {t * 1e3:.1f} ms"
+
+
+def _xyz(v: Any) -> str:
+    """``x 2500.0170, y 1199.9799, z −350.4942`` (mm), not a numpy repr."""
+    x, y, z = (float(c) for c in np.asarray(v, dtype=float).reshape(3))
+    return f"x {x:.4f}, y {y:.4f}, z {z:.4f}".replace("-", "−")
+
+
+def _rpy_zyx(R: np.ndarray) -> np.ndarray:
+    """Roll, pitch, yaw (rad) of ``R = Rz(yaw) Ry(pitch) Rx(roll)``."""
+    pitch = np.arcsin(-np.clip(R[2, 0], -1.0, 1.0))
+    return np.array([np.arctan2(R[2, 1], R[2, 2]), pitch, np.arctan2(R[1, 0], R[0, 0])])
