@@ -430,6 +430,17 @@ def compensation_section(rep: Report, ev: Mapping[str, Any]) -> Report:
         )
         if comp.get("flagged"):
             rep.table(comp["flagged"], caption="targets not ok (nominal joints kept unless applied = 1)")
+        large = comp.get("large_corrections") or []
+        if large:
+            rep.note(
+                f"Large corrections: {len(large)} target(s) need a joint correction above "
+                f"{comp['large_correction_deg']:g}° (largest {large[0]['correction_max_deg']:.2f}° at "
+                f"{large[0]['target_id']}). A sub-millimetre thermal drift needs such a move only near a singularity "
+                "(wrist, stretched or folded arm), where the correction is unreliable: check these targets before "
+                "sending them to the controller.",
+                kind="warn",
+            )
+            rep.table(large, caption="targets with a large joint correction (deg)", float_fmt="{:.3f}")
         rep.table(
             [{"column": k, "meaning": v} for k, v in comp.get("columns", {}).items()],
             caption="columns of compensation.csv",
