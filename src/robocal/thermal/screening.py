@@ -1043,7 +1043,6 @@ def add_to_report(result: ScreeningResult, report: Report, level: int = 2) -> Re
         "unit",
         "step",
         "mean_position_mm",
-        "mean_orientation",
         "E_mean",
         "drift",
         "drift_z",
@@ -1057,14 +1056,13 @@ def add_to_report(result: ScreeningResult, report: Report, level: int = 2) -> Re
         columns={
             "step": "step (unit)",
             "mean_position_mm": "E_pos mean (mm)",
-            "mean_orientation": "E_ori mean",
             "drift": "drift (unit)",
         }
     )
     report.table(
         shown,
-        caption="Per-parameter sensitivity and influence (table 4 equivalent); step and drift in the row's unit, "
-        "E_ori = ‖R_s R_0ᵀ − I‖_F (no unit); the maxima and the Jacobian cross-check are in screening.csv",
+        caption="Per-parameter sensitivity and influence (table 4 equivalent), step and drift in the row's unit; "
+        "orientation errors, maxima and the Jacobian cross-check: screening.csv",
     )
     band, zlim = sel.get("explain_band", 2.0), sel.get("explain_z", 2.0)
     if result.what_if:
