@@ -79,16 +79,19 @@ def matrix_to_rotvec(R: np.ndarray) -> np.ndarray:
     """Rotation matrices ``(..., 3, 3)`` to rotation vectors ``(..., 3)`` (rad), robust near 0 and pi."""
     R = np.asarray(R, dtype=float)
     cos = np.clip((np.trace(R, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0)
-    th = np.arccos(cos)
     w = np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], -1)
+    # |w| = 2 sin(th): atan2 keeps full precision near 0 and pi, where arccos(cos) loses half the digits
+    th = np.arctan2(np.linalg.norm(w, axis=-1) / 2.0, cos)
     s = np.sin(th)
     small = th < 1e-6
     factor = np.where(small, 0.5 + th**2 / 12.0, th / (2.0 * np.where(small, 1.0, s)))
     out = w * factor[..., None]
     near_pi = th > np.pi - 1e-3
     if np.any(near_pi):
-        # axis from the largest diagonal element of (R + I) / 2
-        B = (R[near_pi] + np.eye(3)) / 2.0
+        # axis from the symmetric part: (R + R^T) / 2 - cos(th) I = (1 - cos(th)) a a^T, exactly (the skew part
+        # and the cos(th) I term left in (R + I) / 2 cost ~1e-3 of accuracy this close to pi)
+        Rn = R[near_pi]
+        B = (Rn + np.swapaxes(Rn, -1, -2)) / 2.0 - cos[near_pi][..., None, None] * np.eye(3)
         idx = np.argmax(np.diagonal(B, axis1=-2, axis2=-1), axis=-1)
         axis = B[np.arange(len(idx)), :, idx]
         axis /= np.linalg.norm(axis, axis=-1, keepdims=True)
