@@ -66,6 +66,7 @@ def compute(ctx: Context) -> Metrics:
             parent_run_id=tracker.run_id,
             run_name=f"{row['algorithm']} pop {row['population']} run {row['run']}",
             tags={"robocal.algorithm": row["algorithm"]},
+            quiet=True,  # one line per run would break the progress bar
         )
         with child:
             child.log_params({k: row[k] for k in ("algorithm", "population", "run", "seed")})

@@ -285,9 +285,11 @@ class StageRun:
         tags: Mapping[str, str] | None = None,
         run_name: str | None = None,
         required: bool = False,
+        quiet: bool = False,
     ) -> None:
         self.stage = stage
         self.enabled = enabled
+        self.quiet = quiet  # no "run <id>" line (many nested runs under a progress bar)
         self.uri = tracking_uri(uri) if enabled else None
         self.experiment = experiment
         self.parent_run_id = parent_run_id or os.environ.get(PARENT_ENV) or None
@@ -324,7 +326,7 @@ class StageRun:
             return str(run.info.run_id)
 
         self.run_id = self._call("start run", go)
-        if self.run_id:
+        if self.run_id and not self.quiet:
             print(f"robocal tracking: run {self.run_id} ({self.run_name}) in {self.uri}", file=sys.stderr)
         return self
 
