@@ -21,18 +21,23 @@ help: ## list the targets
 
 $(STAMP): pyproject.toml
 	@command -v $(PY) >/dev/null || { echo "needs $(PY) on PATH"; exit 1; }
+	@echo "setting up $(VENV): robocal and its tools (~1.2 GB, about 1-2 min; pip shows its progress)"
 	$(PY) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --quiet -e '.[dev]'
+	$(BIN)/pip install --progress-bar on -e '.[dev]' | grep -v '^Requirement already satisfied' || true
+	@$(BIN)/python -c "import robocal" || { echo "setup failed: see pip's output above"; exit 1; }
 	touch $(STAMP)
 
 setup: $(STAMP) ## create .venv and install robocal with its tools
 
 run: $(STAMP) ## set up, then run the default pipeline end to end (dvc repro)
 	$(BIN)/dvc repro
+	@$(BIN)/python -m robocal.tracking flush >/dev/null
 	@echo
-	@echo "reports: $(CURDIR)/reports/{geometric,thermal,screen,validate,compliance,discovery}/report.html"
-	@echo "metrics: $(BIN)/dvc metrics show    runs: make ui"
+	@echo "reports (stages that skipped have none; reports/<stage>/result.json says why):"
+	@for r in geometric thermal screen validate compliance discovery compare_optimizers; do \
+		test -f reports/$$r/report.html && echo "  $(CURDIR)/reports/$$r/report.html"; done; true
+	@echo "metrics: $(BIN)/dvc metrics show    compare experiments: make exps    runs: make ui"
 
 test: $(STAMP) ## set up, then run the test suite
 	$(BIN)/pytest -q
@@ -46,9 +51,18 @@ params: $(STAMP) ## regenerate params.yaml from conf/ (DVC's Hydra composition)
 	$(BIN)/python -m robocal.pipeline params
 
 ui: $(STAMP) ## MLflow UI on http://127.0.0.1:$(UI_PORT) over the repository's mlflow.db
-	$(BIN)/python -c "from robocal.tracking import ensure_store; ensure_store()"
+	$(BIN)/python -m robocal.tracking flush
+	@$(BIN)/python -c "from robocal.tracking import ensure_store; \
+		print('open the runs view: http://127.0.0.1:$(UI_PORT)/#/experiments/' + ensure_store() + '/runs')"
 	$(BIN)/mlflow ui --backend-store-uri "sqlite:///$(CURDIR)/mlflow.db" \
 		--default-artifact-root "$(CURDIR)/mlartifacts" --host 127.0.0.1 --port $(UI_PORT)
+
+exps: $(STAMP) ## compare the DVC experiments: the parameters and headline metrics that differ
+	$(BIN)/dvc exp show --no-pager --only-changed --drop '.*/|(robot|scenario)\.(?!name$$)'
+
+compare: $(STAMP) ## the thermal paper's optimizer comparison (~2 min; not part of make run)
+	$(BIN)/dvc repro experiments/dvc.yaml:compare_optimizers
+	@echo "report: $(CURDIR)/reports/compare_optimizers/report.html"
 
 bench: $(STAMP) ## time the full default pipeline (dvc repro --force), then a second repro (nothing to do)
 	@TIMEFORMAT='full default dvc repro --force: %R s'; time $(BIN)/dvc repro --force >/dev/null
@@ -60,4 +74,4 @@ sweep: $(STAMP) ## example sweeps: three noise settings in parallel (joblib), th
 	$(BIN)/python stages/geometric_fit.py -m optimizer=gn,lm
 	@echo "results: reports/sweeps/geometric_fit/; compare the nested runs with: make ui"
 
-.PHONY: help setup run test lint params ui bench sweep
+.PHONY: help setup run test lint params ui exps compare bench sweep

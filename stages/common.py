@@ -87,6 +87,7 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 os.environ.setdefault("MLFLOW_DISABLE_TELEMETRY", "1")
 
 from robocal.errors import ConfigError, RobocalError  # noqa: E402
+from robocal.io import reproducible, write_json, write_text  # noqa: E402
 from robocal.pipeline import (  # noqa: E402
     PARAMS_FILE,
     STATUS_OK,
@@ -102,6 +103,9 @@ from robocal.pipeline import (  # noqa: E402
 
 #: The repository root: the folder holding ``stages/`` (in DVC's temporary copies too).
 ROOT = Path(__file__).resolve().parents[1]
+#: The full metrics of a stage that returns :class:`Metrics`, in its output folder (the headline ones are in
+#: ``reports/metrics/<stage>.json``).
+DETAILS_FILE = "all_metrics.json"
 #: Tracking settings used when the parameters have no ``tracking`` section.
 TRACKING_DEFAULTS: dict[str, Any] = {"enabled": True, "experiment": "robocal", "uri": None, "required": False}
 
@@ -115,6 +119,9 @@ class Stage:
     out: str
     metrics: str
     plots: str | None = None
+    #: True: the MLflow run is written while the stage runs (it nests runs under it); False: recorded and
+    #: written by a detached flusher (robocal.tracking.PendingRun), which saves the stage MLflow's start-up.
+    inline_tracking: bool = False
 
 
 class Sections(dict):  # type: ignore[type-arg]
@@ -175,14 +182,38 @@ class Context:
         return skipped(reason)
 
 
-Compute = Callable[[Context], "Mapping[str, Any] | Skipped | None"]
+@dataclass(frozen=True)
+class Metrics:
+    """What ``compute`` may return instead of a plain mapping: a few ``headline`` numbers for the metrics
+    file (``dvc metrics show`` / ``dvc exp show``: keep it short, names unique across stages) and
+    ``details`` that go to MLflow only (the stage's own JSON outputs hold them too). ``status`` is "ok"
+    unless the stage found the result unusable (e.g. "failed": worse than its start)."""
+
+    headline: Mapping[str, Any]
+    details: Mapping[str, Any] = field(default_factory=dict)
+    status: str = STATUS_OK
+
+
+Compute = Callable[[Context], "Mapping[str, Any] | Metrics | Skipped | None"]
 
 
 def _sections(stage: Stage, cfg: Mapping[str, Any], source: str) -> Sections:
-    missing = [s for s in stage.params if s not in cfg]
+    """The declared parameters: whole sections (``robot``) or single keys of a section (``data.campaign``,
+    which gives the stage ``{"data": {"campaign": ...}}`` and nothing else of ``data``)."""
+    missing = [s for s in stage.params if s.split(".", 1)[0] not in cfg]
     if missing:
         raise ConfigError(f"{source}: missing parameter section(s) {missing} needed by stage {stage.name!r}")
-    out = Sections({s: cfg[s] for s in stage.params})
+    out = Sections()
+    for key in stage.params:
+        section, _, rest = key.partition(".")
+        if not rest:
+            out[section] = cfg[section]
+            continue
+        node = out.setdefault(section, {})
+        parts = rest.split(".")
+        for part in parts[:-1]:
+            node = node.setdefault(part, {})
+        node[parts[-1]] = get(cfg, key)
     out.stage = stage.name
     return out
 
@@ -210,44 +241,68 @@ def execute(
     tags: Mapping[str, str] | None = None,
     run_name: str | None = None,
 ) -> dict[str, Any]:
-    """Run one stage job: tracking run, ``compute``, metrics / skipped result, artifacts. Returns the metrics."""
-    from robocal.tracking import StageRun
+    """Run one stage job: tracking run, ``compute``, metrics / skipped result, artifacts.
+
+    Writes ``metrics_path`` = ``{<stage name>: status, **headline}`` (status "ok", "skipped" or "failed").
+    Returns everything: ``status`` (and ``reason`` of a skip), details, headline numbers and the times."""
+    from robocal.tracking import PendingRun, StageRun
 
     sections = _sections(stage, cfg, "the config" if hydra else PARAMS_FILE)
     tcfg = _tracking(cfg)
-    tracker = StageRun(
-        stage.name,
-        enabled=bool(tcfg["enabled"]),
-        uri=tcfg["uri"],
-        experiment=str(tcfg["experiment"]),
-        required=bool(tcfg["required"]),
-        tags=tags,
-        run_name=run_name,
-    )
+    common = {"enabled": bool(tcfg["enabled"]), "uri": tcfg["uri"], "experiment": str(tcfg["experiment"])}
+    tracker: Any
+    if hydra or stage.inline_tracking or tcfg["required"]:  # nested runs, or the run must exist before exit
+        tracker = StageRun(stage.name, **common, required=bool(tcfg["required"]), tags=tags, run_name=run_name)
+    else:  # recorded now, written to MLflow by a detached flusher: no MLflow import in the stage
+        tracker = PendingRun(stage.name, **common, tags=tags, run_name=run_name)
     out.mkdir(parents=True, exist_ok=True)
     if plots is not None:
         plots.mkdir(parents=True, exist_ok=True)
     ctx = Context(stage, root, sections, out, metrics_path, plots, hydra, tracker)
     t0 = time.perf_counter()
-    with tracker:  # FAILED in MLflow when compute raises; the error then propagates
+    # DVC-tracked outputs (params.yaml mode): same config, same bytes -- no timings in any JSON written,
+    # floats rounded (robocal.io.reproducible). Timings go to MLflow and the console.
+    with tracker, reproducible(not hydra):  # FAILED in MLflow when compute raises; the error then propagates
         tracker.log_params(dict(sections))
         tracker.log_text(_yaml(dict(sections)), "params.yaml")
         tc = time.perf_counter()
         result = compute(ctx)
         times = {"compute_time_s": time.perf_counter() - tc, "wall_time_s": time.perf_counter() - t0}
+        details: dict[str, Any] = {}
         if isinstance(result, Skipped):
-            metrics = {**write_skipped(out, result.reason), "skipped": 1, **times}
+            outcome = {**write_skipped(out, result.reason), "skipped": 1}
+            headline: dict[str, Any] = {}
             print(f"stage {stage.name}: skipped: {result.reason}")
+            if plots is not None:  # an empty plots folder makes DVC warn; say why there is no plot
+                write_text(plots / "skipped.svg", _skipped_svg(result.reason))
+        elif isinstance(result, Metrics):
+            outcome, headline, details = {"status": result.status}, dict(result.headline), dict(result.details)
+            if details:  # the full set, beside the stage's other outputs
+                write_json(out / DETAILS_FILE, {**outcome, **details})
         else:
-            metrics = {"status": STATUS_OK, **dict(result or {}), **times}
-        write_metrics(metrics_path, metrics)
-        tracker.set_tags({"robocal.status": metrics["status"]})
-        tracker.log_metrics(metrics)
-        for path in [metrics_path, *([plots] if plots is not None else []), *ctx.artifacts]:
+            outcome, headline = {"status": STATUS_OK}, dict(result or {})
+        status = outcome["status"]
+        # the metrics file: the status under the stage's name (one short, unique column per stage in
+        # `dvc exp show`; the reason of a skip is in <out>/result.json), then the headline numbers
+        write_metrics(metrics_path, {stage.name: status, **headline})
+        tracker.set_tags({"robocal.status": status})
+        everything = {**outcome, **details, **headline}
+        tracker.log_metrics({**everything, **times})
+        for path in [metrics_path, *([plots] if plots is not None and any(plots.iterdir()) else []), *ctx.artifacts]:
             tracker.log_artifact(path, _artifact_dir(path, out, plots))
     wall = time.perf_counter() - t0
-    print(f"stage {stage.name}: {metrics['status']} in {wall:.2f} s; metrics {_rel(metrics_path, root)}")
-    return metrics
+    print(f"stage {stage.name}: {status} in {wall:.2f} s; metrics {_rel(metrics_path, root)}")
+    return {**everything, **times}
+
+
+def _skipped_svg(reason: str) -> str:
+    from html import escape
+
+    return (
+        '<svg xmlns="http://www.w3.org/2000/svg" width="640" height="60" viewBox="0 0 640 60">'
+        '<text x="10" y="35" font-family="sans-serif" font-size="14">'
+        f"stage skipped: {escape(reason)}</text></svg>\n"
+    )
 
 
 def _artifact_dir(path: Path, out: Path, plots: Path | None) -> str | None:

@@ -4,7 +4,7 @@ Improved GOA vs GOA vs WOA on the geometric calibration (robocal.workflows.optim
 algorithm x population x run, each run a nested MLflow run (time, iterations, error, convergence curve); writes
 ``reports/compare_optimizers/`` (runs.csv, table.csv, summary.json, report.html with fig.-4-like plots).
 
-    python stages/compare_optimizers.py +compare=default                      # until conf/config.yaml has it
+    dvc exp run experiments/dvc.yaml:compare_optimizers        # by name: not part of the default `dvc repro`
     python stages/compare_optimizers.py -m compare.populations=[500],[1000],[1500]   # a sweep, one job each
 """
 
@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from common import Context, Stage, run
+from common import Context, Metrics, Stage, run
 
 STAGE = Stage(
     name="compare_optimizers",
@@ -20,13 +20,15 @@ STAGE = Stage(
     out="reports/compare_optimizers",
     metrics="reports/metrics/compare_optimizers.json",
     plots="reports/plots/compare_optimizers",
+    inline_tracking=True,  # one nested MLflow run per optimizer run, under this stage's run
 )
 INPUT = "data/interim"
 #: The algorithms' coefficients (their Hydra group files, read as files: a dependency of the stage).
 COEFFICIENTS = "conf/optimizer/{name}.yaml"
 
 
-def compute(ctx: Context) -> dict[str, Any]:
+def compute(ctx: Context) -> Metrics:
+    import numpy as np
     import yaml
 
     from robocal.data.contract import read_campaign
@@ -64,6 +66,7 @@ def compute(ctx: Context) -> dict[str, Any]:
             parent_run_id=tracker.run_id,
             run_name=f"{row['algorithm']} pop {row['population']} run {row['run']}",
             tags={"robocal.algorithm": row["algorithm"]},
+            quiet=True,  # one line per run would break the progress bar
         )
         with child:
             child.log_params({k: row[k] for k in ("algorithm", "population", "run", "seed")})
@@ -85,7 +88,11 @@ def compute(ctx: Context) -> dict[str, Any]:
         f"{r['algorithm']}_{r['population']}": {k: v for k, v in r.items() if k not in ("algorithm", "population")}
         for r in summary["table"]
     }
-    return {"table": table, "deltas": summary["deltas"], "gn_rms_mm": summary["gn_rms_mm"]}
+    headline = {
+        f"cmp_{alg}_err_mm": float(np.mean([r["error_mm"] for r in summary["table"] if r["algorithm"] == alg]))
+        for alg in settings.algorithms
+    }
+    return Metrics(headline, {"table": table, "deltas": summary["deltas"], "gn_rms_mm": summary["gn_rms_mm"]})
 
 
 if __name__ == "__main__":

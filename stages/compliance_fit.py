@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from common import Context, Stage, run
+from common import Context, Metrics, Skipped, Stage, run
 
 STAGE = Stage(
     name="compliance_fit",
@@ -46,7 +46,7 @@ def metrics_of(summary: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def compute(ctx: Context) -> Any:
+def compute(ctx: Context) -> Metrics | Skipped:
     prep = ctx.read_json(f"{INPUT}/prepare.json")
     if not prep.get("has_payload"):
         return ctx.skip("the campaign has no payload rows (payload_kg is 0 or absent): no compliance to identify")
@@ -63,7 +63,9 @@ def compute(ctx: Context) -> Any:
     for name in ("report.html", "compliance.json", "conditions.csv", "compensation.csv"):
         if (ctx.out / name).exists():
             ctx.artifact(ctx.out / name)
-    return metrics_of(summary)
+    details = metrics_of(summary)
+    headline = {"compl_fit_rms_mm": details["fit_rms_mm"]}
+    return Metrics(headline, details)
 
 
 if __name__ == "__main__":

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from common import Context, Stage, run
+from common import Context, Metrics, Stage, run
 
 STAGE = Stage(
     name="discover",
@@ -42,7 +42,7 @@ def metrics_of(summary: dict[str, Any]) -> dict[str, Any]:
     }
 
 
-def compute(ctx: Context) -> dict[str, Any]:
+def compute(ctx: Context) -> Metrics:
     from robocal.discovery.workflow import run_discovery
     from robocal.report import plots
     from robocal.robot import robot_from_dict
@@ -64,7 +64,9 @@ def compute(ctx: Context) -> dict[str, Any]:
     for name in ("discovery.json", "report.html"):
         if (ctx.out / name).exists():
             ctx.artifact(ctx.out / name)
-    return metrics_of(summary)
+    details = metrics_of(summary)
+    headline = {"disc_rms_mm": details["rms_after_mm"], "disc_named": details["n_named"]}
+    return Metrics(headline, details)
 
 
 if __name__ == "__main__":

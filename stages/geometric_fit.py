@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from common import Context, Stage, run
+from common import Context, Metrics, Stage, run
 
 STAGE = Stage(
     name="geometric_fit",
@@ -88,7 +88,7 @@ def metrics_of(summary: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def compute(ctx: Context) -> dict[str, Any]:
+def compute(ctx: Context) -> Metrics:
     import pandas as pd
 
     from robocal.report import plots
@@ -117,7 +117,18 @@ def compute(ctx: Context) -> dict[str, Any]:
     )
     for name in ("report.html", "calibration.json", "summary.json", "residuals.csv"):
         ctx.artifact(ctx.out / name)
-    return metrics_of(summary)
+    details = metrics_of(summary)
+    headline: dict[str, Any] = {"fit_rms_mm": summary["fit"]["rms_position_mm"]}
+    if "validation" in summary:
+        headline["val_mean_mm"] = summary["validation"]["mean_position_mm"]
+        headline["val_nominal_mean_mm"] = summary["validation_before"]["mean_position_mm"]
+    problems = list(summary["problems"])
+    for text in problems:
+        print(f"stage geometric_fit: FAILED: {text}")
+    if problems:
+        details["reason"] = "; ".join(problems)
+        ctx.tracker.set_tags({"robocal.failure": details["reason"]})
+    return Metrics(headline, details, status="failed" if problems else "ok")
 
 
 if __name__ == "__main__":

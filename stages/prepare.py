@@ -10,9 +10,7 @@ Run on your own campaign: ``dvc exp run -S data.campaign=/path/to/campaign`` (an
 
 from __future__ import annotations
 
-from typing import Any
-
-from common import Context, Stage, run
+from common import Context, Metrics, Stage, run
 
 STAGE = Stage(
     name="prepare",
@@ -22,7 +20,7 @@ STAGE = Stage(
 )
 
 
-def compute(ctx: Context) -> dict[str, Any]:
+def compute(ctx: Context) -> Metrics:
     import pandas as pd
 
     from robocal.data import SplitConfig, read_campaign
@@ -73,7 +71,8 @@ def compute(ctx: Context) -> dict[str, Any]:
         "duration_s": float(camp.timestamp_s.max()) if camp.n_rows else 0.0,
     }
     write_json(ctx.out / "prepare.json", info)
-    return {k: v for k, v in info.items() if isinstance(v, bool | int | float) and k != "split_from_file"}
+    details = {k: v for k, v in info.items() if isinstance(v, bool | int | float) and k != "split_from_file"}
+    return Metrics({"rows": camp.n_rows, "val_rows": camp.n_rows - n_cal}, details)
 
 
 if __name__ == "__main__":

@@ -13,9 +13,7 @@ rule would add or drop them, and why; screening.csv; report.html), figures to ``
 
 from __future__ import annotations
 
-from typing import Any
-
-from common import Context, Stage, run
+from common import Context, Metrics, Skipped, Stage, run
 
 STAGE = Stage(
     name="screen",
@@ -30,7 +28,7 @@ PREPARE = "data/interim/prepare.json"
 TOOL_SOURCES = ("reports/thermal/reference_calibration.json", "reports/geometric/calibration.json")
 
 
-def compute(ctx: Context) -> Any:
+def compute(ctx: Context) -> Metrics | Skipped:
     prep = ctx.read_json(PREPARE)
     if not prep.get("has_temperatures"):
         return ctx.skip(
@@ -67,7 +65,7 @@ def compute(ctx: Context) -> Any:
     for w in result.what_if:  # borderline parameters: which change of the rule would add or drop them, and why
         print(f"  {w['text']}")
     t = result.table
-    return {
+    details = {
         "n_screened": len(t),
         "n_selected": len(result.selected),
         "selected": ",".join(result.selected),
@@ -77,6 +75,7 @@ def compute(ctx: Context) -> Any:
         "max_E_mean": float(t["E_mean"].max()),
         "n_borderline": len(result.what_if),
     }
+    return Metrics({"screened_in": len(result.selected)}, details)
 
 
 if __name__ == "__main__":

@@ -1,37 +1,57 @@
 """simulate: the embedded default campaign, written by the digital twin, so a fresh clone has data.
 
-Reads ``scenario`` (conf/scenario/, the twin's settings) and ``robot`` (the robot being calibrated, which the
-twin simulates); writes ``data/raw/default/`` in the data contract (poses.csv [+ temperatures.csv], plus
-truth.json and scenario.yaml, which readers of the contract ignore).
+Reads ``scenario`` (conf/scenario/, the twin's settings), ``robot`` (the robot being calibrated, which the
+twin simulates) and ``data.campaign``; writes ``data/raw/default/`` in the data contract (poses.csv
+[+ temperatures.csv], plus truth.json and scenario.yaml, which readers of the contract ignore).
+
+The twin runs only for the default campaign: when ``data.campaign`` names another folder (your own data),
+the stage skips with that reason and writes nothing but ``data/raw/default/result.json``. A scenario effect
+the robot cannot have (the thermal warm-up on a robot without temperature sensors) is left out with a note
+(printed, and in ``scenario.yaml`` under ``left_out``) instead of failing.
 """
 
 from __future__ import annotations
 
-from typing import Any
-
-from common import Context, Stage, run
+from common import Context, Metrics, Skipped, Stage, run
 
 STAGE = Stage(
     name="simulate",
-    params=("scenario", "robot"),
+    params=("scenario", "robot", "data.campaign"),
     out="data/raw/default",
     metrics="reports/metrics/simulate.json",
 )
 
 
-def compute(ctx: Context) -> dict[str, Any]:
+#: The campaign this stage writes, as ``data.campaign`` names it by default (conf/config.yaml).
+DEFAULT_CAMPAIGN = "data/raw/default"
+
+
+def compute(ctx: Context) -> Metrics | Skipped:
     from robocal.robot import robot_from_dict
     from robocal.sim.twin import simulate
 
-    scenario = ctx.get("scenario", types=dict)
+    campaign = ctx.get("data.campaign", types=str)
+    if ctx.path(campaign).resolve() != ctx.path(DEFAULT_CAMPAIGN).resolve():
+        return ctx.skip(f"data.campaign names {campaign!r}, not the default campaign: the twin is not run")
+    scenario = dict(ctx.get("scenario", types=dict))
     robot = robot_from_dict(ctx.cfg["robot"], source="params: robot")
+    effects = dict(scenario.get("effects") or {})
+    left_out = []
+    if "thermal" in effects and not robot.sensor_names:
+        left_out.append(f"thermal (robot {robot.name!r} has no temperature sensors)")
+        del effects["thermal"]
+        print(f"stage simulate: note: scenario {scenario.get('name')!r} leaves out its {left_out[-1]}")
+    scenario["effects"] = effects
     truth = simulate(scenario, ctx.out, seed=ctx.get("scenario.seed", 0, types=int), robot=robot)
+    if left_out:
+        with open(ctx.out / "scenario.yaml", "a", encoding="utf-8") as fh:
+            fh.write("left_out:\n" + "".join(f"  - {item}\n" for item in left_out))
     lines = (ctx.out / "poses.csv").read_text(encoding="utf-8").splitlines()
     header = lines[0].split(",")
     split = [row.rsplit(",", 1)[-1] for row in lines[1:]] if header[-1] == "split" else []
     ctx.artifact(ctx.out / "truth.json")
     ctx.artifact(ctx.out / "scenario.yaml")
-    return {
+    details = {
         "scenario": truth["scenario"],
         "robot": truth["robot"],
         "n_rows": len(lines) - 1,
@@ -40,6 +60,7 @@ def compute(ctx: Context) -> dict[str, Any]:
         "has_temperatures": (ctx.out / "temperatures.csv").is_file(),
         "noise_mm": truth["noise_mm"],
     }
+    return Metrics({"sim_rows": details["n_rows"]}, details)
 
 
 if __name__ == "__main__":

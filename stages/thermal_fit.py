@@ -10,9 +10,7 @@ metrics (the model and its equations are logged to MLflow as artifacts).
 
 from __future__ import annotations
 
-from typing import Any
-
-from common import Context, Stage, run
+from common import Context, Metrics, Skipped, Stage, run
 
 STAGE = Stage(
     name="thermal_fit",
@@ -24,7 +22,7 @@ STAGE = Stage(
 INPUT = "data/interim"
 
 
-def compute(ctx: Context) -> Any:
+def compute(ctx: Context) -> Metrics | Skipped:
     prep = ctx.read_json(f"{INPUT}/prepare.json")
     if not prep.get("has_temperatures"):
         return ctx.skip("no temperature log: the campaign has no temperatures, there is no thermal model to fit")
@@ -55,7 +53,7 @@ def compute(ctx: Context) -> Any:
         ctx.artifact(ctx.out / name)
     ctx.tracker.log_text("\n".join(summary["equations"]), "thermal_model_equations.txt")
     ctx.tracker.set_tags({"robocal.thermal.drifting": ",".join(summary["drifting"]) or "(none)"})
-    return {
+    details = {
         "n_states": summary["n_states"],
         "n_identified": summary["n_identified"],
         "n_drifting": len(summary["drifting"]),
@@ -64,6 +62,11 @@ def compute(ctx: Context) -> Any:
         "max_drift_rms_mm": max(summary["drift_rms_mm"]),
         "max_residual_rms_mm": max(summary["residual_rms_mm"]),
     }
+    headline = {
+        "thermal_drift_rms_mm": details["max_drift_rms_mm"],
+        "thermal_resid_rms_mm": details["max_residual_rms_mm"],
+    }
+    return Metrics(headline, details)
 
 
 if __name__ == "__main__":

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from common import Context, Stage, run
+from common import Context, Metrics, Skipped, Stage, run
 
 STAGE = Stage(
     name="validate",
@@ -27,7 +27,7 @@ INPUT = "data/interim"
 FIT = "reports/thermal"
 
 
-def compute(ctx: Context) -> Any:
+def compute(ctx: Context) -> Metrics | Skipped:
     prep = ctx.read_json(f"{INPUT}/prepare.json")
     if not prep.get("has_temperatures"):
         return ctx.skip("no temperature log: the campaign has no temperatures, there is no thermal compensation")
@@ -73,7 +73,13 @@ def compute(ctx: Context) -> Any:
         metrics["n_rows_out_of_range"] = summary["extrapolation"]["n_rows_out_of_range"]
     for w in summary.get("warnings", []):
         print(f"stage validate: WARNING {w}")
-    return metrics
+    val = summary["validation"]
+    headline = {
+        f"comp_{way}_mean_mm": val[way]["mean_position_mm"]
+        for way in ("none", "proposed")
+        if isinstance(val.get(way), dict) and "mean_position_mm" in val[way]
+    }
+    return Metrics(headline, metrics)
 
 
 if __name__ == "__main__":

@@ -147,3 +147,49 @@ def test_console_entry_point_exit_code(campaign_dir, tmp_path):
     assert proc.returncode != 0
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("robocal calibrate: error: file ") and "poses.csv" in lines[0]
+
+
+def test_calibrate_takes_the_optimizer_like_the_pipeline(campaign_dir, tmp_path, capsys):
+    """optimizer=<name> (conf/optimizer/) and optimizer.<key>=<value>; the reported time is the measured one."""
+    out = tmp_path / "ipopt"
+    code = main(["calibrate", str(campaign_dir), "--robot", "kr16_2", "--out", str(out), "optimizer=gn",
+                 "optimizer.max_iter=3", "--no-report"])  # fmt: skip
+    assert code == 0
+    line = capsys.readouterr().out.splitlines()[0]
+    assert line.startswith("fit (gn):") and "iterations in" in line
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"] == "ok" and summary["fit"]["nit"] <= 3
+    # the time printed is the fit's wall time (not an inner call's): it is at least the solver's time
+    assert summary["fit"]["wall_time_s"] >= summary["fit"]["solver_time_s"] > 0
+    assert main(["calibrate", str(campaign_dir), "--robot", "kr16_2", "--out", str(out), "optimizer=pso"]) == 2
+    assert "'optimizer'" in capsys.readouterr().err
+
+
+def test_calibrate_a_result_worse_than_nominal_is_failed(campaign_dir, tmp_path, capsys):
+    """Two whale iterations with ten whales barely move from the start: whatever they reach, the status must
+    follow the numbers: failed (exit 1, the reason printed) exactly when the result is worse than its start or
+    than the nominal model on validation."""
+    out = tmp_path / "woa"
+    code = main(["calibrate", str(campaign_dir), "--robot", "kr16_2", "--out", str(out), "optimizer=woa",
+                 "optimizer.population=10", "optimizer.max_iter=2", "--no-report"])  # fmt: skip
+    summary = json.loads((out / "summary.json").read_text())
+    worse = summary["validation"]["mean_position_mm"] > summary["validation_before"]["mean_position_mm"] or (
+        summary["fit"]["rms_position_mm"] > summary["start_rms_position_mm"]
+    )
+    assert (summary["status"] == "failed") == worse and (code == 1) == worse
+    if worse:
+        assert "FAILED" in capsys.readouterr().out
+
+
+def test_result_problems_names_each_way_a_calibration_fails():
+    from robocal.workflows.geometric import result_problems
+
+    ok = {"fit": {"rms_position_mm": 0.1}, "start_rms_position_mm": 0.9,
+          "validation": {"mean_position_mm": 0.1}, "validation_before": {"mean_position_mm": 0.8}}  # fmt: skip
+    assert result_problems(ok) == []
+    worse_fit = {**ok, "fit": {"rms_position_mm": 1.0}}
+    (text,) = result_problems(worse_fit)
+    assert "worse than its start" in text and "1.0000 mm" in text and "0.9000 mm" in text
+    worse_val = {**ok, "validation": {"mean_position_mm": 0.9}}
+    (text,) = result_problems(worse_val)
+    assert "validation" in text and "nominal" in text and "0.9000" in text and "0.8000" in text

@@ -1,15 +1,72 @@
-"""Atomic output writing: a failed run never leaves a half-written file in place of the last good one."""
+"""Atomic output writing: a failed run never leaves a half-written file in place of the last good one.
+
+Files are created with the permissions of an ordinary ``open()`` (``0o666`` less the user's umask), not the
+``0o600`` of a temporary file.
+
+Reproducible mode (:func:`reproducible`, which the pipeline runner turns on around a stage): the same
+config gives the same bytes. Every JSON written leaves out timings (keys ``time_s``, ``times_s`` and
+``*_time_s``: they go to MLflow and the console instead) and rounds floats to :data:`SIGNIFICANT_DIGITS`
+significant digits, so float noise in the last bits does not change a file tracked by DVC.
+"""
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import json
+import math
 import os
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+#: Significant digits of the floats written in reproducible mode (float noise sits near the 15th).
+SIGNIFICANT_DIGITS = 9
+_REPRODUCIBLE: contextvars.ContextVar[bool] = contextvars.ContextVar("robocal_reproducible", default=False)
+
+
+@contextlib.contextmanager
+def reproducible(on: bool = True) -> Iterator[None]:
+    """Within the block, JSON output leaves out timings and rounds floats (see the module docstring)."""
+    token = _REPRODUCIBLE.set(on)
+    try:
+        yield
+    finally:
+        _REPRODUCIBLE.reset(token)
+
+
+def is_reproducible() -> bool:
+    """True inside :func:`reproducible`: outputs must not carry timings."""
+    return _REPRODUCIBLE.get()
+
+
+def is_timing(key: object) -> bool:
+    """A key that holds a measured duration in seconds (``time_s``, ``times_s``, ``wall_time_s``, ...)."""
+    k = str(key)
+    return k in ("time_s", "times_s") or k.endswith(("_time_s", "_times_s"))
+
+
+def round_float(value: float, digits: int = SIGNIFICANT_DIGITS) -> float:
+    """``value`` rounded to ``digits`` significant digits (non-finite values unchanged)."""
+    if not math.isfinite(value) or value == 0.0:
+        return value
+    return float(f"{value:.{digits}g}")
+
+
+def _umask() -> int:
+    """The process umask, read without changing it where Linux allows (os.umask would race threads)."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("Umask:"):
+                return int(line.split()[1], 8)
+    except (OSError, ValueError):
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
 
 
 def _default(o: Any) -> Any:
@@ -35,6 +92,7 @@ def atomic_write(path: str | Path, writer: Callable[[Path], object]) -> Path:
     tmp_path = Path(tmp)
     try:
         writer(tmp_path)
+        os.chmod(tmp_path, 0o666 & ~_umask())  # mkstemp creates 0o600 whatever the umask
         os.replace(tmp_path, path)
     except BaseException:
         tmp_path.unlink(missing_ok=True)
@@ -51,18 +109,22 @@ def write_bytes(path: str | Path, data: bytes) -> Path:
 
 
 def to_json(obj: Any) -> str:
-    """JSON text with numpy types converted; NaN/inf become null (strict JSON)."""
+    """JSON text with numpy types converted; NaN/inf become null (strict JSON). In reproducible mode
+    timings are left out and floats rounded (module docstring)."""
+    repro = is_reproducible()
 
     def clean(o: Any) -> Any:
         if isinstance(o, dict):
-            return {str(k): clean(v) for k, v in o.items()}
+            return {str(k): clean(v) for k, v in o.items() if not (repro and is_timing(k))}
         if isinstance(o, list | tuple):
             return [clean(v) for v in o]
         if isinstance(o, np.ndarray):
             return clean(o.tolist())
         if isinstance(o, float | np.floating):
             f = float(o)
-            return f if np.isfinite(f) else None
+            if not np.isfinite(f):
+                return None
+            return round_float(f) if repro else f
         return o
 
     return json.dumps(clean(obj), indent=2, sort_keys=False, default=_default) + "\n"

@@ -16,6 +16,16 @@ errors, the error is printed to stderr (``robocal tracking: ...``), the run is m
 carries on writing its files; ``required=True`` makes :meth:`StageRun.close` raise afterwards, so the stage
 fails *after* its outputs are on disk. Nothing here is silent.
 
+Start-up cost. Importing MLflow and opening its SQLite store costs ~2.5 s of CPU, more than most stages compute.
+So a pipeline stage records its run with :class:`PendingRun` (no MLflow import): the run (params, metrics,
+tags, times, copies of its artifacts) goes to ``<store dir>/mlflow-pending/`` and a detached
+``python -m robocal.tracking flush`` writes it to MLflow with its original start and end times, while DVC
+goes on with the next stage. Flushers take turns under a lock and one flusher writes every pending run, so
+a pipeline pays MLflow's import about once instead of once per stage. ``python -m robocal.tracking flush``
+(``make ui`` runs it) waits for the last runs and retries any a flusher could not write; its errors are printed
+(a detached flusher's go to ``mlflow-pending/flush.log``). Runs that must be written before the stage ends use
+:class:`StageRun` directly: ``tracking.required=true``, Hydra sweeps (nested runs), the optimizer comparison.
+
 Hydra sweeps: :func:`start_sweep` opens a parent run and exports its id in :data:`PARENT_ENV`; every job
 (also in joblib worker processes, which inherit the environment) opens its run nested under it.
 """
@@ -24,8 +34,12 @@ from __future__ import annotations
 
 import contextlib
 import fcntl
+import functools
+import json
 import math
 import os
+import re
+import shutil
 import subprocess
 import sys
 import time
@@ -166,6 +180,15 @@ def flatten(mapping: Mapping[str, Any], prefix: str = "", sep: str = ".") -> dic
     return out
 
 
+_KEY_OK = re.compile(r"[^A-Za-z0-9_\-. :/]")
+
+
+def param_key(key: str) -> str:
+    """``key`` in MLflow's name charset (alphanumerics, ``_ - . space : /``): others become ``_``, ``^`` as in
+    ``T_j6_C^2`` becomes ``_pow`` (so the logged key still reads as the power it is)."""
+    return _KEY_OK.sub("_", key.replace("^", "_pow"))
+
+
 def numeric_metrics(mapping: Mapping[str, Any]) -> dict[str, float]:
     """The numeric leaves of a (nested) mapping, flattened; bools count as 0/1, non-finite values are dropped."""
     out: dict[str, float] = {}
@@ -262,9 +285,11 @@ class StageRun:
         tags: Mapping[str, str] | None = None,
         run_name: str | None = None,
         required: bool = False,
+        quiet: bool = False,
     ) -> None:
         self.stage = stage
         self.enabled = enabled
+        self.quiet = quiet  # no "run <id>" line (many nested runs under a progress bar)
         self.uri = tracking_uri(uri) if enabled else None
         self.experiment = experiment
         self.parent_run_id = parent_run_id or os.environ.get(PARENT_ENV) or None
@@ -301,13 +326,14 @@ class StageRun:
             return str(run.info.run_id)
 
         self.run_id = self._call("start run", go)
-        if self.run_id:
+        if self.run_id and not self.quiet:
             print(f"robocal tracking: run {self.run_id} ({self.run_name}) in {self.uri}", file=sys.stderr)
         return self
 
     def log_params(self, params: Mapping[str, Any]) -> None:
-        """Log a (nested) mapping as flattened parameters (values cut to MLflow's length limit)."""
-        from_flat = {k: ("null" if v is None else str(v)) for k, v in flatten(params).items()}
+        """Log a (nested) mapping as flattened parameters (values cut to MLflow's length limit; keys with
+        characters MLflow refuses, e.g. ``T_j6_C^2``, get them replaced: :func:`param_key`)."""
+        from_flat = {param_key(k): ("null" if v is None else str(v)) for k, v in flatten(params).items()}
 
         def go() -> None:
             from mlflow.entities import Param
@@ -320,7 +346,7 @@ class StageRun:
 
     def log_metrics(self, metrics: Mapping[str, Any], step: int = 0) -> None:
         """Log the numeric leaves of a (nested) mapping as metrics."""
-        values = numeric_metrics(metrics)
+        values = {param_key(k): v for k, v in numeric_metrics(metrics).items()}
 
         def go() -> None:
             from mlflow.entities import Metric
@@ -409,3 +435,239 @@ def end_sweep(parent: StageRun, status: str = "FINISHED") -> None:
     """Close the parent run of a sweep and stop exporting its id."""
     os.environ.pop(PARENT_ENV, None)
     parent.close(status)
+
+
+# ----------------------------------------------------------------------------------------------- pending runs
+
+#: Folder (beside the SQLite store, or in the repository for a tracking server) of runs not yet in MLflow.
+PENDING_DIR = "mlflow-pending"
+_RECORD = "run.json"
+
+
+def pending_dir(uri: str | None = None) -> Path:
+    """Where :class:`PendingRun` records runs for the store ``uri`` (see :func:`tracking_uri`)."""
+    uri = tracking_uri(uri)
+    db = sqlite_path(uri)
+    return (db.parent if db is not None else repo_root()) / PENDING_DIR
+
+
+class PendingRun:
+    """A run recorded to disk now and written to MLflow by a detached flusher (module docstring).
+
+    Same methods as :class:`StageRun`. Artifacts are copied when logged. If the record cannot be written
+    (e.g. the folder cannot be created) the run falls back to a :class:`StageRun`, so nothing is lost silently.
+    """
+
+    def __init__(
+        self,
+        stage: str,
+        *,
+        enabled: bool = True,
+        uri: str | None = None,
+        experiment: str = DEFAULT_EXPERIMENT,
+        tags: Mapping[str, str] | None = None,
+        run_name: str | None = None,
+    ) -> None:
+        self.stage = stage
+        self.enabled = enabled
+        self.uri = tracking_uri(uri) if enabled else None
+        self.experiment = experiment
+        self.run_name = run_name or stage
+        self.extra_tags = dict(tags or {})
+        self.run_id: str | None = None  # known once written to MLflow
+        self.errors: list[str] = []
+        self._record: dict[str, Any] = {}
+        self._tmp: Path | None = None
+        self._fallback: StageRun | None = None
+        self._closed = False
+
+    def start(self) -> PendingRun:
+        if not self.enabled:
+            return self
+        assert self.uri is not None
+        name = f"{time.strftime('%Y%m%dT%H%M%S')}-{os.getpid()}-{self.stage}"
+        try:
+            spool = pending_dir(self.uri)
+            spool.mkdir(parents=True, exist_ok=True)
+            self._tmp = spool / f".{name}.tmp"
+            (self._tmp / "artifacts").mkdir(parents=True)
+        except OSError:
+            self._tmp = None
+            self._fallback = StageRun(
+                self.stage, uri=self.uri, experiment=self.experiment, tags=self.extra_tags, run_name=self.run_name
+            ).start()
+            return self
+        self._record = {
+            "uri": self.uri,
+            "experiment": self.experiment,
+            "run_name": self.run_name,
+            "tags": {**default_tags(self.stage), **self.extra_tags},
+            "start_ms": int(time.time() * 1000),
+            "params": {},
+            "metrics": [],
+            "texts": [],
+            "artifacts": [],
+        }
+        return self
+
+    def log_params(self, params: Mapping[str, Any]) -> None:
+        if self._fallback is not None:
+            return self._fallback.log_params(params)
+        if self._tmp is not None:
+            self._record["params"].update({k: ("null" if v is None else str(v)) for k, v in flatten(params).items()})
+
+    def log_metrics(self, metrics: Mapping[str, Any], step: int = 0) -> None:
+        if self._fallback is not None:
+            return self._fallback.log_metrics(metrics, step)
+        if self._tmp is not None:
+            ts = int(time.time() * 1000)
+            self._record["metrics"] += [[k, v, ts, step] for k, v in sorted(numeric_metrics(metrics).items())]
+
+    def set_tags(self, tags: Mapping[str, Any]) -> None:
+        if self._fallback is not None:
+            return self._fallback.set_tags(tags)
+        if self._tmp is not None:
+            self._record["tags"].update({str(k): str(v) for k, v in tags.items()})
+
+    def log_text(self, text: str, artifact_file: str) -> None:
+        if self._fallback is not None:
+            return self._fallback.log_text(text, artifact_file)
+        if self._tmp is not None:
+            self._record["texts"].append([text, artifact_file])
+
+    def log_artifact(self, path: str | Path, artifact_path: str | None = None) -> None:
+        """Copy a file or a directory now (the stage may change it later); missing paths are skipped."""
+        if self._fallback is not None:
+            return self._fallback.log_artifact(path, artifact_path)
+        p = Path(path)
+        if self._tmp is None or not p.exists():
+            return
+        dest = self._tmp / "artifacts" / str(len(self._record["artifacts"])) / p.name
+        try:
+            if p.is_dir():
+                shutil.copytree(p, dest)
+            else:
+                dest.parent.mkdir(parents=True)
+                shutil.copy2(p, dest)
+        except OSError as exc:
+            self.errors.append(f"copy artifact {p}: {exc}")
+            _report(f"copy artifact {p}", exc)
+            return
+        self._record["artifacts"].append([str(dest.relative_to(self._tmp)), artifact_path, p.is_dir()])
+
+    def close(self, status: str = "FINISHED") -> None:
+        """Finish the record, hand it to a detached flusher (started here) and return at once."""
+        if self._closed:
+            return
+        self._closed = True
+        if self._fallback is not None:
+            self._fallback.close(status)
+            return
+        if self._tmp is None:
+            return
+        self._record.update(status=status, end_ms=int(time.time() * 1000))
+        try:
+            (self._tmp / _RECORD).write_text(json.dumps(self._record), encoding="utf-8")
+            os.replace(self._tmp, self._tmp.parent / self._tmp.name[1 : -len(".tmp")])
+        except OSError as exc:
+            self.errors.append(f"record run: {exc}")
+            _report("record run", exc)
+            return
+        spool = self._tmp.parent
+        print(f"robocal tracking: run recorded; written to {self.uri} in the background", file=sys.stderr)
+        try:
+            with open(spool / "flush.log", "a", encoding="utf-8") as log:
+                subprocess.Popen(
+                    [sys.executable, "-m", "robocal.tracking", "flush", "--dir", str(spool)],
+                    stdin=subprocess.DEVNULL,
+                    stdout=log,
+                    stderr=log,
+                    start_new_session=True,  # not killed with the stage, not waited for by DVC
+                    cwd=str(spool),
+                )
+        except OSError as exc:
+            _report("start the flusher (run `python -m robocal.tracking flush`)", exc)
+
+    def __enter__(self) -> PendingRun:
+        return self.start()
+
+    def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
+        self.close("FINISHED" if exc_type is None else ("KILLED" if exc_type is KeyboardInterrupt else "FAILED"))
+
+
+def _write_record(record_dir: Path) -> str:
+    """Write one pending run to MLflow; returns its run id. Raises on failure (the record is then kept)."""
+    from mlflow.entities import Metric, Param
+
+    rec = json.loads((record_dir / _RECORD).read_text(encoding="utf-8"))
+    exp_id = ensure_store(rec["uri"], rec["experiment"])
+    client = _client(rec["uri"])
+    run = client.create_run(exp_id, start_time=rec["start_ms"], tags=rec["tags"], run_name=rec["run_name"])
+    run_id = str(run.info.run_id)
+    try:
+        params = [Param(param_key(k), v[:6000]) for k, v in sorted(rec["params"].items())]
+        for i in range(0, len(params), 100):
+            client.log_batch(run_id, params=params[i : i + 100])
+        metrics = [Metric(param_key(k), float(v), int(ts), int(step)) for k, v, ts, step in rec["metrics"]]
+        for i in range(0, len(metrics), 1000):
+            client.log_batch(run_id, metrics=metrics[i : i + 1000])
+        for text, name in rec["texts"]:
+            client.log_text(run_id, text, name)
+        for rel, artifact_path, is_dir in rec["artifacts"]:
+            src = record_dir / rel
+            if is_dir:
+                client.log_artifacts(run_id, str(src), artifact_path)
+            else:
+                client.log_artifact(run_id, str(src), artifact_path)
+        client.set_terminated(run_id, rec["status"], end_time=rec["end_ms"])
+    except Exception:
+        client.set_terminated(run_id, "FAILED", end_time=rec["end_ms"])
+        raise
+    return run_id
+
+
+def flush(directory: str | Path | None = None, uri: str | None = None) -> int:
+    """Write every pending run of ``directory`` (default: :func:`pending_dir` of ``uri``) to MLflow, oldest
+    first, under a lock (waits for a flusher at work). Returns how many runs it wrote; errors are printed and
+    their records kept for the next flush."""
+    spool = Path(directory) if directory is not None else pending_dir(uri)
+    if not spool.is_dir():
+        return 0
+    written = 0
+    failed: set[str] = set()
+    with _dir_lock(spool):
+        while True:
+            todo = sorted(
+                d for d in spool.iterdir() if d.is_dir() and not d.name.startswith(".") and d.name not in failed
+            )
+            if not todo:
+                break
+            for rec in todo:
+                try:
+                    run_id = _retry(functools.partial(_write_record, rec))
+                except Exception as exc:
+                    failed.add(rec.name)
+                    _report(f"writing the pending run {rec} to MLflow", exc)
+                    continue
+                shutil.rmtree(rec, ignore_errors=True)
+                written += 1
+                print(f"robocal tracking: run {run_id} ({rec.name}) written", file=sys.stderr)
+    return written
+
+
+def main(argv: list[str] | None = None) -> int:
+    import argparse
+
+    parser = argparse.ArgumentParser(prog="python -m robocal.tracking", description="MLflow runs of robocal")
+    sub = parser.add_subparsers(dest="action", required=True)
+    f = sub.add_parser("flush", help="write the pending runs (mlflow-pending/) to MLflow; waits for a flusher at work")
+    f.add_argument("--dir", default=None, help="the pending-runs folder (default: the one of the tracking store)")
+    args = parser.parse_args(argv)
+    n = flush(args.dir)
+    left = [d for d in (Path(args.dir) if args.dir else pending_dir()).glob("*") if d.is_dir()]
+    print(f"robocal tracking: {n} pending run(s) written" + (f"; {len(left)} could not be" if left else ""))
+    return 1 if left else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -75,7 +75,11 @@ def test_stage_skips_without_payload(common, tmp_path) -> None:
     (tmp_path / "data" / "interim").mkdir(parents=True)
     (tmp_path / "data" / "interim" / "prepare.json").write_text(json.dumps({"has_payload": False}))
     metrics = _run(common, tmp_path, "kr16_2")
-    assert metrics["status"] == "skipped" and "payload" in json.loads((tmp_path / "metrics.json").read_text())["reason"]
+    assert (
+        metrics["status"] == "skipped"
+        and "payload" in json.loads((tmp_path / "out" / "result.json").read_text())["reason"]
+    )
+    assert json.loads((tmp_path / "metrics.json").read_text()) == {"compliance_fit": "skipped"}
 
 
 def test_stage_fits_a_payload_campaign(common, tmp_path, twin_dirs) -> None:

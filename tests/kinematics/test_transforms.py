@@ -70,3 +70,12 @@ def test_left_jacobian_inverse_matches_finite_differences():
         ]
     )
     np.testing.assert_allclose(so3_left_jacobian_inv(phi), fd, atol=1e-6)
+
+
+def test_rotvec_round_trip_just_below_pi():
+    """The case hypothesis found: |v| = pi - 8.4e-4, inside the near-pi branch (the axis was taken from
+    (R + I) / 2, whose skew and cos terms cost ~2.5e-4 of accuracy)."""
+    v = np.array([3.0, 0.9296875, 0.0])
+    R = rotvec_to_matrix(v)
+    np.testing.assert_allclose(matrix_to_rotvec(R), v, atol=1e-9)  # 1e-9: float64 round trip, ~1e5 ulp of pi
+    np.testing.assert_allclose(rotvec_to_matrix(matrix_to_rotvec(R)), R, atol=1e-9)

@@ -22,7 +22,10 @@ import yaml
 REPO = Path(__file__).resolve().parents[2]
 SRC = REPO / "src"
 STAGES_DIR = REPO / "stages"
+#: the default pipeline (dvc.yaml) and the experiments run by name (experiments/dvc.yaml, paths from the root)
 DVC = yaml.safe_load((REPO / "dvc.yaml").read_text())["stages"]
+EXPERIMENTS = yaml.safe_load((REPO / "experiments" / "dvc.yaml").read_text())["stages"]
+ALL = {**DVC, **EXPERIMENTS}
 
 
 def _load_stage(name: str) -> ModuleType:
@@ -73,10 +76,12 @@ def _closure(start: Path) -> set[Path]:
     return seen
 
 
-@pytest.mark.parametrize("name", sorted(DVC))
+@pytest.mark.parametrize("name", sorted(ALL))
 def test_stage_declaration_matches_dvc_yaml(name: str) -> None:
     stage = _load_stage(name).STAGE
-    entry = DVC[name]
+    entry = ALL[name]
+    if name in EXPERIMENTS:
+        assert entry["wdir"] == "..", "an experiment's paths are the repository root's"
     assert stage.name == name
     assert entry["cmd"] == f"python stages/{name}.py"
     assert sorted(entry["params"]) == sorted(stage.params), "params in dvc.yaml != STAGE.params"
@@ -87,9 +92,9 @@ def test_stage_declaration_matches_dvc_yaml(name: str) -> None:
         assert next(iter(m.values())) == {"cache": False}
 
 
-@pytest.mark.parametrize("name", sorted(DVC))
+@pytest.mark.parametrize("name", sorted(ALL))
 def test_stage_deps_cover_the_code_it_imports(name: str) -> None:
-    deps = [REPO / d for d in DVC[name]["deps"] if "${" not in d]
+    deps = [REPO / d for d in ALL[name]["deps"] if "${" not in d]
     files = {STAGES_DIR / f"{name}.py", STAGES_DIR / "common.py"}
     files |= _closure(STAGES_DIR / f"{name}.py") | _closure(STAGES_DIR / "common.py")
     files.discard(SRC / "robocal" / "__init__.py")  # the version string only
@@ -98,11 +103,31 @@ def test_stage_deps_cover_the_code_it_imports(name: str) -> None:
 
 
 def test_every_declared_param_section_exists() -> None:
+    from robocal.pipeline import get
+
     params = yaml.safe_load((REPO / "params.yaml").read_text())
-    for name, entry in DVC.items():
-        for section in entry["params"]:
-            assert section in params, (name, section)
+    for entry in ALL.values():
+        for key in entry["params"]:
+            get(params, key)  # a section or a dotted key: raises naming it when absent
         assert "tracking" not in entry["params"]  # where runs are recorded never reruns a stage
+
+
+def test_the_optimizer_comparison_is_not_in_the_default_pipeline() -> None:
+    """It takes minutes: it runs by name (experiments/dvc.yaml), never in a plain `dvc repro`."""
+    assert "compare_optimizers" not in DVC and "compare_optimizers" in EXPERIMENTS
+    readme = (REPO / "README.md").read_text()
+    assert "dvc exp run experiments/dvc.yaml:compare_optimizers" in readme
+
+
+def test_dotted_params_give_the_stage_only_that_key(common: ModuleType) -> None:
+    stage = common.Stage("s", ("scenario", "data.campaign"), "out", "m.json")
+    cfg = {"scenario": {"a": 1}, "data": {"campaign": "x", "split": {"seed": 0}}}
+    sections = common._sections(stage, cfg, "test")
+    assert dict(sections) == {"scenario": {"a": 1}, "data": {"campaign": "x"}}
+    from robocal.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=r"'data\.campaign'"):
+        common._sections(stage, {"scenario": {}, "data": {}}, "test")
 
 
 # ------------------------------------------------------------------------------------------------ runner
@@ -136,7 +161,7 @@ def test_skipped_stage_completes_with_an_explicit_result(common: ModuleType, tmp
     result = json.loads((root / "reports/thermal/result.json").read_text())
     assert result == {"status": "skipped", "reason": "the campaign has no temperatures.csv"}
     metrics = json.loads((root / "reports/metrics/thermal_fit.json").read_text())
-    assert metrics["status"] == "skipped" and metrics["skipped"] == 1
+    assert metrics == {"thermal_fit": "skipped"}  # one short column per stage in `dvc exp show`; why: result.json
 
 
 def test_reading_an_undeclared_section_names_it(

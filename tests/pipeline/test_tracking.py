@@ -98,3 +98,33 @@ def test_disabled_tracking_does_nothing(tmp_path: Path) -> None:
     run.log_metrics({"a": 1.0})
     run.close()
     assert run.run_id is None and not (tmp_path / "m.db").exists()
+
+
+def test_a_pending_run_reaches_mlflow_with_everything(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """PendingRun records without importing MLflow; the flush writes the same run a StageRun would."""
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", uri)
+    art = tmp_path / "out"
+    art.mkdir()
+    (art / "report.html").write_text("<html></html>")
+    with tracking.PendingRun("fit", tags={"x": "1"}) as run:
+        run.log_params({"scenario": {"drift": {"T_j6_C^2": 0.5}}, "a": None})
+        run.log_metrics({"fit": {"rms_mm": 0.1}, "flag": True})
+        run.set_tags({"robocal.status": "ok"})
+        run.log_text("a: 1\n", "params.yaml")
+        run.log_artifact(art)
+        (art / "report.html").write_text("changed after logging")  # the copy was taken when logged
+    tracking.flush(uri=uri)  # waits for the detached flusher, writes what is left
+    assert not [d for d in tracking.pending_dir(uri).iterdir() if d.is_dir()]
+    from mlflow.tracking import MlflowClient
+
+    client = MlflowClient(uri)
+    (r,) = client.search_runs([client.get_experiment_by_name("robocal").experiment_id])
+    assert r.info.status == "FINISHED" and r.info.end_time >= r.info.start_time
+    assert r.data.params == {"scenario.drift.T_j6_C_pow2": "0.5", "a": "null"}
+    assert r.data.metrics == {"fit.rms_mm": 0.1, "flag": 1.0}
+    assert r.data.tags["x"] == "1" and r.data.tags["robocal.stage"] == "fit" and r.data.tags["robocal.status"] == "ok"
+    names = {a.path for a in client.list_artifacts(r.info.run_id)}
+    assert {"params.yaml", "report.html"} <= names  # a folder's files, as StageRun.log_artifact logs them
+    local = client.download_artifacts(r.info.run_id, "report.html", str(tmp_path / "dl"))
+    assert Path(local).read_text() == "<html></html>"

@@ -329,3 +329,14 @@ def test_save_figure_rejects_other_suffixes(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="'path'"):
         plots.save_figure(fig, tmp_path / "x.pdf")
     assert not any(tmp_path.iterdir())
+
+
+def test_lists_arrays_and_mappings_are_written_as_text_not_reprs():
+    from robocal.report.html import Report
+
+    rep = Report("t").kv(
+        {"tool (mm)": np.array([35.0, -20.0, 120.0]), "tools": [[1.5, 2.0, 3.0]], "map": {"a": 1}, "flag": True}
+    )
+    body = rep.to_html().split("<body", 1)[-1]
+    assert "35, -20, 120" in body and "(1.5, 2, 3)" in body and "a: 1" in body
+    assert "array(" not in body and "[35" not in body and "{&#x27;" not in body

@@ -166,7 +166,8 @@ def test_stages_run_and_skip(twin, tmp_path, monkeypatch) -> None:
     try:
         _run_stage("thermal_fit", root)
         _run_stage("validate", root)
-        met = json.loads((root / "reports/metrics/validate.json").read_text())
+        assert json.loads((root / "reports/metrics/validate.json").read_text())["validate"] == "ok"
+        met = json.loads((root / "reports/validate/all_metrics.json").read_text())  # the full set
         assert met["status"] == "ok"
         assert met["validation"]["proposed"]["mean_position_mm"] < met["validation"]["none"]["mean_position_mm"]
         assert (root / "reports/validate/thermal_model.json").is_file()
@@ -177,7 +178,8 @@ def test_stages_run_and_skip(twin, tmp_path, monkeypatch) -> None:
         _run_stage("thermal_fit", root)
         _run_stage("validate", root)
         for name in ("thermal_fit", "validate"):
-            m = json.loads((root / f"reports/metrics/{name}.json").read_text())
+            assert json.loads((root / f"reports/metrics/{name}.json").read_text()) == {name: "skipped"}
+            m = json.loads((root / f"reports/{name.split('_')[0]}/result.json").read_text())
             assert m["status"] == "skipped" and "no temperature log" in m["reason"]
     finally:
         monkeypatch.chdir(cwd)
@@ -287,3 +289,29 @@ def test_cli_flags_extrapolation_and_large_corrections(twin, tmp_path) -> None:
         assert np.allclose(sent, np.rad2deg(val.q[k]), atol=1e-6) and float(r["correction_max_deg"]) > 1.0
     html = (tmp_path / "report.html").read_text()
     assert "the thermal model extrapolates" in html and "columns of compensation.csv" in html
+
+
+def test_large_joint_corrections_are_listed_largest_first() -> None:
+    """compensation_summary flags corrections above LARGE_CORRECTION_DEG (0.5 deg) without refusing them."""
+    from robocal.thermal.compensate import ThermalCompensation
+    from robocal.thermal.workflow import LARGE_CORRECTION_DEG, compensation_summary
+
+    m = 3
+    comp = ThermalCompensation(
+        ids=np.array(["p1/T1", "p2/T1", "p3/T1"], dtype=object),
+        q_target=np.zeros((m, 6)),
+        q=np.zeros((m, 6)),
+        command_T=np.tile(np.eye(4), (m, 1, 1)),
+        residual_mm=np.zeros(m),
+        residual_rad=np.zeros(m),
+        deta=np.zeros(1),
+        results={},
+        status=np.array(["ok", "ok", "ok"], dtype=object),
+        reason=np.array(["", "", ""], dtype=object),
+        applied=np.ones(m, dtype=bool),
+        correction_max_deg=np.array([0.1, 1.34, 0.6]),
+    )
+    summary = compensation_summary(comp, 90.0)
+    assert LARGE_CORRECTION_DEG == summary["large_correction_deg"] == 0.5
+    assert [r["target_id"] for r in summary["large_corrections"]] == ["p2/T1", "p3/T1"]  # largest first
+    assert summary["status_counts"]["ok"] == 3 and summary["n_applied"] == 3  # flagged, not refused

@@ -3,8 +3,13 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
+from typing import Any
+
+import yaml
 
 from robocal.commands import parse_overrides
+from robocal.errors import ConfigError
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -15,20 +20,64 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "overrides",
         nargs="*",
-        help="calibration settings key=value, e.g. noise_mm=0.02 'fixed=[beta2]' split.method=none",
+        help="calibration settings key=value, e.g. noise_mm=0.02 'fixed=[beta2]' split.method=none; "
+        "optimizer=<name> (conf/optimizer/<name>.yaml: gn, lm, ipopt, igoa, goa, woa) and optimizer.<key>=<value>, "
+        "as in the pipeline",
     )
+
+
+#: The optimizer configs (Hydra group conf/optimizer/), shared with the pipeline.
+OPTIMIZER_DIR = Path(__file__).resolve().parents[3] / "conf" / "optimizer"
+
+
+def optimizer_config(value: Any, conf_dir: Path = OPTIMIZER_DIR) -> dict[str, Any] | None:
+    """The optimizer config of ``optimizer=<name>`` / ``optimizer.<key>=<value>`` overrides (None: none given).
+
+    ``value`` is a name (``"woa"``) or a mapping of keys; a mapping without ``name`` changes ``lm`` (the
+    pipeline's default). The named file's settings come first, the given keys override them.
+    """
+    if value is None:
+        return None
+    keys = dict(value) if isinstance(value, dict) else {"name": value}
+    name = keys.pop("name", "lm")
+    path = conf_dir / f"{name}.yaml"
+    if not isinstance(name, str) or not path.is_file():
+        known = sorted(p.stem for p in conf_dir.glob("*.yaml"))
+        raise ConfigError(f"The setting 'optimizer' must be one of {known}. Got {name!r} instead.")
+    cfg = dict(yaml.safe_load(path.read_text(encoding="utf-8")) or {})
+    unknown = sorted(set(keys) - set(cfg))
+    if unknown:
+        raise ConfigError(
+            f"unknown setting(s) {['optimizer.' + k for k in unknown]} for optimizer {name!r}; known: "
+            f"{sorted('optimizer.' + k for k in cfg if k != '_target_')}"
+        )
+    cfg.update(keys)
+    return cfg
 
 
 def run(args: argparse.Namespace) -> int:
     from robocal.workflows.geometric import run_calibration
 
-    ov = parse_overrides(args.overrides)
+    # optimizer=<name> and optimizer.<key>=<value> combine (the name is not a mapping parse_overrides can nest)
+    named = [a.split("=", 1)[1] for a in args.overrides or [] if a.startswith("optimizer=")]
+    ov = parse_overrides([a for a in args.overrides or [] if not a.startswith("optimizer=")])
     split = ov.pop("split", None)
-    summary = run_calibration(args.data_dir, args.robot, args.out, ov, split=split, report=not args.no_report)
+    keys = ov.pop("optimizer", None)
+    if keys is not None and not isinstance(keys, dict):
+        raise ConfigError(f"The setting 'optimizer' must be a name or optimizer.<key>=<value>. Got {keys!r} instead.")
+    optimizer = optimizer_config({**(keys or {}), "name": named[-1]} if named else keys)
+    if optimizer is not None and optimizer.get("name") in ("gn", "lm"):
+        for key in ("max_iter", "ftol", "xtol"):  # calibrate()'s stopping rules, as in the pipeline
+            ov.setdefault(key, optimizer[key])
+    summary = run_calibration(
+        args.data_dir, args.robot, args.out, ov, split=split, report=not args.no_report, optimizer=optimizer
+    )
     fit = summary["fit"]
+    method = (optimizer or {}).get("name", "lm")
     line = (
-        f"fit: {fit['n_rows']} rows, RMS {fit['rms_position_mm']:.4f} mm, {summary['n_identified']} identified, "
-        f"{len(summary['eliminated'])} eliminated"
+        f"fit ({method}): {fit['n_rows']} rows, RMS {fit['rms_position_mm']:.4f} mm, "
+        f"{summary['n_identified']} identified, {len(summary['eliminated'])} eliminated, "
+        f"{fit['nit']} iterations in {fit['wall_time_s']:.3f} s"
     )
     if "validation" in summary and summary["validation"].get("n_rows"):
         v = summary["validation"]
@@ -37,5 +86,8 @@ def run(args: argparse.Namespace) -> int:
     from robocal.identification.robust import outlier_line
 
     print(outlier_line(fit.get("outliers", []), fit.get("n_rows_total")))
+    problems = summary.get("problems", [])
+    for text in problems:
+        print(f"robocal calibrate: FAILED: {text}")
     print(f"wrote {args.out}/calibration.json and summary.json")
-    return 0
+    return 1 if problems else 0

@@ -79,8 +79,9 @@ def matrix_to_rotvec(R: np.ndarray) -> np.ndarray:
     """Rotation matrices ``(..., 3, 3)`` to rotation vectors ``(..., 3)`` (rad), robust near 0 and pi."""
     R = np.asarray(R, dtype=float)
     cos = np.clip((np.trace(R, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0)
-    th = np.arccos(cos)
     w = np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], -1)
+    # |w| = 2 sin(th): atan2 keeps full precision near 0 and pi, where arccos(cos) loses half the digits
+    th = np.arctan2(np.linalg.norm(w, axis=-1) / 2.0, cos)
     s = np.sin(th)
     small = th < 1e-6
     factor = np.where(small, 0.5 + th**2 / 12.0, th / (2.0 * np.where(small, 1.0, s)))

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from robocal.io import is_reproducible
 from robocal.report import plots
 from robocal.report.html import Report
 
@@ -30,6 +32,8 @@ def geometric_report(
         f"model {result.model.robot.convention}; {fit['n_identified']} parameters identified, "
         f"{fit['n_eliminated']} eliminated."
     )
+    for text in (summary or {}).get("problems", []):
+        rep.note(f"FAILED: {text}. Do not use this calibration.", kind="warn")
     rep.heading("Fit")
     kv = {
         "RMS 3-D position error (mm)": f"{fit['rms_position_mm']:.4f}",
@@ -38,7 +42,7 @@ def geometric_report(
         "chi² / dof": f"{fit['chi2']:.1f} / {fit['dof']} (95 % band {fit['chi2_band_95'][0]:.0f}–"
         f"{fit['chi2_band_95'][1]:.0f}; {'inside' if fit['chi2_within_band'] else 'OUTSIDE'})",
         "tracker noise assumed (mm)": f"{result.config.noise_mm}",
-        "iterations / time": f"{fit['nit']} / {fit['wall_time_s'] * 1e3:.1f} ms",
+        "iterations / time": _iterations_time(fit),
         "solver status": fit["message"],
     }
     if "rms_orientation_deg" in fit:
@@ -128,7 +132,11 @@ def geometric_report(
         vl = [f"{p}/{t}" for p, t in zip(val.pose_id[keep], val.target[keep], strict=True)]
         rep.figure(plots.error_per_pose(vb, va, vl), "Validation rows: 3-D error before and after")
     rep.heading("Residuals against joint angles")
-    rep.figure(plots.residuals_vs_joints(cal.q, result.residuals_mm[kept]), "Calibration residuals (x, y, z) per joint")
+    joints = list(result.model.robot.joint_names)  # the robot's own joint names, as everywhere else
+    rep.figure(
+        plots.residuals_vs_joints(cal.q, result.residuals_mm[kept], joints),
+        "Calibration residuals (x, y, z) against each joint's angle (kept rows)",
+    )
     rep.heading("Parameters")
     table = result.parameter_table()
     rep.table(
@@ -156,21 +164,40 @@ def geometric_report(
         rep.paragraph("None: every candidate parameter is identifiable from these poses.")
     T = result.tracker_T_base
     rep.heading("Frames and tools")
+    rpy = np.rad2deg(_rpy_zyx(T[:3, :3]))
     stations = {
-        f"station {s}: tracker→base xyz (mm)": np.array2string(
-            result.model.base_transform(result.x, k)[:3, 3], precision=4
-        )
+        f"station {s}: base origin in its tracker frame (mm)": _xyz(result.model.base_transform(result.x, k)[:3, 3])
         for k, s in enumerate(result.model.station_names)
         if k > 0
     }
+    first = f" (station {result.model.station_names[0]})" if stations else ""
     rep.kv(
         {
-            "tracker→base xyz (mm)"
-            + (f" (station {result.model.station_names[0]})" if stations else ""): np.array2string(
-                T[:3, 3], precision=4
-            ),
+            f"base origin in the tracker frame{first} (mm)": _xyz(T[:3, 3]),
+            "base orientation in the tracker frame (deg)": "roll {:.4f}, pitch {:.4f}, yaw {:.4f}".format(*rpy),
             **stations,
-            **{f"tool {k} (mm, flange frame)": np.array2string(v, precision=4) for k, v in result.tools.items()},
+            **{f"tool {k} in the flange frame (mm)": _xyz(v) for k, v in result.tools.items()},
         }
     )
     return rep
+
+
+def _iterations_time(fit: Mapping[str, Any]) -> str:
+    """Iterations and the measured time of the fit (seconds). Pipeline reports (reproducible mode: same config,
+    same bytes) leave the time out and say where it is."""
+    if is_reproducible():
+        return f"{fit['nit']} (time: in the MLflow run and the console, not in files tracked by DVC)"
+    t = float(fit["wall_time_s"])
+    return f"{fit['nit']} / {t:.3f} s" if t >= 0.1 else f"{fit['nit']} / {t * 1e3:.1f} ms"
+
+
+def _xyz(v: Any) -> str:
+    """``x 2500.0170, y 1199.9799, z −350.4942`` (mm), not a numpy repr."""
+    x, y, z = (float(c) for c in np.asarray(v, dtype=float).reshape(3))
+    return f"x {x:.4f}, y {y:.4f}, z {z:.4f}".replace("-", "−")
+
+
+def _rpy_zyx(R: np.ndarray) -> np.ndarray:
+    """Roll, pitch, yaw (rad) of ``R = Rz(yaw) Ry(pitch) Rx(roll)``."""
+    pitch = np.arcsin(-np.clip(R[2, 0], -1.0, 1.0))
+    return np.array([np.arctan2(R[2, 1], R[2, 2]), pitch, np.arctan2(R[1, 0], R[0, 0])])

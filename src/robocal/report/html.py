@@ -30,7 +30,7 @@ from typing import Any, Self
 
 import numpy as np
 
-from robocal.io import write_text
+from robocal.io import is_reproducible, is_timing, write_text
 
 __all__ = ["PNG_SIGNATURE", "Report"]
 
@@ -122,7 +122,24 @@ def _format_cell(v: object, float_fmt: str) -> tuple[str, str]:
         if math.isnan(f):
             return "nan", "num empty"
         return _esc(float_fmt.format(f)), "num"
+    if isinstance(v, list | tuple | np.ndarray | Mapping):  # never a Python / numpy repr on the page
+        return _esc(_plain(v, float_fmt)), ""
     return _esc(v), ""
+
+
+def _plain(v: object, float_fmt: str) -> str:
+    """Readable text of a (nested) list, array or mapping: ``1, 2, 3``; ``(1, 2); (3, 4)``; ``a: 1, b: 2``."""
+    if isinstance(v, np.ndarray):
+        v = v.tolist()
+    if isinstance(v, Mapping):
+        return ", ".join(f"{k}: {_plain(x, float_fmt)}" for k, x in v.items())
+    if isinstance(v, list | tuple):
+        if any(isinstance(x, list | tuple | np.ndarray | Mapping) for x in v):
+            return "; ".join(f"({_plain(x, float_fmt)})" for x in v)
+        return ", ".join(_plain(x, float_fmt) for x in v)
+    if isinstance(v, float | np.floating) and not isinstance(v, bool):
+        return float_fmt.format(float(v))
+    return str(v)
 
 
 class Report:
@@ -176,6 +193,8 @@ class Report:
         _check_float_fmt(float_fmt, "Report.kv")
         rows = []
         for k, v in mapping.items():
+            if is_reproducible() and is_timing(k):  # same config, same bytes: timings are not written
+                continue
             text, cls = _format_cell(v, float_fmt)
             td = f'<td class="{cls}">' if cls else "<td>"
             rows.append(f'<tr><th scope="row">{_esc(k)}</th>{td}{text}</td></tr>')

@@ -43,19 +43,19 @@ BEFORE_COLOR = "#c44e52"
 AFTER_COLOR = "#4c72b0"
 _XYZ_COLORS = ("#d62728", "#2ca02c", "#1f77b4")
 _STYLE: dict[Any, Any] = {
-    "font.size": 9.0,
-    "axes.titlesize": 10.0,
-    "axes.labelsize": 9.0,
+    "font.size": 10.0,  # figures are shown at ~700-1000 px wide in the reports: 9 pt and below read poorly
+    "axes.titlesize": 11.0,
+    "axes.labelsize": 10.0,
     "axes.grid": True,
     "grid.color": "#dddddd",
     "grid.linewidth": 0.6,
     "axes.spines.top": False,
     "axes.spines.right": False,
     "axes.axisbelow": True,
-    "legend.fontsize": 8.0,
+    "legend.fontsize": 9.0,
     "legend.frameon": False,
-    "xtick.labelsize": 8.0,
-    "ytick.labelsize": 8.0,
+    "xtick.labelsize": 9.0,
+    "ytick.labelsize": 9.0,
     "lines.linewidth": 1.4,
 }
 _MAX_LABELLED = 60  # above this many rows, per-row tick labels are left out
@@ -153,7 +153,10 @@ def error_per_pose(
     if after.shape[0] != m:
         raise _fail(func, "after_mm", f"of the same length as before_mm ({m})", f"length {after.shape[0]}")
     names = _labels(labels, m, func) if labels is not None else None
-    fig = Figure(figsize=(min(max(6.5, 0.16 * m + 2.0), 16.0), 3.6), layout="constrained")
+    # wide enough for labelled bars, but not so wide that the page shrinks the text (points above 60 rows)
+    fig = Figure(
+        figsize=(min(max(6.5, 0.16 * m + 2.0), 11.0) if m <= _MAX_LABELLED else 9.0, 3.8), layout="constrained"
+    )
     ax = fig.add_subplot()
     x = np.arange(m)
     if m <= _MAX_LABELLED:
@@ -168,11 +171,11 @@ def error_per_pose(
     if names is not None and m <= _MAX_LABELLED:
         ax.set_xticks(x, names, rotation=90, fontsize=7 if m > 25 else 8)
     else:
-        ax.set_xlabel("row")
+        ax.set_xlabel("row (in campaign order)")
     ax.set_xlim(-0.7, m - 0.3)
     ax.set_ylim(bottom=0)
     ax.set_ylabel(ylabel)
-    ax.legend(loc="upper right")
+    fig.legend(loc="outside upper center", ncols=2)  # outside the data
     return fig
 
 
@@ -245,7 +248,7 @@ def residuals_vs_joints(q_rad: Any, residual_mm: Any, joint_names: Sequence[str]
         else:
             ax.plot(qd[:, j], r, "o", ms=ms, alpha=0.7, color=AFTER_COLOR)
         ax.axhline(0.0, color="k", lw=0.7)
-        ax.set_xlabel(f"{names[j]} (deg)")
+        ax.set_xlabel(f"{names[j]} angle (deg)")
         if j % ncols == 0:
             ax.set_ylabel("residual (mm)")
     for ax in axes[n:]:
@@ -311,7 +314,7 @@ def convergence(
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
     ax.grid(True, which="minor", color="#eeeeee", lw=0.4)
-    ax.legend(loc="upper right")
+    fig.legend(loc="outside upper center", ncols=3)  # outside the data
     return fig
 
 
@@ -340,7 +343,7 @@ def time_series(t_min: Any, series: Mapping[str, Any], ylabel: str, xlabel: str 
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
     if len(data) > 1 or next(iter(data)):
-        ax.legend(loc="best", ncols=2 if len(data) > 5 else 1)
+        fig.legend(loc="outside upper center", ncols=min(len(data), 5))  # outside the data
     return fig
 
 
@@ -383,7 +386,7 @@ def bar_table(
     ax.axhline(0.0, color="k", lw=0.7)
     ax.grid(False, axis="x")
     if s > 1:
-        ax.legend(loc="best")
+        fig.legend(loc="outside upper center", ncols=3)  # outside the data
     return fig
 
 
@@ -440,7 +443,7 @@ def parameter_errors(
     ax.set_ylim(-0.7, p - 0.3)
     ax.set_xlabel(xlabel)
     ax.grid(False, axis="y")
-    ax.legend(loc="best")
+    fig.legend(loc="outside upper center", ncols=3)  # outside the data
     return fig
 
 

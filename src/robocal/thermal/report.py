@@ -71,6 +71,30 @@ def drift_figure(fit: ThermalFit) -> Figure:
     )
 
 
+DEG_PER_RAD = 180.0 / 3.141592653589793
+#: Said beside every equation block: the equations keep the paper's units (eq. 28), the tables use degrees.
+EQUATION_UNITS = (
+    "In the equations Δ of a length is in mm and Δ of an angle in rad (the paper's eq. 28), temperatures in °C; "
+    "the tables give angles in degrees."
+)
+#: The reference calibration's fit statistics, as labelled in the report (units in the labels).
+REFERENCE_LABELS = {
+    "n_rows": "rows",
+    "n_identified": "parameters identified",
+    "n_eliminated": "parameters eliminated",
+    "rms_position_mm": "RMS 3-D position error (mm)",
+    "mean_position_mm": "mean 3-D position error (mm)",
+    "max_position_mm": "max 3-D position error (mm)",
+    "rms_orientation_deg": "RMS orientation error (deg)",
+    "max_orientation_deg": "max orientation error (deg)",
+    "chi2": "chi²",
+    "dof": "degrees of freedom",
+    "reduced_chi2": "reduced chi² (1 = noise as assumed)",
+    "chi2_p_value": "chi² p-value",
+    "nit": "iterations",
+}
+
+
 def parameter_figures(fit: ThermalFit, model: ThermalModel) -> list[tuple[Figure, str]]:
     """Fig. 10: identified drift per state (markers) and the model at the state temperatures (lines)."""
     from matplotlib.figure import Figure
@@ -78,7 +102,7 @@ def parameter_figures(fit: ThermalFit, model: ThermalModel) -> list[tuple[Figure
     d = fit.drift
     pred = model.deta(d.temperatures[:, [d.sensor_names.index(s) for s in model.sensors]])
     figs = []
-    for kind, unit, scale in (("length", "mm", 1.0), ("angle", "mrad", 1e3)):
+    for kind, unit, scale in (("length", "mm", 1.0), ("angle", "deg", DEG_PER_RAD)):
         names = [p.name for p in model.parameters if p.kind == kind and p.name in d.names]
         if not names:
             continue
@@ -98,7 +122,7 @@ def parameter_figures(fit: ThermalFit, model: ThermalModel) -> list[tuple[Figure
             )
         ax.set_xlabel("time (min)")
         ax.set_ylabel(f"drift ({unit})")
-        ax.legend(loc="best", ncols=2)
+        fig.legend(loc="outside upper center", ncols=min(len(names), 5))  # outside the data
         figs.append(
             (
                 fig,
@@ -218,7 +242,14 @@ def fit_report(fit: ThermalFit, rep: Report, truth: Mapping[str, Any] | None = N
     rep.figure(temperature_figure(fit), "sensor temperatures over the calibration warm-up (fig. 7)")
     rep.figure(drift_figure(fit), "mean |drift| of the measured targets per base axis (fig. 8)")
     rep.heading("Reference (cold-state) geometric calibration")
-    rep.kv({k: v for k, v in fit.reference.fit.items() if isinstance(v, int | float)})
+    ref = fit.reference.fit
+    rep.kv(
+        {
+            label: ref[key]
+            for key, label in REFERENCE_LABELS.items()
+            if isinstance(ref.get(key), int | float) and not isinstance(ref.get(key), bool)
+        }
+    )
     rep.heading("Thermal parameter errors per state (eq. 19-21)")
     rep.paragraph(
         f"Identifiable: {', '.join(d.names)}. Eliminated: "
@@ -227,13 +258,14 @@ def fit_report(fit: ThermalFit, rep: Report, truth: Mapping[str, Any] | None = N
     )
     rows = []
     for j, n in enumerate(d.names):
-        unit = "mm" if fit.reference.model.chain.param_kind[d.param_index[j]] == "length" else "rad"
+        length = fit.reference.model.chain.param_kind[d.param_index[j]] == "length"
+        f = 1.0 if length else DEG_PER_RAD  # angles in degrees in every table
         rows.append(
             {
                 "parameter": n,
-                "unit": unit,
-                "stderr": float(d.stderr[j]),
-                **{f"{t:.0f} min": float(d.deta[s, j]) for s, t in enumerate(d.t_min)},
+                "unit": "mm" if length else "deg",
+                "std. error": float(d.stderr[j]) * f,
+                **{f"{t:.0f} min": float(d.deta[s, j]) * f for s, t in enumerate(d.t_min)},
             }
         )
     rep.table(rows, caption="identified drift per state (relative to the cold state)", float_fmt="{:.3g}")
@@ -243,7 +275,7 @@ def fit_report(fit: ThermalFit, rep: Report, truth: Mapping[str, Any] | None = N
         "sensors and the order are chosen by leave-one-state-out cross-validation (the smallest model within "
         f"{fit.cfg.regression_config.cv_tolerance:.0%} of the best CV error), and kept only when it beats 'no drift' "
         f"(chi-square test at {fit.cfg.regression_config.alpha:g}). Coefficients ± standard error, in temperature "
-        "differences from the cold state:"
+        "differences from the cold state. " + EQUATION_UNITS
     )
     rep.code("\n".join(fit.model_all.equations(stderr=True)) or "(no parameter drifts significantly)")
     if fit.model_all.parameters:
@@ -271,8 +303,30 @@ def validation_report(
     fit: ThermalFit,
 ) -> Report:
     rep.heading("Proposed model (the selected parameters, eq. 28 form)")
-    rep.paragraph(f"Selected ({source}): {', '.join(selected) or 'none'}.")
+    rep.paragraph(f"Selected ({source}): {', '.join(selected) or 'none'}. {EQUATION_UNITS}")
     rep.code("\n".join(proposed.equations(stderr=True)) or "(empty)")
+    ref = dict(zip(fit.model_all.sensors, fit.model_all.T_ref_C.tolist(), strict=True))
+    ref_p = dict(zip(proposed.sensors, proposed.T_ref_C.tolist(), strict=True))
+    by_all = {q.name: q for q in fit.model_all.parameters}
+    both = [q for q in proposed.parameters if q.name in by_all]
+    if both:
+        rep.paragraph(
+            "One parameter, two models: the proposed model re-identifies the drift on the selected parameters only "
+            "(the others held at their cold values) and refits each regression, so a parameter's model here can "
+            "differ from the all-parameter model of the thermal fit (reports/thermal) in its coefficients and even "
+            "its sensors. Side by side:"
+        )
+        rep.table(
+            [
+                {
+                    "parameter": q.name,
+                    "proposed (this page, applied)": q.equation(ref_p).split(" = ", 1)[-1],
+                    "all-parameter model (thermal fit)": by_all[q.name].equation(ref).split(" = ", 1)[-1],
+                }
+                for q in both
+            ],
+            caption="the applied model of each selected parameter beside the thermal fit's",
+        )
     if proposed.parameters:
         rep.paragraph("In absolute temperatures (°C), as the paper prints eq. 28:")
         rep.code("\n".join(proposed.equations(absolute=True)))
@@ -281,20 +335,32 @@ def validation_report(
             caption="sensors and order of the proposed model, chosen by leave-one-state-out cross-validation",
             float_fmt="{:.3g}",
         )
-    rows = []
+    rows: list[dict[str, Any]] = []
+    weak: set[str] = set()
     for p in proposed.parameters:
+        f = 1.0 if p.kind == "length" else DEG_PER_RAD  # angles in degrees in every table
         for c, e, se in zip(p.coefficients, p.terms, p.stderr, strict=True):
+            order = sum(e)
+            if float(se) > 0 and abs(float(c)) < float(se):
+                weak.add(p.name)
             rows.append(
                 {
                     "parameter": p.name,
                     "form": p.form,
                     "term": "·".join(f"Δ{s}^{k}" for s, k in zip(p.sensors, e, strict=True) if k),
-                    "coefficient": float(c),
-                    "stderr": float(se),
-                    "lambda_per_C": p.lambda_per_C,
+                    "coefficient": float(c) * f,
+                    "std. error": float(se) * f,
+                    "unit": f"{'mm' if p.kind == 'length' else 'deg'}/°C" + (f"^{order}" if order > 1 else ""),
+                    "|coef| / std. error": abs(float(c)) / float(se) if se else None,
                 }
             )
-    rep.table(rows, caption="coefficients (mm or rad per °C^order) with standard errors", float_fmt="{:.4g}")
+    rep.table(rows, caption="coefficients with standard errors (angles in degrees)", float_fmt="{:.4g}")
+    if weak:
+        rep.note(
+            f"Coefficients smaller than their standard error: {', '.join(sorted(weak))}. The compensation applies "
+            "them as fitted; they are not distinguishable from zero on this warm-up.",
+            kind="warn",
+        )
     for fig, cap in parameter_figures(fit, proposed):
         rep.figure(fig, cap + " (fig. 10)")
     rep.heading("Validation warm-up: compensation compared (table 5)")
@@ -364,6 +430,17 @@ def compensation_section(rep: Report, ev: Mapping[str, Any]) -> Report:
         )
         if comp.get("flagged"):
             rep.table(comp["flagged"], caption="targets not ok (nominal joints kept unless applied = 1)")
+        large = comp.get("large_corrections") or []
+        if large:
+            rep.note(
+                f"Large corrections: {len(large)} target(s) need a joint correction above "
+                f"{comp['large_correction_deg']:g}° (largest {large[0]['correction_max_deg']:.2f}° at "
+                f"{large[0]['target_id']}). A sub-millimetre thermal drift needs such a move only near a singularity "
+                "(wrist, stretched or folded arm), where the correction is unreliable: check these targets before "
+                "sending them to the controller.",
+                kind="warn",
+            )
+            rep.table(large, caption="targets with a large joint correction (deg)", float_fmt="{:.3f}")
         rep.table(
             [{"column": k, "meaning": v} for k, v in comp.get("columns", {}).items()],
             caption="columns of compensation.csv",

@@ -770,7 +770,9 @@ def screen(
         state_used = st if n_states > 1 else 0
         missing = [n for n in names if n not in drift_internal]
         if missing:
-            notes.append(f"no drift known for {missing}: P_o and H are NaN and the rule does not select them")
+            notes.append(
+                f"no drift known for {', '.join(missing)}: P_o and H are NaN and the rule does not select them"
+            )
         notes.append(f"drift of {len(drift_internal)} parameter(s) over {n_states} state(s) ({unit_note})")
 
     z = np.full(len(names), np.nan)
@@ -1022,7 +1024,9 @@ def add_to_report(result: ScreeningResult, report: Report, level: int = 2) -> Re
             "robot": result.robot,
             "configurations": cfg.get("n_configs"),
             "steps": f"±{cfg.get('angle_step_deg')}° / ±{cfg.get('length_step_mm')} mm",
-            "tool points (flange frame, mm)": "flange origin" if cfg.get("tool_mm") is None else str(cfg["tool_mm"]),
+            "tool points (flange frame, mm)": "flange origin"
+            if cfg.get("tool_mm") is None
+            else "; ".join("x {:.3f}, y {:.3f}, z {:.3f}".format(*t) for t in cfg["tool_mm"]),
             "temperature states in the drift": result.drift_states,
             "state used for P_o(T)": "-" if result.drift_state_used is None else str(result.drift_state_used),
             "score": result.score,
@@ -1039,10 +1043,6 @@ def add_to_report(result: ScreeningResult, report: Report, level: int = 2) -> Re
         "unit",
         "step",
         "mean_position_mm",
-        "max_position_mm",
-        "mean_orientation",
-        "max_orientation",
-        "jacobian_mean_position_mm",
         "E_mean",
         "drift",
         "drift_z",
@@ -1052,7 +1052,18 @@ def add_to_report(result: ScreeningResult, report: Report, level: int = 2) -> Re
         "rank",
         "selected",
     ]
-    report.table(result.table[cols], caption="Per-parameter sensitivity and influence (table 4 equivalent)")
+    shown = result.table[cols].rename(
+        columns={
+            "step": "step (unit)",
+            "mean_position_mm": "E_pos mean (mm)",
+            "drift": "drift (unit)",
+        }
+    )
+    report.table(
+        shown,
+        caption="Per-parameter sensitivity and influence (table 4 equivalent), step and drift in the row's unit; "
+        "orientation errors, maxima and the Jacobian cross-check: screening.csv",
+    )
     band, zlim = sel.get("explain_band", 2.0), sel.get("explain_z", 2.0)
     if result.what_if:
         report.paragraph(

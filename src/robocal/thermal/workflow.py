@@ -521,6 +521,12 @@ def write_validation(
     return summary, proposed, ev
 
 
+#: A joint correction above this (deg) is flagged in the report: a thermal drift of a fraction of a millimetre needs
+#: a joint move this large only near a singularity (wrist q5 ~ 0, stretched or folded arm), where the correction is
+#: unreliable. Flagged, not refused: the refusal bound is ``thermal.compensation.max_correction_deg``.
+LARGE_CORRECTION_DEG = 0.5
+
+
 def compensation_summary(comp: ThermalCompensation, t_min: float) -> dict[str, Any]:
     """The ``compensation`` entry of ``thermal.json``: what ``compensation.csv`` holds and how many targets were
     refused or flagged, with the reasons."""
@@ -539,9 +545,16 @@ def compensation_summary(comp: ThermalCompensation, t_min: float) -> dict[str, A
             + ", ".join(f"{k}: {v}" for k, v in counts.items() if v and k != "ok")
             + "); see the status and reason columns"
         )
+    large = [
+        {"target_id": str(i), "correction_max_deg": float(c), "status": str(st)}
+        for i, c, st in zip(comp.ids, comp.correction_max_deg, comp.status, strict=True)
+        if c > LARGE_CORRECTION_DEG
+    ]
     return {
         "file": "compensation.csv",
         "t_min": t_min,
+        "large_correction_deg": LARGE_CORRECTION_DEG,
+        "large_corrections": sorted(large, key=lambda r: -r["correction_max_deg"]),
         "n_targets": len(comp.ids),
         "n_applied": int(np.sum(comp.applied)),
         "status_counts": counts,

@@ -35,6 +35,22 @@ def summarise(result: CalibrationResult, validation: dict[str, Any] | None) -> d
     return summary
 
 
+def result_problems(summary: Mapping[str, Any]) -> list[str]:
+    """Why a calibration must not be called ok: its fit is worse than its start (calibration poses), or the
+    calibrated model is worse than the nominal one on the validation poses. Empty when neither."""
+    out = []
+    fit, start = summary["fit"], summary.get("start_rms_position_mm")
+    if start is not None and fit["rms_position_mm"] > start:
+        out.append(f"the fit's RMS error {fit['rms_position_mm']:.4f} mm is worse than its start ({start:.4f} mm)")
+    val, before = summary.get("validation"), summary.get("validation_before")
+    if val and before and val["mean_position_mm"] > before["mean_position_mm"]:
+        out.append(
+            f"on the validation poses the calibrated model ({val['mean_position_mm']:.4f} mm mean error) is worse "
+            f"than the nominal one ({before['mean_position_mm']:.4f} mm)"
+        )
+    return out
+
+
 def run_calibration(
     data_dir: str | Path,
     robot: str | Path | RobotDescription,
@@ -77,6 +93,10 @@ def run_calibration(
         summary["validation_before"] = {
             k: val_before[k] for k in ("mean_position_mm", "rms_position_mm", "max_position_mm")
         }
+    before = np.linalg.norm(result.extra["residuals_before_mm"], axis=1)
+    summary["start_rms_position_mm"] = float(np.sqrt(np.mean(before**2))) if before.size else None
+    summary["problems"] = result_problems(summary)
+    summary["status"] = "failed" if summary["problems"] else "ok"
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     write_json(out / "calibration.json", result.to_dict())
