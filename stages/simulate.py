@@ -1,7 +1,8 @@
 """simulate: the embedded default campaign, written by the digital twin, so a fresh clone has data.
 
 Reads ``scenario`` (conf/scenario/, the twin's settings), ``robot`` (the robot being calibrated, which the
-twin simulates) and ``data.campaign``; writes ``data/raw/default/`` in the data contract (poses.csv
+twin simulates), ``data.campaign`` and ``plan.measured_by_twin`` (the calibration poses are the ``plan``
+stage's, ``reports/plan/plan.csv``, unless false); writes ``data/raw/default/`` in the data contract (poses.csv
 [+ temperatures.csv], plus truth.json and scenario.yaml, which readers of the contract ignore).
 
 The twin runs only for the default campaign: when ``data.campaign`` names another folder (your own data),
@@ -16,7 +17,7 @@ from common import Context, Metrics, Skipped, Stage, run
 
 STAGE = Stage(
     name="simulate",
-    params=("scenario", "robot", "data.campaign"),
+    params=("scenario", "robot", "data.campaign", "plan.measured_by_twin"),
     out="data/raw/default",
     metrics="reports/metrics/simulate.json",
 )
@@ -42,6 +43,9 @@ def compute(ctx: Context) -> Metrics | Skipped:
         del effects["thermal"]
         print(f"stage simulate: note: scenario {scenario.get('name')!r} leaves out its {left_out[-1]}")
     scenario["effects"] = effects
+    planned = ctx.get("plan.measured_by_twin", False, types=bool)
+    if planned:  # the calibration poses the plan stage chose (validation poses: the same random ones either way)
+        scenario["poses_deg"] = str(ctx.path("reports/plan/plan.csv"))
     truth = simulate(scenario, ctx.out, seed=ctx.get("scenario.seed", 0, types=int), robot=robot)
     if left_out:
         with open(ctx.out / "scenario.yaml", "a", encoding="utf-8") as fh:
@@ -59,6 +63,7 @@ def compute(ctx: Context) -> Metrics | Skipped:
         "n_validation_rows": split.count("validation"),
         "has_temperatures": (ctx.out / "temperatures.csv").is_file(),
         "noise_mm": truth["noise_mm"],
+        "calibration_poses": "planned (reports/plan/plan.csv)" if planned else "random",
     }
     return Metrics({"sim_rows": details["n_rows"]}, details)
 

@@ -162,7 +162,8 @@ class PlanConfig:
     @classmethod
     def from_mapping(cls, cfg: Mapping[str, Any] | None) -> PlanConfig:
         """Build from a mapping (a Hydra node, YAML, CLI overrides); unknown keys are errors naming them."""
-        d = _known(cfg or {}, cls, "")
+        # the pipeline's switch (the twin measures the plan), not a planning setting
+        d = _known({k: v for k, v in dict(cfg or {}).items() if k != "measured_by_twin"}, cls, "")
         if "n_poses" in d:
             try:
                 d["n_poses"] = int(d["n_poses"])

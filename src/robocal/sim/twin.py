@@ -309,13 +309,13 @@ def simulate(
     if q_cal is None and q_val is None:
         q_all = sample_poses(robot, n_cal + n_val, rng("poses"), frac, sc.get("joint_ranges_deg"))
     else:
-        # a given pose list (e.g. robocal plan's plan.csv) replaces the random draw of that split
-        n_cal = n_cal if q_cal is None else len(q_cal)
-        n_val = n_val if q_val is None else len(q_val)
-        n_draw = (n_cal if q_cal is None else 0) + (n_val if q_val is None else 0)
-        drawn = sample_poses(robot, n_draw, rng("poses"), frac, sc.get("joint_ranges_deg"))
+        # a given pose list (e.g. robocal plan's plan.csv) replaces that split's part of the random draw; the
+        # draw itself is the random design's, so the other split keeps the same poses (planned vs random
+        # calibrations are validated on the same poses)
+        drawn = sample_poses(robot, n_cal + n_val, rng("poses"), frac, sc.get("joint_ranges_deg"))
         q_cal = drawn[:n_cal] if q_cal is None else q_cal
-        q_val = drawn[n_draw - n_val :] if q_val is None else q_val
+        q_val = drawn[n_cal:] if q_val is None else q_val
+        n_cal, n_val = len(q_cal), len(q_val)
         q_all = np.concatenate([q_cal, q_val])
     q_all = np.deg2rad(np.round(np.rad2deg(q_all), 6))  # what the controller reports, 1e-6 deg
     pose_ids = [f"p{k:04d}" for k in range(n_cal + n_val)]
