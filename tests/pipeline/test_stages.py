@@ -233,3 +233,27 @@ def test_mlflow_failure_keeps_the_results_and_is_printed(
     (root / "out/result.txt").unlink()
     assert _run(stage, compute, root) != 0
     assert (root / "out/result.txt").read_text() == "42"
+
+
+def test_simulate_runs_the_twin_only_for_the_default_campaign(
+    common: ModuleType, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A robot without temperature sensors gets the default scenario without its thermal effect (said so); a
+    campaign of one's own skips the twin."""
+    from robocal.pipeline import compose
+
+    sim = _load_stage("simulate")
+    params = compose(REPO, ["robot=abb_irb120", "scenario.n_poses=6", "scenario.n_validation_poses=2"])
+    params["tracking"] = {"enabled": False}
+    root = _toy_repo(tmp_path, params)
+    assert _run(sim.STAGE, sim.compute, root) == 0
+    out = root / "data" / "raw" / "default"
+    assert (out / "poses.csv").is_file() and not (out / "temperatures.csv").exists()
+    assert "left_out:" in (out / "scenario.yaml").read_text()
+    assert "leaves out its thermal" in capsys.readouterr().out
+    params["data"]["campaign"] = str(tmp_path / "my-campaign")
+    (root / "params.yaml").write_text(yaml.safe_dump(params))
+    assert _run(sim.STAGE, sim.compute, root) == 0
+    result = json.loads((out / "result.json").read_text())
+    assert result["status"] == "skipped" and "my-campaign" in result["reason"] and "twin is not run" in result["reason"]
+    assert json.loads((root / sim.STAGE.metrics).read_text()) == {"simulate": "skipped"}
