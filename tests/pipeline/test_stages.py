@@ -243,7 +243,9 @@ def test_simulate_runs_the_twin_only_for_the_default_campaign(
     from robocal.pipeline import compose
 
     sim = _load_stage("simulate")
-    params = compose(REPO, ["robot=abb_irb120", "scenario.n_poses=6", "scenario.n_validation_poses=2"])
+    params = compose(
+        REPO, ["robot=abb_irb120", "scenario.n_poses=6", "scenario.n_validation_poses=2", "plan.measured_by_twin=false"]
+    )
     params["tracking"] = {"enabled": False}
     root = _toy_repo(tmp_path, params)
     assert _run(sim.STAGE, sim.compute, root) == 0
