@@ -24,6 +24,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "discover": ("robocal.commands.discover", "name the effects the calibration model is missing (discovery)"),
     "compliance": ("robocal.commands.compliance", "heavy-load joint compliance and compensation (Mao 2021)"),
     "thermal": ("robocal.commands.thermal", "thermal fit, screening and compensation of a warm-up campaign"),
+    "fleet": ("robocal.commands.fleet", "calibrate a fleet of robots over time (local or Ray), track, flag, report"),
 }
 
 
