@@ -61,21 +61,23 @@ def write_report(path: str | Path, fleet_summary: Mapping[str, Any]) -> Path:
     )
     # fleet-wide accuracy per campaign round (1st, 2nd, ... campaign of each robot)
     rounds = max(len(r["campaigns"]) for r in robots)
-    med_b, med_a, med_v = [], [], []
+    labels, med_b, med_a, med_v = [], [], [], []
     for k in range(rounds):
         cs = [r["campaigns"][k] for r in robots if len(r["campaigns"]) > k and r["campaigns"][k]["status"] != "error"]
-        med_b.append(float(np.median([c["fit"]["rms_before_mm"] for c in cs])) if cs else np.nan)
-        med_a.append(float(np.median([c["fit"]["rms_after_mm"] for c in cs])) if cs else np.nan)
+        if not cs:  # only failed campaigns in this round: nothing to plot
+            continue
+        labels.append(f"campaign {k + 1}")
+        med_b.append(float(np.median([c["fit"]["rms_before_mm"] for c in cs])))
+        med_a.append(float(np.median([c["fit"]["rms_after_mm"] for c in cs])))
         vv = [c["validation"]["mean_position_mm"] for c in cs if c["validation"].get("mean_position_mm") is not None]
-        med_v.append(float(np.median(vv)) if vv else np.nan)
-    rep.figure(
-        bar_table(
-            [f"campaign {k + 1}" for k in range(rounds)],
-            {"RMS before": med_b, "RMS after": med_a, "validation mean": med_v},
-            ylabel="median over robots (mm)",
-        ),
-        "Accuracy across the fleet: median RMS before / after calibration and mean validation error, per campaign",
-    )
+        med_v.append(float(np.median(vv)) if vv else 0.0)
+    series = {"RMS before": med_b, "RMS after": med_a, "validation mean": med_v}
+    if labels:
+        rep.figure(
+            bar_table(labels, series, ylabel="median over robots (mm)"),
+            "Accuracy across the fleet: median RMS before / after calibration and mean validation error, per "
+            "campaign",
+        )
     rep.heading("Parameters that moved")
     t = trends["test"]
     rep.paragraph(

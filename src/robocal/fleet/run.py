@@ -15,6 +15,7 @@ from __future__ import annotations
 import copy
 import json
 import sys
+import time
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -97,12 +98,19 @@ def run_fleet(
         if tracker is not None:
             track_log["robots"][serial] = tracker.track_robot(serial, summaries, out)
 
+    t0 = time.perf_counter()
     res = calibrate_fleet(fleet, out, cfg, engine, workers, address, on_robot=on_robot, progress=progress)
+    t1 = time.perf_counter()
     if tracker is not None:
         track_log["errors"] += tracker.errors
     summaries = res["summaries"]
     if serials:  # a part of the fleet (a DVC robot stage): its campaign files only, no fleet files
-        return {"computed": res["computed"], "n_cached": res["cached"], "tracking": track_log}
+        return {
+            "computed": res["computed"],
+            "n_cached": res["cached"],
+            "tracking": track_log,
+            "timings_s": {"engine": t1 - t0},
+        }
     dcfg = dict(cfg.get("drift") or {})
     trends = analyse(
         summaries,
@@ -142,4 +150,11 @@ def run_fleet(
     write_report(out / "report.html", summary)
     if track_log["errors"] and tcfg.get("required"):
         raise RobocalError("MLflow tracking was required but failed: " + "; ".join(track_log["errors"]))
-    return {**summary, "computed": res["computed"], "n_cached": res["cached"], "tracking": track_log}
+    timings = {"engine": t1 - t0, "fleet_files": time.perf_counter() - t1}  # returned, never written
+    return {
+        **summary,
+        "computed": res["computed"],
+        "n_cached": res["cached"],
+        "tracking": track_log,
+        "timings_s": timings,
+    }

@@ -14,11 +14,12 @@ probability at most ``alpha``.
 
 A flagged parameter is then described:
 
-* ``drift`` — three or more campaigns, the trend is significant and a straight line fits the values (the
-  lack-of-fit χ² of the weighted line has p > ``linearity_alpha``): a steady change, e.g. wear or a creeping link;
-* ``jump`` — exactly one step is significant (and the line does not fit, or there are only two campaigns): a step
-  change between two dates, e.g. a zero offset after a motor or encoder change, a crash, a remounted part;
-* ``change`` — anything else that is significant.
+* with three or more campaigns, two patterns are fitted by weighted least squares, each with two parameters: a
+  straight line in time (a steady drift) and two levels with one change point (a jump; the best change point);
+  the one with the smaller χ² names the flag, ``drift`` or ``jump``, unless even that one leaves a lack-of-fit χ²
+  with p < ``linearity_alpha`` (neither pattern explains the values): then ``change``. A drift e.g. is wear or a
+  creeping link; a jump a zero offset after a motor or encoder change, a crash, a remounted part;
+* with two campaigns a significant step is called a ``jump`` (two campaigns cannot tell a jump from a drift).
 
 Base (tracker) and tool parameters are not tested: the tracker stands elsewhere at each campaign and the
 reflector may be remounted.
@@ -75,6 +76,19 @@ def _line(t: np.ndarray, v: np.ndarray, s: np.ndarray) -> tuple[float, float, fl
     return float(coef[1]), float(np.sqrt(cov[1, 1])), float(np.sum(w * r**2))
 
 
+def _step_chi2(v: np.ndarray, s: np.ndarray) -> float:
+    """Smallest χ² of a two-level model (one change point, anywhere) with weights 1/s²."""
+    w = 1.0 / s**2
+    best = np.inf
+    for k in range(1, len(v)):
+        chi2 = 0.0
+        for part in (slice(0, k), slice(k, None)):
+            m = np.sum(w[part] * v[part]) / np.sum(w[part])
+            chi2 += float(np.sum(w[part] * (v[part] - m) ** 2))
+        best = min(best, chi2)
+    return best
+
+
 def analyse(
     summaries: Mapping[str, Sequence[Mapping[str, Any]]],
     alpha: float = 0.01,
@@ -100,7 +114,15 @@ def analyse(
                 tests.append((serial, name, "step", k, float(z)))
             if len(v) >= 3 and t[-1] > t[0]:
                 b, sb, chi2 = _line(t, v, s)
-                entry.update({"slope_per_year": b, "slope_stderr": sb, "trend_z": b / sb, "lack_of_fit_chi2": chi2})
+                entry.update(
+                    {
+                        "slope_per_year": b,
+                        "slope_stderr": sb,
+                        "trend_z": b / sb,
+                        "line_chi2": chi2,
+                        "step_chi2": _step_chi2(v, s),
+                    }
+                )
                 tests.append((serial, name, "trend", -1, b / sb))
             robots[serial]["parameters"][name] = entry
     m = len(tests)
@@ -118,13 +140,14 @@ def analyse(
         e = robots[serial]["parameters"][name]
         dates = robots[serial]["dates"]
         n = len(e["value"])
-        linear = n >= 3 and stats.chi2.sf(e.get("lack_of_fit_chi2", np.inf), n - 2) > linearity_alpha
-        if f["trend"] and linear:
-            kind = "drift"
-        elif len(f["steps"]) == 1:
+        if n < 3:
             kind = "jump"
         else:
-            kind = "change"
+            best = min(e["line_chi2"], e["step_chi2"])
+            if stats.chi2.sf(best, n - 2) < linearity_alpha:
+                kind = "change"
+            else:
+                kind = "drift" if e["line_chi2"] < e["step_chi2"] else "jump"
         k_max = int(np.argmax(np.abs(e["step_z"])))
         flag = {
             "serial": serial,
@@ -165,8 +188,9 @@ def explain(kind: str, name: str, unit: str, dates: Sequence[str], f: Mapping[st
     """A sentence on what a flag may mean."""
     zero_offset = name.startswith("theta")
     if kind == "jump":
-        a, b = dates[f["steps"][0]], dates[f["steps"][0] + 1]
-        d = e["value"][f["steps"][0] + 1] - e["value"][f["steps"][0]]
+        k = int(np.argmax(np.abs(e["step_z"])))
+        a, b = dates[k], dates[k + 1]
+        d = e["value"][k + 1] - e["value"][k]
         what = (
             "the joint's zero offset jumped: typical of a motor, encoder or resolver change, a lost reference or a "
             "crash; check the maintenance log"
