@@ -62,7 +62,9 @@ def test_fleet_flags_cache_and_determinism(fleet_copy, tmp_path):
 
 def test_cli_runs_one_robot_and_names_a_bad_campaign(fleet_copy, tmp_path, capsys):
     out = tmp_path / "out"
-    assert main(["fleet", str(fleet_copy), "--out", str(out), "--robot", "R0003", "--no-tracking", "--no-progress"]) == 0
+    assert (
+        main(["fleet", str(fleet_copy), "--out", str(out), "--robot", "R0003", "--no-tracking", "--no-progress"]) == 0
+    )
     assert sorted(p.name for p in (out / "robots").iterdir()) == ["R0003"]
     assert not (out / "fleet.json").exists()  # a part of the fleet writes no fleet files
     # a campaign that breaks the data contract: the others are calibrated, the error names the file, exit code 1
@@ -79,7 +81,8 @@ def test_cli_runs_one_robot_and_names_a_bad_campaign(fleet_copy, tmp_path, capsy
 
 def test_cli_errors(tmp_path, capsys):
     assert main(["fleet", str(tmp_path / "nope"), "--out", str(tmp_path / "o")]) == 2
-    assert "fleet folder" in capsys.readouterr().err and "nope" in capsys.readouterr().err + str(tmp_path / "nope")
+    err = capsys.readouterr().err
+    assert "fleet folder" in err and str(tmp_path / "nope") in err
     assert main(["fleet", "--simulate", "2"]) == 2
     assert "--out" in capsys.readouterr().err
 

@@ -50,7 +50,7 @@ def test_bad_inputs_name_the_path(fleet_copy, tmp_path):
     with pytest.raises(ConfigError, match=r"R0001/robot.yaml: unknown robot 'kr99'"):
         read_robot_folder(r)
     (r / "robot.yaml").write_text("serial: R0001\nrobot: missing.yaml\n")
-    with pytest.raises(ConfigError, match="missing.yaml does not exist"):
+    with pytest.raises(ConfigError, match=r"missing\.yaml does not exist"):
         read_robot_folder(r)
     # a robot description as a YAML file in the robot folder is fine
     from robocal.robot import _CONF_ROBOT_DIR
@@ -70,5 +70,5 @@ def test_bad_inputs_name_the_path(fleet_copy, tmp_path):
         read_robot_folder(r)
     # no robot.yaml
     (r / "robot.yaml").unlink()
-    with pytest.raises(ConfigError, match="no robot.yaml"):
+    with pytest.raises(ConfigError, match=r"no robot\.yaml"):
         read_robot_folder(r)
