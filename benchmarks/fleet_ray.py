@@ -5,9 +5,10 @@
 
 Steps: the twin writes the fleet (``robocal fleet --simulate``); the fleet is processed on a local Ray instance
 with 1 CPU, then (from scratch, into another folder) with 2 CPUs, then in-process (``--engine local``).
-Throughput is campaigns per minute of the engine phase (Ray's start-up and the workers' first import are timed apart: a service pays them once);
-the fleet files (trend tests, report) are timed apart too. With T1 and T2 the engine times, the speed-up is
-S = T1 / T2 and Amdahl's law S(p) = 1 / (f + (1 - f) / p) gives the serial fraction f = 2 / S - 1, from which
+Throughput is campaigns per minute of the engine phase (Ray's start-up and the workers' first import are
+timed apart: a service pays them once); the fleet files (trend tests, report) are timed apart too, and an
+end-to-end figure (engine + fleet files) is given with its own serial fraction. With T1 and T2 the engine
+times, the speed-up is S = T1 / T2 and Amdahl's law S(p) = 1 / (f + (1 - f) / p) gives the serial fraction f = 2 / S - 1, from which
 16 CPUs (one node) and 160 CPUs (10 such nodes) are projected. The three output folders must be byte-identical
 (determinism whatever the engine or worker count). The planted events must all be flagged, none elsewhere.
 
@@ -48,9 +49,8 @@ def warm_up(workers: int) -> None:
     def _warm() -> int:
         import time as _t
 
-        import robocal.fleet.engine  # noqa: F401
-        import robocal.identification.calibrate  # noqa: F401
-        import robocal.serve.bundle  # noqa: F401
+        import robocal.fleet.engine
+        import robocal.identification.calibrate
 
         _t.sleep(1.0)  # hold the CPU so that the next warm-up task lands on another worker
         return os.getpid()
@@ -86,6 +86,7 @@ def main() -> int:
     print(f"  written in {t_sim:.1f} s; load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs")
     settings["tracking"]["enabled"] = False
     engine_s: dict[str, float] = {}
+    total_s: dict[str, float] = {}
     outs: dict[str, Path] = {}
     res = None
     for workers in (1, 2):
@@ -101,9 +102,13 @@ def main() -> int:
         e = res["timings_s"]["engine"]
         engine_s[f"ray{workers}"] = e
         outs[f"ray{workers}"] = out
+        ff = res["timings_s"]["fleet_files"]
+        total_s[f"ray{workers}"] = e + ff
         print(
-            f"ray, {workers} worker(s): Ray start + worker warm-up {t_init:.1f} s; engine {e:.1f} s = {60 * n / e:.0f} campaigns/min; "
-            f"fleet files {res['timings_s']['fleet_files']:.1f} s; load average {os.getloadavg()[0]:.2f}"
+            f"ray, {workers} worker(s): Ray start + worker warm-up {t_init:.1f} s; engine {e:.1f} s = "
+            f"{60 * n / e:.0f} campaigns/min; driver CPU in the engine phase {res['timings_s']['engine_cpu']:.1f} s "
+            f"({res['timings_s']['engine_cpu'] / e:.1%} of it: the serial work measured directly); fleet files "
+            f"{ff:.1f} s; load average {os.getloadavg()[0]:.2f}"
         )
     out = work / "out-local"
     res_local = run_fleet(fleet_dir, out, settings, engine="local", progress=False)
@@ -124,6 +129,13 @@ def main() -> int:
         print(f"  projection, {label}: speed-up {amdahl(p):.1f}x -> {r1 * amdahl(p):.0f} campaigns/min")
     if f > 0:
         print(f"  (Amdahl's ceiling 1/f = {1 / f:.0f}x whatever the cluster)")
+    S_e2e = total_s["ray1"] / total_s["ray2"]
+    f_e2e = min(max(2.0 / S_e2e - 1.0, 0.0), 1.0)
+    p160 = 1.0 / (f_e2e + (1.0 - f_e2e) / 160)
+    print(
+        f"end to end (engine + fleet files): {total_s['ray1']:.1f} s vs {total_s['ray2']:.1f} s, speed-up "
+        f"{S_e2e:.2f}x, serial fraction {f_e2e:.3f}, 160 CPUs -> {p160:.1f}x"
+    )
 
     for a, b in (("ray1", "ray2"), ("ray1", "local")):
         d = same_tree(outs[a], outs[b])
