@@ -8,9 +8,10 @@ with 1 CPU, then (from scratch, into another folder) with 2 CPUs, then in-proces
 Throughput is campaigns per minute of the engine phase (Ray's start-up and the workers' first import are
 timed apart: a service pays them once); the fleet files (trend tests, report) are timed apart too, and an
 end-to-end figure (engine + fleet files) is given with its own serial fraction. With T1 and T2 the engine
-times, the speed-up is S = T1 / T2 and Amdahl's law S(p) = 1 / (f + (1 - f) / p) gives the serial fraction f = 2 / S - 1, from which
-16 CPUs (one node) and 160 CPUs (10 such nodes) are projected. The three output folders must be byte-identical
-(determinism whatever the engine or worker count). The planted events must all be flagged, none elsewhere.
+times, the speed-up is S = T1 / T2 and Amdahl's law S(p) = 1 / (f + (1 - f) / p) gives the serial fraction
+f = 2 / S - 1, from which 16 CPUs (one node) and 160 CPUs (10 such nodes) are projected. The three output
+folders must be byte-identical (determinism whatever the engine or worker count). The planted events must all be
+flagged, none elsewhere.
 
 The machine is shared: the load average is printed with the figures; a busy machine lowers the 2-worker speed-up
 and so inflates f (the projection is then pessimistic).
@@ -47,10 +48,11 @@ def warm_up(workers: int) -> None:
     import ray
 
     def _warm() -> int:
+        import importlib
         import time as _t
 
-        import robocal.fleet.engine
-        import robocal.identification.calibrate
+        for mod in ("robocal.fleet.engine", "robocal.identification.calibrate", "robocal.serve.bundle"):
+            importlib.import_module(mod)
 
         _t.sleep(1.0)  # hold the CPU so that the next warm-up task lands on another worker
         return os.getpid()
