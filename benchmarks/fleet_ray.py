@@ -89,6 +89,7 @@ def main() -> int:
     settings["tracking"]["enabled"] = False
     engine_s: dict[str, float] = {}
     total_s: dict[str, float] = {}
+    cpu: dict[str, tuple[float, float]] = {}
     outs: dict[str, Path] = {}
     res = None
     for workers in (1, 2):
@@ -103,14 +104,16 @@ def main() -> int:
             ray.shutdown()
         e = res["timings_s"]["engine"]
         engine_s[f"ray{workers}"] = e
+        cpu[f"ray{workers}"] = (res["timings_s"]["engine_cpu"], res["timings_s"]["worker_cpu"])
         outs[f"ray{workers}"] = out
         ff = res["timings_s"]["fleet_files"]
         total_s[f"ray{workers}"] = e + ff
         print(
             f"ray, {workers} worker(s): Ray start + worker warm-up {t_init:.1f} s; engine {e:.1f} s = "
-            f"{60 * n / e:.0f} campaigns/min; driver CPU in the engine phase {res['timings_s']['engine_cpu']:.1f} s "
-            f"({res['timings_s']['engine_cpu'] / e:.1%} of it: the serial work measured directly); fleet files "
-            f"{ff:.1f} s; load average {os.getloadavg()[0]:.2f}"
+            f"{60 * n / e:.0f} campaigns/min; CPU: driver {res['timings_s']['engine_cpu']:.1f} s, tasks "
+            f"{res['timings_s']['worker_cpu']:.1f} s (the workers got "
+            f"{res['timings_s']['worker_cpu'] / (workers * e):.0%} of {workers} CPU(s) over the phase); "
+            f"fleet files {ff:.1f} s; load average {os.getloadavg()[0]:.2f}"
         )
     out = work / "out-local"
     res_local = run_fleet(fleet_dir, out, settings, engine="local", progress=False)
@@ -131,6 +134,16 @@ def main() -> int:
         print(f"  projection, {label}: speed-up {amdahl(p):.1f}x -> {r1 * amdahl(p):.0f} campaigns/min")
     if f > 0:
         print(f"  (Amdahl's ceiling 1/f = {1 / f:.0f}x whatever the cluster)")
+    # contention-free view: the driver's CPU time is the serial work, the tasks' CPU time the parallel work
+    d_cpu, w_cpu = cpu["ray2"]
+    f_cpu = d_cpu / (d_cpu + w_cpu)
+    print(
+        f"from CPU times (what a machine of one's own would give): serial fraction {f_cpu:.4f}; 16 CPUs -> "
+        f"{1 / (f_cpu + (1 - f_cpu) / 16):.1f}x, 160 CPUs -> {1 / (f_cpu + (1 - f_cpu) / 160):.1f}x; one CPU does "
+        f"{60 * n / (w_cpu + d_cpu):.0f} campaigns/min of CPU work -> 16 CPUs "
+        f"{60 * n / (w_cpu + d_cpu) / (f_cpu + (1 - f_cpu) / 16):.0f}, 160 CPUs "
+        f"{60 * n / (w_cpu + d_cpu) / (f_cpu + (1 - f_cpu) / 160):.0f} campaigns/min"
+    )
     S_e2e = total_s["ray1"] / total_s["ray2"]
     f_e2e = min(max(2.0 / S_e2e - 1.0, 0.0), 1.0)
     p160 = 1.0 / (f_e2e + (1.0 - f_e2e) / 160)

@@ -75,16 +75,17 @@ def write_report(path: str | Path, fleet_summary: Mapping[str, Any]) -> Path:
     if labels:
         rep.figure(
             bar_table(labels, series, ylabel="median over robots (mm)"),
-            "Accuracy across the fleet: median RMS before / after calibration and mean validation error, per "
-            "campaign",
+            "Accuracy across the fleet: median RMS before / after calibration and mean validation error, per campaign",
         )
     rep.heading("Parameters that moved")
     t = trends["test"]
     rep.paragraph(
         "A flag means a kinematic parameter moved between recalibrations more than its standard errors allow. "
-        f"Rule: {t['rule']}. A flag is called a drift when the trend is significant and a straight line fits "
-        f"(lack-of-fit chi² p > {t['linearity_alpha']:g}), a jump when exactly one step is significant, a change "
-        "otherwise. Base (tracker) and tool parameters are not tested."
+        f"Rule: {t['rule']}. With three or more campaigns a flag is named by the pattern that fits the values "
+        "better (weighted least squares, two parameters each): a straight line in time (drift) or two levels with "
+        "one change point (jump); when even the better one leaves a lack-of-fit chi² with p < "
+        f"{t['pattern_alpha']:g}, it is a change. With two campaigns a flag is a jump. Base (tracker) and tool "
+        "parameters are not tested."
     )
     if flags:
         rep.table(

@@ -109,14 +109,14 @@ def run_fleet(
             "computed": res["computed"],
             "n_cached": res["cached"],
             "tracking": track_log,
-            "timings_s": {"engine": t1 - t0, "engine_cpu": c1 - c0},
+            "timings_s": {"engine": t1 - t0, "engine_cpu": c1 - c0, "worker_cpu": res["worker_cpu_s"]},
         }
     dcfg = dict(cfg.get("drift") or {})
     trends = analyse(
         summaries,
         alpha=float(dcfg.get("alpha", 0.01)),
         kinds=tuple(dcfg.get("kinds") or ("kinematic",)),
-        linearity_alpha=float(dcfg.get("linearity_alpha", 0.01)),
+        pattern_alpha=float(dcfg.get("pattern_alpha", 0.001)),
     )
     all_c = [s for v in summaries.values() for s in v]
     summary: dict[str, Any] = {
@@ -151,7 +151,12 @@ def run_fleet(
     if track_log["errors"] and tcfg.get("required"):
         raise RobocalError("MLflow tracking was required but failed: " + "; ".join(track_log["errors"]))
     # returned, never written: the driver's wall and CPU time in the engine phase, and the fleet files' wall time
-    timings = {"engine": t1 - t0, "engine_cpu": c1 - c0, "fleet_files": time.perf_counter() - t1}
+    timings = {
+        "engine": t1 - t0,
+        "engine_cpu": c1 - c0,
+        "worker_cpu": res["worker_cpu_s"],
+        "fleet_files": time.perf_counter() - t1,
+    }
     return {
         **summary,
         "computed": res["computed"],

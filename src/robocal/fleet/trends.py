@@ -17,7 +17,7 @@ A flagged parameter is then described:
 * with three or more campaigns, two patterns are fitted by weighted least squares, each with two parameters: a
   straight line in time (a steady drift) and two levels with one change point (a jump; the best change point);
   the one with the smaller χ² names the flag, ``drift`` or ``jump``, unless even that one leaves a lack-of-fit χ²
-  with p < ``linearity_alpha`` (neither pattern explains the values): then ``change``. A drift e.g. is wear or a
+  with p < ``pattern_alpha`` (0.001: neither pattern explains the values): then ``change``. A drift e.g. is wear or a
   creeping link; a jump a zero offset after a motor or encoder change, a crash, a remounted part;
 * with two campaigns a significant step is called a ``jump`` (two campaigns cannot tell a jump from a drift).
 
@@ -93,7 +93,7 @@ def analyse(
     summaries: Mapping[str, Sequence[Mapping[str, Any]]],
     alpha: float = 0.01,
     kinds: Sequence[str] = ("kinematic",),
-    linearity_alpha: float = 0.01,
+    pattern_alpha: float = 0.001,
 ) -> dict[str, Any]:
     """Run the tests over a fleet. ``summaries`` maps serial -> campaign summaries in date order
     (:mod:`robocal.fleet.engine`). Returns the test settings, the flags and each robot's series."""
@@ -144,7 +144,7 @@ def analyse(
             kind = "jump"
         else:
             best = min(e["line_chi2"], e["step_chi2"])
-            if stats.chi2.sf(best, n - 2) < linearity_alpha:
+            if stats.chi2.sf(best, n - 2) < pattern_alpha:
                 kind = "change"
             else:
                 kind = "drift" if e["line_chi2"] < e["step_chi2"] else "jump"
@@ -172,7 +172,7 @@ def analyse(
             "n_tests": m,
             "z_critical": z_crit,
             "kinds": list(kinds),
-            "linearity_alpha": linearity_alpha,
+            "pattern_alpha": pattern_alpha,
             "rule": (
                 f"|z| > {z_crit:.3f}: two-sided normal tests (steps between consecutive accepted calibrations, "
                 f"z = Δ/sqrt(se1² + se2²); weighted trend slope over its standard error), Bonferroni over {m} tests "
