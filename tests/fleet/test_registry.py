@@ -3,7 +3,10 @@ the service started on robot-<serial>@production replaced by the next version wi
 
 from __future__ import annotations
 
+import re
 import shutil
+import subprocess
+import sys
 import time
 
 import pytest
@@ -76,3 +79,37 @@ def test_register_serve_by_alias_and_replace_without_restart(fleet_copy, tmp_pat
         assert after["q_deg"] != before["q_deg"]
     with pytest.raises(ConfigError, match="no such registered model or alias"):
         resolve_model("robot-R0002@production", cache_dir=cache)
+    # the command line: robocal serve --model ... serves the alias's version (the same hook as above)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "robocal.cli",
+            "serve",
+            "--model",
+            spec,
+            "--tracking-uri",
+            uri,
+            "--port",
+            "0",
+            "--model-cache",
+            str(tmp_path / "cli-cache"),
+        ],
+        stderr=subprocess.PIPE,
+        stdout=subprocess.DEVNULL,
+        text=True,
+    )
+    try:
+        port = None
+        assert proc.stderr is not None
+        for line in proc.stderr:  # "robocal serve: serving bundle ... on 127.0.0.1:PORT"
+            m = re.search(r"serving bundle .* on 127\.0\.0\.1:(\d+)", line)
+            if m:
+                port = int(m[1])
+                break
+        assert port is not None, "robocal serve --model did not start"
+        with Client("127.0.0.1", port) as c:
+            assert c.info()["path"].endswith("v3")
+    finally:
+        proc.terminate()
+        proc.wait(10)
