@@ -37,6 +37,30 @@ def _trend_figure(serial: str, name: str, e: Mapping[str, Any], dates: Sequence[
     return fig
 
 
+def _z_figure(trends: Mapping[str, Any]) -> Any:
+    """Histogram of every step z of the fleet against the standard normal: calibrated standard errors put the
+    unflagged bulk on the curve; events sit beyond the Bonferroni threshold."""
+    from matplotlib.figure import Figure
+
+    from robocal.report.plots import AFTER_COLOR, BEFORE_COLOR
+
+    z = np.array([v for r in trends["robots"].values() for e in r["parameters"].values() for v in e["step_z"]])
+    zc = float(trends["test"]["z_critical"])
+    fig = Figure(figsize=(7.0, 3.0), layout="constrained")
+    ax = fig.add_subplot()
+    inside = z[np.abs(z) <= 6.0]
+    ax.hist(inside, bins=60, range=(-6, 6), density=True, color=AFTER_COLOR, alpha=0.7, label="steps, |z| <= 6")
+    x = np.linspace(-6, 6, 400)
+    ax.plot(x, np.exp(-0.5 * x**2) / np.sqrt(2 * np.pi), color="k", lw=1.0, label="standard normal")
+    for sgn in (-1, 1):
+        ax.axvline(sgn * zc, color=BEFORE_COLOR, ls="--", lw=1.0, label="flag threshold" if sgn > 0 else None)
+    ax.set_xlabel(f"step z = Δ / sqrt(se1² + se2²)   ({int(np.sum(np.abs(z) > 6))} steps beyond |z| = 6 not shown)")
+    ax.set_ylabel("density")
+    ax.grid(True, color="#dddddd", lw=0.6)
+    ax.legend(loc="upper left", frameon=False, fontsize=8)
+    return fig
+
+
 def write_report(path: str | Path, fleet_summary: Mapping[str, Any]) -> Path:
     """Write the fleet page from :func:`robocal.fleet.run.run_fleet`'s summary (``fleet.json``)."""
     from robocal.report.html import Report
@@ -87,6 +111,12 @@ def write_report(path: str | Path, fleet_summary: Mapping[str, Any]) -> Path:
         f"{t['pattern_alpha']:g}, it is a change. With two campaigns a flag is a jump. Base (tracker) and tool "
         "parameters are not tested."
     )
+    if any(e["step_z"] for r in trends["robots"].values() for e in r["parameters"].values()):
+        rep.figure(
+            _z_figure(trends),
+            "Every step of every tested parameter across the fleet: with honest standard errors the bulk follows "
+            "the standard normal; the flags lie beyond the dashed threshold",
+        )
     if flags:
         rep.table(
             [
