@@ -112,7 +112,8 @@ def main() -> int:
             f"ray, {workers} worker(s): Ray start + worker warm-up {t_init:.1f} s; engine {e:.1f} s = "
             f"{60 * n / e:.0f} campaigns/min; CPU: driver {res['timings_s']['engine_cpu']:.1f} s, tasks "
             f"{res['timings_s']['worker_cpu']:.1f} s (the workers got "
-            f"{res['timings_s']['worker_cpu'] / (workers * e):.0%} of {workers} CPU(s) over the phase); "
+            f"{res['timings_s']['worker_cpu'] / (workers * e):.0%} of {workers} CPU(s) over the phase; "
+            f"tasks in flight on average {res['timings_s']['worker_wall'] / e:.2f}); "
             f"fleet files {ff:.1f} s; load average {os.getloadavg()[0]:.2f}"
         )
     out = work / "out-local"

@@ -171,18 +171,19 @@ def process_robot(job: Job) -> list[dict[str, Any]]:
     ]
 
 
-def timed_process_robot(job: Job) -> tuple[list[dict[str, Any]], float]:
-    """:func:`process_robot` and the CPU seconds it took in its worker (for the benchmark; never written)."""
+def timed_process_robot(job: Job) -> tuple[list[dict[str, Any]], float, float]:
+    """:func:`process_robot`, the CPU seconds and the wall seconds it took in its worker (for the benchmark;
+    never written)."""
     import time
 
-    c0 = time.process_time()
+    c0, t0 = time.process_time(), time.perf_counter()
     out = process_robot(job)
-    return out, time.process_time() - c0
+    return out, time.process_time() - c0, time.perf_counter() - t0
 
 
 # ----------------------------------------------------------------------------------------------- engines
 
-OnDone = Callable[[Job, tuple[list[dict[str, Any]], float]], None]
+OnDone = Callable[[Job, tuple[list[dict[str, Any]], float, float]], None]
 
 
 def run_local(jobs: list[Job], on_done: OnDone) -> None:
@@ -280,7 +281,8 @@ def calibrate_fleet(
     progress: bool = True,
 ) -> dict[str, Any]:
     """Calibrate every campaign of the fleet that is not cached; returns ``{"summaries": {serial: [summary, ...]},
-    "computed": [(serial, campaign), ...], "cached": n, "worker_cpu_s": CPU seconds of the tasks}``.
+    "computed": [(serial, campaign), ...], "cached": n, "worker_cpu_s" / "worker_wall_s": CPU / wall
+    seconds of the tasks}``.
     ``on_robot(serial, summaries)`` runs in this process once a robot's campaigns are all known (cached or
     computed), e.g. for tracking."""
     if engine not in ENGINES:
@@ -302,11 +304,12 @@ def calibrate_fleet(
         file=sys.stderr,
     )
 
-    worker_cpu = [0.0]
+    worker = [0.0, 0.0]  # CPU and wall seconds of the tasks
 
-    def done(job: Job, result: tuple[list[dict[str, Any]], float]) -> None:
-        summaries, cpu = result
-        worker_cpu[0] += cpu
+    def done(job: Job, result: tuple[list[dict[str, Any]], float, float]) -> None:
+        summaries, cpu, wall = result
+        worker[0] += cpu
+        worker[1] += wall
         for s in summaries:
             results.setdefault(job.serial, {})[s["campaign"]] = s
             computed.append((job.serial, s["campaign"]))
@@ -327,4 +330,10 @@ def calibrate_fleet(
             if r.serial not in todo:
                 on_robot(r.serial, [results[r.serial][c.name] for c in r.campaigns])
     summaries = {r.serial: [results[r.serial][c.name] for c in r.campaigns] for r in fleet.robots}
-    return {"summaries": summaries, "computed": sorted(computed), "cached": n_cached, "worker_cpu_s": worker_cpu[0]}
+    return {
+        "summaries": summaries,
+        "computed": sorted(computed),
+        "cached": n_cached,
+        "worker_cpu_s": worker[0],
+        "worker_wall_s": worker[1],
+    }

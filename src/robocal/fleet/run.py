@@ -109,7 +109,12 @@ def run_fleet(
             "computed": res["computed"],
             "n_cached": res["cached"],
             "tracking": track_log,
-            "timings_s": {"engine": t1 - t0, "engine_cpu": c1 - c0, "worker_cpu": res["worker_cpu_s"]},
+            "timings_s": {
+                "engine": t1 - t0,
+                "engine_cpu": c1 - c0,
+                "worker_cpu": res["worker_cpu_s"],
+                "worker_wall": res["worker_wall_s"],
+            },
         }
     dcfg = dict(cfg.get("drift") or {})
     trends = analyse(
@@ -155,6 +160,7 @@ def run_fleet(
         "engine": t1 - t0,
         "engine_cpu": c1 - c0,
         "worker_cpu": res["worker_cpu_s"],
+        "worker_wall": res["worker_wall_s"],
         "fleet_files": time.perf_counter() - t1,
     }
     return {
