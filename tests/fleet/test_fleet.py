@@ -95,3 +95,24 @@ def test_unknown_engine(engine, twin_fleet, tmp_path):
 
     with pytest.raises(ConfigError, match="engine"):
         calibrate_fleet(read_fleet(twin_fleet), tmp_path, settings(), engine=engine)
+
+
+def test_a_crash_in_one_campaign_is_reported_not_cached(twin_fleet, tmp_path, monkeypatch):
+    import robocal
+    from robocal.identification import calibrate as cal_mod
+
+    real = cal_mod.calibrate
+
+    def flaky(campaign, robot, config=None, x0=None):
+        if "R0002" in str(campaign.source) and "2026-04-06" in str(campaign.source):
+            raise FloatingPointError("a stand-in for a bug")
+        return real(campaign, robot, config, x0)
+
+    monkeypatch.setattr(robocal, "calibrate", flaky)
+    res = run_fleet(twin_fleet, tmp_path / "out", settings(), progress=False)
+    bad = [s for r in res["robots"] for s in r["campaigns"] if s["status"] == "error"]
+    assert [(s["serial"], s["campaign"]) for s in bad] == [("R0002", "2026-04-06")]
+    assert "FloatingPointError" in bad[0]["reason"] and res["counts"]["accepted"] == 8
+    monkeypatch.setattr(robocal, "calibrate", real)
+    again = run_fleet(twin_fleet, tmp_path / "out", settings(), progress=False)
+    assert again["computed"] == [("R0002", "2026-04-06")] and again["counts"]["accepted"] == 9

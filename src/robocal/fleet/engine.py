@@ -125,10 +125,14 @@ def _calibrate_one(
         campaign = robocal.read_campaign(path, robot)
         result = robocal.calibrate(campaign, robot, CalibrationConfig.from_mapping(cal_cfg))
         validation = robocal.validate(result, campaign)
-    except RobocalError as exc:
+    except RobocalError as exc:  # bad data: recorded (and cached: the same bytes fail the same way)
         summary = {**base, "status": "error", "accepted": False, "reason": str(exc)}
         write_json(d / "summary.json", summary)
         return summary
+    except Exception as exc:  # a bug or a numerical failure: reported, not cached (the next run tries again),
+        # and the rest of the fleet goes on
+        (d / "summary.json").unlink(missing_ok=True)
+        return {**base, "status": "error", "accepted": False, "reason": f"{type(exc).__name__}: {exc}"}
     cal = _strip_timings(result.to_dict())
     fit = cal["fit"]
     ok, reason = accept(fit, validation, rules)

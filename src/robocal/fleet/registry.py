@@ -223,20 +223,24 @@ def resolve_model(spec: str, uri: str | None = None, cache_dir: str | Path | Non
     dest = root / name / f"v{version}"
     if (dest / MANIFEST).is_file():
         return version, dest
+    import shutil
+
     mv = MlflowClient(tracking_uri=uri).get_model_version(name, str(version))
     tmp = root / name / f".v{version}.partial"
-    if tmp.exists():
-        import shutil
-
-        shutil.rmtree(tmp)
+    for stale in (tmp, dest):  # an interrupted download
+        if stale.exists():
+            shutil.rmtree(stale)
     tmp.mkdir(parents=True)
     try:
-        got = Path(mlflow.artifacts.download_artifacts(artifact_uri=mv.source, dst_path=str(tmp), tracking_uri=uri))
-    except Exception as exc:
-        raise ConfigError(f"--model {spec}: cannot download version {version} from {mv.source}: {exc}") from None
-    if not (got / MANIFEST).is_file():
-        raise ConfigError(f"--model {spec}: version {version} ({mv.source}) holds no bundle {MANIFEST}")
-    got.rename(dest)  # atomic: a half-downloaded bundle is never served
+        try:
+            got = Path(mlflow.artifacts.download_artifacts(artifact_uri=mv.source, dst_path=str(tmp), tracking_uri=uri))
+        except Exception as exc:
+            raise ConfigError(f"--model {spec}: cannot download version {version} from {mv.source}: {exc}") from None
+        if not (got / MANIFEST).is_file():
+            raise ConfigError(f"--model {spec}: version {version} ({mv.source}) holds no bundle {MANIFEST}")
+        got.rename(dest)  # atomic: a half-downloaded bundle is never served
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
     return version, dest
 
 
