@@ -24,7 +24,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="serve a registered model by alias, e.g. robot-R0001@production (MLflow); follows the alias when it moves",
     )
     p.add_argument(
-        "--tracking-uri", default=None, help="with --model: MLflow tracking URI (default $MLFLOW_TRACKING_URI)"
+        "--tracking-uri",
+        default=None,
+        help="with --model: MLflow tracking URI (default $MLFLOW_TRACKING_URI, else the repository's mlflow.db)",
     )
     p.add_argument(
         "--model-cache", default=None, help="with --model: download folder (default ~/.cache/robocal/models)"
