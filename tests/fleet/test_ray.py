@@ -42,3 +42,20 @@ def test_ray_matches_in_process_byte_for_byte(ray_instance, twin_fleet, tmp_path
     local = run_fleet(twin_fleet, tmp_path / "local", settings(), engine="local", progress=False)
     assert _tree(tmp_path / "ray") == _tree(tmp_path / "local")
     assert r["trends"]["flags"] == local["trends"]["flags"]
+
+
+def test_workers_log_their_robots(ray_instance, twin_fleet, tmp_path, monkeypatch):
+    # tracking.log_from=workers: each Ray task logs its robot (runs, versions, alias); two workers write to one
+    # SQLite store at once here (a tracking server in production), contention retried
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", uri)
+    cfg = settings(tracking={"enabled": True, "uri": uri, "log_from": "workers"})
+    r = run_fleet(twin_fleet, tmp_path / "out", cfg, engine="ray", workers=2, progress=False)
+    assert r["tracking"]["errors"] == []
+    assert {s: t["alias_version"] for s, t in r["tracking"]["robots"].items()} == {"R0001": 3, "R0002": 3, "R0003": 3}
+    from mlflow.tracking import MlflowClient
+
+    client = MlflowClient(uri)
+    runs = client.search_runs([client.get_experiment_by_name("robocal-fleet").experiment_id], max_results=100)
+    assert len(runs) == 9 and all(run.data.tags.get("robocal.key") for run in runs)
+    assert client.get_model_version_by_alias("robot-R0002", "production").tags["robocal.campaign"] == "2026-07-06"

@@ -46,6 +46,11 @@ class Job:
     campaigns: tuple[tuple[str, str, str], ...]
     calibration: dict[str, Any] = field(default_factory=dict)
     acceptance: dict[str, Any] = field(default_factory=dict)
+    #: when set, the task logs its robot to MLflow itself: FleetTracker keyword arguments
+    track: dict[str, Any] | None = None
+    #: the robot's cached summaries and every campaign name in date order (for the tracking of the whole robot)
+    known: tuple[dict[str, Any], ...] = ()
+    order: tuple[str, ...] = ()
 
 
 def _strip_timings(obj: Any) -> Any:
@@ -175,19 +180,30 @@ def process_robot(job: Job) -> list[dict[str, Any]]:
     ]
 
 
-def timed_process_robot(job: Job) -> tuple[list[dict[str, Any]], float, float]:
-    """:func:`process_robot`, the CPU seconds and the wall seconds it took in its worker (for the benchmark;
-    never written)."""
+TaskResult = tuple[list[dict[str, Any]], float, float, dict[str, Any] | None]
+
+
+def timed_process_robot(job: Job) -> TaskResult:
+    """:func:`process_robot`, the CPU and wall seconds it took in its worker (for the benchmark; never written) and,
+    when ``job.track`` is set, the outcome of logging the robot to MLflow from the worker (else None)."""
     import time
 
     c0, t0 = time.process_time(), time.perf_counter()
     out = process_robot(job)
-    return out, time.process_time() - c0, time.perf_counter() - t0
+    tracked = None
+    if job.track is not None:
+        from robocal.fleet.registry import FleetTracker
+
+        by_name = {s["campaign"]: s for s in (*job.known, *out)}
+        tracker = FleetTracker(**job.track)
+        res = tracker.track_robot(job.serial, [by_name[c] for c in job.order], job.out_dir)
+        tracked = {**res, "errors": tracker.errors}
+    return out, time.process_time() - c0, time.perf_counter() - t0, tracked
 
 
 # ----------------------------------------------------------------------------------------------- engines
 
-OnDone = Callable[[Job, tuple[list[dict[str, Any]], float, float]], None]
+OnDone = Callable[[Job, TaskResult], None]
 
 
 def run_local(jobs: list[Job], on_done: OnDone) -> None:
@@ -254,8 +270,11 @@ def run_ray(jobs: list[Job], on_done: OnDone, workers: int, address: str | None 
 # ----------------------------------------------------------------------------------------------- the fleet
 
 
-def plan(fleet: Fleet, out_dir: str | Path, settings: Mapping[str, Any]) -> tuple[list[Job], dict[str, dict[str, Any]]]:
-    """The jobs still to run and the cached summaries ``{serial: {campaign: summary}}``."""
+def plan(
+    fleet: Fleet, out_dir: str | Path, settings: Mapping[str, Any], track: Mapping[str, Any] | None = None
+) -> tuple[list[Job], dict[str, dict[str, Any]]]:
+    """The jobs still to run and the cached summaries ``{serial: {campaign: summary}}``; with ``track``
+    (FleetTracker keyword arguments) each job logs its robot to MLflow itself."""
     cal_cfg = dict(settings.get("calibration") or {})
     rules = dict(settings.get("acceptance") or {})
     jobs: list[Job] = []
@@ -270,7 +289,19 @@ def plan(fleet: Fleet, out_dir: str | Path, settings: Mapping[str, Any]) -> tupl
             else:
                 cached.setdefault(r.serial, {})[c.name] = s
         if todo:
-            jobs.append(Job(r.serial, r.robot, str(Path(out_dir).resolve()), tuple(todo), cal_cfg, rules))
+            jobs.append(
+                Job(
+                    r.serial,
+                    r.robot,
+                    str(Path(out_dir).resolve()),
+                    tuple(todo),
+                    cal_cfg,
+                    rules,
+                    dict(track) if track is not None else None,
+                    tuple(cached.get(r.serial, {}).values()),
+                    tuple(c.name for c in r.campaigns),
+                )
+            )
     return jobs, cached
 
 
@@ -283,17 +314,21 @@ def calibrate_fleet(
     address: str | None = None,
     on_robot: Callable[[str, list[dict[str, Any]]], None] | None = None,
     progress: bool = True,
+    track: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Calibrate every campaign of the fleet that is not cached; returns ``{"summaries": {serial: [summary, ...]},
     "computed": [(serial, campaign), ...], "cached": n, "worker_cpu_s" / "worker_wall_s": CPU / wall
     seconds of the tasks}``.
     ``on_robot(serial, summaries)`` runs in this process once a robot's campaigns are all known (cached or
-    computed), e.g. for tracking."""
+    computed), e.g. for tracking; with ``track`` (FleetTracker keyword arguments) the tasks log their robots
+    themselves, ``on_robot`` is called only for robots with nothing to compute, and ``"tracked"`` holds
+    ``{serial: outcome}``."""
     if engine not in ENGINES:
         raise ConfigError(f"The 'engine' parameter must be one of {ENGINES}. Got {engine!r} instead.")
     if int(workers) < 1:
         raise ConfigError(f"The 'workers' parameter must be >= 1. Got {workers!r} instead.")
-    jobs, cached = plan(fleet, out_dir, settings)
+    jobs, cached = plan(fleet, out_dir, settings, track)
+    tracked: dict[str, dict[str, Any]] = {}
     n_todo = sum(len(j.campaigns) for j in jobs)
     n_cached = fleet.n_campaigns - n_todo
     computed: list[tuple[str, str]] = []
@@ -310,15 +345,17 @@ def calibrate_fleet(
 
     worker = [0.0, 0.0]  # CPU and wall seconds of the tasks
 
-    def done(job: Job, result: tuple[list[dict[str, Any]], float, float]) -> None:
-        summaries, cpu, wall = result
+    def done(job: Job, result: TaskResult) -> None:
+        summaries, cpu, wall, track_result = result
         worker[0] += cpu
         worker[1] += wall
         for s in summaries:
             results.setdefault(job.serial, {})[s["campaign"]] = s
             computed.append((job.serial, s["campaign"]))
         bar.update(len(summaries))
-        if on_robot is not None:
+        if track_result is not None:
+            tracked[job.serial] = track_result
+        elif on_robot is not None:
             on_robot(job.serial, [results[job.serial][c.name] for c in fleet.robot(job.serial).campaigns])
 
     try:
@@ -340,4 +377,5 @@ def calibrate_fleet(
         "cached": n_cached,
         "worker_cpu_s": worker[0],
         "worker_wall_s": worker[1],
+        "tracked": tracked,
     }

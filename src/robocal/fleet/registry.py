@@ -10,7 +10,9 @@
 * The alias ``production`` (configurable) points at the accepted version of the newest campaign.
 
 Idempotent: a campaign whose key already has a run is not logged again, so re-running the fleet (or adding a
-campaign) adds runs only for what is new. The driver logs (one writer, as SQLite wants) while workers compute.
+campaign) adds runs only for what is new. By default the driver logs (one writer, as SQLite wants) while workers
+compute; ``tracking.log_from: workers`` has each Ray task log its own robot (for a tracking server, where the
+driver's logging would otherwise be the serial part of a big fleet).
 
 ``robocal serve --model robot-<serial>@production`` resolves the alias with :func:`resolve_model`, downloads
 the bundle and serves it; :class:`AliasWatcher` polls the alias and hands a newly promoted version to the
@@ -79,8 +81,10 @@ class FleetTracker:
 
         Returns ``{"logged": n, "registered": [versions], "alias_version": v | None}``. MLflow errors are printed
         and collected in :attr:`errors` (tracking never costs results)."""
-        try:
-            return self._track(serial, summaries, Path(out_dir))
+        from robocal.tracking import _retry
+
+        try:  # retried on SQLite contention ("database is locked") when several workers log at once
+            return _retry(lambda: self._track(serial, summaries, Path(out_dir)), attempts=6)
         except Exception as exc:
             msg = f"{serial}: {type(exc).__name__}: {exc}"
             self.errors.append(msg)
@@ -104,7 +108,6 @@ class FleetTracker:
                     **default_tags("fleet"),
                     "robocal.serial": serial,
                     "robocal.campaign": s["campaign"],
-                    "robocal.key": s["key"],
                     "robocal.status": s["status"],
                     "robocal.robot": s.get("robot", ""),
                 }
@@ -128,6 +131,8 @@ class FleetTracker:
                         self.client.log_artifact(rid, str(d / f))
                 if (d / "bundle").is_dir():
                     self.client.log_artifacts(rid, str(d / "bundle"), "bundle")
+                # the key last: a run interrupted before this point is not taken for a complete one next time
+                self.client.set_tag(rid, "robocal.key", s["key"])
                 self.client.set_terminated(rid, "FINISHED" if s["status"] != "error" else "FAILED")
                 logged += 1
             if self.register and s.get("accepted") and s["key"] not in versions:

@@ -99,7 +99,19 @@ def run_fleet(
             track_log["robots"][serial] = tracker.track_robot(serial, summaries, out)
 
     t0, c0 = time.perf_counter(), time.process_time()
-    res = calibrate_fleet(fleet, out, cfg, engine, workers, address, on_robot=on_robot, progress=progress)
+    log_from = str(tcfg.get("log_from") or "driver")
+    if log_from not in ("driver", "workers"):
+        raise ConfigError(f"The 'tracking.log_from' fleet setting must be 'driver' or 'workers'. Got {log_from!r}.")
+    track_kw: dict[str, Any] | None = None
+    if tracker is not None and log_from == "workers":
+        track_kw = {"uri": tracker.uri, "experiment": tracker.experiment, "alias": tracker.alias}
+        track_kw["register"] = tracker.register
+    res = calibrate_fleet(
+        fleet, out, cfg, engine, workers, address, on_robot=on_robot, progress=progress, track=track_kw
+    )
+    for serial, outcome in res["tracked"].items():
+        track_log["errors"] += outcome.pop("errors", [])
+        track_log["robots"][serial] = outcome
     t1, c1 = time.perf_counter(), time.process_time()
     if tracker is not None:
         track_log["errors"] += tracker.errors
