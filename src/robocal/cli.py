@@ -27,6 +27,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "plan": ("robocal.commands.plan", "plan the calibration poses before measuring (D/A/I-optimal, constraints)"),
     "filter": ("robocal.commands.filter", "a KRL or RAPID program with every target corrected by a calibration bundle"),
     "urdf": ("robocal.commands.urdf", "the calibrated kinematics written as a URDF (+ the calibration as YAML)"),
+    "fleet": ("robocal.commands.fleet", "calibrate a fleet of robots over time (local or Ray), track, flag, report"),
 }
 
 

@@ -1,10 +1,14 @@
 """``robocal serve --bundle DIR [--config conf/serve/default.yaml] [key=value ...]``: the online compensation
-service (protocol: :mod:`robocal.serve.server`). ``robocal serve --make-bundle DIR --calibration FILE
-[--thermal FILE] [--compliance FILE] --robot NAME`` writes a bundle instead."""
+service (protocol: :mod:`robocal.serve.server`). ``robocal serve --model robot-<serial>@production
+[--tracking-uri URI]`` serves the registered version the alias points at and swaps in the next one when the alias
+moves (:class:`robocal.fleet.registry.AliasWatcher`, through the server's reload).
+``robocal serve --make-bundle DIR --calibration FILE [--thermal FILE] [--compliance FILE] --robot NAME`` writes a
+bundle instead."""
 
 from __future__ import annotations
 
 import argparse
+import os
 from pathlib import Path
 
 from robocal.commands import parse_overrides
@@ -14,6 +18,20 @@ DEFAULT_CONFIG = Path(__file__).resolve().parents[3] / "conf" / "serve" / "defau
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--bundle", help="bundle directory to serve (manifest.json + model files)")
+    p.add_argument(
+        "--model",
+        default=None,
+        help="serve a registered model by alias, e.g. robot-R0001@production (MLflow); follows the alias when it moves",
+    )
+    p.add_argument(
+        "--tracking-uri",
+        default=None,
+        help="with --model: MLflow tracking URI (default $MLFLOW_TRACKING_URI, else the repository's mlflow.db)",
+    )
+    p.add_argument(
+        "--model-cache", default=None, help="with --model: download folder (default ~/.cache/robocal/models)"
+    )
+    p.add_argument("--model-poll-s", type=float, default=10.0, help="with --model: seconds between alias checks")
     p.add_argument(
         "--config", default=None, help=f"service settings YAML (default {DEFAULT_CONFIG.name} of conf/serve)"
     )
@@ -66,8 +84,17 @@ def run(args: argparse.Namespace) -> int:
             f"compliance={b.compliance is not None})"
         )
         return 0
+    watcher = None
+    if args.model:
+        from robocal.fleet.registry import AliasWatcher, resolve_model
+
+        if args.tracking_uri:  # the flag wins over $MLFLOW_TRACKING_URI (which robocal.tracking puts first)
+            os.environ["MLFLOW_TRACKING_URI"] = args.tracking_uri
+        version, path = resolve_model(args.model, args.tracking_uri, args.model_cache)
+        print(f"robocal serve: {args.model} is version {version}: {path}", flush=True)
+        args.bundle = str(path)
     if not args.bundle:
-        raise ConfigError("--bundle DIR is required (or --make-bundle DIR)")
+        raise ConfigError("--bundle DIR or --model NAME@ALIAS is required (or --make-bundle DIR)")
     cfg = load_config(args.config, args.overrides)
     if args.host is not None:
         cfg["host"] = args.host
@@ -76,8 +103,15 @@ def run(args: argparse.Namespace) -> int:
     token = read_token(args.token_file, str(cfg.get("token_env") or "ROBOCAL_SERVE_TOKEN"))
     scfg = ServiceConfig.from_mapping({k: cfg[k] for k in ("max_targets", "safety", "solver") if k in cfg}, token=token)
     server = Server(args.bundle, ServerConfig.from_mapping(cfg), scfg)
+    if args.model:  # the alias moved: the new version is swapped in by the server's own reload
+        watcher = AliasWatcher(
+            args.model, version, server.reload_sync, args.tracking_uri, args.model_cache, args.model_poll_s
+        ).start()
     try:
         asyncio.run(server.serve_forever())
     except KeyboardInterrupt:
         pass
+    finally:
+        if watcher is not None:
+            watcher.stop()
     return 0
