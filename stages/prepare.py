@@ -24,7 +24,7 @@ def compute(ctx: Context) -> Metrics:
     import pandas as pd
 
     from robocal.data import SplitConfig, read_campaign
-    from robocal.io import atomic_write, write_json
+    from robocal.io import atomic_write, display_path, write_json
     from robocal.pipeline import campaign_dir
     from robocal.robot import robot_from_dict
 
@@ -53,7 +53,7 @@ def compute(ctx: Context) -> Metrics:
         atomic_write(ctx.out / "temperatures.parquet", lambda p: tlog.to_parquet(p, index=False))
     n_cal = int((camp.split == "calibration").sum())
     info = {
-        "source": str(src),
+        "source": display_path(src),
         "robot": robot.name,
         "n_rows": camp.n_rows,
         "n_poses": len(set(camp.pose_id.tolist())),

@@ -45,7 +45,9 @@ def compute(ctx: Context) -> Metrics | Skipped:
     scenario["effects"] = effects
     planned = ctx.get("plan.measured_by_twin", False, types=bool)
     if planned:  # the calibration poses the plan stage chose (validation poses: the same random ones either way)
-        scenario["poses_deg"] = str(ctx.path("reports/plan/plan.csv"))
+        from robocal.io import display_path
+
+        scenario["poses_deg"] = display_path(ctx.path("reports/plan/plan.csv"))  # relative: same bytes in any clone
     truth = simulate(scenario, ctx.out, seed=ctx.get("scenario.seed", 0, types=int), robot=robot)
     if left_out:
         with open(ctx.out / "scenario.yaml", "a", encoding="utf-8") as fh:

@@ -56,6 +56,17 @@ def round_float(value: float, digits: int = SIGNIFICANT_DIGITS) -> float:
     return float(f"{value:.{digits}g}")
 
 
+def display_path(path: str | Path) -> str:
+    """``path`` as it is written into outputs and messages: relative to the working directory when it lies under
+    it (a pipeline runs at the repository root, so its outputs do not depend on where the checkout is: same
+    config, same bytes in any clone), else absolute."""
+    p = Path(path)
+    try:
+        return str(p.resolve().relative_to(Path.cwd().resolve()))
+    except (ValueError, OSError):
+        return str(p)
+
+
 def _umask() -> int:
     """The process umask, read without changing it where Linux allows (os.umask would race threads)."""
     try:

@@ -24,6 +24,7 @@ import numpy as np
 import pandas as pd
 
 from robocal.errors import ConfigError, DataError
+from robocal.io import display_path
 from robocal.robot import RobotDescription
 
 SPLIT_VALUES = ("calibration", "validation")
@@ -523,8 +524,8 @@ def read_campaign(
     tindex = np.array([names.index(t) for t in target], dtype=int) if m else np.zeros(0, dtype=int)
 
     camp = Campaign(
-        source=str(folder),
-        poses_file=str(path),
+        source=display_path(folder),
+        poses_file=display_path(path),
         pose_id=pid.astype(str),
         timestamp_s=t_s,
         t0=t0,
