@@ -229,7 +229,9 @@ def write_report(res: DiscoveryResult, summ: dict[str, Any], path: Path) -> Path
                 }
                 for s in srows
             ],
-            caption="Best candidates by log10 p (projected nested F-test)",
+            caption="Best candidates by log10 p (projected nested F-test). cv_gain (relative drop of the held-out "
+            "error over whole poses) is computed only for a candidate that passes the F-test, the BIC and the "
+            "excess share, in order, until one is accepted; empty otherwise",
         )
         if st.residuals_before_mm is not None and st.residuals_after_mm is not None:
             fig = plots.residuals_vs_joints(camp.q, st.residuals_before_mm, list(res.robot.joint_names))

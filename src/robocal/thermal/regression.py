@@ -138,7 +138,7 @@ def _cinv(n: int, v: float) -> np.ndarray:
 
 
 @dataclass
-class FitOutcome:
+class ParameterChoice:
     """The chosen model of one parameter and the cross-validation table behind the choice."""
 
     model: ParameterModel | None
@@ -158,7 +158,7 @@ def fit_parameter(
     cfg: RegressionConfig,
     forms: Sequence[str] = ("expansion",),
     nominal: float = 0.0,
-) -> FitOutcome:
+) -> ParameterChoice:
     """Fit one parameter's drift.
 
     Parameters
@@ -225,7 +225,7 @@ def fit_parameter(
         for c in sorted(cands, key=lambda c: c.cv_rmse)
     ]
     if chosen.form == "none":
-        return FitOutcome(None, chosen, table, p_value)
+        return ParameterChoice(None, chosen, table, p_value)
     b, cov, chi2 = _gls(X, y, Cinv)
     dof = n - chosen.k
     red = chi2 / dof if dof > 0 else 1.0
@@ -259,7 +259,7 @@ def fit_parameter(
             "no_drift_cv_rmse": float(np.sqrt(np.mean(y**2))),
         },
     )
-    return FitOutcome(model, chosen, table, p_value)
+    return ParameterChoice(model, chosen, table, p_value)
 
 
 def forms_for(kind: str, nominal: float, expansion_only: bool = False) -> tuple[str, ...]:
@@ -279,7 +279,7 @@ def fit_drift(
     expansion_only: bool = False,
     allow_none: bool | None = None,
     info: Mapping[str, Any] | None = None,
-) -> tuple[ThermalModel, dict[str, FitOutcome]]:
+) -> tuple[ThermalModel, dict[str, ParameterChoice]]:
     """A :class:`ThermalModel` from the identified drift of one warm-up: one regression per parameter.
 
     params : parameters to model (default: every identified one); expansion_only : the traditional method
@@ -292,7 +292,7 @@ def fit_drift(
     c = cfg if allow_none is None else RegressionConfig(**{**cfg.__dict__, "allow_none": allow_none})
     nominal = {chain.param_names[p]: float(chain.nominal[e]) for e, p in enumerate(chain.param) if p >= 0}
     kinds = dict(zip(chain.param_names, chain.param_kind, strict=True))
-    outcomes: dict[str, FitOutcome] = {}
+    outcomes: dict[str, ParameterChoice] = {}
     models = []
     for name in names:
         forms = forms_for(kinds[name], nominal[name], expansion_only)
@@ -328,7 +328,7 @@ def fit_drift(
 
 __all__ = [
     "Candidate",
-    "FitOutcome",
+    "ParameterChoice",
     "RegressionConfig",
     "candidate_sensors",
     "fit_drift",

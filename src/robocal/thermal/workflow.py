@@ -27,7 +27,7 @@ from robocal.io import write_json
 from robocal.robot import RobotDescription
 from robocal.thermal.identify import StateDrift, find_states, identify_states
 from robocal.thermal.model import ParameterModel, ThermalModel
-from robocal.thermal.regression import FitOutcome, RegressionConfig, fit_drift
+from robocal.thermal.regression import ParameterChoice, RegressionConfig, fit_drift
 
 if TYPE_CHECKING:
     from robocal.data.contract import Campaign
@@ -118,7 +118,7 @@ class ThermalFit:
     drift: StateDrift  # every identifiable parameter
     model_all: ThermalModel
     model_traditional: ThermalModel
-    outcomes: dict[str, FitOutcome]
+    outcomes: dict[str, ParameterChoice]
     traditional_params: tuple[str, ...]
     cfg: ThermalConfig
 
@@ -230,7 +230,9 @@ def _empty_drift(cal: Campaign, state: np.ndarray) -> StateDrift:
     )
 
 
-def fit_selected(fit: ThermalFit, selected: Sequence[str]) -> tuple[ThermalModel, StateDrift, dict[str, FitOutcome]]:
+def fit_selected(
+    fit: ThermalFit, selected: Sequence[str]
+) -> tuple[ThermalModel, StateDrift, dict[str, ParameterChoice]]:
     """The proposed model: drift identified on the ``selected`` parameters only, then their regressions."""
     cfg = fit.cfg
     chain = fit.reference.model.chain
