@@ -277,6 +277,7 @@ class GOA(EstimatorParams):
     """
 
     name = "goa"
+    family = "population"
 
     def __init__(
         self,

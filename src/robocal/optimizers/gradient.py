@@ -66,6 +66,7 @@ class GaussNewton(EstimatorParams):
     """
 
     name = "gn"
+    family = "gradient"
     _lam0_default = 0.0
 
     def __init__(self, *, max_iter: int | None = None, ftol: float = 1e-12, xtol: float = 1e-10) -> None:

@@ -103,6 +103,7 @@ class Ipopt(EstimatorParams):
     """
 
     name = "ipopt"
+    family = "nlp"
 
     def __init__(
         self, *, max_iter: int | None = None, tol: float = 1e-12, hessian: str = "exact", print_level: int = 0

@@ -81,9 +81,13 @@ def unregister(name: str) -> None:
     del _REGISTRY[name]
 
 
-def registered() -> tuple[str, ...]:
-    """Names of the registered optimizers, sorted."""
-    return tuple(sorted(_REGISTRY))
+def registered(family: str | None = None) -> tuple[str, ...]:
+    """Names of the registered optimizers, sorted; only those of one ``family`` (the class attribute:
+    ``"gradient"``, ``"population"``, ``"nlp"``) when given. The one list of optimizer names."""
+    names = sorted(_REGISTRY)
+    if family is None:
+        return tuple(names)
+    return tuple(n for n in names if getattr(_REGISTRY[n].factory, "family", None) == family)
 
 
 def _resolve(cfg: Mapping[str, Any]) -> str:

@@ -136,6 +136,7 @@ class WOA(EstimatorParams):
     """
 
     name = "woa"
+    family = "population"
 
     def __init__(
         self,

@@ -39,6 +39,7 @@ from robocal.identification.calibrate import (
 from robocal.optimizers import OptimizeResult, make_optimizer, pipeline_options
 from robocal.optimizers.calibration import CalibrationSearch, calibration_problem
 from robocal.optimizers.protocol import Problem
+from robocal.optimizers.registry import registered
 from robocal.robot import RobotDescription
 
 if TYPE_CHECKING:
@@ -54,8 +55,9 @@ __all__ = [
     "search_setup",
 ]
 
-GRADIENT = ("gn", "lm")
-POPULATION = ("igoa", "goa", "woa")
+#: the optimizer families, from the registry (each class says its family): no second list of names
+GRADIENT = registered("gradient")
+POPULATION = registered("population")
 #: Gauss-Newton settings of the polish (conf/optimizer/gn.yaml).
 POLISH: dict[str, Any] = {"max_iter": 30, "ftol": 1e-12, "xtol": 1e-10}
 
