@@ -86,6 +86,32 @@ class Program:
     main: Path
 
 
+def reuse_target(
+    targets: dict[str, Target],
+    key: str,
+    tool: np.ndarray,
+    base: np.ndarray,
+    frames: str,
+    file: Path,
+    line: int,
+) -> bool:
+    """A target named again: record the use and return True when it is known (with the same tool and base:
+    one corrected value cannot suit two frames, an error naming both uses); False when it is new."""
+    t = targets.get(key)
+    if t is None:
+        return False
+    assert t.tool is not None and t.base is not None
+    if not (np.allclose(t.tool, tool) and np.allclose(t.base, base)):
+        raise ProgramError(
+            f"target {t.name!r} is used with {frames} here and with {t.tool_name}/{t.base_name} at line "
+            f"{t.used_at[0][1]}: one value cannot suit both",
+            file,
+            line,
+        )
+    t.used_at.append((str(file), line))
+    return True
+
+
 def read_text(path: Path) -> str:
     """The file as text with every byte kept (latin-1 maps bytes 0-255 one to one)."""
     return path.read_bytes().decode("latin-1")

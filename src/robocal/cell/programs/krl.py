@@ -36,6 +36,7 @@ from robocal.cell.programs.common import (
     frame,
     line_of,
     read_text,
+    reuse_target,
     rot_zyx_deg,
 )
 
@@ -275,17 +276,7 @@ def read_krl(src: str | Path) -> Any:
                     line,
                 )
             key = name.lower()
-            if key in targets:
-                t = targets[key]
-                assert t.tool is not None and t.base is not None
-                if not (np.allclose(t.tool, tool) and np.allclose(t.base, base)):
-                    raise ProgramError(
-                        f"target {name!r} is used with {tool_name}/{base_name} here and with "
-                        f"{t.tool_name}/{t.base_name} at line {t.used_at[0][1]}: one value cannot suit both",
-                        src,
-                        line,
-                    )
-                t.used_at.append((str(src), line))
+            if reuse_target(targets, key, tool, base, f"{tool_name}/{base_name}", src, line):
                 return
             kind = "pose" if d.typ in POSE_TYPES else "axis"
             t = _make_target(d.name, kind, d.file, d.text, d.span, d.line, d.vals, d.order, d.atype)

@@ -29,7 +29,15 @@ from typing import Any
 
 import numpy as np
 
-from robocal.cell.programs.common import Program, ProgramError, Target, frame, line_of, read_text
+from robocal.cell.programs.common import (
+    Program,
+    ProgramError,
+    Target,
+    frame,
+    line_of,
+    read_text,
+    reuse_target,
+)
 from robocal.kinematics.transforms import matrix_to_quat, quat_to_matrix
 
 _DATA_TYPES = ("robtarget", "jointtarget", "tooldata", "wobjdata")
@@ -368,17 +376,7 @@ def _move(
                     f"{word} target {arg!r}: arrays and targets without a value are not supported", file, line
                 )
             key = arg.lower()
-            if key in targets:
-                t = targets[key]
-                assert t.tool is not None and t.base is not None
-                if not (np.allclose(t.tool, tool) and np.allclose(t.base, base)):
-                    raise ProgramError(
-                        f"target {arg} is used with {tool_name}/{wobj_name} here and with {t.tool_name}/{t.base_name} "
-                        f"at line {t.used_at[0][1]}: one value cannot suit both",
-                        file,
-                        line,
-                    )
-                t.used_at.append((str(file), line))
+            if reuse_target(targets, key, tool, base, f"{tool_name}/{wobj_name}", file, line):
                 continue
             t = _target(d.name, want, d.node, file, text, d.line)
             targets[key] = t
