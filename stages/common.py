@@ -110,6 +110,10 @@ DETAILS_FILE = "all_metrics.json"
 TRACKING_DEFAULTS: dict[str, Any] = {"enabled": True, "experiment": "robocal", "uri": None, "required": False}
 
 
+#: The campaign the twin writes (conf/config.yaml's default data.campaign).
+DEFAULT_CAMPAIGN = "data/raw/default"
+
+
 @dataclass(frozen=True)
 class Stage:
     """What a stage reads and writes; must agree with its entry in ``dvc.yaml``."""
@@ -175,6 +179,12 @@ class Context:
     def artifact(self, path: str | Path) -> None:
         """Log ``path`` (file or directory) to MLflow once the stage has written its outputs."""
         self.artifacts.append(Path(path))
+
+    def own_campaign(self) -> str | None:
+        """``data.campaign`` when it names a campaign of the user's own, None when it is the twin's default
+        (:data:`DEFAULT_CAMPAIGN`); the stage must declare ``data.campaign`` among its params."""
+        campaign = self.get("data.campaign", types=str)
+        return None if self.path(campaign).resolve() == self.path(DEFAULT_CAMPAIGN).resolve() else campaign
 
     @staticmethod
     def skip(reason: str) -> Skipped:

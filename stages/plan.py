@@ -21,13 +21,10 @@ STAGE = Stage(
     metrics="reports/metrics/plan.json",
 )
 
-#: The campaign the twin writes (conf/config.yaml's default data.campaign).
-DEFAULT_CAMPAIGN = "data/raw/default"
-
 
 def compute(ctx: Context) -> Metrics | Skipped:
-    campaign = ctx.get("data.campaign", types=str)
-    if ctx.path(campaign).resolve() != ctx.path(DEFAULT_CAMPAIGN).resolve():
+    campaign = ctx.own_campaign()
+    if campaign is not None:
         return ctx.skip(f"data.campaign names {campaign!r}: the plan describes the twin's cell, not yours")
     from robocal.plan.output import run_plan
     from robocal.plan.planner import cell_from_scenario

@@ -23,16 +23,12 @@ STAGE = Stage(
 )
 
 
-#: The campaign this stage writes, as ``data.campaign`` names it by default (conf/config.yaml).
-DEFAULT_CAMPAIGN = "data/raw/default"
-
-
 def compute(ctx: Context) -> Metrics | Skipped:
     from robocal.robot import robot_from_dict
     from robocal.sim.twin import simulate
 
-    campaign = ctx.get("data.campaign", types=str)
-    if ctx.path(campaign).resolve() != ctx.path(DEFAULT_CAMPAIGN).resolve():
+    campaign = ctx.own_campaign()
+    if campaign is not None:
         return ctx.skip(f"data.campaign names {campaign!r}, not the default campaign: the twin is not run")
     scenario = dict(ctx.get("scenario", types=dict))
     robot = robot_from_dict(ctx.cfg["robot"], source="params: robot")

@@ -126,6 +126,25 @@ class Bundle:
     def default_tool(self) -> str:
         return next(iter(self.tools))
 
+    def eta_at(self, temperatures: np.ndarray | None) -> np.ndarray:
+        """The robot's kinematic errors at these temperatures: the calibration's, plus the thermal drift when the
+        bundle has a thermal model (``temperatures`` (s,) degC in the order of :attr:`sensors`)."""
+        if self.thermal is None or temperatures is None:
+            return self.eta0
+        return self.eta0 + np.asarray(self.thermal.deta(np.asarray(temperatures, dtype=float)[None, :]), dtype=float)[0]
+
+    def temperature_reasons(self, temperatures: np.ndarray, margin_C: float) -> list[str]:
+        """One reason per sensor outside the thermal model's fitted range (widened by ``margin_C``)."""
+        if self.t_lo is None or self.t_hi is None:
+            return []
+        t = np.asarray(temperatures, dtype=float)
+        hot = np.flatnonzero((t < self.t_lo - margin_C) | (t > self.t_hi + margin_C))
+        return [
+            f"temperature {self.sensors[i]}={t[i]:.2f} degC outside the fitted range "
+            f"[{self.t_lo[i]:.2f}, {self.t_hi[i]:.2f}]"
+            for i in hot
+        ]
+
     def info(self) -> dict[str, Any]:
         """What a client needs to know: robot, joints and limits, tools, sensors and their fitted range."""
         return {

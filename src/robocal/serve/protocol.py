@@ -327,12 +327,7 @@ class Service:
             if cc is not None:
                 self._cache.move_to_end(key)
                 return cc
-        if nominal:
-            eta = np.zeros_like(bundle.eta0)
-        elif bundle.thermal is None or temps is None:
-            eta = bundle.eta0
-        else:
-            eta = bundle.eta0 + np.asarray(bundle.thermal.deta(temps[None, :]), dtype=float)[0]
+        eta = np.zeros_like(bundle.eta0) if nominal else bundle.eta_at(temps)
         cc = compile_chain(bundle.chain, eta)
         with self._lock:
             self._cache[key] = cc
@@ -374,16 +369,10 @@ class Service:
                     f"'temperatures' is required: the bundle has a thermal model of {list(bundle.sensors)}",
                 )
             temps = parse_temperatures(req["temperatures"], bundle.sensors)
-            if bundle.t_lo is not None and bundle.t_hi is not None:
-                mg = sf.temperature_margin_C
-                hot = np.flatnonzero((temps < bundle.t_lo - mg) | (temps > bundle.t_hi + mg))
-                for i in hot:
-                    reasons_all.append(
-                        f"temperature {bundle.sensors[i]}={temps[i]:.2f} degC outside the fitted range "
-                        f"[{bundle.t_lo[i]:.2f}, {bundle.t_hi[i]:.2f}]"
-                    )
-                if len(hot) and sf.on_temperature_range == "refuse":
-                    refuse_all = True
+            hot = bundle.temperature_reasons(temps, sf.temperature_margin_C)
+            reasons_all.extend(hot)
+            if hot and sf.on_temperature_range == "refuse":
+                refuse_all = True
         elif "temperatures" in req and not isinstance(req["temperatures"], dict | list):
             raise RequestError("bad_request", "'temperatures' must be an object or a list")
         cc = self._compiled(bundle, temps)

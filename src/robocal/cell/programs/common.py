@@ -86,6 +86,14 @@ class Program:
     main: Path
 
 
+def format_number(v: float, nd: int) -> str:
+    """``v`` with at most ``nd`` decimals, trailing zeros dropped, never ``-0`` (how targets are written back)."""
+    s = f"{v:.{nd}f}"
+    if "." in s:
+        s = s.rstrip("0").rstrip(".")
+    return "0" if s in ("-0", "") else s
+
+
 def reuse_target(
     targets: dict[str, Target],
     key: str,

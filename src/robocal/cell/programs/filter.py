@@ -266,16 +266,9 @@ def filter_program(
     if bundle.thermal is not None:
         if temperatures is None:
             raise ConfigError(f"the bundle has a thermal model: state the temperatures of {list(bundle.sensors)}")
-        eta = bundle.eta0 + np.asarray(bundle.thermal.deta(np.asarray(temperatures)[None, :]), dtype=float)[0]
-        if bundle.t_lo is not None and bundle.t_hi is not None:
-            mg = sf.temperature_margin_C
-            hot = np.flatnonzero((temperatures < bundle.t_lo - mg) | (temperatures > bundle.t_hi + mg))
-            for i in hot:
-                reasons_all.append(
-                    f"temperature {bundle.sensors[i]}={temperatures[i]:.2f} degC outside the fitted range "
-                    f"[{bundle.t_lo[i]:.2f}, {bundle.t_hi[i]:.2f}]"
-                )
-            refuse_all = bool(len(hot)) and sf.on_temperature_range == "refuse"
+        eta = bundle.eta_at(temperatures)
+        reasons_all.extend(bundle.temperature_reasons(temperatures, sf.temperature_margin_C))
+        refuse_all = bool(reasons_all) and sf.on_temperature_range == "refuse"
     cc = compile_chain(bundle.chain, eta)
     cc_nom = compile_chain(bundle.chain, np.zeros_like(bundle.eta0))
     q_t = nominal_ik(prog, cc_nom, limits, seed)

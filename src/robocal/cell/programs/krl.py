@@ -33,6 +33,7 @@ from robocal.cell.programs.common import (
     ProgramError,
     Target,
     abc_deg,
+    format_number,
     frame,
     line_of,
     read_text,
@@ -402,13 +403,6 @@ def _make_target(
     return t
 
 
-def _f(v: float, nd: int) -> str:
-    s = f"{v:.{nd}f}"
-    if "." in s:
-        s = s.rstrip("0").rstrip(".")
-    return "0" if s in ("-0", "") else s
-
-
 def render(t: Target, new: dict[str, Any]) -> str:
     """The target's aggregate with new values: ``new`` has ``T_base_tcp`` + ``S``/``T`` (pose) or ``q_deg``
     (axis). Keys keep their order and spelling; values not corrected (E1..E6) keep their text."""
@@ -417,14 +411,14 @@ def render(t: Target, new: dict[str, Any]) -> str:
         T = new["T_base_tcp"]
         a, b, c = abc_deg(T[:3, :3])
         for k, v in zip(_POSE_KEYS, [*T[:3, 3], a, b, c], strict=True):
-            vals[k] = _f(float(v), 4 if k in "xyz" else 5)
+            vals[k] = format_number(float(v), 4 if k in "xyz" else 5)
         for k in ("S", "T"):
             if k in new and k.lower() in vals:
                 v = int(new[k])
                 vals[k.lower()] = f"'B{v:b}'" if t.data.get(f"{k.lower()}_style") == "bits" else str(v)
     else:
         for k, v in zip(_AXES, new["q_deg"], strict=True):
-            vals[k] = _f(float(v), 5)
+            vals[k] = format_number(float(v), 5)
     orig: str = t.data["orig"]
     # keep the separators as written: rebuild item by item
     inner = orig[1:-1]

@@ -33,6 +33,7 @@ from robocal.cell.programs.common import (
     Program,
     ProgramError,
     Target,
+    format_number,
     frame,
     line_of,
     read_text,
@@ -403,13 +404,6 @@ def _target(name: str, typ: str, node: Node, file: Path, text: str, line: int) -
     return t
 
 
-def _f(v: float, nd: int) -> str:
-    s = f"{v:.{nd}f}"
-    if "." in s:
-        s = s.rstrip("0").rstrip(".")
-    return "0" if s in ("-0", "") else s
-
-
 def render(t: Target, new: dict[str, Any]) -> str:
     """The target's value with new pose + confdata (robtarget) or robax (jointtarget); extax text kept."""
     node: Node = t.data["node"]
@@ -420,13 +414,13 @@ def render(t: Target, new: dict[str, Any]) -> str:
         q = matrix_to_quat(T[:3, :3])
         q = q / np.linalg.norm(q)
         pn, qn, cn = (node.items or [])[0:3]
-        edits.append((pn.start, pn.end, "[" + ",".join(_f(float(v), 4) for v in T[:3, 3]) + "]"))
-        edits.append((qn.start, qn.end, "[" + ",".join(_f(float(v), 9) for v in q) + "]"))
+        edits.append((pn.start, pn.end, "[" + ",".join(format_number(float(v), 4) for v in T[:3, 3]) + "]"))
+        edits.append((qn.start, qn.end, "[" + ",".join(format_number(float(v), 9) for v in q) + "]"))
         if "cf" in new:
             edits.append((cn.start, cn.end, "[" + ",".join(str(int(v)) for v in new["cf"]) + "]"))
     else:
         rn = (node.items or [])[0]
-        edits.append((rn.start, rn.end, "[" + ",".join(_f(float(v), 5) for v in new["q_deg"]) + "]"))
+        edits.append((rn.start, rn.end, "[" + ",".join(format_number(float(v), 5) for v in new["q_deg"]) + "]"))
     out, last = [], node.start
     for s, e, new_text in sorted(edits):
         out.append(text[last:s])
