@@ -292,6 +292,9 @@ def test_own_data_in_one_step_as_the_readme_says(copy: dict[str, Any]) -> None:
     shared = root.parent / "shared"  # ../shared beside the copy, as beside the repository
     if not shared.exists():
         shared.symlink_to(SHARED, target_is_directory=True)
+    # `dvc exp run` needs a commit to start from: make one here, so the test does not depend on an earlier one
+    _git(root, "add", "-A")
+    _git(root, "commit", "-q", "--allow-empty", "-m", "before the own-data experiment")
     res = subprocess.run(command.split(), cwd=root, capture_output=True, text=True, timeout=600)
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
     status = {s: json.loads((root / f"reports/metrics/{s}.json").read_text()) for s in STAGES}
