@@ -8,6 +8,7 @@ The public API (imported lazily: ``import robocal`` itself reads and loads nothi
     campaign = robocal.read_campaign("path/to/campaign", robot)  # the data contract, checked
     result = robocal.calibrate(campaign, robot)                # geometric calibration (gross errors handled)
     print(result.fit["rms_position_mm"], result.fit["outliers"])
+    print(result.solver.redchi, result.solver.bic)              # the fit itself: a FitResult (immutable)
     print(robocal.validate(result, campaign))                  # errors on the validation rows
     found = robocal.discover(campaign, robot)                  # what the model misses, named
     comp, command = robocal.compensate(result, q_rad)          # corrected joints for targets q (m, n) rad
@@ -35,6 +36,7 @@ _API = {
     "CalibrationConfig": "robocal.identification.calibrate:CalibrationConfig",
     "CalibrationResult": "robocal.identification.calibrate:CalibrationResult",
     "load_calibration": "robocal.identification.calibrate:load_calibration",
+    "FitResult": "robocal.identification.result:FitResult",
     "discover": "robocal.discovery.search:discover",
     "DiscoveryConfig": "robocal.discovery.config:DiscoveryConfig",
     "compensate": "robocal.discovery.effects:compensate_targets",

@@ -33,7 +33,7 @@ from robocal.compliance.model import KINDS, ComplianceModel
 from robocal.errors import ConfigError
 from robocal.identification.calibrate import CalibrationResult, fit_data
 from robocal.identification.model import FitData
-from robocal.identification.solver import levenberg_marquardt, normal_inverse
+from robocal.identification.solver import levenberg_marquardt
 
 if TYPE_CHECKING:
     from robocal.data.contract import Campaign
@@ -170,8 +170,6 @@ def _gauss_newton(
     ``method="gn"``) on the stacked vector ``[x, c]``."""
     model = geo.model
     nx = len(geo.x)
-    kc = len(joints)
-    kx = len(geo_free)
     m3 = 3 * data.m
 
     def fun(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -185,14 +183,11 @@ def _gauss_newton(
     z0 = np.concatenate([geo.x, c0])
     free = np.concatenate([np.asarray(geo_free, dtype=int), nx + np.asarray(joints, dtype=int)])
     lm = levenberg_marquardt(fun, z0, free, 1.0, max_iter=max_iter, ftol=tol, xtol=1e-12, method="gn")
-    r = lm.r
-    M = len(r)
-    k = kx + kc
-    cost = float(r @ r)
-    s2 = cost / max(M - k, 1)
-    cov = s2 * normal_inverse(lm.J)
-    res = r.reshape(-1, 3)
-    return GNResult(lm.x[:nx], lm.x[nx:], cov, res, lm.nit, float(np.sqrt(np.mean(np.sum(res**2, axis=1)))), s2)
+    res = lm.residual.reshape(-1, 3)
+    s2 = lm.redchi if lm.dof > 0 else lm.chi2  # the residual variance (per coordinate)
+    assert lm.covariance is not None  # the fit is finite (the model's residuals always are)
+    rms = float(np.sqrt(np.mean(np.sum(res**2, axis=1))))
+    return GNResult(lm.x[:nx].copy(), lm.x[nx:].copy(), np.array(lm.covariance), res.copy(), lm.nit, rms, s2)
 
 
 @dataclass

@@ -18,7 +18,7 @@ import numpy as np
 from robocal.discovery.candidates import Candidate, with_beta
 from robocal.identification.identifiability import analyse
 from robocal.identification.model import CalibrationModel, FitData
-from robocal.identification.solver import levenberg_marquardt, normal_inverse
+from robocal.identification.solver import levenberg_marquardt
 from robocal.robot import RobotDescription
 
 
@@ -261,23 +261,19 @@ def fit_model(
     ident = analyse(J0 * w[:, None], model.names, order, rtol=rank_tol)
     free = np.sort(ident.kept)
     lm = levenberg_marquardt(fun, theta0, free, w, max_iter=max_iter, ftol=1e-12, xtol=1e-10)
-    theta = lm.x
-    r, J, Jx, Jq = model.residuals_and_jacobian(theta, data, rows)
-    r_w = r * w
-    J_w = J[:, free] * w[:, None]
-    dof = max(len(r_w) - len(free), 1)
-    s2 = float(r_w @ r_w) / dof
-    cov_w = normal_inverse(J_w)
+    theta = np.array(lm.x)
+    _, _, Jx, Jq = model.residuals_and_jacobian(theta, data, rows)  # the solver's r and J, with their parts
+    assert lm.covariance is not None  # a finite fit
     return Fit(
         model=model,
         theta=theta,
         free=free,
-        r_w=r_w,
-        J_w=J_w,
+        r_w=np.array(lm.residual),
+        J_w=np.array(lm.jacobian),
         Jx=Jx,
         Jq=Jq,
-        cov=s2 * cov_w,
-        s2=s2,
+        cov=np.array(lm.covariance),
+        s2=lm.redchi if lm.dof > 0 else lm.chi2,
         sigma=sigma,
         eliminated=tuple(e.name for e in ident.eliminated),
         rows=np.asarray(rows),

@@ -13,7 +13,7 @@ from scipy import special
 from robocal.errors import ConfigError
 from robocal.identification.identifiability import Eliminated, Identifiability, analyse
 from robocal.identification.model import CalibrationModel, FitData
-from robocal.identification.solver import LMResult, levenberg_marquardt, normal_inverse
+from robocal.identification.solver import FitResult, levenberg_marquardt
 from robocal.kinematics.chain import fk
 from robocal.kinematics.transforms import (
     inv_transform,
@@ -195,9 +195,13 @@ def register_frames(
     return (T[0] if S == 1 else T), tools
 
 
-@dataclass
+@dataclass(frozen=True, eq=False)
 class CalibrationResult:
-    """A fitted calibration: parameters with standard errors, frames, tools and fit statistics."""
+    """A fitted calibration: parameters with standard errors, frames, tools and fit statistics.
+
+    Immutable (derive a changed one with :func:`dataclasses.replace`); ``solver`` is the least-squares core's
+    :class:`~robocal.identification.result.FitResult` (χ², covariance, status, timings of the fit itself).
+    """
 
     model: CalibrationModel
     x: np.ndarray
@@ -210,7 +214,7 @@ class CalibrationResult:
     residuals_mm: np.ndarray  # (m, 3)
     residuals_deg: np.ndarray | None
     config: CalibrationConfig
-    lm: LMResult | None = None
+    solver: FitResult | None = None
     extra: dict[str, Any] = field(default_factory=dict)
 
     @property
@@ -610,8 +614,8 @@ def calibrate(
     outlier_rounds = 0
     suspects: list[dict[str, Any]] = []
     if cfg.outliers == "auto":
-        test = robust.row_test(lm.r, lm.J, rows, m, kept, cfg.outlier_alpha)
-        screen = robust.robust_screen(lm.r, rows, m, cfg.outlier_alpha, len(free))
+        test = robust.row_test(lm.residual, lm.jacobian, rows, m, kept, cfg.outlier_alpha)
+        screen = robust.robust_screen(lm.residual, rows, m, cfg.outlier_alpha, len(free))
         if test.flagged.any() or screen.any():
             # masking and swamping: restart from an M-estimate, flag from there, then iterate the exact test
             x_rob = robust.irls_cauchy(fun, x_init, free, weights, rows, m)
@@ -619,42 +623,38 @@ def calibrate(
             kept = ~robust.robust_screen(weights * r_rob, rows, m, cfg.outlier_alpha, len(free))
             for outlier_rounds in range(1, 8):  # noqa: B007 (reported)
                 lm = robust.least_squares_on(fun, x_rob, free, weights, rows, kept, **lm_kw)
-                test = robust.row_test(lm.r, lm.J, rows, m, kept, cfg.outlier_alpha)
+                test = robust.row_test(lm.residual, lm.jacobian, rows, m, kept, cfg.outlier_alpha)
                 if np.array_equal(~test.flagged, kept):
                     break
                 kept = ~test.flagged
             else:  # no fixed point in 7 rounds: the last flagged set, fitted and tested once more
                 lm = robust.least_squares_on(fun, x_rob, free, weights, rows, kept, **lm_kw)
-                test = robust.row_test(lm.r, lm.J, rows, m, kept, cfg.outlier_alpha)
+                test = robust.row_test(lm.residual, lm.jacobian, rows, m, kept, cfg.outlier_alpha)
             if (~kept).sum() > cfg.outlier_max_share * m:
                 # too many to be blunders: a systematic model error; keep every row and say so
-                suspects = describe_outliers(cal, ~kept, *_split_resid(lm.r / weights, m, use_rot), test)
+                suspects = describe_outliers(cal, ~kept, *_split_resid(lm.residual / weights, m, use_rot), test)
                 kept = np.ones(m, dtype=bool)
                 lm = levenberg_marquardt(fun, x, free, weights, **lm_kw)
-                test = robust.row_test(lm.r, lm.J, rows, m, kept, cfg.outlier_alpha)
+                test = robust.row_test(lm.residual, lm.jacobian, rows, m, kept, cfg.outlier_alpha)
                 test = robust.RowTest(
                     test.F, test.p_value, np.zeros(m, dtype=bool), test.threshold_F, test.alpha, test.d
                 )
-    x = lm.x
+    x = np.array(lm.x)  # the calibration's own copy (the fit result is read-only)
     x_analysis = x_init  # where the identifiability analysis ran
     if len(rigid) and not kept.all():
         # the "before" figures: the nominal model's best rigid fit on the kept rows
         x_init = _rigid_fit(model, data, x_init, rigid, weights, rows, kept)
         r0, _ = model.residuals_and_jacobian(x_init, data)
     k = len(free)
-    kr = kept[rows]
-    Mk = int(kr.sum())
-    # the reduced chi² of the whitened fit scales the covariance; with no residual degree of freedom left
-    # (as many identified parameters as residuals) it cannot be estimated: use the configured noise instead
-    rk = lm.r[kr]
-    s2 = float(rk @ rk) / (Mk - k) if Mk > k else 1.0
-    Jk = lm.J[kr]
-    cov = s2 * normal_inverse(Jk)
+    Mk = int(kept[rows].sum())
+    # the solver's covariance is the kept rows': scaled by the whitened fit's reduced chi², or by the configured
+    # noise when no residual degree of freedom is left (as many identified parameters as residuals)
+    cov = lm.covariance if lm.covariance is not None else np.full((k, k), np.nan)  # None: not finite
     identified = np.zeros(model.n, dtype=bool)
     identified[free] = True
     stderr = np.full(model.n, np.nan)
     stderr[free] = np.sqrt(np.diag(cov))
-    r_all = lm.r / weights
+    r_all = lm.residual / weights
     r_pos = r_all[: 3 * m].reshape(-1, 3)
     r_rot = r_all[3 * m :].reshape(-1, 3) if use_rot else None
     sig_k = None if cfg.noise_model == "constant" else sig[kept]
@@ -721,7 +721,7 @@ def calibrate(
         residuals_mm=r_pos,
         residuals_deg=None if r_rot is None else np.rad2deg(r_rot),
         config=cfg,
-        lm=lm,
+        solver=lm,
         extra={
             "x_init": x_init,
             "x_analysis": x_analysis,

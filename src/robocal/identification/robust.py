@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 from scipy import special
 
-from robocal.identification.solver import LMResult, levenberg_marquardt
+from robocal.identification.solver import FitResult, levenberg_marquardt
 
 #: Cauchy tuning constant (95 % efficiency at the normal distribution), in units of the per-component scale
 CAUCHY_C = 2.385
@@ -167,17 +167,18 @@ def least_squares_on(
     rows: np.ndarray,
     kept: np.ndarray,
     **kw: Any,
-) -> LMResult:
-    """Levenberg-Marquardt with the excluded rows' residuals weighted zero (the returned ``r`` and ``J`` hold
-    every row: whitened by ``weights``, the excluded ones as predictions)."""
+) -> FitResult:
+    """Least squares with the excluded rows' residuals weighted zero: χ², covariance and ``ndata`` are the
+    kept rows'; the returned ``residual`` and ``jacobian`` hold every row (whitened by ``weights``, the
+    excluded ones as predictions) and ``outliers`` lists the excluded rows."""
     if kept.all():
         return levenberg_marquardt(fun, x0, free, weights, **kw)
     w_kept = weights * kept[rows]
     lm = levenberg_marquardt(fun, x0, free, w_kept, **kw)
     r, J = fun(lm.x)
-    lm.r = weights * r
-    lm.J = weights[:, None] * J[:, free]
-    return lm
+    return lm.evolve(
+        residual=weights * r, jacobian=weights[:, None] * J[:, free], outliers=tuple(np.flatnonzero(~kept))
+    )
 
 
 def outlier_line(outliers: list[dict], total: int | None = None) -> str:

@@ -14,46 +14,12 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
 
 import numpy as np
 
-STATUS_MESSAGES = {
-    -1: "the residual or Jacobian is not finite",
-    0: "the maximum number of iterations was reached",
-    1: "the relative cost reduction fell below ftol",
-    2: "the scaled step fell below xtol",
-    3: "no damped (lm) or shortened (gn) step reduced the cost (at a minimum to working precision)",
-}
+from robocal.identification.result import FitResult, fit_covariance, normal_inverse
 
-
-@dataclass
-class LMResult:
-    """Outcome of :func:`levenberg_marquardt`.
-
-    x : (n,) solution (all variables, fixed ones unchanged); cost : 0.5 * sum of whitened squared
-    residuals; r : (M,) whitened residuals; J : (M, k) whitened Jacobian on the free variables (unscaled);
-    history : cost after each iteration.
-    """
-
-    x: np.ndarray
-    cost: float
-    r: np.ndarray
-    J: np.ndarray
-    nit: int
-    nfev: int
-    njev: int
-    status: int
-    wall_time_s: float
-    history: list[float] = field(default_factory=list)
-
-    @property
-    def success(self) -> bool:
-        return self.status > 0
-
-    @property
-    def message(self) -> str:
-        return STATUS_MESSAGES[self.status]
+__all__ = ["FitResult", "levenberg_marquardt", "normal_inverse"]
 
 
 def levenberg_marquardt(
@@ -67,8 +33,8 @@ def levenberg_marquardt(
     xtol: float = 1e-10,
     lam0: float | None = None,
     method: str = "lm",
-) -> LMResult:
-    """Minimise ``0.5 * |w * r(x)|²`` over ``x[free]``.
+) -> FitResult:
+    """Minimise ``0.5 * |w * r(x)|²`` over ``x[free]``; a :class:`~robocal.identification.result.FitResult`.
 
     Parameters
     ----------
@@ -107,7 +73,7 @@ def levenberg_marquardt(
     status = 0
     nit = 0
     if not (np.all(np.isfinite(r)) and np.all(np.isfinite(Jf))):
-        return LMResult(x, cost, r, Jf, 0, nfev, njev, -1, time.perf_counter() - t0, history)
+        return _result(method, x, free, w, r, Jf, cost, 0, nfev, njev, -1, t0, history)
     for nit in range(1, max_iter + 1):
         A = Jf * s  # scaled Jacobian
         g = A.T @ r
@@ -163,14 +129,42 @@ def levenberg_marquardt(
         if np.linalg.norm(dz) <= xtol * (xtol + np.linalg.norm(x[free] / s)):
             status = 2
             break
-    return LMResult(x, cost, r, Jf, nit, nfev, njev, status, time.perf_counter() - t0, history)
+    return _result(method, x, free, w, r, Jf, cost, nit, nfev, njev, status, t0, history)
 
 
-def normal_inverse(J: np.ndarray) -> np.ndarray:
-    """``(JᵀJ)⁻¹`` of a (whitened) Jacobian, the pseudo-inverse when it is singular: the covariance of the
-    parameters up to the residual variance ``s²`` (every fit's standard errors come from here)."""
-    JtJ = J.T @ J
-    try:
-        return np.linalg.inv(JtJ)
-    except np.linalg.LinAlgError:
-        return np.linalg.pinv(JtJ)
+def _result(
+    method: str,
+    x: np.ndarray,
+    free: np.ndarray,
+    w: np.ndarray,
+    r: np.ndarray,
+    Jf: np.ndarray,
+    cost: float,
+    nit: int,
+    nfev: int,
+    njev: int,
+    status: int,
+    t0: float,
+    history: list[float],
+) -> FitResult:
+    # rows weighted zero (left out by the caller) are not data
+    ndata = int(np.count_nonzero(w)) if w.ndim else (r.size if w != 0 else 0)
+    finite = status >= 0
+    cov = fit_covariance(r, Jf, ndata) if finite else None
+    return FitResult(
+        method=method,
+        x=x,
+        varied=free,
+        cost=cost,
+        chi2=2.0 * cost,
+        ndata=ndata,
+        covariance=cov,
+        status=status,
+        nit=nit,
+        nfev=nfev,
+        njev=njev,
+        history=history,
+        residual=r,
+        jacobian=Jf,
+        timings={"total_s": time.perf_counter() - t0},
+    )

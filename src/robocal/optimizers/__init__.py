@@ -1,4 +1,4 @@
-"""Optimizers for identification: one protocol (:class:`Problem` in, :class:`OptimizeResult` out).
+"""Optimizers for identification: one protocol (:class:`Problem` in, :class:`FitResult` out).
 
 Gradient methods: :class:`GaussNewton`, :class:`LevenbergMarquardt` (``robocal.identification.solver``),
 :class:`Ipopt` (CasADi, exact derivatives). Population methods: :class:`GOA`, :class:`ImprovedGOA` (Guo et al.
@@ -13,9 +13,9 @@ from robocal.optimizers.gradient import GaussNewton, LevenbergMarquardt
 from robocal.optimizers.ipopt import Ipopt
 from robocal.optimizers.protocol import (
     STATUS_MESSAGES,
+    FitResult,
     IterationInfo,
     Optimizer,
-    OptimizeResult,
     Problem,
     evaluate,
     evaluate_batch,
@@ -27,12 +27,12 @@ __all__ = [
     "GOA",
     "STATUS_MESSAGES",
     "WOA",
+    "FitResult",
     "GaussNewton",
     "ImprovedGOA",
     "Ipopt",
     "IterationInfo",
     "LevenbergMarquardt",
-    "OptimizeResult",
     "Optimizer",
     "Problem",
     "evaluate",

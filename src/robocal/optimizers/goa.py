@@ -42,8 +42,8 @@ import numpy as np
 from robocal.errors import ConfigError
 from robocal.optimizers.protocol import (
     EstimatorParams,
+    FitResult,
     IterationCallback,
-    OptimizeResult,
     Problem,
     SearchTracker,
     check_int,
@@ -127,7 +127,7 @@ def goat_search(
     de: tuple[float, float, float] | None = None,
     callback: IterationCallback | None = None,
     method: str = "goa",
-) -> OptimizeResult:
+) -> FitResult:
     """GOA main loop; with ``tent=(mu, b, steps)`` and ``de=(share, F, CR)`` the improved GOA.
 
     Arguments are assumed valid (the classes validate them). See the module docstring for the update
@@ -346,7 +346,7 @@ class GOA(EstimatorParams):
             "method": self.name,
         }
 
-    def minimize(self, problem: Problem) -> OptimizeResult:
+    def minimize(self, problem: Problem) -> FitResult:
         """Minimise ``problem``'s fitness within its bounds; see the class docstring."""
         return goat_search(problem, **self._common(problem))
 
@@ -453,7 +453,7 @@ class ImprovedGOA(GOA):
         check_real(self.de_f, "de_f", owner, 0.0, 2.0)
         check_real(self.de_cr, "de_cr", owner, 0.0, 1.0)
 
-    def minimize(self, problem: Problem) -> OptimizeResult:
+    def minimize(self, problem: Problem) -> FitResult:
         """Minimise ``problem``'s fitness within its bounds; see the class docstring."""
         common = self._common(problem)
         return goat_search(

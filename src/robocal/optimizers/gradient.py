@@ -2,14 +2,16 @@
 
 Thin wrappers of :func:`robocal.identification.solver.levenberg_marquardt` (the solver ``calibrate()``
 uses): a :class:`~robocal.optimizers.protocol.Problem` with ``residuals`` and ``jacobian`` in, an
-:class:`~robocal.optimizers.protocol.OptimizeResult` out. Both minimise the sum of squared residuals
+:class:`~robocal.optimizers.protocol.FitResult` out. Both minimise the sum of squared residuals
 without bounds (a least-squares solver; ``problem.lower``/``upper`` are reported, not enforced:
 ``extra["inside_bounds"]``), starting from ``problem.x0``.
 
-* ``gn``: Gauss-Newton, undamped (``lam0 = 0``); the solver damps a step only when it fails to lower the
-  cost, as a safeguard.
-* ``lm``: Levenberg-Marquardt, the same solver with ``lam0`` configurable (default 0, which is what
-  ``calibrate()`` runs: the first successful steps are pure Gauss-Newton, damping grows on failure).
+* ``gn``: Gauss-Newton, undamped steps with a backtracking line search (``method="gn"`` of the solver).
+* ``lm``: Levenberg-Marquardt with adaptive damping from ``lam0`` (``method="lm"``; default 1e-3 here, where
+  the start may be far; ``calibrate()`` starts at 1e-6 from its converged rigid fit).
+
+Both return the solver's :class:`~robocal.identification.result.FitResult` with the problem's fitness as
+``cost`` and its history in the problem's objective.
 """
 
 from __future__ import annotations
@@ -21,9 +23,8 @@ import numpy as np
 from robocal.errors import ConfigError
 from robocal.identification.solver import levenberg_marquardt
 from robocal.optimizers.protocol import (
-    STATUS_MESSAGES,
     EstimatorParams,
-    OptimizeResult,
+    FitResult,
     Problem,
     check_int,
     check_real,
@@ -84,7 +85,7 @@ class GaussNewton(EstimatorParams):
         check_real(self.ftol, "ftol", owner, 0.0)
         check_real(self.xtol, "xtol", owner, 0.0)
 
-    def minimize(self, problem: Problem) -> OptimizeResult:
+    def minimize(self, problem: Problem) -> FitResult:
         """Least squares from ``problem.x0`` (required) with the analytic Jacobian (required)."""
         owner = type(self).__name__
         problem = check_problem(problem, owner)
@@ -113,33 +114,17 @@ class GaussNewton(EstimatorParams):
             lam0=self._lam0(),
             method=self.name,
         )
-        m = lm.r.size
-        cost = float(fitness_from_residuals(lm.r[None, :], problem.objective)[0])
-        history, kind = history_in_objective(lm.history[1:], problem, m)
-        JtJ = lm.J.T @ lm.J
-        dof = max(m - problem.n, 1)
-        try:
-            cov = np.linalg.inv(JtJ) * (2.0 * lm.cost / dof)
-        except np.linalg.LinAlgError:
-            cov = None
+        m = lm.residual.size
+        cost = float(fitness_from_residuals(lm.residual[None, :], problem.objective)[0])
+        history, kind = history_in_objective(list(lm.history[1:]), problem, m)
         inside = bool(np.all(lm.x >= problem.lower) and np.all(lm.x <= problem.upper))
-        return OptimizeResult(
-            x=lm.x.copy(),
+        return lm.evolve(
             cost=cost,
-            success=lm.status > 0,
-            status=lm.status,
-            message=STATUS_MESSAGES[lm.status],
-            nit=lm.nit,
-            nfev=lm.nfev,
-            njev=lm.njev,
-            wall_time_s=lm.wall_time_s,
             history=history,
-            method=self.name,
-            covariance=cov,
+            names=problem.names,
             extra={
-                "least_squares_cost": lm.cost,
+                "least_squares_cost": 0.5 * lm.chi2,
                 "history_kind": kind,
-                "solver_message": lm.message,
                 "inside_bounds": inside,
                 "lam0": self._lam0(),
             },

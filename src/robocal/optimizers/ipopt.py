@@ -23,13 +23,13 @@ import numpy as np
 from robocal.errors import ConfigError
 from robocal.optimizers.gradient import check_problem, history_in_objective
 from robocal.optimizers.protocol import (
-    STATUS_MESSAGES,
     EstimatorParams,
-    OptimizeResult,
+    FitResult,
     Problem,
     check_int,
     check_real,
     fitness_from_residuals,
+    statistics_at,
 )
 
 __all__ = ["Ipopt", "SymbolicResiduals", "cache_info", "clear_cache"]
@@ -124,7 +124,7 @@ class Ipopt(EstimatorParams):
             )
         check_int(self.print_level, "print_level", owner, minimum=0)
 
-    def minimize(self, problem: Problem) -> OptimizeResult:
+    def minimize(self, problem: Problem) -> FitResult:
         problem = check_problem(problem, "Ipopt")
         self.validate_params()
         sym = problem.symbolic
@@ -167,23 +167,24 @@ class Ipopt(EstimatorParams):
         status = 4 if ok else (0 if stats.get("return_status") == "Maximum_Iterations_Exceeded" else -1)
         if not np.isfinite(cost):
             status = -1
-        return OptimizeResult(
+        stats_at = statistics_at(problem, x) if status >= 0 else {"chi2": float(r @ r), "ndata": int(r.size)}
+        return FitResult(
+            method=self.name,
             x=x,
+            varied=np.arange(n),
             cost=cost,
-            success=status > 0,
             status=status,
-            message=STATUS_MESSAGES[status],
             nit=int(stats.get("iter_count", len(history))),
             nfev=int(stats.get("n_call_nlp_f", 0)),
             njev=int(stats.get("n_call_nlp_grad_f", 0)),
-            wall_time_s=time.perf_counter() - t0,
             history=history,
-            method=self.name,
+            names=problem.names,
+            timings={"total_s": time.perf_counter() - t0, "ipopt_s": float(stats.get("t_wall_total", np.nan))},
             extra={
                 "solver_status": stats.get("return_status"),
                 "history_kind": kind,
                 "least_squares_cost": 0.5 * float(r @ r),
-                "ipopt_time_s": float(stats.get("t_wall_total", np.nan)),
                 "cache": cache_info(),
             },
+            **stats_at,
         )

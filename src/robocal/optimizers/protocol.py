@@ -7,7 +7,8 @@ Two layers, as in scipy ``least_squares`` and robotics-toolbox's IK solver famil
   (Gauss-Newton / LM, Ipopt) and/or for a whole population at once (``batch_residuals``) for the
   population methods (GOA, improved GOA, WOA). ``objective`` turns residuals into one fitness number.
 * An :class:`Optimizer` says *how*: its ``__init__`` only stores keyword arguments (scikit-learn style),
-  ``minimize(problem)`` validates, runs and returns an :class:`OptimizeResult`. Every random number comes
+  ``minimize(problem)`` validates, runs and returns a :class:`FitResult` (the one immutable result of
+  every fit, :mod:`robocal.identification.result`). Every random number comes
   from ``np.random.default_rng(problem.seed)``.
 
 :class:`SearchTracker` is the bookkeeping shared by the population methods (counting evaluations, keeping
@@ -22,20 +23,21 @@ import math
 import numbers
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
 from robocal.errors import ConfigError
+from robocal.identification.result import STATUS_MESSAGES, FitResult, fit_covariance
 
 __all__ = [
     "OBJECTIVES",
     "STATUS_MESSAGES",
     "EstimatorParams",
+    "FitResult",
     "IterationCallback",
     "IterationInfo",
-    "OptimizeResult",
     "Optimizer",
     "Problem",
     "SearchTracker",
@@ -47,6 +49,7 @@ __all__ = [
     "other_index",
     "require_finite_bounds",
     "residual_vector",
+    "statistics_at",
 ]
 
 #: Fitness of a residual vector r (m,): "sse" = sum r², "l1" = sum |r| (the thermal paper's eq. 9 when
@@ -56,19 +59,7 @@ __all__ = [
 #: mean 3-D error: same minimiser).
 OBJECTIVES = ("sse", "l1", "rms3d", "mean3d")
 
-#: Status code -> message, as scipy's ``least_squares``. ``success`` is ``status > 0``. Codes 1-3 follow
-#: ``robocal.identification.solver`` (Gauss-Newton / LM) so that it can be wrapped without translation.
-STATUS_MESSAGES: dict[int, str] = {
-    -1: "The fitness was not finite at any evaluated point.",
-    0: "The maximum number of iterations was reached before the best fitness fell below the target.",
-    1: "The relative cost reduction fell below ftol.",
-    2: "The scaled step fell below xtol.",
-    3: "The damping grew without reducing the cost (at a minimum to working precision).",
-    4: "The solver reported convergence (see extra['solver_status']).",
-    5: "The best fitness fell below the target.",
-    6: "The iteration budget (max_iter) was used up; no target was set.",
-    7: "Stopped by the callback.",
-}
+#: Status code -> message (one table for every method: :data:`robocal.identification.result.STATUS_MESSAGES`).
 
 
 # --------------------------------------------------------------------------------------------------------
@@ -343,52 +334,18 @@ def evaluate(problem: Problem, x: np.ndarray) -> float:
 # --------------------------------------------------------------------------------------------------------
 
 
-@dataclass
-class OptimizeResult:
-    """What every optimizer returns (scipy ``OptimizeResult`` fields plus history and covariance).
-
-    Attributes
-    ----------
-    x : ndarray, shape (n,)
-        Best point found.
-    cost : float
-        Its fitness (``problem.objective``; gradient methods may report their own cost, say which in ``extra``).
-    success : bool
-        ``status > 0``.
-    status : int
-        Key of :data:`STATUS_MESSAGES`.
-    message : str
-        ``STATUS_MESSAGES[status]``.
-    nit : int
-        Iterations completed (the initial population is iteration 0 and is not counted).
-    nfev : int
-        Individual fitness / residual evaluations (points, not batch calls).
-    njev : int
-        Jacobian evaluations (0 for population methods).
-    wall_time_s : float
-    history : list of float
-        Best fitness after each iteration (best-so-far for population methods): ``len(history) == nit``.
-    method : str
-        The optimizer's ``name``.
-    covariance : ndarray, shape (n, n), optional
-        Parameter covariance when the method provides one (gradient methods).
-    extra : dict
-        Method-specific details (population size, number of batch calls, initial cost, ...).
-    """
-
-    x: np.ndarray
-    cost: float
-    success: bool
-    status: int
-    message: str
-    nit: int
-    nfev: int
-    njev: int
-    wall_time_s: float
-    history: list[float]
-    method: str
-    covariance: np.ndarray | None = None
-    extra: dict[str, Any] = field(default_factory=dict)
+def statistics_at(problem: Problem, x: np.ndarray) -> dict[str, Any]:
+    """The fit statistics of ``problem`` at ``x`` for a :class:`FitResult`: residuals, χ² (sum of squared
+    residuals, in the problem's units), ``ndata`` and, when the problem has a Jacobian, the covariance
+    ``s² (JᵀJ)⁻¹`` (one evaluation, not counted in ``nfev``)."""
+    r = residual_vector(problem, x)
+    out: dict[str, Any] = {"residual": r, "chi2": float(r @ r), "ndata": int(r.size), "covariance": None}
+    if problem.jacobian is not None and np.all(np.isfinite(r)):
+        J = np.asarray(problem.jacobian(np.asarray(x, dtype=float)), dtype=float)
+        if np.all(np.isfinite(J)):
+            out["jacobian"] = J
+            out["covariance"] = fit_covariance(r, J)
+    return out
 
 
 @runtime_checkable
@@ -396,12 +353,12 @@ class Optimizer(Protocol):
     """A minimiser of :class:`Problem` s.
 
     ``__init__`` only stores keyword arguments; ``minimize`` validates them and the problem, runs, and
-    returns an :class:`OptimizeResult`. Randomness only from ``np.random.default_rng(problem.seed)``.
+    returns a :class:`FitResult`. Randomness only from ``np.random.default_rng(problem.seed)``.
     """
 
     name: str
 
-    def minimize(self, problem: Problem) -> OptimizeResult: ...
+    def minimize(self, problem: Problem) -> FitResult: ...
 
 
 @dataclass(frozen=True)
@@ -497,25 +454,31 @@ class SearchTracker:
             self.status = 0 if target is not None else 6
         return self.status is not None
 
-    def result(self, extra: dict[str, Any] | None = None) -> OptimizeResult:
+    def result(self, extra: dict[str, Any] | None = None) -> FitResult:
         status = self.status if self.status is not None else 0
         if not math.isfinite(self.best_cost):
             status = -1
+        stats: dict[str, Any] = {"chi2": math.nan, "ndata": 0}
+        if status >= 0:  # the statistics at the best point: one more evaluated point, counted
+            stats = statistics_at(self.problem, self.best_x)
+            self.nfev += 1
+            self.nbatch += self.problem.residuals is None  # a batch call of one
         info = {"nbatch": self.nbatch, "initial_cost": self.initial_cost, "max_iter": self.max_iter}
         info.update(extra or {})
-        return OptimizeResult(
-            x=self.best_x.copy(),
+        return FitResult(
+            method=self.method,
+            x=self.best_x,
+            varied=np.arange(self.problem.n),
             cost=self.best_cost,
-            success=status > 0,
             status=status,
-            message=STATUS_MESSAGES[status],
             nit=self.nit,
             nfev=self.nfev,
             njev=0,
-            wall_time_s=time.perf_counter() - self.t0,
-            history=list(self.history),
-            method=self.method,
+            history=self.history,
+            names=self.problem.names,
+            timings={"total_s": time.perf_counter() - self.t0},
             extra=info,
+            **stats,
         )
 
 

@@ -31,8 +31,8 @@ import numpy as np
 from robocal.errors import ConfigError
 from robocal.optimizers.protocol import (
     EstimatorParams,
+    FitResult,
     IterationCallback,
-    OptimizeResult,
     Problem,
     SearchTracker,
     check_int,
@@ -55,7 +55,7 @@ def whale_search(
     greedy: bool = False,
     callback: IterationCallback | None = None,
     method: str = "woa",
-) -> OptimizeResult:
+) -> FitResult:
     """WOA main loop (arguments assumed valid; :class:`WOA` validates them)."""
     rng = np.random.default_rng(problem.seed)
     lb = np.asarray(problem.lower, dtype=float)
@@ -173,7 +173,7 @@ class WOA(EstimatorParams):
                 f"The 'callback' parameter of {owner} must be a callable or None. Got {self.callback!r} instead."
             )
 
-    def minimize(self, problem: Problem) -> OptimizeResult:
+    def minimize(self, problem: Problem) -> FitResult:
         """Minimise ``problem``'s fitness within its bounds; see the class docstring."""
         if not isinstance(problem, Problem):
             raise ConfigError(

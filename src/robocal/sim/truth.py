@@ -50,8 +50,8 @@ def equivalent_truth(
         return model.residuals_and_jacobian(x, data)
 
     lm = levenberg_marquardt(fun, result.x.copy(), free, 1.0, max_iter=50, ftol=1e-15, xtol=1e-13)
-    rms = float(np.sqrt(np.mean(lm.r.reshape(-1, 3) ** 2) * 3))
-    return lm.x, rms
+    rms = float(np.sqrt(np.mean(lm.residual.reshape(-1, 3) ** 2) * 3))
+    return np.array(lm.x), rms
 
 
 def z_scores(

@@ -36,7 +36,7 @@ from robocal.identification.calibrate import (
     fit_data,
     present_targets,
 )
-from robocal.optimizers import OptimizeResult, make_optimizer, pipeline_options
+from robocal.optimizers import FitResult, make_optimizer, pipeline_options
 from robocal.optimizers.calibration import CalibrationSearch, calibration_problem
 from robocal.optimizers.protocol import Problem
 from robocal.optimizers.registry import registered
@@ -70,7 +70,7 @@ class FitOutcome:
     result: CalibrationResult  # the final calibration (polished when polish is on)
     raw: CalibrationResult  # at the optimizer's point
     polished: CalibrationResult | None
-    optimize: OptimizeResult | None  # None for gn / lm (calibrate itself)
+    optimize: FitResult | None  # the optimizer's own result; None for gn / lm (calibrate's is result.solver)
     options: dict[str, Any] = field(default_factory=dict)
     times: dict[str, float] = field(default_factory=dict)
 
@@ -214,21 +214,28 @@ def fit_with_optimizer(
     res = opt.minimize(problem)
     t2 = time.perf_counter()
     x_raw = search.full(res.x)
-    raw = _at(campaign, robot, cfg, x_raw)
-    raw.fit.update({"nit": res.nit, "nfev": res.nfev, "status": res.status, "message": res.message})
-    raw.fit["success"] = res.success
-    raw.fit["solver_time_s"] = res.wall_time_s
-    raw.fit["wall_time_s"] = t2 - t0 - warmup_s  # the method's own time, not the zero-iteration statistics call
+    base_info = {"x_init": base.extra["x_init"], "residuals_before_mm": base.extra["residuals_before_mm"]}
+    at = _at(campaign, robot, cfg, x_raw)  # the statistics at the optimizer's point ...
+    raw = replace(  # ... with the optimizer's own figures; "before" = calibrate()'s start, not the optimizer's point
+        at,
+        fit={
+            **at.fit,
+            "nit": res.nit,
+            "nfev": res.nfev,
+            "status": res.status,
+            "message": res.message,
+            "success": res.success,
+            "solver_time_s": res.wall_time_s,
+            "wall_time_s": t2 - t0 - warmup_s,  # the method's own time, not the zero-iteration statistics call
+        },
+        extra={**at.extra, **base_info},
+    )
     options["noise_floor_fitness_mm"] = floor
     options["stop_fitness_mm"] = problem.target
     polished = None
     t3 = time.perf_counter()
     if options["polish"]:
         polished = calibrate(campaign, robot, replace(_position_config(cfg), **POLISH), x0=x_raw)
-    for r in (raw, polished):  # "before" = calibrate()'s start, not the optimizer's point
-        if r is not None:
-            r.extra["x_init"] = base.extra["x_init"]
-            r.extra["residuals_before_mm"] = base.extra["residuals_before_mm"]
     times = {
         "setup_s": t1 - t0 - warmup_s,
         "jit_warmup_s": warmup_s,
@@ -236,7 +243,11 @@ def fit_with_optimizer(
         "polish_s": time.perf_counter() - t3 if polished is not None else 0.0,
     }
     if polished is not None:  # the final result's time is the whole fit: method + polish
-        polished.fit["wall_time_s"] = raw.fit["wall_time_s"] + times["polish_s"]
+        polished = replace(
+            polished,
+            fit={**polished.fit, "wall_time_s": raw.fit["wall_time_s"] + times["polish_s"]},
+            extra={**polished.extra, **base_info},
+        )
     return FitOutcome(str(name), polished or raw, raw, polished, res, options, times)
 
 
