@@ -46,7 +46,9 @@ Adding a stage (``thermal_fit`` as the example)
            - stages/common.py
            - src/robocal/pipeline.py
            - src/robocal/tracking.py
-           - src/robocal/thermal            # every library package the stage imports
+           - src/robocal/workflows/__init__.py
+           - src/robocal/workflows/thermal.py  # every library module or package the stage imports
+           - src/robocal/thermal
            - data/interim                   # its input data
          params: [robot, thermal]           # = STAGE.params
          outs: [reports/thermal]
