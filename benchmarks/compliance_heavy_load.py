@@ -17,8 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from robocal.compliance.fit import ComplianceConfig, accuracy_by_condition, fit_compliance, load_table
-from robocal.compliance.workflow import geometric_step
+from robocal.compliance.fit import ComplianceConfig, accuracy_by_condition, fit_compliance, geometric_step, load_table
 from robocal.data import read_campaign
 from robocal.robot import load_robot
 from robocal.sim.twin import load_scenario, simulate

@@ -29,7 +29,7 @@ import numpy as np
 from robocal.data import read_campaign
 from robocal.discovery.search import discover
 from robocal.discovery.summary import summary
-from robocal.discovery.workflow import validation_errors
+from robocal.discovery.validate import validation_errors
 from robocal.identification.calibrate import (
     CalibrationConfig,
     calibrate,

@@ -19,7 +19,7 @@ import numpy as np
 from robocal.data import read_campaign
 from robocal.robot import load_robot
 from robocal.sim.twin import load_scenario, simulate
-from robocal.thermal import workflow as wf
+from robocal.thermal import fit as wf
 from robocal.thermal.compensate import extrapolation_summary
 from robocal.thermal.model import ThermalModel
 from robocal.thermal.report import PAPER_TABLE5

@@ -27,9 +27,9 @@ Adding a stage (``thermal_fit`` as the example)
            prep = ctx.read_json("data/interim/prepare.json")
            if not prep["has_temperatures"]:
                return ctx.skip("the campaign has no temperatures.csv")   # explicit skipped result, exit 0
-           from robocal.thermal.workflow import run_thermal           # import the library lazily
+           from robocal.workflows import thermal                      # import the library lazily
 
-           summary = run_thermal(ctx.path("data/interim"), ctx.cfg["robot"], ctx.cfg["thermal"], ctx.out)
+           summary = thermal.run(ctx.path("data/interim"), ctx.cfg["robot"], ctx.out, ctx.cfg["thermal"])
            ctx.artifact(ctx.out / "report.html")                       # logged to MLflow after the stage
            return {"rms_position_mm": summary["rms_position_mm"]}      # metrics (nested dicts are fine)
 
@@ -46,7 +46,9 @@ Adding a stage (``thermal_fit`` as the example)
            - stages/common.py
            - src/robocal/pipeline.py
            - src/robocal/tracking.py
-           - src/robocal/thermal            # every library package the stage imports
+           - src/robocal/workflows/__init__.py
+           - src/robocal/workflows/thermal.py  # every library module or package the stage imports
+           - src/robocal/thermal
            - data/interim                   # its input data
          params: [robot, thermal]           # = STAGE.params
          outs: [reports/thermal]

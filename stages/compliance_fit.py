@@ -1,4 +1,4 @@
-"""compliance_fit: heavy-load joint compliance of the interim campaign (robocal.compliance.workflow.run_compliance).
+"""compliance_fit: heavy-load joint compliance of the interim campaign (robocal.workflows.compliance.run).
 
 Reads ``robot`` and ``compliance``; ``data/interim`` (the prepare stage's copy of the campaign) and
 ``data/interim/prepare.json``: without payload rows the stage writes an explicit "skipped" result. Writes
@@ -51,12 +51,12 @@ def compute(ctx: Context) -> Metrics | Skipped:
     if not prep.get("has_payload"):
         return ctx.skip("the campaign has no payload rows (payload_kg is 0 or absent): no compliance to identify")
     from robocal.compliance.report import condition_figure, load_table_figure
-    from robocal.compliance.workflow import run_compliance
     from robocal.report import plots
     from robocal.robot import robot_from_dict
+    from robocal.workflows import compliance
 
     robot = robot_from_dict(ctx.cfg["robot"], source="params: robot")
-    summary = run_compliance(ctx.path(INPUT), robot, ctx.out, dict(ctx.cfg["compliance"]))
+    summary = compliance.run(ctx.path(INPUT), robot, ctx.out, dict(ctx.cfg["compliance"]))
     assert ctx.plots is not None
     plots.save_figure(condition_figure(summary), ctx.plots / "accuracy_per_condition.png")
     plots.save_figure(load_table_figure(summary), ctx.plots / "load_table.png")

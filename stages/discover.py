@@ -1,4 +1,4 @@
-"""discover: name the effects the geometric model is missing (robocal.discovery.workflow.run_discovery).
+"""discover: name the effects the geometric model is missing (robocal.workflows.discovery.run).
 
 Reads ``robot`` and ``discovery``; the interim campaign (split fixed by ``prepare``); writes
 ``reports/discovery/`` (discovery.json, report.html), metrics (RMS before / after, noise floor, what was named,
@@ -43,14 +43,14 @@ def metrics_of(summary: dict[str, Any]) -> dict[str, Any]:
 
 
 def compute(ctx: Context) -> Metrics:
-    from robocal.discovery.workflow import run_discovery
     from robocal.report import plots
     from robocal.robot import robot_from_dict
+    from robocal.workflows import discovery
 
     settings = dict(ctx.cfg["discovery"])
     report = bool(settings.pop("report", True))
     robot = robot_from_dict(ctx.cfg["robot"], source="params: robot")
-    summary = run_discovery(ctx.path(INPUT), robot, ctx.out, settings, split={"method": "none"}, report=report)
+    summary = discovery.run(ctx.path(INPUT), robot, ctx.out, settings, split={"method": "none"}, report=report)
     steps = summary["steps"]
     rms = [summary["rms_before_mm"]] + [s["rms_after_mm"] for s in steps if s["accepted"]]
     for k, v in enumerate(rms):

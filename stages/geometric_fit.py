@@ -1,4 +1,4 @@
-"""geometric_fit: geometric calibration of the interim campaign (robocal.workflows.geometric.run_calibration).
+"""geometric_fit: geometric calibration of the interim campaign (robocal.workflows.geometric.run).
 
 Reads ``robot``, ``optimizer`` (gn / lm: calibrate() with the optimizer's stopping rules; ipopt / igoa / goa / woa:
 robocal.workflows.optimizers.fit_with_optimizer, raw and polished results both in summary.json and the metrics)
@@ -93,11 +93,11 @@ def compute(ctx: Context) -> Metrics:
 
     from robocal.report import plots
     from robocal.robot import robot_from_dict
-    from robocal.workflows.geometric import run_calibration
+    from robocal.workflows import geometric
 
     settings, report = calibration_settings(ctx.cfg)
     robot = robot_from_dict(ctx.cfg["robot"], source="params: robot")
-    summary = run_calibration(ctx.path(INPUT), robot, ctx.out, settings, report=report, optimizer=ctx.cfg["optimizer"])
+    summary = geometric.run(ctx.path(INPUT), robot, ctx.out, settings, report=report, optimizer=ctx.cfg["optimizer"])
 
     rows = pd.read_csv(ctx.out / "residuals.csv")
     cal = rows[rows["split"] == "calibration"]

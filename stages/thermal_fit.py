@@ -1,4 +1,5 @@
-"""thermal_fit: temperature-dependent kinematic parameters of the interim campaign (robocal.thermal.workflow).
+"""thermal_fit: temperature-dependent kinematic parameters of the interim campaign (robocal.thermal.fit,
+robocal.workflows.thermal.write_fit).
 
 Reads ``robot`` and ``thermal``; skips explicitly when the campaign has no temperature log. Otherwise: geometric
 calibration at the cold state of the calibration warm-up, per-state drift of every identifiable parameter by SVD
@@ -30,7 +31,8 @@ def compute(ctx: Context) -> Metrics | Skipped:
     from robocal.report.html import Report
     from robocal.robot import robot_from_dict
     from robocal.thermal import report as thermal_report
-    from robocal.thermal.workflow import ThermalConfig, fit_thermal, write_fit
+    from robocal.thermal.fit import ThermalConfig, fit_thermal
+    from robocal.workflows.thermal import write_fit
 
     cfg = ThermalConfig.from_mapping(ctx.cfg["thermal"])
     robot = robot_from_dict(ctx.cfg["robot"], source="params: robot")

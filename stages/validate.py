@@ -1,4 +1,4 @@
-"""validate: the validation warm-up compensated four ways (robocal.thermal.workflow.write_validation).
+"""validate: the validation warm-up compensated four ways (robocal.workflows.thermal.write_validation).
 
 Reads ``robot``, ``thermal`` and ``data`` (only to find a twin's truth.json beside the raw campaign, for the
 oracle row and the closed loop); skips explicitly when the campaign has no temperature log. Takes the thermal
@@ -37,7 +37,8 @@ def compute(ctx: Context) -> Metrics | Skipped:
     from robocal.report.html import Report
     from robocal.robot import robot_from_dict
     from robocal.thermal import report as thermal_report
-    from robocal.thermal.workflow import ThermalConfig, choose_selected, load_fit, read_truth, write_validation
+    from robocal.thermal.fit import ThermalConfig, choose_selected, load_fit
+    from robocal.workflows.thermal import read_truth, write_validation
 
     cfg = ThermalConfig.from_mapping(ctx.cfg["thermal"])
     robot = robot_from_dict(ctx.cfg["robot"], source="params: robot")

@@ -7,8 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from robocal.compliance.fit import ComplianceConfig, accuracy_by_condition, fit_compliance, load_table
-from robocal.compliance.workflow import geometric_step
+from robocal.compliance.fit import ComplianceConfig, accuracy_by_condition, fit_compliance, geometric_step, load_table
 from robocal.data import read_campaign
 from robocal.errors import ConfigError
 

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from robocal.discovery.effects import compensate_targets
-from robocal.discovery.workflow import run_discovery
 from robocal.identification.calibrate import load_calibration
 from robocal.serve.bundle import load_bundle, write_bundle
 from robocal.serve.protocol import Service, ServiceConfig, SolverConfig
+from robocal.workflows import discovery
 
 from .conftest import make_campaign
 
@@ -28,7 +28,7 @@ DIRS = np.array([[1, -1, 1, 1, -1, 1], [-1, 1, -1, 1, 1, -1]])
 def product(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("product")
     camp, robot, truth = make_campaign(tmp, "geometric", 2, EFFECTS)
-    summ = run_discovery(None, robot, tmp / "out", report=False, campaign=camp)
+    summ = discovery.run(None, robot, tmp / "out", report=False, campaign=camp)
     return tmp, robot, truth, summ
 
 
@@ -105,7 +105,7 @@ def test_a_proposed_equation_reaches_the_service(tmp_path):
     from robocal.discovery.effects import joint_offsets
 
     camp, robot, _ = make_campaign(tmp_path, "geometric", 3, {"test_q1q5": {"amplitude_deg": 0.03}})
-    summ = run_discovery(None, robot, tmp_path / "out", report=False, campaign=camp)
+    summ = discovery.run(None, robot, tmp_path / "out", report=False, campaign=camp)
     assert [p["joint"] for p in summ["proposed"]] == [4] and summ["proposed"][0]["compensated_online"]
     cal_d = json.loads((tmp_path / "out" / "calibration.json").read_text())
     (eff,) = [e for e in cal_d["effects"] if e["key"].startswith("proposed:j4")]

@@ -15,7 +15,7 @@ import pytest
 from robocal.data import read_campaign
 from robocal.discovery.search import discover
 from robocal.discovery.summary import summary
-from robocal.discovery.workflow import validation_errors
+from robocal.discovery.validate import validation_errors
 from robocal.identification.calibrate import calibrate, validate
 from robocal.robot import load_robot
 

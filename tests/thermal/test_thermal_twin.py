@@ -30,7 +30,7 @@ def twin(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def done(twin):
-    from robocal.thermal import workflow as wf
+    from robocal.thermal import fit as wf
 
     _d, truth, robot, camp = twin
     fit = wf.fit_thermal(camp, robot, wf.ThermalConfig())
@@ -71,7 +71,7 @@ def test_compensation_table5(done) -> None:
 
 def test_length_coefficients_recover_truth(twin) -> None:
     """With the true sensors given, every expansion coefficient is within 3.5 of its standard errors."""
-    from robocal.thermal import workflow as wf
+    from robocal.thermal import fit as wf
     from robocal.thermal.model import ThermalModel
 
     _d, truth, robot, camp = twin
@@ -294,7 +294,7 @@ def test_cli_flags_extrapolation_and_large_corrections(twin, tmp_path) -> None:
 def test_large_joint_corrections_are_listed_largest_first() -> None:
     """compensation_summary flags corrections above LARGE_CORRECTION_DEG (0.5 deg) without refusing them."""
     from robocal.thermal.compensate import ThermalCompensation
-    from robocal.thermal.workflow import LARGE_CORRECTION_DEG, compensation_summary
+    from robocal.workflows.thermal import LARGE_CORRECTION_DEG, compensation_summary
 
     m = 3
     comp = ThermalCompensation(

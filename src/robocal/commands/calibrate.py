@@ -56,7 +56,7 @@ def optimizer_config(value: Any, conf_dir: Path = OPTIMIZER_DIR) -> dict[str, An
 
 
 def run(args: argparse.Namespace) -> int:
-    from robocal.workflows.geometric import run_calibration
+    from robocal.workflows import geometric
 
     # optimizer=<name> and optimizer.<key>=<value> combine (the name is not a mapping parse_overrides can nest)
     named = [a.split("=", 1)[1] for a in args.overrides or [] if a.startswith("optimizer=")]
@@ -69,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
     if optimizer is not None and optimizer.get("name") in ("gn", "lm"):
         for key in ("max_iter", "ftol", "xtol"):  # calibrate()'s stopping rules, as in the pipeline
             ov.setdefault(key, optimizer[key])
-    summary = run_calibration(
+    summary = geometric.run(
         args.data_dir, args.robot, args.out, ov, split=split, report=not args.no_report, optimizer=optimizer
     )
     fit = summary["fit"]

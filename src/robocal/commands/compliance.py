@@ -23,15 +23,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from robocal.compliance.workflow import run_compliance
+    from robocal.workflows import compliance
 
     ov = parse_overrides(args.overrides)
     split = ov.pop("split", None)
-    if args.no_report:
-        ov["report"] = False
     truth_file = Path(args.data_dir) / "truth.json"
     truth = json.loads(truth_file.read_text()) if truth_file.is_file() else None
-    s = run_compliance(args.data_dir, args.robot, args.out, ov, split=split, truth=truth)
+    s = compliance.run(args.data_dir, args.robot, args.out, ov, split=split, report=not args.no_report, truth=truth)
     print(f"compliance ({s['kind']}, {s['method']}), {s['unit']}:")
     for name, v in s["compliance"].items():
         if v["identified"]:

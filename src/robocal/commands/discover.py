@@ -20,11 +20,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from robocal.discovery.workflow import run_discovery
+    from robocal.workflows import discovery
 
     ov = parse_overrides(args.overrides)
     split = ov.pop("split", None)
-    s = run_discovery(args.data_dir, args.robot, args.out, ov, split=split, report=not args.no_report)
+    s = discovery.run(args.data_dir, args.robot, args.out, ov, split=split, report=not args.no_report)
     named = ", ".join(
         n["effect"] + (f" j{n['joint']}" if n["joint"] else "") + (f" h{n['harmonic']}" if n["harmonic"] else "")
         for n in s["named"]

@@ -28,11 +28,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from robocal.thermal.workflow import run_all
+    from robocal.workflows import thermal
 
     ov = parse_overrides(args.overrides)
-    screen_cfg = ov.pop("screen", None)
-    out = run_all(args.data_dir, args.robot, args.out, ov, screen_cfg=screen_cfg, report=not args.no_report)
+    screen = ov.pop("screen", None)
+    out = thermal.run(args.data_dir, args.robot, args.out, ov, screen=screen, report=not args.no_report)
     print(f"selected ({out['selected_from']}): {', '.join(out['selected'])}")
     for m, s in out["validation"].items():
         line = f"  {m:12s} mean {s['mean_position_mm']:.4f} / max {s['max_position_mm']:.4f} mm"

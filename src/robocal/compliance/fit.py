@@ -31,7 +31,7 @@ import numpy as np
 
 from robocal.compliance.model import KINDS, ComplianceModel
 from robocal.errors import ConfigError
-from robocal.identification.calibrate import CalibrationResult, fit_data
+from robocal.identification.calibrate import CalibrationConfig, CalibrationResult, calibrate, fit_data
 from robocal.identification.model import FitData
 from robocal.identification.solver import levenberg_marquardt
 
@@ -217,6 +217,17 @@ def fit_rows_mask(campaign: Campaign, cfg: ComplianceConfig) -> np.ndarray:
     return loaded
 
 
+def geometric_step(campaign: Campaign, robot: RobotDescription, cfg: ComplianceConfig) -> CalibrationResult:
+    """Geometric calibration of the unloaded calibration rows (the paper's first step)."""
+    unloaded = (campaign.split == "calibration") & (campaign.payload_kg <= cfg.unloaded_max_kg)
+    if not unloaded.any():
+        raise ConfigError(
+            f"campaign {campaign.source}: no unloaded calibration rows (payload_kg <= {cfg.unloaded_max_kg:g}); "
+            "the compliance fit sits on an unloaded geometric calibration"
+        )
+    return calibrate(campaign.subset(unloaded), robot, CalibrationConfig.from_mapping(cfg.geometric))
+
+
 def fit_compliance(
     campaign: Campaign,
     robot: RobotDescription,
@@ -395,6 +406,7 @@ __all__ = [
     "distance_accuracy",
     "fit_compliance",
     "fit_rows_mask",
+    "geometric_step",
     "load_table",
     "position_errors",
     "resolve_kind",

@@ -1,7 +1,7 @@
 """Model discovery: find what the calibration model is missing, name it, add it, show the gap shrink.
 
-:func:`robocal.discovery.search.discover` runs the search on a campaign; :func:`robocal.discovery.workflow.
-run_discovery` writes ``discovery.json`` and the report. The library of candidate effects is in
+:func:`robocal.discovery.search.discover` runs the search on a campaign; :func:`robocal.workflows.discovery.run`
+writes ``discovery.json`` and the report. The library of candidate effects is in
 :mod:`robocal.discovery.candidates`.
 """
 

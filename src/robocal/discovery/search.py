@@ -68,7 +68,7 @@ class Step:
 
 @dataclass
 class DiscoveryResult:
-    """Everything a discovery run found; :func:`robocal.discovery.workflow.summary` turns it into JSON."""
+    """Everything a discovery run found; :func:`robocal.discovery.summary.summary` turns it into JSON."""
 
     robot: RobotDescription
     config: DiscoveryConfig

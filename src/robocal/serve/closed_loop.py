@@ -2,7 +2,7 @@
 
 The twin's cell (scenario with the ``thermal`` effect, e.g. ``conf/scenario/thermal.yaml``) is simulated
 once to get a calibration campaign and the truth. A bundle is fitted from that campaign (reference
-geometric calibration + the proposed thermal model, :mod:`robocal.thermal.workflow`) unless one is given.
+geometric calibration + the proposed thermal model, :mod:`robocal.thermal.fit`) unless one is given.
 Then a new warm-up from cold (the validation day's ambient) is driven: every ``interval_min`` the client
 reads the simulated temperatures (true curve + sensor noise), asks the service for corrections of
 ``n_targets`` joint targets, commands the simulated robot (true geometry + true thermal drift) and measures
@@ -48,7 +48,7 @@ def build_bundle(campaign_dir: Path, robot: Any, out_dir: Path) -> Path:
     """Reference calibration + the proposed thermal model of a warm-up campaign (the thermal pipeline's: the
     parameters selected by the sensitivity screening), written as a bundle."""
     from robocal.data import read_campaign
-    from robocal.thermal.workflow import ThermalConfig, choose_selected, fit_selected, fit_thermal, run_screening
+    from robocal.thermal.fit import ThermalConfig, choose_selected, fit_selected, fit_thermal, run_screening
 
     camp = read_campaign(campaign_dir, robot)
     fit = fit_thermal(camp, robot, ThermalConfig())

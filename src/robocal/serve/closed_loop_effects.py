@@ -2,7 +2,7 @@
 misses, driven through the compensation service.
 
 The campaign is simulated once; ``robocal discover`` finds the effects and writes the extended model as a
-calibration (:func:`robocal.discovery.workflow.write_product`); two bundles are served over TCP, the
+calibration (:func:`robocal.workflows.discovery.write_product`); two bundles are served over TCP, the
 geometric calibration alone and the discovered model. New joint targets (well conditioned, each with a random
 approach direction per joint) are corrected by each service, commanded to the simulated robot (true geometry +
 true gear error + true backlash for that approach) and measured with the tracker's noise. Four arms against
@@ -60,11 +60,11 @@ def run_discovered_closed_loop(
 ) -> dict[str, Any]:
     """Run the loop (module docstring); writes ``closed_loop_discovered.json`` into ``out_dir``; returns it."""
     from robocal.data import read_campaign
-    from robocal.discovery.workflow import run_discovery
     from robocal.identification.calibrate import calibrate
     from robocal.kinematics.chain import build_chain
     from robocal.robot import load_robot
     from robocal.sim.twin import load_scenario, simulate
+    from robocal.workflows import discovery
 
     sc = copy.deepcopy(load_scenario("geometric"))
     sc["effects"] = copy.deepcopy(effects if effects is not None else DEFAULT_EFFECTS)
@@ -80,7 +80,7 @@ def run_discovered_closed_loop(
         camp_dir = Path(tmp) / "campaign"
         truth = simulate(sc, camp_dir, seed=seed, robot=robot)
         camp = read_campaign(camp_dir, robot)
-        summ = run_discovery(camp_dir, robot, out / "discovery", report=False, campaign=camp)
+        summ = discovery.run(camp_dir, robot, out / "discovery", report=False, campaign=camp)
         geo = calibrate(camp, robot)
         geo_file = write_json(out / "geometric" / "calibration.json", geo.to_dict())
     bundles = {

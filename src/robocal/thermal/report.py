@@ -14,8 +14,8 @@ from robocal.report.html import Report
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
+    from robocal.thermal.fit import ThermalFit
     from robocal.thermal.model import ParameterModel, ThermalModel
-    from robocal.thermal.workflow import ThermalFit
 
 #: Table 5 of the paper (KR16-2, validation warm-up at 90 min): mean / max position (mm), orientation (deg).
 PAPER_TABLE5 = {

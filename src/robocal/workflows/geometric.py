@@ -10,15 +10,11 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from robocal.data.contract import Campaign, SplitConfig, read_campaign
+from robocal.data.contract import Campaign
 from robocal.identification.calibrate import CalibrationConfig, CalibrationResult, calibrate, validate
 from robocal.io import atomic_write, write_json
-from robocal.robot import RobotDescription, load_robot
-
-
-def split_config(split: Mapping[str, Any] | None) -> SplitConfig | None:
-    """The split setting, parsed one way (:meth:`SplitConfig.from_mapping`); None: the campaign reader's default."""
-    return SplitConfig.from_mapping(split) if split else None
+from robocal.robot import RobotDescription
+from robocal.workflows import campaign_of, robot_of
 
 
 def summarise(result: CalibrationResult, validation: dict[str, Any] | None) -> dict[str, Any]:
@@ -51,26 +47,28 @@ def result_problems(summary: Mapping[str, Any]) -> list[str]:
     return out
 
 
-def run_calibration(
-    data_dir: str | Path,
+def run(
+    data_dir: str | Path | None,
     robot: str | Path | RobotDescription,
     out_dir: str | Path,
-    overrides: Mapping[str, Any] | None = None,
+    settings: Mapping[str, Any] | None = None,
+    *,
     split: Mapping[str, Any] | None = None,
-    report: bool = True,
     campaign: Campaign | None = None,
+    report: bool = True,
     optimizer: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """Calibrate the campaign in ``data_dir``; write ``calibration.json``, ``summary.json``,
-    ``residuals.csv`` and (optionally) ``report.html`` into ``out_dir``. Returns the summary.
+    """Calibrate the campaign in ``data_dir`` (``settings``: a :class:`CalibrationConfig` mapping); write
+    ``calibration.json``, ``summary.json``, ``residuals.csv`` and (optionally) ``report.html`` into ``out_dir``.
+    Returns the summary.
 
     ``optimizer``: an optimizer config (``conf/optimizer/*.yaml``); None, ``gn`` or ``lm`` run
-    ``calibrate`` (stopping rules from ``overrides``); ``ipopt`` / ``igoa`` / ``goa`` / ``woa`` go through
+    ``calibrate`` (stopping rules from ``settings``); ``ipopt`` / ``igoa`` / ``goa`` / ``woa`` go through
     :func:`robocal.workflows.optimizers.fit_with_optimizer`, and the summary gets an ``optimizer`` section
     with the raw and (with ``polish``) the polished result."""
-    rob = robot if isinstance(robot, RobotDescription) else load_robot(robot)
-    cfg = CalibrationConfig.from_mapping(overrides)
-    camp = campaign if campaign is not None else read_campaign(data_dir, rob, split=split_config(split))
+    rob = robot_of(robot)
+    cfg = CalibrationConfig.from_mapping(settings)
+    camp = campaign_of(data_dir, rob, split, campaign)
     outcome = None
     if optimizer is None or optimizer.get("name") in ("gn", "lm"):
         if optimizer is not None:  # gn and lm are two methods of the same least-squares core

@@ -1,4 +1,5 @@
-"""Discovery workflow: campaign -> discovery -> ``discovery.json`` + ``report.html`` (residual plots per step)."""
+"""Discovery workflow: campaign -> discovery -> ``discovery.json``, the discovered model as the product
+(``calibration.json``, ``compensation.csv``) and ``report.html`` (residual plots per step)."""
 
 from __future__ import annotations
 
@@ -9,60 +10,14 @@ from typing import Any
 
 import numpy as np
 
-from robocal.data.contract import Campaign, SplitConfig, read_campaign
+from robocal.data.contract import Campaign
 from robocal.discovery.config import DiscoveryConfig
-from robocal.discovery.model import Fit
 from robocal.discovery.search import DiscoveryResult, discover
 from robocal.discovery.summary import summary
-from robocal.identification.calibrate import validate_rows
-from robocal.identification.model import FitData
+from robocal.discovery.validate import validation_errors
 from robocal.io import write_json
-from robocal.kinematics.chain import fk
-from robocal.robot import RobotDescription, load_robot
-
-
-def _validate_fit(res: DiscoveryResult, fit: Fit) -> dict[str, Any]:
-    """One model's errors on the validation rows, through :func:`validate_rows` (the tool and station handling
-    of ``calibrate``'s validation): joint-level effects enter the joint angles exactly, parameter drifts
-    (thermal, drift) to first order at the tool, as in the fit."""
-    camp = res.campaign
-    vrows = np.flatnonzero(camp.split == "validation")
-    val = camp.subset(vrows)
-    model = fit.model
-    base = model.base
-    x = fit.theta[: model.nb]
-    q = val.q + model.joint_offsets(fit.theta, vrows, 0)
-    base_T_flange = fk(base.chain, q, x[: base.chain.n_params])
-    stations = {s: base.base_transform(x, k) for k, s in enumerate(base.station_names)}
-    tools = {t: base.tools(x)[k] for k, t in enumerate(base.target_names)}
-    tool_R = None
-    if base.orientation:
-        tool_R = {t: R for t, R in zip(base.target_names, base.tool_rotations(x), strict=True)}
-    dp = None
-    params = [(a, sl) for a, sl in zip(model.accepted, model.slices, strict=True) if a.cand.shape == "param"]
-    if params:
-        # the drift's first-order displacement; a target or station the fit never saw uses the first one's
-        ti = np.array([base.target_names.index(t) if t in base.target_names else 0 for t in val.target])
-        st_names = [] if val.station is None else list(val.station)
-        si = np.array([base.station_names.index(s) if s in base.station_names else 0 for s in st_names], dtype=int)
-        _, Jb = base.residuals_and_jacobian(x, FitData(q, val.p_mm, ti, None, si))
-        Jx = Jb.reshape(val.n_rows, 3, model.nb)
-        dp = np.zeros((val.n_rows, 3))
-        for a, sl in params:
-            idx = [base.index(p) for p in a.params]
-            cols = (Jx[:, :, idx][:, :, :, None] * a.cand.S[vrows][:, None, None, :]).reshape(val.n_rows, 3, -1)
-            dp += np.einsum("mij,j->mi", cols, fit.theta[sl])
-    v = validate_rows(val, base_T_flange, stations, tools, tool_R, dp_mm=dp)
-    return {k: val_ for k, val_ in v.items() if k not in ("errors_mm", "kept_rows")}
-
-
-def validation_errors(res: DiscoveryResult) -> dict[str, Any] | None:
-    """The geometric model and the discovered one on the campaign's validation rows, with the same rows and the
-    same tool and station handling as ``calibrate`` (``{"geometric": {...}, "discovered": {...}}``, mm / deg)."""
-    camp = res.campaign
-    if not np.any(camp.split == "validation"):
-        return None
-    return {"geometric": _validate_fit(res, res.geometric), "discovered": _validate_fit(res, res.final)}
+from robocal.robot import RobotDescription
+from robocal.workflows import campaign_of, robot_of
 
 
 def write_report(res: DiscoveryResult, summ: dict[str, Any], path: Path) -> Path:
@@ -304,19 +259,22 @@ def write_product(res: DiscoveryResult, summ: dict[str, Any], out: Path) -> None
     write_compensation_csv(out / "compensation.csv", ids, qc, cmd, res_mm)
 
 
-def run_discovery(
-    data_dir: str | Path,
+def run(
+    data_dir: str | Path | None,
     robot: str | Path | RobotDescription,
     out_dir: str | Path,
     settings: Mapping[str, Any] | None = None,
+    *,
     split: Mapping[str, Any] | None = None,
-    report: bool = True,
     campaign: Campaign | None = None,
+    report: bool = True,
 ) -> dict[str, Any]:
-    """Discover the effects in the campaign; write ``discovery.json`` (+ ``report.html``). Returns the summary."""
-    rob = robot if isinstance(robot, RobotDescription) else load_robot(robot)
+    """Discover the effects in the campaign (``settings``: a :class:`DiscoveryConfig` mapping); write
+    ``discovery.json``, the product (:func:`write_product`) and ``report.html`` into ``out_dir``. Returns the
+    summary."""
+    rob = robot_of(robot)
     cfg = DiscoveryConfig.from_mapping(settings)
-    camp = campaign if campaign is not None else read_campaign(data_dir, rob, split=SplitConfig.from_mapping(split))
+    camp = campaign_of(data_dir, rob, split, campaign)
     res = discover(camp, rob, cfg)
     summ = summary(res, validation_errors(res))
     out = Path(out_dir)
@@ -326,3 +284,6 @@ def run_discovery(
     if report:
         write_report(res, summ, out / "report.html")
     return summ
+
+
+__all__ = ["run", "write_product", "write_report"]

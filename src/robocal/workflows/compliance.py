@@ -1,6 +1,6 @@
 """Heavy-load workflow: data door -> unloaded geometric calibration -> compliance -> compensation -> files.
 
-``run_compliance(data_dir, robot, out_dir, settings)`` writes into ``out_dir``:
+``run(data_dir, robot, out_dir, settings)`` writes into ``out_dir``:
 
 - ``compliance.json``: the compliance model (per joint ``c`` with standard errors, rad/A or rad/(N·m)), the fit,
   accuracy per load condition before / after compensation (mean / max / RMS mm), the load table (paper table 4
@@ -20,93 +20,33 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from robocal.compensation import ActualRobot, compensate, write_compensation_csv
-from robocal.compliance.fit import (
-    ComplianceConfig,
-    ComplianceFit,
-    accuracy_by_condition,
-    campaign_signal,
-    fit_compliance,
-    load_table,
-)
-from robocal.data.contract import Campaign, SplitConfig, read_campaign
+from robocal.compensation import write_compensation_csv
+from robocal.compliance.compensate import compensation_rows
+from robocal.compliance.fit import ComplianceConfig, accuracy_by_condition, fit_compliance, geometric_step, load_table
+from robocal.data.contract import Campaign
 from robocal.errors import ConfigError
-from robocal.identification.calibrate import CalibrationConfig, CalibrationResult, calibrate
 from robocal.io import atomic_write, write_json
-from robocal.kinematics.chain import fk
-from robocal.robot import RobotDescription, load_robot
+from robocal.robot import RobotDescription
+from robocal.workflows import campaign_of, robot_of
 
 
-def geometric_step(campaign: Campaign, robot: RobotDescription, cfg: ComplianceConfig) -> CalibrationResult:
-    """Geometric calibration of the unloaded calibration rows (the paper's first step)."""
-    unloaded = (campaign.split == "calibration") & (campaign.payload_kg <= cfg.unloaded_max_kg)
-    if not unloaded.any():
-        raise ConfigError(
-            f"campaign {campaign.source}: no unloaded calibration rows (payload_kg <= {cfg.unloaded_max_kg:g}); "
-            "the compliance fit sits on an unloaded geometric calibration"
-        )
-    return calibrate(campaign.subset(unloaded), robot, CalibrationConfig.from_mapping(cfg.geometric))
-
-
-def compensation_rows(
-    campaign: Campaign, geo: CalibrationResult, cfit: ComplianceFit
-) -> tuple[list[str], np.ndarray, np.ndarray, np.ndarray]:
-    """Eq. 27 for every row of ``campaign``: joints that put the deflected robot where the controller expects.
-
-    The controller expects the calibrated geometric model at the commanded joints; the deflection predicted by
-    the compliance model (from the row's currents / torques / payload) is undone by Newton iterations
-    (:func:`robocal.compensation.compensate`, first order ``q* = q_n - c s``). Returns ids, corrected joints,
-    the corrected Cartesian command (base frame) and the predicted residual (mm).
-    """
-    gm = geo.model
-    known = {t: k for k, t in enumerate(gm.target_names)}
-    q_c = np.zeros_like(campaign.q)
-    cmd = np.zeros((campaign.n_rows, 4, 4))
-    res = np.zeros((campaign.n_rows, 3))
-    eta = cfit.x[: gm.chain.n_params]
-    T = gm.base_transform(cfit.x)
-    tools = gm.tools(cfit.x)
-    model = cfit.model
-    for name, k in known.items():
-        sel = np.flatnonzero(campaign.target == name)
-        if not len(sel):
-            continue
-        sub = campaign.subset(np.isin(np.arange(campaign.n_rows), sel))
-        S = campaign_signal(model, sub)
-        dq_fixed = S * model.c
-
-        def offset(q: np.ndarray, dq: np.ndarray = dq_fixed, s: Campaign = sub) -> np.ndarray:
-            if model.kind == "gravity":
-                return model.joint_offsets(q, s.payload_kg)
-            return dq
-
-        actual = ActualRobot(gm.chain, eta, T, tools[k], np.eye(3), joint_offset=offset)
-        desired = ActualRobot(gm.chain, geo.x[: gm.chain.n_params], gm.base_transform(geo.x), tools[k], np.eye(3))
-        p_des, _, _ = desired.pose(sub.q)
-        comp = compensate(actual, sub.q, p_des)
-        q_c[sel] = comp.q
-        Tf = fk(gm.chain, comp.q, eta)
-        Tt = np.eye(4)
-        Tt[:3, 3] = tools[k]
-        cmd[sel] = Tf @ Tt
-        res[sel] = comp.residual_mm
-    ids = [f"{p}@{w:g}kg/{t}" for p, w, t in zip(campaign.pose_id, campaign.payload_kg, campaign.target, strict=True)]
-    return ids, q_c, cmd, res
-
-
-def run_compliance(
-    data_dir: str | Path,
+def run(
+    data_dir: str | Path | None,
     robot: str | Path | RobotDescription,
     out_dir: str | Path,
     settings: Mapping[str, Any] | None = None,
+    *,
     split: Mapping[str, Any] | None = None,
     campaign: Campaign | None = None,
+    report: bool = True,
     truth: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """The whole heavy-load calibration; returns the ``compliance.json`` content (without the geometric part)."""
-    rob = robot if isinstance(robot, RobotDescription) else load_robot(robot)
+    """The whole heavy-load calibration (``settings``: a :class:`ComplianceConfig` mapping; ``report`` and the
+    setting ``report`` both must be true for ``report.html``; ``truth``: a twin's truth, compared in the summary);
+    returns the ``compliance.json`` content (without the geometric part)."""
+    rob = robot_of(robot)
     cfg = ComplianceConfig.from_mapping(settings)
-    camp = campaign if campaign is not None else read_campaign(data_dir, rob, split=SplitConfig.from_mapping(split))
+    camp = campaign_of(data_dir, rob, split, campaign)
     if not camp.has_payload:
         raise ConfigError(f"campaign {camp.source}: every payload_kg is 0; nothing to identify compliance from")
     geo = geometric_step(camp, rob, cfg)
@@ -165,7 +105,7 @@ def run_compliance(
         ids, qc, cmd, res = compensation_rows(val, geo, cfit)
         write_compensation_csv(out / "compensation.csv", ids, qc, cmd, res)
         summary["compensation"] = {"rows": len(ids), "max_predicted_residual_mm": float(np.abs(res).max())}
-    if cfg.report:
+    if report and cfg.report:
         from robocal.compliance.report import compliance_report
 
         compliance_report(summary, camp, geo, cfit).save(out / "report.html")
@@ -173,4 +113,4 @@ def run_compliance(
     return summary
 
 
-__all__ = ["compensation_rows", "geometric_step", "run_compliance"]
+__all__ = ["run"]

@@ -1,0 +1,65 @@
+"""Compensation of a compliance fit (Mao et al. 2021, eq. 27): the joints that put the deflected robot where the
+controller expects it."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from robocal.compensation import ActualRobot, compensate
+from robocal.compliance.fit import ComplianceFit, campaign_signal
+from robocal.kinematics.chain import fk
+
+if TYPE_CHECKING:
+    from robocal.data.contract import Campaign
+    from robocal.identification.calibrate import CalibrationResult
+
+
+def compensation_rows(
+    campaign: Campaign, geo: CalibrationResult, cfit: ComplianceFit
+) -> tuple[list[str], np.ndarray, np.ndarray, np.ndarray]:
+    """Eq. 27 for every row of ``campaign``: joints that put the deflected robot where the controller expects.
+
+    The controller expects the calibrated geometric model at the commanded joints; the deflection predicted by
+    the compliance model (from the row's currents / torques / payload) is undone by Newton iterations
+    (:func:`robocal.compensation.compensate`, first order ``q* = q_n - c s``). Returns ids, corrected joints,
+    the corrected Cartesian command (base frame) and the predicted residual (mm).
+    """
+    gm = geo.model
+    known = {t: k for k, t in enumerate(gm.target_names)}
+    q_c = np.zeros_like(campaign.q)
+    cmd = np.zeros((campaign.n_rows, 4, 4))
+    res = np.zeros((campaign.n_rows, 3))
+    eta = cfit.x[: gm.chain.n_params]
+    T = gm.base_transform(cfit.x)
+    tools = gm.tools(cfit.x)
+    model = cfit.model
+    for name, k in known.items():
+        sel = np.flatnonzero(campaign.target == name)
+        if not len(sel):
+            continue
+        sub = campaign.subset(np.isin(np.arange(campaign.n_rows), sel))
+        S = campaign_signal(model, sub)
+        dq_fixed = S * model.c
+
+        def offset(q: np.ndarray, dq: np.ndarray = dq_fixed, s: Campaign = sub) -> np.ndarray:
+            if model.kind == "gravity":
+                return model.joint_offsets(q, s.payload_kg)
+            return dq
+
+        actual = ActualRobot(gm.chain, eta, T, tools[k], np.eye(3), joint_offset=offset)
+        desired = ActualRobot(gm.chain, geo.x[: gm.chain.n_params], gm.base_transform(geo.x), tools[k], np.eye(3))
+        p_des, _, _ = desired.pose(sub.q)
+        comp = compensate(actual, sub.q, p_des)
+        q_c[sel] = comp.q
+        Tf = fk(gm.chain, comp.q, eta)
+        Tt = np.eye(4)
+        Tt[:3, 3] = tools[k]
+        cmd[sel] = Tf @ Tt
+        res[sel] = comp.residual_mm
+    ids = [f"{p}@{w:g}kg/{t}" for p, w, t in zip(campaign.pose_id, campaign.payload_kg, campaign.target, strict=True)]
+    return ids, q_c, cmd, res
+
+
+__all__ = ["compensation_rows"]
