@@ -28,23 +28,22 @@ STAGE = Stage(
 )
 #: The stage's input: the prepare stage's interim copy of the campaign.
 INPUT = "data/interim"
-#: Optimizers that run calibrate() itself (robocal.identification.solver); the others (ipopt, igoa, goa, woa) go
-#: through robocal.workflows.optimizers.fit_with_optimizer (positions only, optional Gauss-Newton polish).
-GRADIENT_OPTIMIZERS = ("gn", "lm")
-OPTIMIZERS = ("gn", "lm", "ipopt", "igoa", "goa", "woa")
 
 
 def calibration_settings(cfg: dict[str, Any]) -> tuple[dict[str, Any], bool]:
     """The CalibrationConfig mapping from the ``calibration`` and ``optimizer`` sections, and ``report``."""
     from robocal.errors import ConfigError
+    from robocal.optimizers.registry import registered  # the one list of optimizer names
 
     opt = cfg["optimizer"]
     name = opt.get("name")
-    if name not in OPTIMIZERS:
-        raise ConfigError(f"The config key 'optimizer.name' must be one of {list(OPTIMIZERS)}. Got {name!r} instead.")
+    if name not in registered():
+        raise ConfigError(f"The config key 'optimizer.name' must be one of {list(registered())}. Got {name!r} instead.")
     settings = dict(cfg["calibration"])
     report = bool(settings.pop("report", True))
-    if name not in GRADIENT_OPTIMIZERS:
+    # the gradient family runs calibrate() itself (robocal.identification.solver); the others (Ipopt, the
+    # population methods) go through robocal.workflows.optimizers.fit_with_optimizer (positions, optional polish)
+    if name not in registered("gradient"):
         return settings, report
     if opt.get("polish", False):
         raise ConfigError("The config key 'optimizer.polish' must be false for a gradient optimizer.")

@@ -66,7 +66,9 @@ def run(args: argparse.Namespace) -> int:
     if keys is not None and not isinstance(keys, dict):
         raise ConfigError(f"The setting 'optimizer' must be a name or optimizer.<key>=<value>. Got {keys!r} instead.")
     optimizer = optimizer_config({**(keys or {}), "name": named[-1]} if named else keys)
-    if optimizer is not None and optimizer.get("name") in ("gn", "lm"):
+    from robocal.optimizers.registry import registered
+
+    if optimizer is not None and optimizer.get("name") in registered("gradient"):
         for key in ("max_iter", "ftol", "xtol"):  # calibrate()'s stopping rules, as in the pipeline
             ov.setdefault(key, optimizer[key])
     summary = geometric.run(

@@ -62,15 +62,17 @@ def run(
     ``calibration.json``, ``summary.json``, ``residuals.csv`` and (optionally) ``report.html`` into ``out_dir``.
     Returns the summary.
 
-    ``optimizer``: an optimizer config (``conf/optimizer/*.yaml``); None, ``gn`` or ``lm`` run
-    ``calibrate`` (stopping rules from ``settings``); ``ipopt`` / ``igoa`` / ``goa`` / ``woa`` go through
+    ``optimizer``: an optimizer config (``conf/optimizer/*.yaml``); None or the gradient family (``gn``, ``lm``)
+    run ``calibrate`` (stopping rules from ``settings``); the others (``ipopt``, ``igoa``, ``goa``, ``woa``) go through
     :func:`robocal.workflows.optimizers.fit_with_optimizer`, and the summary gets an ``optimizer`` section
     with the raw and (with ``polish``) the polished result."""
     rob = robot_of(robot)
     cfg = CalibrationConfig.from_mapping(settings)
     camp = campaign_of(data_dir, rob, split, campaign)
     outcome = None
-    if optimizer is None or optimizer.get("name") in ("gn", "lm"):
+    from robocal.optimizers.registry import registered
+
+    if optimizer is None or optimizer.get("name") in registered("gradient"):
         if optimizer is not None:  # gn and lm are two methods of the same least-squares core
             cfg = replace(cfg, method=str(optimizer["name"]))
         result = calibrate(camp, rob, cfg)
