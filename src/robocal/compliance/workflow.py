@@ -45,7 +45,9 @@ def geometric_step(campaign: Campaign, robot: RobotDescription, cfg: ComplianceC
             f"campaign {campaign.source}: no unloaded calibration rows (payload_kg <= {cfg.unloaded_max_kg:g}); "
             "the compliance fit sits on an unloaded geometric calibration"
         )
-    return calibrate(campaign.subset(unloaded), robot, CalibrationConfig.from_mapping(cfg.geometric))
+    return calibrate(
+        campaign.subset(unloaded), robot, CalibrationConfig.from_mapping(cfg.geometric, "compliance.geometric")
+    )
 
 
 def compensation_rows(
