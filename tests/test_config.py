@@ -195,6 +195,7 @@ def _section_cases() -> list[tuple[Any, dict[str, Any], str]]:
     from robocal.compliance.fit import ComplianceConfig
     from robocal.data.contract import SplitConfig
     from robocal.discovery.config import DiscoveryConfig
+    from robocal.fleet.twin import TwinSettings
     from robocal.identification.calibrate import CalibrationConfig
     from robocal.plan.config import PlanConfig
     from robocal.serve.protocol import ServiceConfig
@@ -236,6 +237,9 @@ def _section_cases() -> list[tuple[Any, dict[str, Any], str]]:
         (ThermalConfig, {"compensation": {"out_of_range": "wild"}}, "thermal.compensation.out_of_range"),
         (RegressionConfig, {"cv_tolerance": -0.1}, "thermal.regression.cv_tolerance"),
         (CompensationLimits, {"joint_limits": "yes"}, "thermal.compensation.joint_limits"),
+        (TwinSettings, {"jump_share": 1.5}, "fleet.twin.jump_share"),
+        (TwinSettings, {"errors": {"length_mm": -0.1}}, "fleet.twin.errors.length_mm"),
+        (TwinSettings, {"start": "2026-13-01"}, "fleet.twin.start"),
     ]
 
 
@@ -249,9 +253,13 @@ def test_every_section_names_the_key(case: int) -> None:
 
 
 def test_sections_keep_their_special_forms() -> None:
+    from datetime import date
+
+    from robocal.fleet.twin import TwinSettings
     from robocal.identification.calibrate import CalibrationConfig
     from robocal.plan.config import PlanConfig
     from robocal.serve.protocol import ServiceConfig
+    from robocal.thermal.regression import RegressionConfig
     from robocal.thermal.screening.config import ScreeningConfig
 
     # outliers: auto | off | [file rows]; key=value overrides read "off" as YAML 1.1 false
@@ -273,3 +281,8 @@ def test_sections_keep_their_special_forms() -> None:
     s = ScreeningConfig.from_mapping({"tool_mm": {"T1": [1, 2, 3]}, "drift": {"d1": 0.1}, "drift_state": 0})
     assert s.tool_mm == ((1.0, 2.0, 3.0),) and s.drift == {"d1": (0.1,)} and s.drift_state == 0
     assert ScreeningConfig.from_mapping({"tool_mm": [1, 2, 3]}).tool_mm == ((1.0, 2.0, 3.0),)
+    # regression candidates: 'auto' or {parameter: [sensors]}; the 'auto' choice is not asked of the sensor names
+    assert RegressionConfig.from_mapping({"candidates": {"d1": ["T_l1_C"]}}).candidates == {"d1": ("T_l1_C",)}
+    # fleet twin: YAML reads an unquoted date as a date; a partial 'errors' keeps the other default
+    t = TwinSettings.from_mapping({"start": date(2026, 2, 1), "errors": {"length_mm": 0.5}})
+    assert t.start == "2026-02-01" and (t.errors.length_mm, t.errors.angle_deg) == (0.5, 0.02)

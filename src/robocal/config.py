@@ -21,9 +21,9 @@ a string for a bool; numbers must be finite unless the field says ``finite=False
 Field constraints (:func:`setting` or ``field(metadata={...})``):
 
 ``gt``, ``ge``, ``lt``, ``le``
-    bounds of a number (of each number when the value is a list of them).
+    bounds of a number (of each number when the value is a list of them; not of the values of a mapping).
 ``choices``
-    the allowed strings (of each string when the value is a list of them).
+    the allowed strings (of each string when the value is a list of them; not of the values of a mapping).
 ``convert``
     ``value -> value`` applied to the given value first (e.g. a YAML 1.1 ``off`` read as ``False``, or a
     shorthand form); it may raise ``ValueError`` / ``TypeError`` with the reason.
@@ -284,7 +284,7 @@ def _coerce(tp: Any, v: Any, path: str, meta: Mapping[str, Any]) -> Any:
             for k, x in v.items():
                 if not isinstance(k, str):
                     raise SettingError(path, "must have string keys", v)
-                out[k] = _coerce(vt, x, _join(path, k), meta)
+                out[k] = _coerce(vt, x, _join(path, k), {})  # the field's constraints are not its values
             return out
     else:
         raise TypeError(f"robocal.config cannot parse a setting of type {tp!r} ({path})")
