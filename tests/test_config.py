@@ -286,3 +286,13 @@ def test_sections_keep_their_special_forms() -> None:
     # fleet twin: YAML reads an unquoted date as a date; a partial 'errors' keeps the other default
     t = TwinSettings.from_mapping({"start": date(2026, 2, 1), "errors": {"length_mm": 0.5}})
     assert t.start == "2026-02-01" and (t.errors.length_mm, t.errors.angle_deg) == (0.5, 0.02)
+
+
+def test_optimizer_overrides_share_the_format() -> None:
+    """The optimizer's keys come from its YAML file (no dataclass): the unknown-key error is the same."""
+    from robocal.commands.calibrate import optimizer_config
+
+    with pytest.raises(
+        ConfigError, match=r"^optimizer\.populaton: unknown setting; got 5\. Did you mean 'population'\?"
+    ):
+        optimizer_config({"name": "woa", "populaton": 5})

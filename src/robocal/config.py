@@ -55,7 +55,7 @@ import numpy as np
 
 from robocal.errors import ConfigError
 
-__all__ = ["SettingError", "check_fields", "parse", "setting", "sub_settings"]
+__all__ = ["SettingError", "check_fields", "parse", "setting", "sub_settings", "unknown_setting"]
 
 T = TypeVar("T")
 
@@ -185,7 +185,7 @@ def _build(cls: type[T], mapping: Any, path: str, ignore: frozenset[str]) -> T:
     fields = {f.name: f for f in dataclasses.fields(cls) if f.init and f.metadata.get("settable", True)}  # type: ignore[arg-type]
     for key in data:
         if key not in fields and key not in ignore:
-            raise _unknown(path, key, data[key], sorted(fields))
+            raise unknown_setting(path, key, data[key], sorted(fields))
     hints = _hints(cls)
     kwargs: dict[str, Any] = {}
     for name, f in fields.items():
@@ -203,10 +203,12 @@ def _build(cls: type[T], mapping: Any, path: str, ignore: frozenset[str]) -> T:
     return obj
 
 
-def _unknown(path: str, key: Any, value: Any, known: list[str]) -> SettingError:
-    close = difflib.get_close_matches(str(key), known, n=1)
+def unknown_setting(path: str, key: Any, value: Any, known: Iterable[str]) -> SettingError:
+    """The error of a key ``key`` of section ``path`` that is no setting: the closest known key, and the known."""
+    names = sorted(known)
+    close = difflib.get_close_matches(str(key), names, n=1)
     hint = f"Did you mean {close[0]!r}? " if close else ""
-    return SettingError(_join(path, str(key)), "unknown setting", value, f"{hint}Known: {', '.join(known)}")
+    return SettingError(_join(path, str(key)), "unknown setting", value, f"{hint}Known: {', '.join(names)}")
 
 
 def _field_value(f: dataclasses.Field[Any], tp: Any, value: Any, path: str) -> Any:
