@@ -296,3 +296,12 @@ def test_optimizer_overrides_share_the_format() -> None:
         ConfigError, match=r"^optimizer\.populaton: unknown setting; got 5\. Did you mean 'population'\?"
     ):
         optimizer_config({"name": "woa", "populaton": 5})
+
+
+def test_a_misspelt_constraint_is_a_bug_not_a_silent_no_op() -> None:
+    @dataclass(frozen=True)
+    class Typo:
+        x: float = field(default=1.0, metadata={"gte": 0})
+
+    with pytest.raises(TypeError, match="gte"):
+        parse(Typo, {}, "typo")

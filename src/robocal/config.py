@@ -171,7 +171,14 @@ _HINTS: dict[type, dict[str, Any]] = {}
 
 
 def _hints(cls: type) -> dict[str, Any]:
+    """The resolved type hints of a settings dataclass; its fields' metadata checked once (a typo is a bug)."""
     if cls not in _HINTS:
+        for f in dataclasses.fields(cls):
+            wrong = sorted(set(f.metadata) - set(_CONSTRAINTS))
+            if wrong:
+                raise TypeError(
+                    f"{cls.__name__}.{f.name}: unknown setting constraint(s) {wrong}; known: {_CONSTRAINTS}"
+                )
         _HINTS[cls] = typing.get_type_hints(cls)
     return _HINTS[cls]
 
