@@ -30,7 +30,7 @@ def compute(ctx: Context) -> Metrics:
 
     src = campaign_dir(ctx.root, ctx.cfg)
     robot = robot_from_dict(ctx.cfg["robot"], source="params: robot")
-    split = SplitConfig.from_mapping(ctx.get("data.split", None))
+    split = SplitConfig.from_mapping(ctx.get("data.split", None), "data.split")
     camp = read_campaign(
         src,
         robot,

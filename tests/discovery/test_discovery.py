@@ -212,7 +212,7 @@ def test_absorbed_candidate_is_unidentifiable_never_chosen(tmp_path):
 def test_config_errors_name_the_key():
     with pytest.raises(ConfigError, match="alpha"):
         DiscoveryConfig.from_mapping({"alpha": 0})
-    with pytest.raises(ConfigError, match="unknown discovery setting"):
+    with pytest.raises(ConfigError, match=r"discovery\.alpah: unknown setting"):
         DiscoveryConfig.from_mapping({"alpah": 0.1})
     with pytest.raises(ConfigError, match="effects"):
         DiscoveryConfig.from_mapping({"effects": ["gear", "wobble"]})

@@ -9,6 +9,7 @@ from typing import Any
 import yaml
 
 from robocal.commands import parse_overrides
+from robocal.config import unknown_setting
 from robocal.errors import ConfigError
 
 
@@ -47,10 +48,7 @@ def optimizer_config(value: Any, conf_dir: Path = OPTIMIZER_DIR) -> dict[str, An
     cfg = dict(yaml.safe_load(path.read_text(encoding="utf-8")) or {})
     unknown = sorted(set(keys) - set(cfg))
     if unknown:
-        raise ConfigError(
-            f"unknown setting(s) {['optimizer.' + k for k in unknown]} for optimizer {name!r}; known: "
-            f"{sorted('optimizer.' + k for k in cfg if k != '_target_')}"
-        )
+        raise unknown_setting("optimizer", unknown[0], keys[unknown[0]], (k for k in cfg if k != "_target_"))
     cfg.update(keys)
     return cfg
 

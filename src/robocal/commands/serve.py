@@ -71,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
 
     from robocal.errors import ConfigError
     from robocal.serve.bundle import load_bundle, write_bundle
-    from robocal.serve.protocol import ServiceConfig
+    from robocal.serve.protocol import SERVICE_KEYS, ServiceConfig
     from robocal.serve.server import Server, ServerConfig, read_token
 
     if args.make_bundle:
@@ -101,7 +101,7 @@ def run(args: argparse.Namespace) -> int:
     if args.port is not None:
         cfg["port"] = args.port
     token = read_token(args.token_file, str(cfg.get("token_env") or "ROBOCAL_SERVE_TOKEN"))
-    scfg = ServiceConfig.from_mapping({k: cfg[k] for k in ("max_targets", "safety", "solver") if k in cfg}, token=token)
+    scfg = ServiceConfig.from_mapping({k: cfg[k] for k in SERVICE_KEYS if k in cfg}, token=token)
     server = Server(args.bundle, ServerConfig.from_mapping(cfg), scfg)
     if args.model:  # the alias moved: the new version is swapped in by the server's own reload
         watcher = AliasWatcher(

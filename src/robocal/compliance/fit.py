@@ -30,6 +30,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from robocal.compliance.model import KINDS, ComplianceModel
+from robocal.config import parse, setting
 from robocal.errors import ConfigError
 from robocal.identification.calibrate import CalibrationConfig, CalibrationResult, calibrate, fit_data
 from robocal.identification.model import FitData
@@ -60,12 +61,12 @@ class ComplianceConfig:
     report : write the HTML report.
     """
 
-    kind: str = "auto"
-    joints: str | tuple[int, ...] = "auto"
-    method: str = "joint"
-    fit_loads: str = "max"
-    unloaded_max_kg: float = 0.0
-    t_min: float = 3.0
+    kind: str = setting("auto", choices=("auto", *KINDS))
+    joints: str | tuple[int, ...] = setting("auto", choices=("auto",))
+    method: str = setting("joint", choices=METHODS)
+    fit_loads: str = setting("max", choices=("max", "loaded"))
+    unloaded_max_kg: float = setting(0.0, ge=0)
+    t_min: float = setting(3.0, ge=0)
     max_iter: int = 30
     tol: float = 1e-12
     geometric: Mapping[str, Any] = field(default_factory=dict)
@@ -74,30 +75,8 @@ class ComplianceConfig:
 
     @classmethod
     def from_mapping(cls, cfg: Mapping[str, Any] | None) -> ComplianceConfig:
-        if cfg is None:
-            return cls()
-        data = dict(cfg)
-        known = set(cls.__dataclass_fields__)
-        unknown = sorted(set(data) - known)
-        if unknown:
-            raise ConfigError(f"unknown compliance setting(s) {unknown}; known: {sorted(known)}")
-        if "joints" in data and not isinstance(data["joints"], str):
-            data["joints"] = tuple(int(j) for j in data["joints"])
-        data["geometric"] = dict(data.get("geometric") or {})
-        out = cls(**data)
-        if out.kind not in ("auto", *KINDS):
-            raise ConfigError(f"The 'kind' compliance setting must be auto or one of {list(KINDS)}. Got {out.kind!r}.")
-        if isinstance(out.joints, str) and out.joints != "auto":
-            raise ConfigError(
-                f"The 'joints' compliance setting must be 'auto' or a list of joints. Got {out.joints!r}."
-            )
-        if out.method not in METHODS:
-            raise ConfigError(f"The 'method' compliance setting must be one of {list(METHODS)}. Got {out.method!r}.")
-        if out.fit_loads not in ("max", "loaded"):
-            raise ConfigError(f"The 'fit_loads' compliance setting must be 'max' or 'loaded'. Got {out.fit_loads!r}.")
-        if not out.t_min >= 0 or not out.unloaded_max_kg >= 0:
-            raise ConfigError("The 't_min' and 'unloaded_max_kg' compliance settings must be >= 0.")
-        return out
+        """Build from a mapping (a Hydra node, YAML, ``key=value`` overrides); errors name the key."""
+        return parse(cls, cfg, "compliance")
 
 
 def resolve_kind(kind: str, campaign: Campaign) -> str:
@@ -225,7 +204,9 @@ def geometric_step(campaign: Campaign, robot: RobotDescription, cfg: ComplianceC
             f"campaign {campaign.source}: no unloaded calibration rows (payload_kg <= {cfg.unloaded_max_kg:g}); "
             "the compliance fit sits on an unloaded geometric calibration"
         )
-    return calibrate(campaign.subset(unloaded), robot, CalibrationConfig.from_mapping(cfg.geometric))
+    return calibrate(
+        campaign.subset(unloaded), robot, CalibrationConfig.from_mapping(cfg.geometric, "compliance.geometric")
+    )
 
 
 def fit_compliance(

@@ -16,14 +16,15 @@ from __future__ import annotations
 
 import re
 from collections.abc import Mapping
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
-from robocal.errors import ConfigError, DataError
+from robocal.config import check_fields, parse, setting
+from robocal.errors import DataError
 from robocal.io import display_path
 from robocal.robot import RobotDescription
 
@@ -44,24 +45,16 @@ class SplitConfig:
         validation_fraction : share of pose ids held out. seed : the split's seed.
     """
 
-    method: str = "random"
-    validation_fraction: float = 0.2
+    method: str = setting("random", choices=("random", "random_pose", "none"))
+    validation_fraction: float = setting(0.2, ge=0, lt=1)
     seed: int = 0
 
     def __post_init__(self) -> None:
-        if self.method not in ("random", "random_pose", "none"):
-            raise ConfigError(f"split.method must be 'random' or 'none'. Got {self.method!r} instead.")
-        if not 0.0 <= float(self.validation_fraction) < 1.0:
-            raise ConfigError(f"split.validation_fraction must be in [0, 1). Got {self.validation_fraction!r}.")
+        check_fields(self, "split")  # direct construction is checked as a mapping is
 
     @classmethod
-    def from_mapping(cls, m: Mapping[str, Any] | None) -> SplitConfig:
-        if m is None:
-            return cls()
-        unknown = sorted(set(m) - {f.name for f in fields(cls)})
-        if unknown:
-            raise ConfigError(f"unknown split setting(s) {unknown}; known: method, validation_fraction, seed")
-        return cls(**dict(m))
+    def from_mapping(cls, m: Mapping[str, Any] | None, section: str = "split") -> SplitConfig:
+        return parse(cls, m, section)
 
 
 @dataclass(frozen=True, eq=False)

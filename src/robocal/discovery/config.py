@@ -6,7 +6,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass, fields
 from typing import Any
 
-from robocal.errors import ConfigError
+from robocal.config import parse, setting
+from robocal.identification.calibrate import data_rows, outlier_rule
 
 #: Every effect the library knows, in the order candidates are built.
 EFFECT_NAMES = ("compliance", "gear", "backlash", "thermal", "drift", "beta")
@@ -43,94 +44,38 @@ class DiscoveryConfig:
         must be chosen in this share of them).
     """
 
-    noise_mm: float = 0.015
-    noise_deg: float = 0.01
+    noise_mm: float = setting(0.015, gt=0)
+    noise_deg: float = setting(0.01, gt=0)
     use_orientation: bool | None = None
-    outliers: str | tuple[int, ...] = "auto"
-    outlier_alpha: float = 0.001
-    effects: tuple[str, ...] = EFFECT_NAMES
-    gear_harmonics: tuple[int, ...] = (1, 2)
-    thermal_components: int = 2
-    alpha: float = 0.001
-    min_excess_share: float = 0.3
-    absorbed_tol: float = 1e-3
-    cv_folds: int = 5
-    chi2_alpha: float = 0.001
-    max_steps: int = 6
+    outliers: str | tuple[int, ...] = setting("auto", choices=("auto", "off"), convert=outlier_rule, check=data_rows)
+    outlier_alpha: float = setting(0.001, gt=0, lt=1)
+    effects: tuple[str, ...] = setting(EFFECT_NAMES, choices=EFFECT_NAMES)
+    gear_harmonics: tuple[int, ...] = setting((1, 2), ge=1)
+    thermal_components: int = setting(2, ge=1)
+    alpha: float = setting(0.001, gt=0)
+    min_excess_share: float = setting(0.3, ge=0, lt=1)
+    absorbed_tol: float = setting(1e-3, gt=0)
+    cv_folds: int = setting(5, ge=0, check=lambda k: "must be 0 (off) or >= 2" if k == 1 else None)
+    chi2_alpha: float = setting(0.001, gt=0)
+    max_steps: int = setting(6, ge=0)
     min_signal_std: float = 1e-9
     fixed: tuple[str, ...] = ()
-    rank_tol: float = 1e-6
+    rank_tol: float = setting(1e-6, gt=0)
     max_iter: int = 100
     seed: int = 0
     dictionary: bool = True
-    dictionary_harmonics: int = 3
-    dictionary_product_harmonics: int = 2
-    dictionary_max_terms: int = 2
-    dictionary_max_proposals: int = 2
-    dictionary_resamples: int = 40
-    dictionary_stability: float = 0.7
+    dictionary_harmonics: int = setting(3, ge=1)
+    dictionary_product_harmonics: int = setting(2, ge=1)
+    dictionary_max_terms: int = setting(2, ge=1)
+    dictionary_max_proposals: int = setting(2, ge=0)
+    dictionary_resamples: int = setting(40, ge=1)
+    dictionary_stability: float = setting(0.7, ge=0.5, le=1)
 
     @classmethod
     def from_mapping(cls, cfg: Mapping[str, Any] | None) -> DiscoveryConfig:
-        """Build from a mapping (a Hydra node); unknown keys and bad values are errors naming the key."""
-        if cfg is None:
-            return cls()
-        data = dict(cfg)
-        data.pop("report", None)
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(data) - known)
-        if unknown:
-            raise ConfigError(f"unknown discovery setting(s) {unknown}; known: {sorted(known)}")
-        for key in ("effects", "gear_harmonics", "fixed"):
-            if key in data:
-                data[key] = tuple(data[key] or ())
-        if "outliers" in data or "outlier_alpha" in data:
-            from robocal.identification.calibrate import CalibrationConfig
-
-            sub = {k: data[k] for k in ("outliers", "outlier_alpha") if k in data}
-            try:
-                checked = CalibrationConfig.from_mapping(sub)
-            except ConfigError as exc:
-                raise ConfigError(str(exc).replace("calibration setting", "discovery setting")) from None
-            data.update({k: getattr(checked, k) for k in sub})
-        out = cls(**data)
-        bad = [e for e in out.effects if e not in EFFECT_NAMES]
-        if bad:
-            raise ConfigError(f"The 'discovery.effects' setting names unknown effect(s) {bad}; known: {EFFECT_NAMES}")
-        for name in ("noise_mm", "noise_deg", "alpha", "absorbed_tol", "chi2_alpha", "rank_tol"):
-            if not float(getattr(out, name)) > 0:
-                raise ConfigError(f"The 'discovery.{name}' setting must be > 0. Got {getattr(out, name)!r} instead.")
-        if not 0.0 <= out.min_excess_share < 1.0:
-            raise ConfigError(
-                f"The 'discovery.min_excess_share' setting must be in [0, 1). Got {out.min_excess_share}."
-            )
-        if any(int(h) < 1 for h in out.gear_harmonics):
-            raise ConfigError(
-                f"The 'discovery.gear_harmonics' setting must hold integers >= 1. Got {out.gear_harmonics}."
-            )
-        if out.cv_folds == 1 or out.cv_folds < 0:
-            raise ConfigError(f"The 'discovery.cv_folds' setting must be 0 (off) or >= 2. Got {out.cv_folds}.")
-        if out.thermal_components < 1:
-            raise ConfigError(f"The 'discovery.thermal_components' setting must be >= 1. Got {out.thermal_components}.")
-        for key in (
-            "dictionary_harmonics",
-            "dictionary_product_harmonics",
-            "dictionary_max_terms",
-            "dictionary_resamples",
-        ):
-            if int(getattr(out, key)) < 1:
-                raise ConfigError(f"The 'discovery.{key}' setting must be >= 1. Got {getattr(out, key)!r}.")
-        if out.dictionary_max_proposals < 0:
-            raise ConfigError(
-                f"The 'discovery.dictionary_max_proposals' setting must be >= 0. Got {out.dictionary_max_proposals}."
-            )
-        if not 0.5 <= out.dictionary_stability <= 1.0:
-            raise ConfigError(
-                f"The 'discovery.dictionary_stability' setting must be in [0.5, 1]. Got {out.dictionary_stability}."
-            )
-        if out.max_steps < 0:
-            raise ConfigError(f"The 'discovery.max_steps' setting must be >= 0. Got {out.max_steps}.")
-        return out
+        """Build from a mapping (a Hydra node, YAML, ``key=value`` overrides); errors name the key. ``report``
+        is the command's switch, not a discovery setting."""
+        return parse(cls, cfg, "discovery", ignore=("report",))
 
     def to_dict(self) -> dict[str, Any]:
         return {f.name: (list(v) if isinstance(v := getattr(self, f.name), tuple) else v) for f in fields(self)}

@@ -18,6 +18,7 @@ every robot's seed and its events.
 from __future__ import annotations
 
 from collections.abc import Mapping
+from dataclasses import asdict, dataclass, field
 from datetime import date, timedelta
 from pathlib import Path
 from typing import Any
@@ -25,6 +26,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from robocal.config import parse, setting
 from robocal.errors import ConfigError
 from robocal.io import write_json, write_text
 from robocal.sim.twin import Rows, TwinContext, register_effect
@@ -36,22 +38,55 @@ JUMP_PARAMS = ("theta2", "theta3", "theta4")
 #: Link lengths that can drift (identified with small standard errors on the KR16-2 plan).
 DRIFT_PARAMS = ("a2", "a3", "d4", "a5")
 
-DEFAULTS: dict[str, Any] = {
-    "robot": "kr16_2",
-    "scenario": "geometric",
-    "serial_prefix": "R",
-    "start": "2026-01-05",
-    "interval_days": 91,
-    "n_poses": 80,
-    "n_validation_poses": 20,
-    "errors": {"length_mm": 0.3, "angle_deg": 0.02},
-    "tracker_jitter_mm": 150.0,  # the tracker stands somewhere else at every campaign
-    "gross_error_share": 0.2,  # share of campaigns with one gross error (a beam break)
-    "jump_share": 0.1,  # share of robots with a zero-offset jump
-    "drift_share": 0.1,  # share of robots with a drifting length
-    "jump_deg": [0.03, 0.1],  # |jump| uniform in this range, random sign (re-mastering after a motor change)
-    "drift_mm_per_campaign": [0.04, 0.08],  # |drift| per campaign interval, random sign
-}
+
+def _iso_date(value: Any) -> Any:
+    """YAML reads an unquoted ``2026-01-05`` as a date: the ISO text."""
+    return value.isoformat() if isinstance(value, date) else value
+
+
+def _valid_date(value: str) -> str | None:
+    try:
+        date.fromisoformat(value)
+    except ValueError:
+        return "must be a date YYYY-MM-DD"
+    return None
+
+
+@dataclass(frozen=True)
+class TwinErrors:
+    """Standard deviations of every robot's own joint-level errors."""
+
+    length_mm: float = setting(0.3, ge=0)
+    angle_deg: float = setting(0.02, ge=0)
+
+
+@dataclass(frozen=True)
+class TwinSettings:
+    """Settings of :func:`simulate_fleet` (``twin`` in conf/fleet/default.yaml)."""
+
+    robot: str = "kr16_2"
+    scenario: str = "geometric"
+    serial_prefix: str = "R"
+    start: str = setting("2026-01-05", convert=_iso_date, check=_valid_date)
+    interval_days: int = 91
+    n_poses: int = 80
+    n_validation_poses: int = 20
+    errors: TwinErrors = field(default_factory=TwinErrors)
+    tracker_jitter_mm: float = 150.0  # the tracker stands somewhere else at every campaign
+    gross_error_share: float = setting(0.2, ge=0, le=1)  # share of campaigns with one gross error (a beam break)
+    jump_share: float = setting(0.1, ge=0, le=1)  # share of robots with a zero-offset jump
+    drift_share: float = setting(0.1, ge=0, le=1)  # share of robots with a drifting length
+    # |jump| uniform in this range, random sign (re-mastering after a motor change)
+    jump_deg: tuple[float, float] = (0.03, 0.1)
+    drift_mm_per_campaign: tuple[float, float] = (0.04, 0.08)  # |drift| per campaign interval, random sign
+
+    @classmethod
+    def from_mapping(cls, cfg: Mapping[str, Any] | None) -> TwinSettings:
+        return parse(cls, cfg, "fleet.twin")
+
+
+#: the default twin settings, as a mapping
+DEFAULTS: dict[str, Any] = asdict(TwinSettings())
 
 
 @register_effect("fleet_state")
@@ -79,11 +114,7 @@ class FleetState:
 
 
 def _settings(cfg: Mapping[str, Any] | None) -> dict[str, Any]:
-    out = {**DEFAULTS, **dict(cfg or {})}
-    unknown = sorted(set(out) - set(DEFAULTS))
-    if unknown:
-        raise ConfigError(f"unknown fleet twin setting(s) {unknown}; known: {sorted(DEFAULTS)}")
-    return out
+    return asdict(TwinSettings.from_mapping(cfg))
 
 
 def simulate_fleet(

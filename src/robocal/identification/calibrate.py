@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from scipy import special
 
+from robocal.config import parse, setting
 from robocal.errors import ConfigError
 from robocal.identification.identifiability import Eliminated, Identifiability, analyse
 from robocal.identification.model import CalibrationModel, FitData
@@ -26,6 +27,21 @@ from robocal.robot import RobotDescription
 
 if TYPE_CHECKING:
     from robocal.data.contract import Campaign
+
+
+NOISE_MODELS = ("constant", "u_mm", "distance")
+
+
+def outlier_rule(value: Any) -> Any:
+    """``key=value`` overrides read ``outliers=off`` as YAML 1.1 ``false``: that is ``"off"``."""
+    return "off" if value is False else value
+
+
+def data_rows(value: str | tuple[int, ...]) -> str | None:
+    """The file rows of an ``outliers`` list: data rows start at 2 (the header is row 1)."""
+    if isinstance(value, tuple) and any(r < 2 for r in value):
+        return "lists file rows below 2; data rows start at 2 (the header is row 1)"
+    return None
 
 
 @dataclass(frozen=True)
@@ -55,74 +71,27 @@ class CalibrationConfig:
     noise_mm_per_m : distance term of the ``distance`` noise model, mm per metre of tracker range.
     """
 
-    noise_mm: float = 0.015
-    noise_deg: float = 0.01
-    rank_tol: float = 1e-6
+    noise_mm: float = setting(0.015, gt=0)
+    noise_deg: float = setting(0.01, gt=0)
+    rank_tol: float = setting(1e-6, gt=0)
     fixed: tuple[str, ...] = ()
     max_iter: int = 100
     ftol: float = 1e-12
     xtol: float = 1e-10
     use_orientation: bool | None = None
     registration_iters: int = 20
-    method: str = "lm"
-    outliers: str | tuple[int, ...] = "auto"
-    outlier_alpha: float = 0.001
-    outlier_max_share: float = 0.05
-    noise_model: str = "constant"
-    u_coverage: float = 2.0
-    noise_mm_per_m: float = 0.0
+    method: str = setting("lm", choices=("lm", "gn"))
+    outliers: str | tuple[int, ...] = setting("auto", choices=("auto", "off"), convert=outlier_rule, check=data_rows)
+    outlier_alpha: float = setting(0.001, gt=0, lt=1)
+    outlier_max_share: float = setting(0.05, ge=0, lt=1)
+    noise_model: str = setting("constant", choices=NOISE_MODELS)
+    u_coverage: float = setting(2.0, gt=0)
+    noise_mm_per_m: float = setting(0.0, ge=0)
 
     @classmethod
-    def from_mapping(cls, cfg: Any) -> CalibrationConfig:
-        """Build from a mapping (e.g. a Hydra node); unknown keys are an error naming them."""
-        if cfg is None:
-            return cls()
-        data = dict(cfg)
-        known = set(cls.__dataclass_fields__)
-        unknown = sorted(set(data) - known)
-        if unknown:
-            raise ConfigError(f"unknown calibration setting(s) {unknown}; known: {sorted(known)}")
-        if "fixed" in data:
-            data["fixed"] = tuple(data["fixed"] or ())
-        if "outliers" in data:
-            o = data["outliers"]
-            if isinstance(o, str):
-                if o not in ("auto", "off"):
-                    raise ConfigError(
-                        f"The 'outliers' calibration setting must be 'auto', 'off' or a list of file rows. Got {o!r}."
-                    )
-            else:
-                try:
-                    rows = tuple(int(v) for v in (o or ()))
-                except (TypeError, ValueError):
-                    raise ConfigError(
-                        f"The 'outliers' calibration setting must be 'auto', 'off' or a list of file rows. Got {o!r}."
-                    ) from None
-                if any(r < 2 for r in rows):
-                    raise ConfigError(f"The 'outliers' calibration setting lists rows {rows}; data rows start at 2.")
-                data["outliers"] = rows
-        out = cls(**data)
-        for name in ("noise_mm", "noise_deg", "rank_tol", "u_coverage"):
-            if not float(getattr(out, name)) > 0:
-                raise ConfigError(f"The '{name}' calibration setting must be > 0. Got {getattr(out, name)!r} instead.")
-        if not 0 <= out.outlier_max_share < 1:
-            raise ConfigError(
-                f"The 'outlier_max_share' calibration setting must be in [0, 1). Got {out.outlier_max_share!r}."
-            )
-        if not 0 < out.outlier_alpha < 1:
-            raise ConfigError(f"The 'outlier_alpha' calibration setting must be in (0, 1). Got {out.outlier_alpha!r}.")
-        if out.method not in ("lm", "gn"):
-            raise ConfigError(f"The 'method' calibration setting must be 'lm' or 'gn'. Got {out.method!r} instead.")
-        if out.noise_model not in NOISE_MODELS:
-            raise ConfigError(
-                f"The 'noise_model' calibration setting must be one of {NOISE_MODELS}. Got {out.noise_model!r}."
-            )
-        if out.noise_mm_per_m < 0:
-            raise ConfigError(f"The 'noise_mm_per_m' calibration setting must be >= 0. Got {out.noise_mm_per_m!r}.")
-        return out
-
-
-NOISE_MODELS = ("constant", "u_mm", "distance")
+    def from_mapping(cls, cfg: Any, section: str = "calibration") -> CalibrationConfig:
+        """Build from a mapping (a Hydra node, YAML, ``key=value`` overrides); errors name the key."""
+        return parse(cls, cfg, section)
 
 
 def fit_data(

@@ -16,11 +16,12 @@ import time
 import traceback
 from collections import OrderedDict
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
+from robocal.config import parse, setting
 from robocal.errors import ConfigError
 from robocal.kinematics.transforms import quat_to_matrix
 from robocal.serve.bundle import Bundle
@@ -45,65 +46,41 @@ class RequestError(Exception):
 class SafetyConfig:
     """Limits on what the service answers (see conf/serve/default.yaml)."""
 
-    max_correction_deg: float = 0.5
-    max_error_mm: float = 5.0
-    joint_limit_margin_deg: float = 0.0
-    temperature_margin_C: float = 0.0
-    max_residual_mm: float = 0.001
-    on_correction_bound: str = "refuse"
-    on_joint_limits: str = "refuse"
-    on_temperature_range: str = "refuse"
+    max_correction_deg: float = setting(0.5, ge=0)
+    max_error_mm: float = setting(5.0, ge=0)
+    joint_limit_margin_deg: float = setting(0.0, ge=0)
+    temperature_margin_C: float = setting(0.0, ge=0)
+    max_residual_mm: float = setting(0.001, ge=0)
+    on_correction_bound: str = setting("refuse", choices=POLICIES)
+    on_joint_limits: str = setting("refuse", choices=POLICIES)
+    on_temperature_range: str = setting("refuse", choices=POLICIES)
 
 
 @dataclass(frozen=True)
 class SolverConfig:
     max_iter: int = 20
-    tol_mm: float = 1e-4
-    tol_deg: float = 1e-6
-    max_step_deg: float = 3.0
+    tol_mm: float = setting(1e-4, ge=0)
+    tol_deg: float = setting(1e-6, ge=0)
+    max_step_deg: float = setting(3.0, ge=0)
 
 
 @dataclass(frozen=True)
 class ServiceConfig:
-    """Service settings; :meth:`from_mapping` checks names and values."""
+    """Service settings; :meth:`from_mapping` checks names and values. The shared ``token`` is no setting (never
+    in a config file): it comes from the environment or a token file, as the ``token`` argument."""
 
-    max_targets: int = 100_000
+    max_targets: int = setting(100_000, ge=1)
     safety: SafetyConfig = field(default_factory=SafetyConfig)
     solver: SolverConfig = field(default_factory=SolverConfig)
-    token: str | None = None
+    token: str | None = setting(None, settable=False)
 
     @classmethod
     def from_mapping(cls, cfg: Mapping[str, Any] | None, token: str | None = None) -> ServiceConfig:
-        data = dict(cfg or {})
-        safety = _sub(SafetyConfig, data.pop("safety", None), "safety")
-        solver = _sub(SolverConfig, data.pop("solver", None), "solver")
-        for key in ("max_targets",):
-            if key in data:
-                v = data.pop(key)
-                if not isinstance(v, int) or v < 1:
-                    raise ConfigError(f"The 'serve.{key}' setting must be a positive integer. Got {v!r} instead.")
-        for p in ("on_correction_bound", "on_joint_limits", "on_temperature_range"):
-            if getattr(safety, p) not in POLICIES:
-                raise ConfigError(
-                    f"The 'serve.safety.{p}' setting must be one of {POLICIES}. Got {getattr(safety, p)!r}."
-                )
-        return cls(max_targets=int((cfg or {}).get("max_targets", 100_000)), safety=safety, solver=solver, token=token)
+        return replace(parse(cls, cfg, "serve"), token=token)
 
 
-def _sub(cls: Any, data: Any, name: str) -> Any:
-    if data is None:
-        return cls()
-    d = dict(data)
-    unknown = sorted(set(d) - set(cls.__dataclass_fields__))
-    if unknown:
-        raise ConfigError(f"unknown serve.{name} setting(s) {unknown}; known: {sorted(cls.__dataclass_fields__)}")
-    for k, v in d.items():
-        if isinstance(getattr(cls(), k), float):
-            if isinstance(v, bool) or not isinstance(v, int | float) or not v >= 0:
-                raise ConfigError(f"The 'serve.{name}.{k}' setting must be a number >= 0. Got {v!r} instead.")
-            d[k] = float(v)
-    return cls(**d)
-
+#: the keys of the ``serve`` section that are the service's (the rest are the transport's: ServerConfig)
+SERVICE_KEYS = ("max_targets", "safety", "solver")
 
 # --------------------------------------------------------------------------------------------- parsing
 

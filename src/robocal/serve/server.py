@@ -94,9 +94,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from robocal.config import parse, setting
 from robocal.errors import ConfigError
 from robocal.serve.bundle import MANIFEST, Bundle, load_bundle
-from robocal.serve.protocol import Service, ServiceConfig
+from robocal.serve.protocol import SERVICE_KEYS, Service, ServiceConfig
 
 _TIMEOUT_REPLY = b'{"id":null,"ok":false,"error":{"code":"timeout","message":"no complete request line in time"}}\n'
 _TOO_LARGE_REPLY = b'{"id":null,"ok":false,"error":{"code":"too_large","message":"request line too long"}}\n'
@@ -107,8 +108,8 @@ _BUSY_REPLY = b'{"id":null,"ok":false,"error":{"code":"unavailable","message":"t
 class ServerConfig:
     host: str = "127.0.0.1"
     port: int = 7878
-    read_timeout_s: float = 30.0
-    write_timeout_s: float = 5.0
+    read_timeout_s: float = setting(30.0, gt=0)
+    write_timeout_s: float = setting(5.0, gt=0)
     max_request_bytes: int = 16 * 1024 * 1024
     max_connections: int = 64
     inline_max_targets: int = 64
@@ -117,12 +118,9 @@ class ServerConfig:
 
     @classmethod
     def from_mapping(cls, cfg: Any) -> ServerConfig:
-        data = {k: v for k, v in dict(cfg or {}).items() if k in cls.__dataclass_fields__}
-        out = cls(**data)
-        for k in ("read_timeout_s", "write_timeout_s"):
-            if not float(getattr(out, k)) > 0:
-                raise ConfigError(f"The 'serve.{k}' setting must be > 0. Got {getattr(out, k)!r} instead.")
-        return out
+        """The transport settings of the ``serve`` section; the service's own (:class:`ServiceConfig`) and
+        ``token_env`` (read by the command) share the section."""
+        return parse(cls, cfg, "serve", ignore=(*SERVICE_KEYS, "token_env"))
 
 
 def is_loopback(host: str) -> bool:

@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from robocal.compensation import ActualRobot, Compensation, compensate, desired_poses
-from robocal.errors import ConfigError
+from robocal.config import parse, setting
 from robocal.identification.calibrate import CalibrationResult
 from robocal.io import atomic_write
 from robocal.kinematics.chain import fk
@@ -68,41 +68,16 @@ class CompensationLimits:
     joint_limits : also refuse corrections that leave the robot's joint range.
     """
 
-    max_correction_deg: float = 5.0
-    residual_tol_mm: float = 1e-3
-    residual_tol_deg: float = 1e-4
-    range_margin_C: float = 1.0
-    out_of_range: str = "nominal"
+    max_correction_deg: float = setting(5.0, ge=0)
+    residual_tol_mm: float = setting(1e-3, ge=0)
+    residual_tol_deg: float = setting(1e-4, ge=0)
+    range_margin_C: float = setting(1.0, ge=0)
+    out_of_range: str = setting("nominal", choices=EXTRAPOLATION_POLICIES)
     joint_limits: bool = True
 
     @classmethod
     def from_mapping(cls, cfg: Mapping[str, Any] | None) -> CompensationLimits:
-        data = dict(cfg or {})
-        unknown = sorted(set(data) - set(cls.__dataclass_fields__))
-        if unknown:
-            raise ConfigError(
-                f"unknown config key(s) {['thermal.compensation.' + k for k in unknown]}; "
-                f"known: {sorted(cls.__dataclass_fields__)}"
-            )
-        for key in ("max_correction_deg", "residual_tol_mm", "residual_tol_deg", "range_margin_C"):
-            if key in data:
-                v = data[key]
-                if isinstance(v, bool) or not isinstance(v, int | float) or not np.isfinite(v) or v < 0:
-                    raise ConfigError(
-                        f"The config key 'thermal.compensation.{key}' must be a non-negative number. Got {v!r} instead."
-                    )
-                data[key] = float(v)
-        if data.get("out_of_range", "nominal") not in EXTRAPOLATION_POLICIES:
-            raise ConfigError(
-                f"The config key 'thermal.compensation.out_of_range' must be one of {list(EXTRAPOLATION_POLICIES)}. "
-                f"Got {data['out_of_range']!r} instead."
-            )
-        if not isinstance(data.get("joint_limits", True), bool):
-            raise ConfigError(
-                f"The config key 'thermal.compensation.joint_limits' must be true or false. "
-                f"Got {data['joint_limits']!r} instead."
-            )
-        return cls(**data)
+        return parse(cls, cfg, "thermal.compensation")
 
     def to_dict(self) -> dict[str, Any]:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}

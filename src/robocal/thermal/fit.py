@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from robocal.config import parse, setting, sub_settings
 from robocal.errors import ConfigError, DataError
 from robocal.identification.calibrate import CalibrationConfig, CalibrationResult, calibrate, load_calibration
 from robocal.robot import RobotDescription
@@ -53,43 +54,23 @@ class ThermalConfig:
     refused or flagged: correction bound, convergence tolerance, temperature range margin).
     """
 
-    noise_mm: float = 0.015
-    noise_deg: float = 0.005
-    state_gap_s: float = 600.0
-    rank_tol: float = 1e-3
+    noise_mm: float = setting(0.015, gt=0)
+    noise_deg: float = setting(0.005, gt=0)
+    state_gap_s: float = setting(600.0, gt=0)
+    rank_tol: float = setting(1e-3, gt=0)
     rcond: float = 1e-10
     use_orientation: bool = True
-    regression: Mapping[str, Any] = field(default_factory=dict)
-    proposed: str | Sequence[str] = "screen"
+    regression: Mapping[str, Any] = setting(default_factory=dict, check=sub_settings(RegressionConfig))
+    proposed: str | Sequence[str] = setting("screen", choices=PROPOSED_SOURCES)
     validation_at_min: float = 90.0
     closed_loop: bool = True
     screening_file: str = "reports/screen/screening.json"
     reference_calibration: Mapping[str, Any] = field(default_factory=dict)
-    compensation: Mapping[str, Any] = field(default_factory=dict)
+    compensation: Mapping[str, Any] = setting(default_factory=dict, check=lambda m: _check_limits(m))
 
     @classmethod
     def from_mapping(cls, cfg: Mapping[str, Any] | None) -> ThermalConfig:
-        if cfg is None:
-            return cls()
-        data = dict(cfg)
-        unknown = sorted(set(data) - set(cls.__dataclass_fields__))
-        if unknown:
-            raise ConfigError(f"unknown thermal setting(s) {unknown}; known: {sorted(cls.__dataclass_fields__)}")
-        for key in ("regression", "reference_calibration", "compensation"):
-            if data.get(key) is None:
-                data[key] = {}
-        out = cls(**data)
-        for key in ("noise_mm", "noise_deg", "state_gap_s", "rank_tol"):
-            if not float(getattr(out, key)) > 0:
-                raise ConfigError(f"The config key 'thermal.{key}' must be > 0. Got {getattr(out, key)!r} instead.")
-        if isinstance(out.proposed, str) and out.proposed not in PROPOSED_SOURCES:
-            raise ConfigError(
-                f"The config key 'thermal.proposed' must be one of {list(PROPOSED_SOURCES)} or a list of parameter "
-                f"names. Got {out.proposed!r} instead."
-            )
-        RegressionConfig.from_mapping(out.regression)  # errors name the key early
-        out.limits  # noqa: B018 (validates thermal.compensation early)
-        return out
+        return parse(cls, cfg, "thermal")
 
     @property
     def limits(self) -> CompensationLimits:
@@ -103,8 +84,16 @@ class ThermalConfig:
 
     def calibration_config(self) -> CalibrationConfig:
         return CalibrationConfig.from_mapping(
-            {"noise_mm": self.noise_mm, "noise_deg": self.noise_deg, **dict(self.reference_calibration)}
+            {"noise_mm": self.noise_mm, "noise_deg": self.noise_deg, **dict(self.reference_calibration)},
+            "thermal.reference_calibration",
         )
+
+
+def _check_limits(compensation: Mapping[str, Any]) -> None:
+    """``thermal.compensation`` parsed as :class:`CompensationLimits` (its errors name the key early)."""
+    from robocal.thermal.compensate import CompensationLimits
+
+    sub_settings(CompensationLimits)(compensation)
 
 
 @dataclass

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
+from robocal.config import parse, setting
 from robocal.errors import ConfigError
 from robocal.kinematics.chain import Chain
 from robocal.robot import RobotDescription
@@ -47,32 +48,17 @@ class RegressionConfig:
         that saturates).
     """
 
-    max_order: int = 2
-    max_sensors: int = 2
-    candidates: str | Mapping[str, Sequence[str]] = "auto"
+    max_order: int = setting(2, ge=1)
+    max_sensors: int = setting(2, ge=1)
+    candidates: str | Mapping[str, Sequence[str]] = setting("auto", choices=("auto",))
     allow_none: bool = True
-    cv_tolerance: float = 0.1
-    neighbourhood: int = 1
+    cv_tolerance: float = setting(0.1, ge=0)
+    neighbourhood: int = setting(1, ge=0)
     alpha: float = 1e-3
 
     @classmethod
     def from_mapping(cls, cfg: Mapping[str, Any] | None) -> RegressionConfig:
-        if cfg is None:
-            return cls()
-        data = dict(cfg)
-        unknown = sorted(set(data) - set(cls.__dataclass_fields__))
-        if unknown:
-            raise ConfigError(
-                f"unknown thermal regression setting(s) {unknown}; known: {sorted(cls.__dataclass_fields__)}"
-            )
-        out = cls(**data)
-        if out.max_order < 1 or out.max_sensors < 1 or out.neighbourhood < 0:
-            raise ConfigError("thermal regression: max_order and max_sensors must be >= 1, neighbourhood >= 0")
-        if not out.cv_tolerance >= 0:
-            raise ConfigError(f"thermal regression: cv_tolerance must be >= 0. Got {out.cv_tolerance!r} instead.")
-        if not (out.candidates == "auto" or isinstance(out.candidates, Mapping)):
-            raise ConfigError("thermal regression: candidates must be 'auto' or a mapping parameter -> [sensors]")
-        return out
+        return parse(cls, cfg, "thermal.regression")
 
 
 def joint_of(param: str) -> int | None:

@@ -28,6 +28,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from robocal.config import parse, setting
 from robocal.errors import ConfigError
 from robocal.identification.calibrate import (
     CalibrationConfig,
@@ -256,14 +257,18 @@ def fit_with_optimizer(
 # --------------------------------------------------------------------------------------------------------
 
 
+def _some(values: tuple[Any, ...]) -> str | None:
+    return None if values else "must not be empty"
+
+
 @dataclass
 class CompareSettings:
     """``conf/compare/default.yaml``, validated."""
 
-    algorithms: tuple[str, ...] = ("igoa", "goa", "woa")
-    populations: tuple[int, ...] = (500, 1000, 1500)
-    runs: int = 10
-    max_iter: int = 200
+    algorithms: tuple[str, ...] = setting(("igoa", "goa", "woa"), choices=POPULATION, check=_some)
+    populations: tuple[int, ...] = setting((500, 1000, 1500), ge=3, check=_some)
+    runs: int = setting(10, ge=1)
+    max_iter: int = setting(200, ge=1)
     stop_error: float | str | None = "auto"
     objective: str = "nonlinear"
     bound_mm: float = 1.0
@@ -274,24 +279,7 @@ class CompareSettings:
 
     @classmethod
     def from_mapping(cls, cfg: Mapping[str, Any] | None) -> CompareSettings:
-        data = dict(cfg or {})
-        known = set(cls.__dataclass_fields__)
-        unknown = sorted(set(data) - known)
-        if unknown:
-            raise ConfigError(f"unknown compare setting(s) {unknown}; known: {sorted(known)}")
-        for key in ("algorithms", "populations"):
-            if key in data:
-                data[key] = tuple(data[key])
-        out = cls(**data)
-        bad = [a for a in out.algorithms if a not in POPULATION]
-        if bad or not out.algorithms:
-            raise ConfigError(f"The 'compare.algorithms' setting must list some of {list(POPULATION)}. Got {bad}.")
-        if not out.populations or any((not isinstance(p, int)) or p < 3 for p in out.populations):
-            raise ConfigError(f"The 'compare.populations' setting must be ints >= 3. Got {list(out.populations)}.")
-        for key in ("runs", "max_iter"):
-            if not isinstance(getattr(out, key), int) or getattr(out, key) < 1:
-                raise ConfigError(f"The 'compare.{key}' setting must be an int >= 1. Got {getattr(out, key)!r}.")
-        return out
+        return parse(cls, cfg, "compare")
 
     def optimizer_cfg(self, name: str, population: int, coefficients: Mapping[str, Any]) -> dict[str, Any]:
         cfg = {k: v for k, v in coefficients.items() if k not in ("polish", "objective", "max_iter", "population")}

@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import pandas as pd
 
+from robocal.config import SettingError
 from robocal.errors import ConfigError
 from robocal.kinematics.chain import Chain, build_chain, point_jacobians, propagate
 from robocal.robot import RobotDescription
@@ -19,7 +20,6 @@ from robocal.thermal.screening.config import (
     ScreeningConfig,
     SelectionConfig,
     _drift_mapping,
-    _err,
 )
 from robocal.thermal.screening.result import ScreeningResult
 
@@ -298,7 +298,7 @@ def screen(
     if n_states:
         st = conf.drift_state
         if isinstance(st, int) and not -n_states <= st < n_states:
-            raise _err("drift_state", f"a state index in [-{n_states}, {n_states - 1}]", st)
+            raise SettingError("screen.drift_state", f"must be a state index in [-{n_states}, {n_states - 1}]", st)
         for j, n in enumerate(names):
             if n not in drift_internal:
                 continue

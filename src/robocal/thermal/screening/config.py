@@ -3,17 +3,16 @@
 from __future__ import annotations
 
 import json
-from collections.abc import Mapping, Sequence
+import numbers
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
+from robocal.config import parse, setting
 from robocal.errors import ConfigError
-
-if TYPE_CHECKING:
-    pass
 
 FORMAT = "robocal.screening/1"
 RULES = ("threshold", "share", "top_k", "relative")
@@ -46,22 +45,31 @@ _CHUNK = 50_000  # (perturbations x configurations) per propagation chunk: bound
 # ------------------------------------------------------------------------------------------------ config
 
 
-def _err(key: str, expected: str, got: Any) -> ConfigError:
-    return ConfigError(f"The config key 'screen.{key}' must be {expected}. Got {got!r} instead.")
+def _tools(v: Any) -> Any:
+    """``{name: [x, y, z]}`` (e.g. a calibration's tools_mm) or one ``[x, y, z]`` -> a list of tool points."""
+    if isinstance(v, Mapping):
+        v = list(v.values())
+    if isinstance(v, np.ndarray):
+        v = v.tolist()
+    if isinstance(v, list | tuple) and v and all(isinstance(x, numbers.Real) for x in v):
+        return [v]
+    return v
 
 
-def _number(d: Mapping[str, Any], key: str, default: float, *, positive: bool = True, prefix: str = "") -> float:
-    v = d.get(key, default)
-    if isinstance(v, bool) or not isinstance(v, int | float) or not np.isfinite(v) or (positive and v <= 0):
-        raise _err(prefix + key, "a positive number" if positive else "a number", v)
-    return float(v)
+def _states(v: Any) -> Any:
+    """``{parameter: value or [value per state]}``: a single value is one state."""
+    if isinstance(v, Mapping):
+        return {k: [x] if isinstance(x, numbers.Real) and not isinstance(x, bool) else x for k, x in v.items()}
+    return v
 
 
-def _names(d: Mapping[str, Any], key: str, prefix: str = "") -> tuple[str, ...]:
-    v = d.get(key) or []
-    if isinstance(v, str) or not isinstance(v, Sequence) or not all(isinstance(s, str) for s in v):
-        raise _err(prefix + key, "a list of parameter names (shell patterns allowed)", v)
-    return tuple(v)
+def _drift_check(drift: Mapping[str, tuple[float, ...]] | None) -> str | None:
+    if drift is None:
+        return None
+    if any(not d for d in drift.values()):
+        return "must give every parameter a drift value (or a list of them)"
+    sizes = {len(d) for d in drift.values()}
+    return f"must give every parameter the same number of states, not {sorted(sizes)}" if len(sizes) > 1 else None
 
 
 @dataclass(frozen=True)
@@ -77,86 +85,23 @@ class SelectionConfig:
     below this many standard errors is called not significant there.
     """
 
-    rule: str = "threshold"
-    h_min: float = 0.015
-    share: float = 0.95
-    top_k: int = 9
-    relative: float = 0.05
-    min_z: float = 0.0
+    rule: str = setting("threshold", choices=RULES)
+    h_min: float = setting(0.015, ge=0)
+    share: float = setting(0.95, gt=0, le=1)
+    top_k: int = setting(9, ge=1)
+    relative: float = setting(0.05, gt=0, le=1)
+    min_z: float = setting(0.0, ge=0)
     include: tuple[str, ...] = ()
     exclude: tuple[str, ...] = ()
-    explain_band: float = 2.0
-    explain_z: float = 2.0
+    explain_band: float = setting(2.0, ge=1)
+    explain_z: float = setting(2.0, gt=0)
 
     @classmethod
     def from_mapping(cls, d: Mapping[str, Any] | None) -> SelectionConfig:
-        d = {} if d is None else d
-        if not isinstance(d, Mapping):
-            raise _err("selection", "a mapping", d)
-        known = {
-            "rule",
-            "h_min",
-            "share",
-            "top_k",
-            "relative",
-            "min_z",
-            "include",
-            "exclude",
-            "explain_band",
-            "explain_z",
-        }
-        unknown = sorted(set(map(str, d)) - known)
-        if unknown:
-            raise ConfigError(
-                f"unknown config key(s) {['screen.selection.' + k for k in unknown]}; known: {sorted(known)}"
-            )
-        rule = d.get("rule", "threshold")
-        if rule not in RULES:
-            raise _err("selection.rule", f"one of {list(RULES)}", rule)
-        share = _number(d, "share", 0.95, prefix="selection.")
-        if share > 1.0:
-            raise _err("selection.share", "in (0, 1]", share)
-        relative = _number(d, "relative", 0.05, prefix="selection.")
-        if relative > 1.0:
-            raise _err("selection.relative", "in (0, 1]", relative)
-        top_k = d.get("top_k", 9)
-        if isinstance(top_k, bool) or not isinstance(top_k, int) or top_k < 1:
-            raise _err("selection.top_k", "a positive integer", top_k)
-        h_min = _number(d, "h_min", 0.015, positive=False, prefix="selection.")
-        if h_min < 0:
-            raise _err("selection.h_min", "a non-negative number", h_min)
-        min_z = _number(d, "min_z", 0.0, positive=False, prefix="selection.")
-        if min_z < 0:
-            raise _err("selection.min_z", "a non-negative number", min_z)
-        explain_band = _number(d, "explain_band", 2.0, prefix="selection.")
-        if explain_band < 1.0:
-            raise _err("selection.explain_band", "a number >= 1", explain_band)
-        return cls(
-            explain_band=explain_band,
-            explain_z=_number(d, "explain_z", 2.0, prefix="selection."),
-            min_z=min_z,
-            rule=str(rule),
-            h_min=h_min,
-            share=share,
-            top_k=int(top_k),
-            relative=relative,
-            include=_names(d, "include", "selection."),
-            exclude=_names(d, "exclude", "selection."),
-        )
+        return parse(cls, d, "screen.selection")
 
     def to_dict(self) -> dict[str, Any]:
-        return {
-            "rule": self.rule,
-            "h_min": self.h_min,
-            "share": self.share,
-            "top_k": self.top_k,
-            "relative": self.relative,
-            "min_z": self.min_z,
-            "include": list(self.include),
-            "exclude": list(self.exclude),
-            "explain_band": self.explain_band,
-            "explain_z": self.explain_z,
-        }
+        return {k: list(v) if isinstance(v := getattr(self, k), tuple) else v for k in self.__dataclass_fields__}
 
 
 @dataclass(frozen=True)
@@ -173,66 +118,23 @@ class ScreeningConfig:
     its ``seed`` argument, and the result's ``config["seed"]`` records the seed actually used.
     """
 
-    n_configs: int = 500
-    joint_range_fraction: float = 1.0
-    angle_step_deg: float = 0.01
-    length_step_mm: float = 0.1
-    tool_mm: tuple[tuple[float, float, float], ...] | None = None
-    drift: Mapping[str, tuple[float, ...]] | None = None
-    drift_state: str | int = "last"
-    drift_file: str | None = None
+    n_configs: int = setting(500, ge=1)
+    joint_range_fraction: float = setting(1.0, gt=0, le=1)
+    angle_step_deg: float = setting(0.01, gt=0)
+    length_step_mm: float = setting(0.1, gt=0)
+    tool_mm: tuple[tuple[float, float, float], ...] | None = setting(
+        None, convert=_tools, check=lambda t: "must hold at least one tool point" if t == () else None
+    )
+    drift: Mapping[str, tuple[float, ...]] | None = setting(None, convert=_states, check=_drift_check)
+    drift_state: str | int = setting("last", choices=DRIFT_STATES)
+    drift_file: str | None = setting(None, convert=lambda p: str(p) if isinstance(p, Path) else p)
     selection: SelectionConfig = field(default_factory=SelectionConfig)
     seed: int | None = None
-
-    KEYS = (
-        "seed",
-        "n_configs",
-        "joint_range_fraction",
-        "angle_step_deg",
-        "length_step_mm",
-        "tool_mm",
-        "drift",
-        "drift_state",
-        "drift_file",
-        "selection",
-    )
 
     @classmethod
     def from_mapping(cls, d: Mapping[str, Any] | None) -> ScreeningConfig:
         """Validate a config mapping; every problem is a :class:`ConfigError` naming the key."""
-        d = {} if d is None else d
-        if not isinstance(d, Mapping):
-            raise ConfigError(f"The config section 'screen' must be a mapping. Got {d!r} instead.")
-        unknown = sorted(set(map(str, d)) - set(cls.KEYS))
-        if unknown:
-            raise ConfigError(f"unknown config key(s) {['screen.' + k for k in unknown]}; known: {list(cls.KEYS)}")
-        n = d.get("n_configs", 500)
-        if isinstance(n, bool) or not isinstance(n, int) or n < 1:
-            raise _err("n_configs", "a positive integer", n)
-        frac = _number(d, "joint_range_fraction", 1.0)
-        if frac > 1.0:
-            raise _err("joint_range_fraction", "in (0, 1]", frac)
-        state = d.get("drift_state", "last")
-        if not (state in DRIFT_STATES or (isinstance(state, int) and not isinstance(state, bool))):
-            raise _err("drift_state", f"one of {list(DRIFT_STATES)} or a state index", state)
-        dfile = d.get("drift_file")
-        if dfile is not None and not isinstance(dfile, str | Path):
-            raise _err("drift_file", "a path or null", dfile)
-        seed = d.get("seed")
-        if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int)):
-            raise _err("seed", "an integer or null", seed)
-        return cls(
-            seed=seed,
-            n_configs=int(n),
-            joint_range_fraction=frac,
-            angle_step_deg=_number(d, "angle_step_deg", 0.01),
-            length_step_mm=_number(d, "length_step_mm", 0.1),
-            tool_mm=_tools(d.get("tool_mm")),
-            drift=_drift_mapping(d.get("drift"), "screen.drift"),
-            drift_state=state,
-            drift_file=None if dfile is None else str(dfile),
-            selection=SelectionConfig.from_mapping(d.get("selection")),
-        )
+        return parse(cls, d, "screen")
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -247,22 +149,6 @@ class ScreeningConfig:
             "drift_file": self.drift_file,
             "selection": self.selection.to_dict(),
         }
-
-
-def _tools(v: Any) -> tuple[tuple[float, float, float], ...] | None:
-    if v is None:
-        return None
-    if isinstance(v, Mapping):  # {target name: [x, y, z]}, e.g. a calibration's tools_mm
-        v = list(v.values())
-    try:
-        arr = np.asarray(v, dtype=float)
-    except (TypeError, ValueError):
-        raise _err("tool_mm", "[x, y, z], a list of them or {name: [x, y, z]} (mm, flange frame)", v) from None
-    if arr.ndim == 1:
-        arr = arr[None, :]
-    if arr.ndim != 2 or arr.shape[1] != 3 or arr.shape[0] == 0 or not np.all(np.isfinite(arr)):
-        raise _err("tool_mm", "[x, y, z], a list of them or {name: [x, y, z]} (mm, flange frame)", v)
-    return tuple((float(a), float(b), float(c)) for a, b, c in arr)
 
 
 def _drift_mapping(v: Any, where: str) -> dict[str, tuple[float, ...]] | None:
