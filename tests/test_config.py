@@ -201,9 +201,9 @@ def _section_cases() -> list[tuple[Any, dict[str, Any], str]]:
     from robocal.serve.protocol import ServiceConfig
     from robocal.serve.server import ServerConfig
     from robocal.thermal.compensate import CompensationLimits
+    from robocal.thermal.fit import ThermalConfig
     from robocal.thermal.regression import RegressionConfig
     from robocal.thermal.screening.config import ScreeningConfig, SelectionConfig
-    from robocal.thermal.workflow import ThermalConfig
     from robocal.workflows.optimizers import CompareSettings
 
     return [
