@@ -11,7 +11,7 @@ import pytest
 
 from robocal.identification.model import CalibrationModel, FitData
 from robocal.kinematics import compiled
-from robocal.kinematics.chain import fk, fold
+from robocal.kinematics.chain import fk
 from robocal.kinematics.transforms import matrix_to_quat, matrix_to_rotvec, rotvec_to_matrix
 from robocal.robot import load_robot
 
