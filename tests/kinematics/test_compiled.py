@@ -75,14 +75,8 @@ def test_every_form_of_the_chain_gives_the_same_pose(name, request):
     if not compiled.AVAILABLE:
         return
     # compiled folding = numpy folding
-    k_ = np.array(chain.kinds)
-    fR = np.zeros((len(k_), 3, 3))
-    ft = np.zeros((len(k_), 3))
-    for e, F in enumerate(chain.fixed):
-        if F is not None:
-            fR[e], ft[e] = F[:3, :3], F[:3, 3]
     B = np.empty((chain.n_joints + 1, 3, 4))
-    compiled.fold(k_, chain.nominal, chain.param, chain.joint >= 0, fR, ft, T_REF, eta, B)
+    compiled.fold(*compiled.chain_arrays(chain), T_REF, eta, B)
     assert np.abs(B - cc.blocks).max() <= 1e-12 * np.abs(B).max()
     # compiled FK of the folded chain (the service's forward)
     p, R = compiled.fk_poses(B, cc.axis, cc.joint, tool, q)

@@ -28,11 +28,12 @@ from typing import Any
 
 import numpy as np
 
-from robocal.kinematics.chain import FIXED, RX, TZ
+from robocal.kinematics.chain import FIXED, RX, TZ, Chain
 
 __all__ = [
     "AVAILABLE",
     "apply_element",
+    "chain_arrays",
     "fk_poses",
     "fold",
     "forward",
@@ -60,6 +61,25 @@ def _identity(f: Any) -> Any:
 _jit: Any = numba.njit(cache=True, nogil=True) if numba is not None else _identity
 _jit_parallel: Any = numba.njit(cache=True, nogil=True, parallel=True) if numba is not None else _identity
 _prange: Any = numba.prange if numba is not None else range
+
+
+def chain_arrays(chain: Chain) -> tuple[np.ndarray, ...]:
+    """The chain as :func:`fold` takes it: ``kinds, nominal, param, is_joint, fR (E, 3, 3), ft (E, 3)``."""
+    E = len(chain.kinds)
+    fR = np.zeros((E, 3, 3))
+    ft = np.zeros((E, 3))
+    for e, T in enumerate(chain.fixed):
+        if T is not None:
+            fR[e] = T[:3, :3]
+            ft[e] = T[:3, 3]
+    return (
+        np.array(chain.kinds, dtype=np.int64),
+        np.asarray(chain.nominal, dtype=float),
+        np.asarray(chain.param, dtype=np.int64),
+        np.asarray(chain.joint) >= 0,
+        fR,
+        ft,
+    )
 
 
 # --------------------------------------------------------------------------------------------------------
@@ -251,7 +271,6 @@ def population_positions(
     T0: np.ndarray,
     X: np.ndarray,
     n_chain: int,
-    K: int,
     axis: np.ndarray,
     tidx: np.ndarray,
     cq: np.ndarray,
@@ -260,8 +279,8 @@ def population_positions(
     out: np.ndarray,
 ) -> None:
     """Position residuals ``out (pop, 3m)`` (predicted - measured) of the full vectors ``X (pop, n)``: chain
-    parameters first, then ``K`` target offsets in the flange frame (``X[:, n_chain:n_chain + 3K]``); pose ``j``
-    sees target ``tidx[j]``; ``cq``/``sq (n, m)`` cos and sin of the joint angles in chain order."""
+    parameters first, then the target offsets in the flange frame (target ``k`` at ``X[:, n_chain + 3k:][:3]``);
+    pose ``j`` sees target ``tidx[j]``; ``cq``/``sq (n, m)`` cos and sin of the joint angles in chain order."""
     n_joints, m = cq.shape
     for i in _prange(X.shape[0]):
         B = np.empty((n_joints + 1, 3, 4))

@@ -61,7 +61,8 @@ class PopulationPositions:
         self.backend = "numba" if backend == "auto" and HAVE_NUMBA else ("numpy" if backend == "auto" else backend)
         chain = model.full_chain
         self.chain = chain
-        kinds = np.array(chain.kinds, dtype=np.int64)
+        self.arrays = compiled.chain_arrays(chain)
+        kinds = self.arrays[0]
         joint = np.asarray(chain.joint)
         for ej in np.flatnonzero(joint >= 0):
             if np.count_nonzero(joint == joint[ej]) != 1 or not RX <= kinds[ej] <= RZ:
@@ -70,17 +71,6 @@ class PopulationPositions:
                 )
         if sorted(joint[joint >= 0].tolist()) != list(range(chain.n_joints)):
             raise ValueError("every joint must drive a rotation element for the fast kernel")
-        E = len(kinds)
-        self.fR = np.zeros((E, 3, 3))
-        self.ft = np.zeros((E, 3))
-        for e, T in enumerate(chain.fixed):
-            if T is not None:
-                self.fR[e] = T[:3, :3]
-                self.ft[e] = T[:3, 3]
-        self.kinds = kinds
-        self.nominal = np.asarray(chain.nominal, dtype=float)
-        self.param = np.asarray(chain.param, dtype=np.int64)
-        self.is_joint = joint >= 0
         order = joint[joint >= 0]  # joint index of each joint element, chain order
         self.axes = np.ascontiguousarray(kinds[joint >= 0] - RX)
         self.T0 = np.asarray(model.T_ref, dtype=float)
@@ -103,8 +93,7 @@ class PopulationPositions:
             out = np.empty((X.shape[0], 3 * self.m))
         if self.backend == "numba":
             compiled.population_positions(
-                self.kinds, self.nominal, self.param, self.is_joint, self.fR, self.ft, self.T0, X,
-                self.n_chain, self.K, self.axes, self.tidx, self.cq, self.sq, self.p_meas, out,
+                *self.arrays, self.T0, X, self.n_chain, self.axes, self.tidx, self.cq, self.sq, self.p_meas, out,
             )  # fmt: skip
             return out
         return self._numpy(X, out)
