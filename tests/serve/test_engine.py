@@ -117,14 +117,14 @@ def test_rotation_error_matches_reference():
 
 
 def test_compiled_kernels_match_the_numpy_reference(kr16):
-    """The numba path (robocal.serve.fastsolve) runs the same iteration as the numpy path: same fixed point,
+    """The numba path (robocal.kinematics.compiled) runs the same iteration as the numpy path: same fixed point,
     same convergence flags, same errors; FK, rotation vectors and quaternions match the library's."""
+    from robocal.kinematics import compiled
     from robocal.kinematics.chain import build_chain
     from robocal.kinematics.transforms import matrix_to_quat, matrix_to_rotvec, rotvec_to_matrix
-    from robocal.serve import fastsolve
     from robocal.serve.engine import _rotvec, compile_chain, forward, quaternions, solve
 
-    if not fastsolve.AVAILABLE:
+    if not compiled.AVAILABLE:
         pytest.skip("numba is not installed: only the numpy path exists")
     rng = np.random.default_rng(5)
     ch = build_chain(kr16)

@@ -47,11 +47,16 @@ STATUS_MESSAGES = {
 def normal_inverse(J: np.ndarray) -> np.ndarray:
     """``(JᵀJ)⁻¹`` of a (whitened) Jacobian, the pseudo-inverse when it is singular: the covariance of the
     parameters up to the residual variance ``s²`` (every fit's standard errors come from here)."""
-    JtJ = J.T @ J
+    return normal_matrix_inverse(J.T @ J)
+
+
+def normal_matrix_inverse(N: np.ndarray) -> np.ndarray:
+    """``N⁻¹`` of a normal matrix (``JᵀJ``, ``XᵀC⁻¹X``), the pseudo-inverse when it is singular: the one
+    covariance fallback of the library (:func:`normal_inverse` when the Jacobian itself is at hand)."""
     try:
-        return np.linalg.inv(JtJ)
+        return np.linalg.inv(N)
     except np.linalg.LinAlgError:
-        return np.linalg.pinv(JtJ)
+        return np.linalg.pinv(N)
 
 
 def fit_covariance(r: np.ndarray, J: np.ndarray, ndata: int | None = None) -> np.ndarray:

@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 from scipy import special
 
-from robocal.identification.solver import FitResult, levenberg_marquardt
+from robocal.identification.solver import FitResult, levenberg_marquardt, normal_inverse
 
 #: Cauchy tuning constant (95 % efficiency at the normal distribution), in units of the per-component scale
 CAUCHY_C = 2.385
@@ -85,8 +85,7 @@ def row_test(
     R, JB = _blocks(rw, Jw, rows, m, d)
     k = Jw.shape[1]
     if cov_w is None:
-        Jk = JB[kept].reshape(-1, k)
-        cov_w = np.linalg.pinv(Jk.T @ Jk)
+        cov_w = normal_inverse(JB[kept].reshape(-1, k))
     H = (JB @ cov_w) @ np.swapaxes(JB, 1, 2)  # (m, d, d)
     eye = np.eye(d)
     sign = np.where(kept, -1.0, 1.0)[:, None, None]

@@ -273,6 +273,61 @@ def propagate(
     return ChainState(x=x, y=y, z=z, o=o, axes=axes, origins=origins)
 
 
+@dataclass(frozen=True)
+class FoldedChain:
+    """A chain with its parameter vector folded in: ``T = B_0 · Rot(q_1) · B_1 ··· Rot(q_n) · B_n``.
+
+    blocks : (..., n + 1, 3, 4) rigid transforms ``[R t]``; block ``s`` ends with joint element ``s`` at its
+    constant value (nominal + parameter error), since ``Rot(v + q) = Rot(v) Rot(q)``; a leading axis for a
+    population of parameter vectors. joint : (n,) joint index of each joint element (chain order);
+    axis : (n,) its rotation axis (0, 1, 2 for x, y, z). The compiled form is
+    :func:`robocal.kinematics.compiled.fold`.
+    """
+
+    blocks: np.ndarray
+    joint: np.ndarray
+    axis: np.ndarray
+
+    @property
+    def n_joints(self) -> int:
+        return len(self.joint)
+
+
+def fold(chain: Chain, eta: np.ndarray | None = None, T0: np.ndarray | None = None) -> FoldedChain:
+    """Fold the parameter errors ``eta`` (P,) or (pop, P) and ``T0`` (4, 4) into a :class:`FoldedChain`.
+
+    Raises :class:`ValueError` unless every joint drives exactly one rotation element."""
+    pop = eta is not None and np.ndim(eta) == 2
+    lead: tuple[int, ...] = (len(eta),) if eta is not None and pop else ()
+    T = np.eye(4) if T0 is None else np.asarray(T0, dtype=float)
+    frame: Frame = tuple(np.broadcast_to(T[:3, c], (*lead, 3)) for c in range(4))  # type: ignore[assignment]
+    identity: Frame = tuple(np.broadcast_to(np.eye(4)[:3, c], (*lead, 3)) for c in range(4))  # type: ignore[assignment]
+    blocks: list[np.ndarray] = []
+    joints: list[int] = []
+    axes: list[int] = []
+    for e, kind in enumerate(chain.kinds):
+        if kind == FIXED:
+            frame = step(FIXED, 0.0, frame, chain.fixed[e])
+            continue
+        v: Any = chain.nominal[e]
+        p = chain.param[e]
+        if p >= 0 and eta is not None:
+            v = v + (eta[:, p : p + 1] if pop else eta[p])
+        frame = step(kind, v, frame)
+        j = int(chain.joint[e])
+        if j >= 0:
+            if kind < RX:
+                raise ValueError(f"joint {j + 1} drives a translation element; only revolute joints are supported")
+            blocks.append(np.stack(frame, -1))
+            joints.append(j)
+            axes.append(kind - RX)
+            frame = identity
+    if sorted(joints) != list(range(chain.n_joints)):
+        raise ValueError(f"each joint must drive exactly one element; got joints {joints}")
+    blocks.append(np.stack(frame, -1))
+    return FoldedChain(np.stack(blocks, -3), np.array(joints, dtype=np.int64), np.array(axes, dtype=np.int64))
+
+
 def fk(chain: Chain, q: np.ndarray, eta: np.ndarray | None = None, T0: np.ndarray | None = None) -> np.ndarray:
     """Flange poses ``(m, 4, 4)`` (or ``(pop, m, 4, 4)``) for joint angles ``q`` (m, n) in rad."""
     st = propagate(chain, q, eta, T0)

@@ -27,6 +27,7 @@ from robocal.errors import ConfigError
 from robocal.identification.identifiability import analyse
 from robocal.identification.model import CalibrationModel, FitData
 from robocal.kinematics.chain import build_chain
+from robocal.kinematics.transforms import matrix_to_rotvec
 from robocal.plan.config import PlanConfig
 from robocal.plan.constraints import REASONS, Screened, sample_configurations, sampling_limits, screen
 from robocal.plan.design import criterion_value, exchange, information, observability
@@ -416,8 +417,7 @@ def _spread(R: np.ndarray) -> dict[str, float]:
     """Spread of the tool orientations: angles (deg) from the chordal mean rotation; tool-z cone half-angle."""
     U, _, Vt = np.linalg.svd(R.sum(0))
     Rm = U @ np.diag([1.0, 1.0, float(np.sign(np.linalg.det(U @ Vt)))]) @ Vt
-    cos = np.clip((np.trace(np.swapaxes(R, 1, 2) @ Rm, axis1=1, axis2=2) - 1) / 2, -1, 1)
-    ang = np.rad2deg(np.arccos(cos))
+    ang = np.rad2deg(np.linalg.norm(matrix_to_rotvec(np.swapaxes(R, 1, 2) @ Rm), axis=1))
     z = R[:, :, 2]
     zm = z.mean(0)
     zm /= max(np.linalg.norm(zm), 1e-12)

@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from robocal.io import is_reproducible
+from robocal.kinematics.transforms import rpy_from_matrix
 from robocal.report import plots
 from robocal.report.html import Report
 
@@ -164,7 +165,7 @@ def geometric_report(
         rep.paragraph("None: every candidate parameter is identifiable from these poses.")
     T = result.tracker_T_base
     rep.heading("Frames and tools")
-    rpy = np.rad2deg(_rpy_zyx(T[:3, :3]))
+    rpy = np.rad2deg(rpy_from_matrix(T[:3, :3]))
     stations = {
         f"station {s}: base origin in its tracker frame (mm)": _xyz(result.model.base_transform(result.x, k)[:3, 3])
         for k, s in enumerate(result.model.station_names)
@@ -195,9 +196,3 @@ def _xyz(v: Any) -> str:
     """``x 2500.0170, y 1199.9799, z −350.4942`` (mm), not a numpy repr."""
     x, y, z = (float(c) for c in np.asarray(v, dtype=float).reshape(3))
     return f"x {x:.4f}, y {y:.4f}, z {z:.4f}".replace("-", "−")
-
-
-def _rpy_zyx(R: np.ndarray) -> np.ndarray:
-    """Roll, pitch, yaw (rad) of ``R = Rz(yaw) Ry(pitch) Rx(roll)``."""
-    pitch = np.arcsin(-np.clip(R[2, 0], -1.0, 1.0))
-    return np.array([np.arctan2(R[2, 1], R[2, 2]), pitch, np.arctan2(R[1, 0], R[0, 0])])

@@ -3,12 +3,13 @@
 :func:`robocal.compensation.compensate` is the reference implementation (it re-propagates the whole
 element chain, ~30 elements, and takes an SVD pseudo-inverse per target each Newton step). For the
 service the kinematic parameters are fixed within one request, so the chain is first *compiled* for
-that parameter vector: every run of non-joint elements between two joints is multiplied into one rigid
-transform, leaving ``T0 · C_0 · Rot(q_1 + off_1) · C_1 · ... · Rot(q_n + off_n) · C_n · tool`` (one
-rotation per joint). Forward kinematics then costs ``n`` column rotations and ``n`` 3x3 products per
-pose, the joint Jacobian comes from the recorded joint axes (``dp = u x (p - o)``, ``dw = u``), and each
-Newton step solves damped normal equations (6x6 for the full pose; the minimum-norm 3x3 form for
-position only) with ``numpy.linalg.solve`` over the whole batch. The same fixed point as the reference
+that parameter vector (:func:`robocal.kinematics.chain.fold`): every run of non-joint elements between two
+joints, with the joint's constant offset, is multiplied into one rigid block, leaving
+``T0 · B_0 · Rot(q_1) · B_1 · ... · Rot(q_n) · B_n · tool`` (one rotation per joint). Forward kinematics then
+costs ``n`` column rotations and ``n`` 3x3 products per pose, the joint Jacobian comes from the recorded joint
+axes (``dp = u x (p - o)``, ``dw = u``), and each Newton step solves damped normal equations (6x6 for the full
+pose; the minimum-norm 3x3 form for position only) with ``numpy.linalg.solve`` over the whole batch (compiled
+per target: :func:`robocal.kinematics.compiled.newton`). The same fixed point as the reference
 is reached (checked in ``tests/serve/test_engine.py``).
 
 Shapes: ``q`` ``(m, n)`` rad; positions ``(m, 3)`` mm; rotations ``(m, 3, 3)``.
@@ -21,11 +22,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from robocal.kinematics.chain import FIXED, RX, RY, RZ, Chain, Frame, step
-from robocal.kinematics.transforms import matrix_to_rotvec
-
-#: Column pairs rotated by an elementary rotation (u' = c u + s v, v' = c v - s u) and the axis column.
-_PAIR = {RX: (1, 2, 0), RY: (2, 0, 1), RZ: (0, 1, 2)}
+from robocal.kinematics import compiled as _compiled
+from robocal.kinematics.chain import FIXED, RX, Chain, FoldedChain, Frame, fold, step
+from robocal.kinematics.transforms import matrix_to_quat, matrix_to_rotvec
 
 #: ``joint_offset(q_cmd (k, n), rows (k,)) -> dq (k, n)``: deflection of the targets ``rows`` at ``q_cmd``
 JointOffset = Callable[[np.ndarray, np.ndarray], np.ndarray]
@@ -37,27 +36,9 @@ _VI, _VJ = np.array([2, 0, 1]), np.array([1, 2, 0])
 _C1, _C2 = np.array([1, 2, 0]), np.array([2, 0, 1])
 
 
-@dataclass(frozen=True)
-class CompiledChain:
-    """A chain with its kinematic parameters folded in: one rotation per joint between rigid transforms.
-
-    S0 : (4, 4) transform before the first joint (includes ``T0``); joint : (n,) joint index of each
-    joint element, in chain order; axis : (n,) local rotation axis column (0, 1, 2) of each joint element;
-    offset : (n,) rad, nominal + parameter error added to the joint angle; A, B, K : (n, 4, 4) with
-    ``Rot(q + offset) · C_i = cos · A_i + sin · B_i + K_i`` (``C_i`` the rigid transform after joint element i).
-    """
-
-    S0: np.ndarray
-    joint: np.ndarray
-    axis: np.ndarray
-    offset: np.ndarray
-    A: np.ndarray
-    B: np.ndarray
-    K: np.ndarray
-
-    @property
-    def n_joints(self) -> int:
-        return len(self.joint)
+#: A chain with its kinematic parameters folded in: one rotation per joint between rigid blocks
+#: (:class:`robocal.kinematics.chain.FoldedChain`).
+CompiledChain = FoldedChain
 
 
 def compile_chain(chain: Chain, eta: np.ndarray | None = None, T0: np.ndarray | None = None) -> CompiledChain:
@@ -65,66 +46,7 @@ def compile_chain(chain: Chain, eta: np.ndarray | None = None, T0: np.ndarray | 
     eta = np.zeros(chain.n_params) if eta is None else np.asarray(eta, dtype=float)
     if eta.shape != (chain.n_params,):
         raise ValueError(f"The 'eta' parameter must have shape ({chain.n_params},). Got {eta.shape} instead.")
-    acc = np.eye(4) if T0 is None else np.asarray(T0, dtype=float).copy()
-    frame: Frame = (acc[:3, 0], acc[:3, 1], acc[:3, 2], acc[:3, 3])  # the running rigid transform, by columns
-
-    def matrix(f: Frame) -> np.ndarray:
-        T = np.eye(4)
-        T[:3, 0], T[:3, 1], T[:3, 2], T[:3, 3] = f
-        return T
-
-    first: np.ndarray | None = None
-    joints: list[int] = []
-    kinds: list[int] = []
-    offsets: list[float] = []
-    after: list[np.ndarray] = []
-    for e, kind in enumerate(chain.kinds):
-        if kind == FIXED:
-            frame = step(FIXED, 0.0, frame, chain.fixed[e])
-            continue
-        v = float(chain.nominal[e])
-        p = int(chain.param[e])
-        if p >= 0:
-            v += float(eta[p])
-        j = int(chain.joint[e])
-        if j >= 0:
-            if kind not in _PAIR:
-                raise ValueError(f"joint {j + 1} drives a translation element; only revolute joints are supported")
-            if first is None:
-                first = matrix(frame)
-            else:
-                after.append(matrix(frame))
-            joints.append(j)
-            kinds.append(kind)
-            offsets.append(v)
-            frame = (np.eye(3)[:, 0], np.eye(3)[:, 1], np.eye(3)[:, 2], np.zeros(3))
-            continue
-        frame = step(kind, v, frame)  # the chain's own element code (robocal.kinematics.chain.step)
-    if first is None:
-        raise ValueError("the chain has no joint")
-    after.append(matrix(frame))
-    if sorted(joints) != list(range(chain.n_joints)):
-        raise ValueError(f"each joint must drive exactly one element; got joints {joints}")
-    n = len(joints)
-    A = np.zeros((n, 4, 4))
-    B = np.zeros((n, 4, 4))
-    K = np.zeros((n, 4, 4))
-    for i, (kind, C) in enumerate(zip(kinds, after, strict=True)):
-        a, b, ax = _PAIR[kind]
-        Pc, Ps, Pk = np.zeros((4, 4)), np.zeros((4, 4)), np.zeros((4, 4))
-        Pc[a, a] = Pc[b, b] = 1.0
-        Ps[b, a], Ps[a, b] = 1.0, -1.0
-        Pk[ax, ax] = Pk[3, 3] = 1.0
-        A[i], B[i], K[i] = Pc @ C, Ps @ C, Pk @ C
-    return CompiledChain(
-        first.copy(),
-        np.array(joints),
-        np.array([_PAIR[k][2] for k in kinds]),
-        np.array(offsets),
-        A,
-        B,
-        K,
-    )
+    return fold(chain, eta, T0)
 
 
 def forward(
@@ -133,28 +55,23 @@ def forward(
     """Tool point ``(m, 3)`` and tool rotation ``(m, 3, 3)`` for joints ``q`` (m, n) and the flange-to-tool
     transform ``tool_T`` (4, 4); with ``record`` also the world joint axes and origins ``(m, 3, n)``
     indexed by joint number."""
-    from robocal.serve import fastsolve
-
-    if not record and fastsolve.fk is not None:
-        return (*fastsolve.fk(*_kernel_args(cc), np.ascontiguousarray(tool_T, dtype=float), _f64(q)), None, None)
+    if not record and _compiled.AVAILABLE:
+        return (*_compiled.fk_poses(*_kernel_args(cc), _f64(tool_T), _f64(q)), None, None)
     m = q.shape[0]
     n = cc.n_joints
-    th = q[:, cc.joint] + cc.offset
-    M = np.cos(th)[:, :, None, None] * cc.A + np.sin(th)[:, :, None, None] * cc.B + cc.K  # (m, n, 4, 4)
-    before = np.empty((m, n, 4, 4)) if record else None
-    T = cc.S0
-    for i in range(n):
-        if before is not None:
-            before[:, i] = T
-        T = T @ M[:, i]
-    T = T @ tool_T
-    if before is None:
-        return T[:, :3, 3], T[:, :3, :3], None, None
-    axes = np.empty((m, 3, n))
-    origins = np.empty((m, 3, n))
-    axes[:, :, cc.joint] = before[:, np.arange(n), :3, cc.axis].transpose(1, 2, 0)  # (n, m, 3) -> (m, 3, n)
-    origins[:, :, cc.joint] = np.swapaxes(before[:, :, :3, 3], 1, 2)
-    return T[:, :3, 3], T[:, :3, :3], axes, origins
+    B = cc.blocks
+    frame: Frame = tuple(np.broadcast_to(B[0, :, c], (m, 3)) for c in range(4))  # type: ignore[assignment]
+    axes = np.empty((m, 3, n)) if record else None
+    origins = np.empty((m, 3, n)) if record else None
+    for k in range(n):
+        j, ax = int(cc.joint[k]), int(cc.axis[k])
+        if axes is not None and origins is not None:
+            axes[:, :, j] = frame[ax]
+            origins[:, :, j] = frame[3]
+        frame = step(RX + ax, q[:, j, None], frame)  # the chain's own element code (robocal.kinematics.chain.step)
+        frame = step(FIXED, 0.0, frame, B[k + 1])
+    x, y, z, o = step(FIXED, 0.0, frame, tool_T)
+    return o, np.stack([x, y, z], -1), axes, origins
 
 
 def rotation_error(R: np.ndarray, R_desired: np.ndarray) -> np.ndarray:
@@ -167,16 +84,13 @@ def _f64(a: np.ndarray) -> np.ndarray:
 
 
 def _kernel_args(cc: CompiledChain) -> tuple[np.ndarray, ...]:
-    """The compiled chain's arrays as the numba kernels take them (cached on the frozen object)."""
+    """The folded chain's arrays as the numba kernels take them (cached on the frozen object)."""
     args = cc.__dict__.get("_kernel_args")
     if args is None:
         args = (
-            _f64(cc.S0),
-            _f64(cc.A),
-            _f64(cc.B),
-            _f64(cc.K),
+            _f64(cc.blocks),
+            np.ascontiguousarray(cc.axis, dtype=np.int64),
             np.ascontiguousarray(cc.joint, dtype=np.int64),
-            _f64(cc.offset),
         )
         object.__setattr__(cc, "_kernel_args", args)
     return args
@@ -184,26 +98,16 @@ def _kernel_args(cc: CompiledChain) -> tuple[np.ndarray, ...]:
 
 def quaternions(R: np.ndarray) -> np.ndarray:
     """Unit quaternions ``(m, 4)`` (w, x, y, z), w >= 0, of rotations ``(m, 3, 3)`` (compiled when possible)."""
-    from robocal.serve import fastsolve
-
-    if fastsolve.quat is not None:
-        return fastsolve.quat(_f64(R))
-    from robocal.kinematics.transforms import matrix_to_quat
-
+    if _compiled.AVAILABLE:
+        return _compiled.quat(_f64(R))
     return matrix_to_quat(R)
 
 
 def _rotvec(E: np.ndarray) -> np.ndarray:
-    """Rotation vectors of rotations ``E`` (m, 3, 3): the compiled kernel when numba is there (exact atan2 form
-    below 179.9 deg), else (and near 180 deg) the numpy reference
-    :func:`~robocal.kinematics.transforms.matrix_to_rotvec`."""
-    from robocal.serve import fastsolve
-
-    if fastsolve.rotvec is not None:
-        out, near_pi = fastsolve.rotvec(_f64(E))
-        if near_pi.any():
-            out[near_pi] = matrix_to_rotvec(E[near_pi])
-        return out
+    """Rotation vectors of rotations ``E`` (m, 3, 3): :func:`robocal.kinematics.compiled.rotvec` when numba is
+    there, else the numpy reference :func:`~robocal.kinematics.transforms.matrix_to_rotvec` (the same steps)."""
+    if _compiled.AVAILABLE:
+        return _compiled.rotvec(_f64(E))
     return matrix_to_rotvec(E)
 
 
@@ -250,32 +154,23 @@ def solve(
     ``rot_weight_mm`` (mm per rad). Each joint step is clipped to ``max_step_rad`` (a target near a
     singularity then fails to converge instead of running away); converged targets stop moving.
 
-    ``compiled`` : run the same iteration compiled with numba (:mod:`robocal.serve.fastsolve`), per target;
+    ``compiled`` : run the same iteration compiled with numba (:func:`robocal.kinematics.compiled.newton`), per target;
     None = when numba is available and there is no ``joint_offset``; False = this numpy reference path.
     ``stall`` : stop a target whose error stops halving (compensation: a small correction is expected, and a
     target that needs a large one is near a singularity); False for inverse kinematics over large moves
     (numpy path only).
     """
-    from robocal.serve import fastsolve
-
     if compiled is None:
-        compiled = fastsolve.AVAILABLE and joint_offset is None and stall
+        compiled = _compiled.AVAILABLE and joint_offset is None and stall
     if compiled and not stall:
         raise ValueError("the compiled solver always applies the stall rule (stall=True)")
     if compiled:
-        if joint_offset is not None or fastsolve.newton is None:
+        if joint_offset is not None or not _compiled.AVAILABLE:
             raise ValueError("the compiled solver needs numba and no joint_offset")
         qs = _f64(q_start)
         Rd = _f64(R_desired) if R_desired is not None else np.zeros((len(qs), 3, 3))
-        S0, A, B, K, joint, offset = _kernel_args(cc)
-        qf, cf, itf, e0, E0f, e1, E1f = fastsolve.newton(
-            S0,
-            A,
-            B,
-            K,
-            joint,
-            np.ascontiguousarray(cc.axis, dtype=np.int64),
-            offset,
+        qf, cf, itf, e0, E0f, e1, E1f = _compiled.newton(
+            *_kernel_args(cc),
             _f64(tool_T),
             qs,
             _f64(p_desired),

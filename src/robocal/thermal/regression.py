@@ -28,6 +28,7 @@ from scipy import stats
 
 from robocal.config import parse, setting
 from robocal.errors import ConfigError
+from robocal.identification.result import normal_matrix_inverse
 from robocal.kinematics.chain import Chain
 from robocal.robot import RobotDescription
 from robocal.thermal.identify import StateDrift
@@ -108,11 +109,7 @@ class Candidate:
 
 def _gls(X: np.ndarray, y: np.ndarray, Cinv: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
     """Coefficients, their (unscaled) covariance and chi² of ``y = X b`` with ``Cov(y)^-1 = Cinv``."""
-    A = X.T @ Cinv @ X
-    try:
-        cov = np.linalg.inv(A)
-    except np.linalg.LinAlgError:
-        cov = np.linalg.pinv(A)
+    cov = normal_matrix_inverse(X.T @ Cinv @ X)
     b = cov @ (X.T @ Cinv @ y)
     r = y - X @ b
     return b, cov, float(r @ Cinv @ r)
