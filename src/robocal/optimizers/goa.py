@@ -46,6 +46,7 @@ from robocal.optimizers.protocol import (
     IterationCallback,
     Problem,
     SearchTracker,
+    check_callable,
     check_int,
     check_real,
     other_index,
@@ -319,10 +320,7 @@ class GOA(EstimatorParams):
         check_real(self.jump_prob, "jump_prob", owner, 0.0, 1.0)
         check_real(self.jump_coef, "jump_coef", owner, 0.0, 1.0)
         check_real(self.parasite_share, "parasite_share", owner, 0.0, 1.0, high_open=True)
-        if self.callback is not None and not callable(self.callback):
-            raise ConfigError(
-                f"The 'callback' parameter of {owner} must be a callable or None. Got {self.callback!r} instead."
-            )
+        check_callable(self.callback, "callback", owner)
 
     def _common(self, problem: Problem) -> dict:
         if not isinstance(problem, Problem):
@@ -446,9 +444,8 @@ class ImprovedGOA(GOA):
         owner = type(self).__name__
         check_real(self.tent_mu, "tent_mu", owner, 0.0, 2.0, low_open=True)
         check_real(self.tent_b, "tent_b", owner, 0.0, 1.0, low_open=True, high_open=True)
-        steps = check_int(self.tent_steps, "tent_steps", owner, minimum=0)
-        if steps > 40:  # each step at mu = 2 drops one of 53 mantissa bits: keep >= 13 random bits
-            raise ConfigError(f"The 'tent_steps' parameter of {owner} must be an int <= 40. Got {steps} instead.")
+        # each step at mu = 2 drops one of 53 mantissa bits: at most 40 keeps >= 13 random bits
+        check_int(self.tent_steps, "tent_steps", owner, minimum=0, maximum=40)
         check_real(self.de_share, "de_share", owner, 0.0, 1.0)
         check_real(self.de_f, "de_f", owner, 0.0, 2.0)
         check_real(self.de_cr, "de_cr", owner, 0.0, 1.0)

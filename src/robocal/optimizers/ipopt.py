@@ -26,6 +26,7 @@ from robocal.optimizers.protocol import (
     EstimatorParams,
     FitResult,
     Problem,
+    check_choice,
     check_int,
     check_real,
     fitness_from_residuals,
@@ -118,10 +119,7 @@ class Ipopt(EstimatorParams):
         if self.max_iter is not None:
             check_int(self.max_iter, "max_iter", owner, minimum=0)
         check_real(self.tol, "tol", owner, 0.0, low_open=True)
-        if self.hessian not in HESSIANS:
-            raise ConfigError(
-                f"The 'hessian' parameter of {owner} must be one of {list(HESSIANS)}. Got {self.hessian!r}."
-            )
+        check_choice(self.hessian, "hessian", owner, HESSIANS)
         check_int(self.print_level, "print_level", owner, minimum=0)
 
     def minimize(self, problem: Problem) -> FitResult:

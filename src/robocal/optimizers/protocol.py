@@ -28,6 +28,7 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
+from robocal.config import SettingError
 from robocal.errors import ConfigError
 from robocal.identification.result import STATUS_MESSAGES, FitResult, fit_covariance
 
@@ -41,6 +42,9 @@ __all__ = [
     "Optimizer",
     "Problem",
     "SearchTracker",
+    "check_bool",
+    "check_callable",
+    "check_choice",
     "check_int",
     "check_real",
     "evaluate",
@@ -74,13 +78,38 @@ def _got(value: Any) -> str:
     return text if len(text) <= 80 else text[:77] + "..."
 
 
-def check_int(value: Any, name: str, owner: str, minimum: int | None = None) -> int:
-    """Return ``value`` as int or raise :class:`ConfigError` naming ``name`` of ``owner``."""
+def _key(owner: str, name: str) -> str:
+    """The dotted key of parameter ``name`` of ``owner`` (a class name, or a config section such as
+    ``optimizer``) in the one error format of :mod:`robocal.config`."""
+    return f"{owner}.{name}"
+
+
+def check_int(value: Any, name: str, owner: str, minimum: int | None = None, maximum: int | None = None) -> int:
+    """Return ``value`` as int or raise :class:`~robocal.config.SettingError` naming ``owner.name``."""
     ok = isinstance(value, numbers.Integral) and not isinstance(value, bool)
-    if ok and (minimum is None or int(value) >= minimum):
+    if ok and (minimum is None or int(value) >= minimum) and (maximum is None or int(value) <= maximum):
         return int(value)
-    need = "an int" if minimum is None else f"an int >= {minimum}"
-    raise ConfigError(f"The {name!r} parameter of {owner} must be {need}. Got {_got(value)} instead.")
+    bounds = [f">= {minimum}" if minimum is not None else "", f"<= {maximum}" if maximum is not None else ""]
+    need = " and ".join(b for b in bounds if b)
+    raise SettingError(_key(owner, name), f"must be an integer{' ' + need if need else ''}", value)
+
+
+def check_choice(value: Any, name: str, owner: str, choices: Any) -> Any:
+    """Return ``value`` if it is one of ``choices``, else raise :class:`~robocal.config.SettingError`."""
+    if value in tuple(choices):
+        return value
+    raise SettingError(_key(owner, name), f"must be one of {', '.join(map(repr, choices))}", value)
+
+
+def check_bool(value: Any, name: str, owner: str) -> bool:
+    if isinstance(value, bool):
+        return value
+    raise SettingError(_key(owner, name), "must be true or false", value)
+
+
+def check_callable(value: Any, name: str, owner: str) -> None:
+    if value is not None and not callable(value):
+        raise SettingError(_key(owner, name), "must be a callable or None", value)
 
 
 def check_real(
@@ -93,18 +122,23 @@ def check_real(
     low_open: bool = False,
     high_open: bool = False,
 ) -> float:
-    """Return ``value`` as a finite float in the interval, or raise :class:`ConfigError` naming ``name``."""
+    """Return ``value`` as a finite float in the interval, or raise :class:`~robocal.config.SettingError`
+    naming ``owner.name``."""
     ok = isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(float(value))
     if ok:
         v = float(value)
         ok = (v > low if low_open else v >= low) and (v < high if high_open else v <= high)
         if ok:
             return v
-    lo = "(" if low_open else "["
-    hi = ")" if high_open else "]"
-    raise ConfigError(
-        f"The {name!r} parameter of {owner} must be a finite real in {lo}{low}, {high}{hi}. Got {_got(value)} instead."
-    )
+    if math.isinf(low) and math.isinf(high):
+        need = "must be a finite number"
+    elif math.isinf(high):
+        need = f"must be {'>' if low_open else '>='} {low:g}"
+    elif math.isinf(low):
+        need = f"must be {'<' if high_open else '<='} {high:g}"
+    else:
+        need = f"must be in {'(' if low_open else '['}{low:g}, {high:g}{')' if high_open else ']'}"
+    raise SettingError(_key(owner, name), need, value)
 
 
 def _vector(value: Any, name: str, n: int, *, allow_inf: bool) -> np.ndarray:

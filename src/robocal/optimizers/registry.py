@@ -14,11 +14,12 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from robocal.config import SettingError, unknown_setting
 from robocal.errors import ConfigError
 from robocal.optimizers.goa import GOA, ImprovedGOA
 from robocal.optimizers.gradient import GaussNewton, LevenbergMarquardt
 from robocal.optimizers.ipopt import Ipopt
-from robocal.optimizers.protocol import Optimizer, check_real
+from robocal.optimizers.protocol import Optimizer, check_bool, check_choice, check_real
 from robocal.optimizers.woa import WOA
 
 __all__ = [
@@ -98,9 +99,7 @@ def _resolve(cfg: Mapping[str, Any]) -> str:
             f"The optimizer config must have a 'name' or a '_target_' key. Got keys {sorted(map(str, cfg))} instead."
         )
     if name is not None and name not in _REGISTRY:
-        raise ConfigError(
-            f"The 'name' key of the optimizer config must be one of {list(registered())}. Got {name!r} instead."
-        )
+        raise SettingError("optimizer.name", f"must be one of {list(registered())}", name)
     by_target = [k for k, e in _REGISTRY.items() if target is not None and e.target == target]
     if target is not None and not by_target:
         known = sorted(e.target for e in _REGISTRY.values() if e.target)
@@ -144,17 +143,20 @@ def make_optimizer(cfg: Mapping[str, Any]) -> Optimizer:
         accepted = [p for p, spec in params.items() if spec.kind is not inspect.Parameter.VAR_POSITIONAL]
         for key in kwargs:
             if key not in accepted:
-                raise ConfigError(
-                    f"The {key!r} key of the optimizer config {name!r} is not a parameter of it; expected some "
-                    f"of {accepted + list(PIPELINE_KEYS)}. Got {key}={kwargs[key]!r} instead."
-                )
+                raise unknown_setting("optimizer", key, kwargs[key], accepted + list(PIPELINE_KEYS))
     try:
         optimizer = factory(**kwargs)
     except TypeError as exc:
-        raise ConfigError(f"The optimizer config {name!r} could not be applied: {exc}") from exc
+        raise ConfigError(f"optimizer ({name}): the config could not be applied: {exc}") from exc
     validate = getattr(optimizer, "validate_params", None)
     if callable(validate):
-        validate()
+        try:
+            validate()
+        except SettingError as exc:  # the class's own key (GOA.alpha) as the config names it (optimizer.alpha)
+            owner = f"{type(optimizer).__name__}."
+            if not exc.key.startswith(owner):
+                raise
+            raise SettingError(f"optimizer.{exc.key[len(owner) :]}", exc.reason, exc.value, exc.hint) from None
     return optimizer
 
 
@@ -164,20 +166,13 @@ def pipeline_options(cfg: Mapping[str, Any]) -> dict[str, Any]:
     Returns ``{"polish": bool, "objective": str, "bound_mm": float, "bound_deg": float,
     "stop_error": float | "auto" | None}`` (defaults: False, "nonlinear", 1.0, 0.1, None).
     """
-    polish = cfg.get("polish", False)
-    if not isinstance(polish, bool):
-        raise ConfigError(f"The 'polish' key of the optimizer config must be a bool. Got {polish!r} instead.")
-    objective = cfg.get("objective", "nonlinear")
-    if objective not in OBJECTIVE_KINDS:
-        raise ConfigError(
-            f"The 'objective' key of the optimizer config must be one of {list(OBJECTIVE_KINDS)}. "
-            f"Got {objective!r} instead."
-        )
-    bound_mm = check_real(cfg.get("bound_mm", 1.0), "bound_mm", "the optimizer config", 0.0, low_open=True)
-    bound_deg = check_real(cfg.get("bound_deg", 0.1), "bound_deg", "the optimizer config", 0.0, low_open=True)
+    polish = check_bool(cfg.get("polish", False), "polish", "optimizer")
+    objective = check_choice(cfg.get("objective", "nonlinear"), "objective", "optimizer", OBJECTIVE_KINDS)
+    bound_mm = check_real(cfg.get("bound_mm", 1.0), "bound_mm", "optimizer", 0.0, low_open=True)
+    bound_deg = check_real(cfg.get("bound_deg", 0.1), "bound_deg", "optimizer", 0.0, low_open=True)
     stop = cfg.get("stop_error", None)
     if stop is not None and stop != "auto":
-        stop = check_real(stop, "stop_error", "the optimizer config", 0.0, low_open=True)
+        stop = check_real(stop, "stop_error", "optimizer", 0.0, low_open=True)
     return {"polish": polish, "objective": objective, "bound_mm": bound_mm, "bound_deg": bound_deg, "stop_error": stop}
 
 

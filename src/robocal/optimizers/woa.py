@@ -35,6 +35,8 @@ from robocal.optimizers.protocol import (
     IterationCallback,
     Problem,
     SearchTracker,
+    check_bool,
+    check_callable,
     check_int,
     check_real,
     other_index,
@@ -166,12 +168,8 @@ class WOA(EstimatorParams):
         check_real(self.a_max, "a_max", owner, 0.0)
         check_real(self.spiral_b, "spiral_b", owner)
         check_real(self.spiral_prob, "spiral_prob", owner, 0.0, 1.0)
-        if not isinstance(self.greedy, bool):
-            raise ConfigError(f"The 'greedy' parameter of {owner} must be true or false. Got {self.greedy!r} instead.")
-        if self.callback is not None and not callable(self.callback):
-            raise ConfigError(
-                f"The 'callback' parameter of {owner} must be a callable or None. Got {self.callback!r} instead."
-            )
+        check_bool(self.greedy, "greedy", owner)
+        check_callable(self.callback, "callback", owner)
 
     def minimize(self, problem: Problem) -> FitResult:
         """Minimise ``problem``'s fitness within its bounds; see the class docstring."""
