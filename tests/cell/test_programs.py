@@ -10,9 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from robocal.cell.programs.common import ProgramError, frame, kuka_status_turn, rot_zyx_deg
+from robocal.cell.programs.common import ProgramError, kuka_status_turn, rot_zyx_deg
 from robocal.cell.programs.filter import filter_program, nominal_ik, read_program, write_filtered
 from robocal.cell.programs.make import _pose_targets, _pose_text, _xyzabc, krl_program, rapid_module
+from robocal.kinematics.transforms import homogeneous as frame
 
 Q_DEG = np.array(
     [

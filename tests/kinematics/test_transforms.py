@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
@@ -79,3 +80,13 @@ def test_rotvec_round_trip_just_below_pi():
     R = rotvec_to_matrix(v)
     np.testing.assert_allclose(matrix_to_rotvec(R), v, atol=1e-9)  # 1e-9: float64 round trip, ~1e5 ulp of pi
     np.testing.assert_allclose(rotvec_to_matrix(matrix_to_rotvec(R)), R, atol=1e-9)
+
+
+@pytest.mark.parametrize("pitch", [np.pi / 2, -np.pi / 2, np.pi / 2 - 1e-9, -np.pi / 2 + 1e-7, 0.3])
+def test_rpy_accurate_at_and_near_gimbal_lock(pitch):
+    """One roll-pitch-yaw reading for calibration.json, URDF origins and KUKA A, B, C: the rotation it gives
+    back is the one read, to rounding, also at pitch = +-90 deg where arcsin(-R20) lost half the digits."""
+    R = matrix_from_rpy(np.array([0.4, pitch, -1.1]))
+    rpy = rpy_from_matrix(R)
+    np.testing.assert_allclose(matrix_from_rpy(rpy), R, rtol=0, atol=1e-14)  # rounding of a few products
+    assert abs(rpy[1] - pitch) < 1e-14

@@ -38,6 +38,7 @@ import numpy as np
 
 from robocal.errors import ConfigError
 from robocal.kinematics.chain import FIXED, RX, RY, RZ, TZ, Chain
+from robocal.kinematics.transforms import inv_transform, rpy_from_matrix
 from robocal.robot import POE, RobotDescription, robot_from_dict
 
 #: URDF joint types that move
@@ -246,33 +247,13 @@ def joint_frames(chain: Chain, eta: np.ndarray | None) -> tuple[list[np.ndarray]
     return [frames[j] for j in range(n)], [axes[j] for j in range(n)], T
 
 
-def _rpy(R: np.ndarray) -> tuple[float, float, float]:
-    """URDF roll, pitch, yaw (``R = Rz(yaw) Ry(pitch) Rx(roll)``), accurate at and near pitch = +-90 deg."""
-    cp = math.hypot(R[0, 0], R[1, 0])
-    pitch = math.atan2(-R[2, 0], cp)
-    if cp > 1e-10:
-        roll = math.atan2(R[2, 1], R[2, 2])
-        yaw = math.atan2(R[1, 0], R[0, 0])
-    else:  # gimbal lock: only roll -+ yaw is defined; put it all in roll
-        yaw = 0.0
-        roll = math.atan2(-R[1, 2], R[1, 1])
-    return roll, pitch, yaw
-
-
 def _fmt(v: float) -> str:
     return repr(float(v)) if v != 0 else "0"
 
 
 def _origin_attrs(T_mm: np.ndarray) -> dict[str, str]:
     xyz = T_mm[:3, 3] / 1000.0
-    return {"xyz": " ".join(_fmt(v) for v in xyz), "rpy": " ".join(_fmt(v) for v in _rpy(T_mm[:3, :3]))}
-
-
-def _inv(T: np.ndarray) -> np.ndarray:
-    out = np.eye(4)
-    out[:3, :3] = T[:3, :3].T
-    out[:3, 3] = -T[:3, :3].T @ T[:3, 3]
-    return out
+    return {"xyz": " ".join(_fmt(v) for v in xyz), "rpy": " ".join(_fmt(v) for v in rpy_from_matrix(T_mm[:3, :3]))}
 
 
 def calibrated_link_frames(
@@ -290,7 +271,7 @@ def calibrated_link_frames(
     L = link_frames if link_frames is not None else A_nom
     frames, axes = [], []
     for i in range(chain.n_joints):
-        G = _inv(A_nom[i]) @ L[i]
+        G = inv_transform(A_nom[i]) @ L[i]
         frames.append(A_cal[i] @ G)
         axes.append(G[:3, :3].T[:, ax[i]])
     return frames, axes, F_cal
@@ -334,7 +315,7 @@ def write_calibrated_urdf(
             child = f"link_{i + 1}"
             etree.SubElement(root, "link", name=child)
             jt = etree.SubElement(root, "joint", name=robot.joint_names[i], type="revolute")
-            etree.SubElement(jt, "origin", **_origin_attrs(_inv(P) @ frames[i]))
+            etree.SubElement(jt, "origin", **_origin_attrs(inv_transform(P) @ frames[i]))
             etree.SubElement(jt, "parent", link=parent)
             etree.SubElement(jt, "child", link=child)
             etree.SubElement(jt, "axis", xyz=" ".join(_fmt(v) for v in axes[i]))
@@ -343,7 +324,7 @@ def write_calibrated_urdf(
             parent, P = child, frames[i]
         etree.SubElement(root, "link", name="flange")
         jt = etree.SubElement(root, "joint", name="flange_joint", type="fixed")
-        etree.SubElement(jt, "origin", **_origin_attrs(_inv(P) @ F_cal))
+        etree.SubElement(jt, "origin", **_origin_attrs(inv_transform(P) @ F_cal))
         etree.SubElement(jt, "parent", link=parent)
         etree.SubElement(jt, "child", link="flange")
         tip = "flange"
@@ -367,11 +348,11 @@ def write_calibrated_urdf(
         fixed_after = [i for i, j in enumerate(joints) if i > last_act]
         for i, j in enumerate(joints):
             if j.type in _REVOLUTE:
-                new_origin[j.name] = _inv(P) @ frames[k]
+                new_origin[j.name] = inv_transform(P) @ frames[k]
                 P = frames[k]
                 k += 1
             elif fixed_after and i == fixed_after[-1]:
-                new_origin[j.name] = _inv(P) @ F_cal
+                new_origin[j.name] = inv_transform(P) @ F_cal
                 P = F_cal
             else:
                 P = P @ j.origin

@@ -149,11 +149,15 @@ def kabsch(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
 
 
 def rpy_from_matrix(R: np.ndarray) -> np.ndarray:
-    """ZYX angles ``(..., 3)`` as (roll, pitch, yaw) in rad, with ``R = Rz(yaw) Ry(pitch) Rx(roll)``."""
+    """ZYX angles ``(..., 3)`` as (roll, pitch, yaw) in rad, with ``R = Rz(yaw) Ry(pitch) Rx(roll)``; accurate at
+    and near pitch = +-90 deg (pitch from atan2, not arcsin); at gimbal lock only roll -+ yaw is defined and it is
+    all put in roll (yaw = 0). Used for URDF origins and KUKA A, B, C too."""
     R = np.asarray(R, dtype=float)
-    pitch = np.arcsin(np.clip(-R[..., 2, 0], -1.0, 1.0))
-    roll = np.arctan2(R[..., 2, 1], R[..., 2, 2])
-    yaw = np.arctan2(R[..., 1, 0], R[..., 0, 0])
+    cp = np.hypot(R[..., 0, 0], R[..., 1, 0])
+    pitch = np.arctan2(-R[..., 2, 0], cp)
+    lock = cp <= 1e-10
+    roll = np.where(lock, np.arctan2(-R[..., 1, 2], R[..., 1, 1]), np.arctan2(R[..., 2, 1], R[..., 2, 2]))
+    yaw = np.where(lock, 0.0, np.arctan2(R[..., 1, 0], R[..., 0, 0]))
     return np.stack([roll, pitch, yaw], -1)
 
 

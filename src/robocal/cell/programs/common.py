@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from robocal.errors import RobocalError
+from robocal.kinematics.transforms import matrix_from_rpy, rpy_from_matrix
 
 
 class ProgramError(RobocalError, ValueError):
@@ -125,6 +126,17 @@ def read_text(path: Path) -> str:
     return path.read_bytes().decode("latin-1")
 
 
+def blank_to_line_end(text: str, out: list[str], i: int) -> int:
+    """Blank ``out[i:]`` up to the end of the line (a comment; ``\\r`` kept so line ends stay); returns the
+    index of the newline (or ``len(text)``), where the scan goes on."""
+    j = text.find("\n", i)
+    j = len(text) if j < 0 else j
+    for k in range(i, j):
+        if text[k] != "\r":
+            out[k] = " "
+    return j
+
+
 def line_of(text: str, pos: int) -> int:
     return text.count("\n", 0, pos) + 1
 
@@ -147,31 +159,13 @@ def apply_edits(text: str, edits: list[tuple[int, int, str]]) -> str:
 
 def rot_zyx_deg(a: float, b: float, c: float) -> np.ndarray:
     """KUKA A, B, C (deg): ``R = Rz(A) Ry(B) Rx(C)``."""
-    from robocal.kinematics.transforms import matrix_from_rpy
-
     return np.asarray(matrix_from_rpy(np.deg2rad([c, b, a])))
 
 
 def abc_deg(R: np.ndarray) -> tuple[float, float, float]:
     """KUKA A, B, C (deg) of a rotation, accurate near B = +-90 deg."""
-    from robocal.cell.urdf import _rpy
-
-    roll, pitch, yaw = _rpy(R)
+    roll, pitch, yaw = rpy_from_matrix(R)
     return math.degrees(yaw), math.degrees(pitch), math.degrees(roll)
-
-
-def frame(R: np.ndarray, t: Any) -> np.ndarray:
-    T = np.eye(4)
-    T[:3, :3] = R
-    T[:3, 3] = np.asarray(t, dtype=float)
-    return T
-
-
-def inv(T: np.ndarray) -> np.ndarray:
-    out = np.eye(4)
-    out[:3, :3] = T[:3, :3].T
-    out[:3, 3] = -T[:3, :3].T @ T[:3, 3]
-    return out
 
 
 # --------------------------------------------------------------------------------------------- configuration

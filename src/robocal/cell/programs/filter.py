@@ -51,10 +51,10 @@ from robocal.cell.programs.common import (
     apply_edits,
     config_matches,
     config_seeds,
-    inv,
     kuka_status_turn,
 )
 from robocal.errors import ConfigError
+from robocal.kinematics.transforms import inv_transform
 
 #: random inverse kinematics starts per Cartesian target (besides the previous target and the nearest axis target)
 N_SEEDS = 48
@@ -386,7 +386,7 @@ def filter_program(
             p, R, _, _ = forward(cc_nom, q_c[k][None], t.tool)
             T = np.eye(4)
             T[:3, :3], T[:3, 3] = R[0], p[0]
-            new["T_base_tcp"] = inv(t.base) @ T
+            new["T_base_tcp"] = inv_transform(t.base) @ T
             if prog.dialect == "krl":
                 s, tt = kuka_status_turn(cc_nom, q_c[k][None], int(t.config.get("S", 0)))
                 new["S"], new["T"] = int(s[0]), int(tt[0])

@@ -33,13 +33,14 @@ from robocal.cell.programs.common import (
     ProgramError,
     Target,
     abc_deg,
+    blank_to_line_end,
     format_number,
-    frame,
     line_of,
     read_text,
     reuse_target,
     rot_zyx_deg,
 )
+from robocal.kinematics.transforms import homogeneous
 
 POSE_TYPES = ("e6pos", "pos")
 AXIS_TYPES = ("e6axis", "axis")
@@ -75,12 +76,7 @@ def _mask_comments(text: str) -> str:
         elif ch == '"':
             in_str = True
         elif ch == ";":
-            j = text.find("\n", i)
-            j = n if j < 0 else j
-            for k in range(i, j):
-                if text[k] != "\r":
-                    out[k] = " "
-            i = j
+            i = blank_to_line_end(text, out, i)
             continue
         i += 1
     return "".join(out)
@@ -172,7 +168,7 @@ def _frame_of(vals: dict[str, str], file: Path, line: int, what: str) -> np.ndar
     if missing:
         raise ProgramError(f"{what} lacks {missing}; every target needs X, Y, Z, A, B, C", file, line)
     v = {k: _number(vals[k], k, file, line) for k in _POSE_KEYS}
-    return frame(rot_zyx_deg(v["a"], v["b"], v["c"]), [v["x"], v["y"], v["z"]])
+    return homogeneous(rot_zyx_deg(v["a"], v["b"], v["c"]), np.array([v["x"], v["y"], v["z"]]))
 
 
 class _Decl:

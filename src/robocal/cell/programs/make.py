@@ -11,8 +11,8 @@ from typing import Any
 
 import numpy as np
 
-from robocal.cell.programs.common import abb_confdata, abc_deg, inv, kuka_status_turn
-from robocal.kinematics.transforms import matrix_to_quat
+from robocal.cell.programs.common import abb_confdata, abc_deg, kuka_status_turn
+from robocal.kinematics.transforms import inv_transform, matrix_to_quat
 
 
 def _pose_targets(cc_nom: Any, q: np.ndarray, tool: np.ndarray, base: np.ndarray) -> np.ndarray:
@@ -21,7 +21,7 @@ def _pose_targets(cc_nom: Any, q: np.ndarray, tool: np.ndarray, base: np.ndarray
     p, R, _, _ = forward(cc_nom, q, tool)
     T = np.tile(np.eye(4), (len(q), 1, 1))
     T[:, :3, :3], T[:, :3, 3] = R, p
-    return np.einsum("ij,mjk->mik", inv(base), T)
+    return np.einsum("ij,mjk->mik", inv_transform(base), T)
 
 
 def _xyzabc(T: np.ndarray, nd: int = 3) -> str:

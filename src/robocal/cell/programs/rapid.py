@@ -33,13 +33,13 @@ from robocal.cell.programs.common import (
     Program,
     ProgramError,
     Target,
+    blank_to_line_end,
     format_number,
-    frame,
     line_of,
     read_text,
     reuse_target,
 )
-from robocal.kinematics.transforms import matrix_to_quat, quat_to_matrix
+from robocal.kinematics.transforms import homogeneous, matrix_to_quat, quat_to_matrix
 
 _DATA_TYPES = ("robtarget", "jointtarget", "tooldata", "wobjdata")
 _DECL = re.compile(
@@ -67,12 +67,7 @@ def _mask(text: str, file: Path) -> str:
             i = j + 1
             continue
         if ch == "!":
-            j = text.find("\n", i)
-            j = n if j < 0 else j
-            for k in range(i, j):
-                if text[k] != "\r":
-                    out[k] = " "
-            i = j
+            i = blank_to_line_end(text, out, i)
             continue
         i += 1
     return "".join(out)
@@ -199,7 +194,7 @@ def _pose(node: Node, file: Path, text: str, what: str) -> np.ndarray:
     nq = float(np.linalg.norm(q))
     if not 0.99 < nq < 1.01:
         raise ProgramError(f"{what}: the quaternion is not normalised (norm {nq:.5f})", file, line_of(text, node.start))
-    return frame(quat_to_matrix(q / nq), t)
+    return homogeneous(quat_to_matrix(q / nq), np.asarray(t, dtype=float))
 
 
 class _Data:
