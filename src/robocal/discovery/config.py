@@ -10,7 +10,7 @@ from robocal.config import parse, setting
 from robocal.identification.calibrate import data_rows, outlier_rule
 
 #: Every effect the library knows, in the order candidates are built.
-EFFECT_NAMES = ("compliance", "gear", "backlash", "thermal", "drift", "beta")
+EFFECT_NAMES = ("compliance", "gear", "backlash", "thermal", "drift", "beta", "transmission", "weight")
 
 
 @dataclass(frozen=True)
@@ -36,6 +36,15 @@ class DiscoveryConfig:
     min_signal_std : a signal whose standard deviation (in its unit) is below this does not vary: skipped.
     fixed : calibration parameters held at nominal (shell patterns), as in the geometric calibration.
     rank_tol : rank tolerance of the identifiability analysis of the (extended) model.
+    transmission_orders : Fourier orders (harmonics 1..K per revolution) tried for the gear transmission error of
+        each joint (:mod:`robocal.discovery.physics`); transmission_prior_deg : prior standard deviations per
+        coefficient tried (ridge); transmission_gap_deg / transmission_taper_deg : visits closer than the gap make
+        one covered interval, and the effect falls to zero over the taper outside the covered angles.
+    compliance_prior_deg : the physical prior on the deflection under the arm's own weight (RMS over the poses,
+        deg) when the link masses are unknown (the ``weight`` effect).
+    cv_alpha : false-discovery control of the cross-validated selection (:mod:`robocal.discovery.grow`): a
+        candidate's held-out gain must pass a one-sided paired t-test over poses at cv_alpha / (candidates tried).
+    grow_max_steps : at most this many effects are added by the cross-validated selection.
     seed : seed of the cross-validation folds (and of the dictionary's resamples).
     dictionary : after the library, propose equations from the term dictionary (:mod:`robocal.discovery.dictionary`).
     dictionary_harmonics : harmonics 1..H of every joint angle; dictionary_product_harmonics : of the products of
@@ -62,6 +71,13 @@ class DiscoveryConfig:
     fixed: tuple[str, ...] = ()
     rank_tol: float = setting(1e-6, gt=0)
     max_iter: int = 100
+    transmission_orders: tuple[int, ...] = setting((6, 12, 24, 36, 48), ge=1)
+    transmission_prior_deg: tuple[float, ...] = setting((0.002, 0.005), gt=0)
+    transmission_gap_deg: float = setting(2.0, gt=0)
+    transmission_taper_deg: float = setting(2.0, ge=0)
+    compliance_prior_deg: float = setting(0.05, gt=0)
+    cv_alpha: float = setting(0.001, gt=0, lt=1)
+    grow_max_steps: int = setting(12, ge=0)
     seed: int = 0
     dictionary: bool = True
     dictionary_harmonics: int = setting(3, ge=1)

@@ -8,7 +8,10 @@ angles, exactly as the discovery fitted it (``q_true = q_cmd + dq``) and as the 
 * ``angle``: ``sin(h q_j), cos(h q_j)`` of the commanded angle (gear transmission error);
 * ``gravity``: the gravity torque of joint ``j`` from the robot description's masses and the payload;
 * ``torque`` / ``current``: the torque or motor current the controller reports (given with the target);
-* ``direction``: the approach direction ``±1`` of joint ``j`` (backlash; given with the target).
+* ``direction``: the approach direction ``±1`` of joint ``j`` (backlash; given with the target);
+* ``transmission``: the gear transmission error, a Fourier series of the commanded angle, zero outside the angles
+  the calibration visited (``harmonics``, ``visited_deg``, ``taper_deg``; :mod:`robocal.discovery.physics`);
+* ``weight``: the compliance under the arm's own weight without link masses (``basis``, ``scale``).
 
 Parameter drifts (thermal, drift) need the temperatures or the time of the moment: they are written under
 ``not_compensated`` with the reason, never applied silently.
@@ -25,7 +28,7 @@ from robocal.identification.calibrate import CalibrationConfig, CalibrationResul
 from robocal.identification.identifiability import Eliminated, Identifiability
 from robocal.robot import RobotDescription
 
-SIGNALS = ("angle", "gravity", "torque", "current", "direction", "dictionary")
+SIGNALS = ("angle", "gravity", "torque", "current", "direction", "dictionary", "transmission", "weight")
 
 
 def signal_kind(acc: Accepted) -> str | None:
@@ -35,6 +38,8 @@ def signal_kind(acc: Accepted) -> str | None:
         return None
     if c.effect == "gear":
         return "angle"
+    if c.effect in ("transmission", "weight"):
+        return c.effect
     if c.effect == "backlash":
         return "direction"
     if c.effect == "compliance":
@@ -73,7 +78,11 @@ def effect_records(fit: Fit) -> tuple[list[dict[str, Any]], list[dict[str, Any]]
             other.append({"key": c.key, "effect": c.effect, "reason": why})
             continue
         assert c.joint is not None
-        rec_terms = {"terms": c.extra["terms"]} if kind == "dictionary" else {}
+        rec_terms: dict[str, Any] = {"terms": c.extra["terms"]} if kind == "dictionary" else {}
+        if kind == "transmission":
+            rec_terms = {k: c.extra[k] for k in ("harmonics", "visited_deg", "taper_deg")}
+        elif kind == "weight":
+            rec_terms = {k: c.extra[k] for k in ("basis", "scale", "prior_deg")}
         joint_level.append(
             {
                 **rec_terms,
@@ -115,6 +124,14 @@ def joint_offsets(
         if kind == "angle":
             h = int(e["harmonic"])
             S = np.column_stack([np.sin(h * q[:, j]), np.cos(h * q[:, j])])
+        elif kind == "transmission":
+            from robocal.discovery.physics import transmission_signal
+
+            S = transmission_signal(q[:, j], e)
+        elif kind == "weight":
+            from robocal.discovery.physics import weight_signal
+
+            S = weight_signal(robot, q, e)
         elif kind == "dictionary":
             from robocal.discovery.dictionary import evaluate_factor
 

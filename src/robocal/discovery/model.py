@@ -86,6 +86,16 @@ class ExtendedModel:
     def index(self, name: str) -> int:
         return self.names.index(name)
 
+    def prior_precision(self) -> np.ndarray:
+        """``(n,)`` precision ``1 / tau²`` of the Gaussian prior on each parameter (0 = none): an effect with
+        many coefficients (``Candidate.extra["prior_rad"]``, rad per coefficient) is fitted as a ridge."""
+        out = np.zeros(self.n)
+        for a, sl in zip(self.accepted, self.slices, strict=True):
+            tau = a.cand.extra.get("prior_rad")
+            if tau is not None and a.cand.shape == "joint":
+                out[sl] = 1.0 / np.broadcast_to(np.asarray(tau, dtype=float), (sl.stop - sl.start,)) ** 2
+        return out
+
     def map_from(self, names: tuple[str, ...], theta: np.ndarray) -> np.ndarray:
         """A parameter vector for this model from another model's (missing names start at zero)."""
         lookup = dict(zip(names, theta, strict=True))
@@ -244,23 +254,34 @@ def fit_model(
 
     sigma : position noise (mm); sigma_rad : orientation noise (rad) when the model uses orientations."""
 
+    prec = model.prior_precision()
+    ridge = np.flatnonzero(prec > 0)
+    sq = np.sqrt(prec[ridge])
+
     def fun(th: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         r, J, _, _ = model.residuals_and_jacobian(th, data, rows)
+        if len(ridge):  # the prior as extra residual rows sqrt(precision) * theta (weight 1)
+            Jp = np.zeros((len(ridge), model.n))
+            Jp[np.arange(len(ridge)), ridge] = sq
+            return np.concatenate([r, sq * th[ridge]]), np.vstack([J, Jp])
         return r, J
 
     d = model.per_row(data)
     w_row = np.array([1.0 / sigma] * 3 + ([1.0 / (sigma_rad or 1.0)] * 3 if d == 6 else []))
     w = np.tile(w_row, data.m)
+    M = len(w)
     _r0, J0 = fun(theta0)
     kinds = list(model.base.kinds) + ["effect"] * (model.n - model.nb)
     order = [i for i, k in enumerate(kinds) if k == "base"]
     order += [i for i, k in enumerate(kinds) if k in ("tool", "tool_rot")]
     order += [i for i, k in enumerate(kinds) if k == "kinematic"]
-    order += [i for i, k in enumerate(kinds) if k == "effect"]
+    order += [i for i, k in enumerate(kinds) if k == "effect" and prec[i] == 0]
     order = [i for i in order if model.names[i] not in fixed]
-    ident = analyse(J0 * w[:, None], model.names, order, rtol=rank_tol)
-    free = np.sort(ident.kept)
-    lm = levenberg_marquardt(fun, theta0, free, w, max_iter=max_iter, ftol=1e-12, xtol=1e-10)
+    ident = analyse(J0[:M] * w[:, None], model.names, order, rtol=rank_tol)
+    # coefficients under a prior are determined by it: always fitted, never eliminated
+    free = np.sort(np.concatenate([np.asarray(ident.kept, dtype=int), ridge]))
+    w_all = np.concatenate([w, np.ones(len(ridge))])
+    lm = levenberg_marquardt(fun, theta0, free, w_all, max_iter=max_iter, ftol=1e-12, xtol=1e-10)
     theta = np.array(lm.x)
     _, _, Jx, Jq = model.residuals_and_jacobian(theta, data, rows)  # the solver's r and J, with their parts
     assert lm.covariance is not None  # a finite fit
@@ -268,8 +289,8 @@ def fit_model(
         model=model,
         theta=theta,
         free=free,
-        r_w=np.array(lm.residual),
-        J_w=np.array(lm.jacobian),
+        r_w=np.array(lm.residual)[:M],
+        J_w=np.array(lm.jacobian)[:M],
         Jx=Jx,
         Jq=Jq,
         cov=np.array(lm.covariance),

@@ -396,6 +396,13 @@ def _search(
         )  # fmt: skip
     if cfg.dictionary:
         fit, accepted = _propose(campaign, robot, cfg, rows, data, fit, accepted, steps, groups, refit)
+    grown: dict[str, Any] = {}
+    if cfg.grow_max_steps > 0:
+        from robocal.discovery.grow import grow
+
+        taken = {a.cand.key for a in accepted}
+        leftovers = [c for c in library if c.key not in taken and c.key not in unident]
+        fit, accepted, grown = grow(campaign, robot, cfg, rows, data, fit, accepted, steps, groups, refit, leftovers)
     return DiscoveryResult(
         robot=robot,
         config=cfg,
@@ -411,6 +418,7 @@ def _search(
         n_tests=n_tests,
         threshold_log10_p=log_thr,
         wall_time_s=time.perf_counter() - t0,
+        extra={"cv": grown},
     )
 
 

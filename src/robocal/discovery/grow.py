@@ -1,0 +1,313 @@
+"""Many small effects, chosen together: forward selection by pose-grouped cross-validation.
+
+Real robots carry many small effects rather than one dominant one, so after the library's F-test search (and the
+dictionary) every remaining candidate — the library's leftovers, the gear transmission error of each joint as a
+long Fourier series and the compliance under the arm's own weight without link masses
+(:mod:`robocal.discovery.physics`) — is offered to a selection that adds, one per step, the candidate that
+lowers the pose-grouped cross-validated error most, fitted jointly with the geometry and everything accepted so
+far (a ridge where the candidate has a prior). A candidate is accepted only when its cross-validated gain is
+significant: a one-sided paired t-test over the held-out poses of the per-pose squared-error differences, at
+``cv_alpha`` divided by the number of candidates and variants tried in that step (Bonferroni), so that on data
+with nothing left to find the selection stops at once (the false-discovery control; ``benchmarks/`` checks it
+on null twins).
+
+Cross-validation is linearised at the current joint fit (like :func:`robocal.discovery.search.
+cross_validation_gain`): each fold refits every free parameter of the current model and the candidate on the
+other poses (normal equations with the priors, the candidate's block by its Schur complement) and predicts the
+held-out residuals. Variants of one candidate (Fourier orders, prior widths) are tried on the same folds and
+the best is the candidate's score.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+from scipy import stats
+
+from robocal.data.contract import Campaign
+from robocal.discovery.candidates import Candidate
+from robocal.discovery.config import DiscoveryConfig
+from robocal.discovery.model import Accepted, Fit
+from robocal.identification.model import FitData
+from robocal.robot import RobotDescription
+
+_DEG = float(np.rad2deg(1.0))
+
+
+@dataclass(frozen=True)
+class Variant:
+    """One variant of a candidate: which of its signal columns and which prior (rad per coefficient)."""
+
+    columns: np.ndarray
+    prior_rad: float | None
+    label: str
+
+
+def physics_candidates(
+    campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig, rows: np.ndarray
+) -> list[tuple[Candidate, list[Variant]]]:
+    """The transmission-error candidate of every moving joint (Fourier orders x prior widths as variants) and,
+    without link masses, torques or currents, the compliance under the arm's own weight of every joint with a
+    gravity torque. Signals for every campaign row; coverage and bases from the fitted ``rows``."""
+    from robocal.discovery.physics import (
+        coverage_weight,
+        fourier_signal,
+        gravity_regressor,
+        visited_intervals,
+        weight_basis,
+    )
+
+    out: list[tuple[Candidate, list[Variant]]] = []
+    q = campaign.q
+    n = robot.n_joints
+    n_poses = len(np.unique(np.asarray(campaign.pose_id)[rows].astype(str)))
+    if "transmission" in cfg.effects:
+        # at most one coefficient pair per ~4 poses: an order the poses cannot resolve is not tried
+        orders = [k for k in cfg.transmission_orders if 2 * k <= max(n_poses // 4, 0)]
+        kmax = max(orders) if orders else 0
+        for j in range(n):
+            if kmax == 0 or float(np.ptp(q[rows, j])) < np.deg2rad(1.0):
+                continue
+            visited = visited_intervals(q[rows, j], cfg.transmission_gap_deg)
+            w = coverage_weight(q[:, j], visited, cfg.transmission_taper_deg)
+            h = np.arange(1, kmax + 1)
+            S = fourier_signal(q[:, j], h, w)
+            names = tuple(f"sin{k}" for k in h) + tuple(f"cos{k}" for k in h)
+            cand = Candidate(
+                f"transmission:j{j + 1}", "transmission", j + 1, None,
+                cause=f"gear transmission error of the joint-{j + 1} reducer: a periodic error of the joint's own "
+                "angle with many harmonics per revolution (applied only on the angles the calibration visited)",
+                signal=f"sin/cos(h·q{j + 1}), h = 1..K", shape="joint", S=S,
+                coef_names=names, coef_units=("rad",) * len(names),
+                extra={"visited_deg": visited, "taper_deg": cfg.transmission_taper_deg, "harmonics": h.tolist()},
+            )  # fmt: skip
+            variants = [
+                Variant(np.concatenate([np.arange(k), kmax + np.arange(k)]), float(np.deg2rad(t)), f"K={k}, tau={t}°")
+                for k in orders
+                for t in cfg.transmission_prior_deg
+            ]
+            out.append((cand, variants))
+    has_load_signal = campaign.tau_Nm is not None or campaign.current_A is not None or robot.has_dynamics
+    if "weight" in cfg.effects and not has_load_signal:
+        Y = gravity_regressor(robot, q)
+        for j in range(n):
+            V, scale = weight_basis(Y[rows, j, :])
+            if V.shape[1] == 0:
+                continue
+            S = Y[:, j, :] @ V / scale
+            r = V.shape[1]
+            cand = Candidate(
+                f"weight:j{j + 1}", "weight", j + 1, None,
+                cause=f"torsional elasticity of the joint-{j + 1} reducer under the arm's own weight (link masses "
+                "unknown: the mass-moment combinations the poses tell apart)",
+                signal=f"gravity-torque regressor of joint {j + 1} ({r} combinations)", shape="joint", S=S,
+                coef_names=tuple(f"w{k + 1}" for k in range(r)), coef_units=("rad",) * r,
+                extra={"basis": V.tolist(), "scale": scale.tolist(), "prior_deg": cfg.compliance_prior_deg},
+            )  # fmt: skip
+            tau = float(np.deg2rad(cfg.compliance_prior_deg)) / np.sqrt(r)
+            out.append((cand, [Variant(np.arange(r), tau, f"prior {cfg.compliance_prior_deg}° RMS")]))
+    return out
+
+
+def variant_candidate(cand: Candidate, v: Variant) -> Candidate:
+    """The candidate restricted to a variant's columns, with the variant's prior."""
+    extra = dict(cand.extra)
+    if v.prior_rad is not None:
+        extra["prior_rad"] = v.prior_rad
+    if "harmonics" in extra:
+        h = np.asarray(cand.extra["harmonics"])
+        extra["harmonics"] = h[v.columns[: len(v.columns) // 2]].tolist()
+    extra["variant"] = v.label
+    names = tuple(cand.coef_names[i] for i in v.columns)
+    return replace(
+        cand, S=cand.S[:, v.columns], coef_names=names, coef_units=tuple(cand.coef_units[i] for i in v.columns),
+        extra=extra,
+    )  # fmt: skip
+
+
+class FoldCV:
+    """Linearised pose-grouped cross-validation at one joint fit (see the module docstring)."""
+
+    def __init__(self, fit: Fit, groups: np.ndarray, folds: int, seed: int) -> None:
+        self.fit = fit
+        uniq, gidx = np.unique(groups, return_inverse=True)
+        self.gidx = gidx
+        self.n_groups = len(uniq)
+        perm = np.random.default_rng(seed).permutation(len(uniq))
+        self.fold = (perm % folds)[gidx]
+        self.folds = [k for k in range(folds) if np.any(self.fold == k)]
+        A = fit.J_w
+        r = fit.r_w
+        prec = fit.model.prior_precision()[fit.free]
+        th = fit.theta[fit.free]
+        G = A.T @ A
+        b = A.T @ r
+        self.base_err = np.zeros_like(r)
+        self.Hinv: dict[int, np.ndarray] = {}
+        for k in self.folds:
+            t = self.fold == k
+            At = A[t]
+            H = G - At.T @ At + np.diag(prec)
+            g = b - At.T @ r[t] + prec * th
+            Hi = np.linalg.pinv(H, rcond=1e-12, hermitian=True)
+            self.Hinv[k] = Hi
+            self.base_err[t] = r[t] - At @ (Hi @ g)
+        self.G_z: dict[int, Any] = {}
+        self._g = {k: (b - A[self.fold == k].T @ r[self.fold == k] + prec * th) for k in self.folds}
+
+    def group_sse(self, err: np.ndarray) -> np.ndarray:
+        return np.bincount(self.gidx, weights=err**2, minlength=self.n_groups)
+
+    def with_candidate(self, Z: np.ndarray, prior_rad: float | None) -> np.ndarray:
+        """Held-out errors (M,) when the whitened regressor ``Z (M, q)`` joins the model (coefficients from 0)."""
+        A = self.fit.J_w
+        r = self.fit.r_w
+        err = np.empty_like(r)
+        pz = 0.0 if prior_rad is None else 1.0 / prior_rad**2
+        C_all = A.T @ Z
+        Z2_all = Z.T @ Z
+        bz_all = Z.T @ r
+        for k in self.folds:
+            t = self.fold == k
+            At, Zt = A[t], Z[t]
+            C = C_all - At.T @ Zt
+            Hz = Z2_all - Zt.T @ Zt + pz * np.eye(Z.shape[1])
+            gz = bz_all - Zt.T @ r[t]
+            Hi = self.Hinv[k]
+            W = Hi @ C  # (k, q)
+            Sz = Hz - C.T @ W
+            rhs = gz - W.T @ self._g[k]
+            try:
+                dz = -np.linalg.solve(Sz, rhs)
+            except np.linalg.LinAlgError:
+                dz = -np.linalg.lstsq(Sz, rhs, rcond=1e-12)[0]
+            err[t] = self.base_err[t] + (Zt - At @ W) @ dz
+        return err
+
+
+def paired_log10_p(sse0: np.ndarray, sse1: np.ndarray) -> float:
+    """log10 p of the one-sided paired t-test that the held-out error per pose fell (``sse0 - sse1 > 0``)."""
+    d = sse0 - sse1
+    if len(d) < 3 or float(np.std(d)) == 0.0:
+        return 0.0
+    t = float(np.mean(d) / (np.std(d, ddof=1) / np.sqrt(len(d))))
+    return float(stats.t.logsf(t, len(d) - 1) / np.log(10.0))
+
+
+def cv_position_mm(fit: Fit, err_w: np.ndarray) -> np.ndarray:
+    """Held-out position errors ``(m,)`` mm (3-D norm per row) from whitened held-out residuals."""
+    e = (err_w / fit.weights).reshape(-1, fit.d)[:, :3]
+    return np.asarray(np.linalg.norm(e, axis=1))
+
+
+def grow(
+    campaign: Campaign,
+    robot: RobotDescription,
+    cfg: DiscoveryConfig,
+    rows: np.ndarray,
+    data: FitData,
+    fit: Fit,
+    accepted: list[Accepted],
+    steps: list[Any],
+    groups: np.ndarray,
+    refit: Any,
+    leftovers: list[Candidate],
+) -> tuple[Fit, list[Accepted], dict[str, Any]]:
+    """The cross-validated selection (module docstring). ``leftovers``: library candidates not accepted by the
+    F-test search. Appends one :class:`~robocal.discovery.search.Step` per accepted candidate (and a final one
+    saying why it stopped); returns the fit, the accepted effects and the cross-validation record."""
+    from robocal.discovery.search import Score, Step, regressor
+
+    pool: list[tuple[Candidate, list[Variant]]] = [
+        (c, [Variant(np.arange(c.S.shape[1]), None, "")]) for c in leftovers if c.shape == "joint"
+    ]
+    pool += physics_candidates(campaign, robot, cfg, rows)
+    n_var = sum(len(v) for _, v in pool)
+    record: dict[str, Any] = {"candidates": [c.key for c, _ in pool], "n_variants": n_var, "steps": []}
+    if cfg.cv_folds < 2 or not pool:
+        return fit, accepted, record
+    cv = FoldCV(fit, groups, cfg.cv_folds, cfg.seed)
+    for _ in range(cfg.grow_max_steps):
+        sse0 = cv.group_sse(cv.base_err)
+        scores: list[tuple[float, float, Score, Candidate, Variant]] = []
+        n_tests = max(sum(len(v) for _, v in pool), 1)
+        thr = float(np.log10(cfg.cv_alpha / n_tests))
+        for cand, variants in pool:
+            Z_all, _ = regressor(cand, fit, rows, data)
+            best: tuple[float, float, Variant] | None = None
+            for v in variants:
+                err = cv.with_candidate(Z_all[:, v.columns], v.prior_rad)
+                sse1 = cv.group_sse(err)
+                tot = float(sse1.sum())
+                if best is None or tot < best[0]:
+                    best = (tot, paired_log10_p(sse0, sse1), v)
+            assert best is not None
+            tot, lp, v = best
+            gain = float((sse0.sum() - tot) / sse0.sum()) if sse0.sum() > 0 else 0.0
+            sc = Score(cand.key, cand.label, "tested", float("nan"), len(v.columns), log10_p=lp, cv_gain=gain)
+            sc.passes = bool(gain > 0 and lp < thr)
+            scores.append((tot, lp, sc, cand, v))
+        scores.sort(key=lambda s: s[0])
+        passing = [s for s in scores if s[2].passes]
+        if not passing:
+            steps.append(Step(None, "cross-validated selection: nothing more lowers the held-out error "
+                              "significantly", fit.rms_mm, fit.rms_mm, fit.rss, fit.rss, fit.dof,
+                              [s[2] for s in scores]))  # fmt: skip
+            break
+        _tot, lp, sc, cand, v = passing[0]
+        sc.status = "accepted"
+        chosen = variant_candidate(cand, v)
+        before = fit
+        accepted = [*accepted, Accepted(chosen)]
+        fit = refit(accepted, fit)
+        steps.append(
+            Step(chosen.key, f"{chosen.label} ({v.label})" if v.label else chosen.label, before.rms_mm, fit.rms_mm,
+                 before.rss, fit.rss, fit.dof, [s[2] for s in scores], [], before.residuals_mm, fit.residuals_mm)
+        )  # fmt: skip
+        record["steps"].append({"key": chosen.key, "variant": v.label, "log10_p": lp, "threshold_log10_p": thr,
+                                "cv_gain": sc.cv_gain})  # fmt: skip
+        pool = [(c, vs) for c, vs in pool if c.key != cand.key]
+        cv = FoldCV(fit, groups, cfg.cv_folds, cfg.seed)
+        if not pool:
+            break
+    record.update(contributions(fit, accepted, groups, cfg))
+    return fit, accepted, record
+
+
+def contributions(fit: Fit, accepted: list[Accepted], groups: np.ndarray, cfg: DiscoveryConfig) -> dict[str, Any]:
+    """The cross-validated position error (mm) of the final model, and each joint-level effect's own
+    contribution: the held-out error with that effect's coefficients removed from the model (linearised)."""
+    cv = FoldCV(fit, groups, max(cfg.cv_folds, 2), cfg.seed)
+    e = cv_position_mm(fit, cv.base_err)
+    out: dict[str, Any] = {
+        "cv_mean_position_mm": float(np.mean(e)),
+        "cv_rms_position_mm": float(np.sqrt(np.mean(e**2))),
+        "effects": {},
+    }
+    model = fit.model
+    for a, sl in zip(model.accepted, model.slices, strict=True):
+        if a.cand.shape != "joint":
+            continue
+        keep = np.array([i for i, p in enumerate(fit.free) if not (sl.start <= p < sl.stop)])
+        if len(keep) == len(fit.free):
+            continue
+        sub = replace_fit_columns(fit, keep)
+        cvs = FoldCV(sub, groups, max(cfg.cv_folds, 2), cfg.seed)
+        e_without = cv_position_mm(fit, cvs.base_err)
+        out["effects"][a.cand.key] = {
+            "cv_mean_without_mm": float(np.mean(e_without)),
+            "cv_rms_without_mm": float(np.sqrt(np.mean(e_without**2))),
+        }
+    return out
+
+
+def replace_fit_columns(fit: Fit, keep: np.ndarray) -> Fit:
+    """The fit seen with only the free parameters ``keep`` (positions in ``fit.free``); the residual gains back
+    what the removed parameters explained (first order)."""
+    drop = np.setdiff1d(np.arange(len(fit.free)), keep)
+    th = fit.theta.copy()
+    r = fit.r_w - fit.J_w[:, drop] @ th[fit.free[drop]]
+    th[fit.free[drop]] = 0.0
+    return replace(fit, theta=th, free=fit.free[keep], r_w=r, J_w=fit.J_w[:, keep], cov=fit.cov[np.ix_(keep, keep)])

@@ -1,0 +1,146 @@
+"""Joint-level effects of real robots that the one-at-a-time library does not hold: the gear transmission error
+as a long Fourier series of the joint's own angle, and the compliance under the arm's own weight when the link
+masses are unknown.
+
+Both are joint-angle errors ``dq_j = S_j(q) · c`` (the ``joint`` shape of :mod:`robocal.discovery.candidates`)
+with many coefficients, so they are fitted with a Gaussian prior on the coefficients (ridge): the prior's
+standard deviation ``tau`` (rad per coefficient) is a setting or chosen by pose-grouped cross-validation.
+
+**Transmission error** (``transmission``): ``dq_j = w(q_j) · sum_h a_h sin(h q_j) + b_h cos(h q_j)``, harmonics
+``h = 1..K`` of one output revolution (a reducer's tooth-mesh and bearing errors repeat with the joint angle;
+real reducers show tens of cycles per revolution). ``K`` is chosen by cross-validation. A Fourier series fitted
+on part of a revolution says nothing about the rest: ``w(q_j)`` is 1 on the angles the calibration visited
+(modulo one revolution, visits closer than ``gap_deg`` joined into one interval) and falls to 0 over
+``taper_deg`` outside them (a raised cosine), so the effect is never extrapolated.
+
+**Compliance under the arm's own weight** (``weight``): the gravity load torque of joint ``j`` is linear in the
+unknown mass moments of the bodies it carries, ``tau_j = Y_j(q) pi`` with ``pi = (m_i, m_i c_i)`` per body
+(:func:`gravity_regressor`; gravity along the robot description's ``gravity``, the base's -z by default), and a
+reducer of compliance ``k_j^-1`` turns it by ``dq_j = Y_j(q) pi / k_j``. The combinations ``pi / k_j`` that the
+data can tell apart are the right singular vectors of ``Y_j`` over the calibration poses (:func:`weight_basis`);
+the effect's coefficients are those combinations, scaled so that each column has unit RMS on the calibration
+poses, and the prior says how large a deflection is physical (``prior_deg``: the RMS deflection over the poses).
+With link masses in the description the library's ``compliance`` candidate (one stiffness per joint) is used
+instead.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from robocal.robot import RobotDescription
+
+REV_DEG = 360.0
+
+
+def visited_intervals(q_rad: np.ndarray, gap_deg: float) -> list[list[float]]:
+    """Angles a joint visited, modulo one revolution, as closed intervals ``[lo, hi]`` deg within [0, 360)
+    (an interval may wrap: ``lo > hi``); visits closer than ``gap_deg`` are joined. ``[[0, 360]]`` for a full
+    revolution."""
+    a = np.sort(np.mod(np.rad2deg(np.asarray(q_rad, dtype=float)), REV_DEG))
+    if len(a) == 0:
+        return []
+    gaps = np.diff(np.concatenate([a, [a[0] + REV_DEG]]))  # gap after each visit, the last one wrapping
+    big = np.flatnonzero(gaps > gap_deg)
+    if len(big) == 0:
+        return [[0.0, REV_DEG]]
+    out = []
+    # each big gap ends an interval; the interval after gap k starts at a[k + 1] and ends at the next big gap
+    for i, k in enumerate(big):
+        k_next = big[(i + 1) % len(big)]
+        lo = float(a[(k + 1) % len(a)])
+        hi = float(a[k_next])
+        out.append([lo, hi])
+    return out
+
+
+def coverage_weight(q_rad: np.ndarray, intervals: list[list[float]], taper_deg: float) -> np.ndarray:
+    """``w (m,)`` in [0, 1]: 1 on the visited intervals, a raised cosine to 0 over ``taper_deg`` outside."""
+    a = np.mod(np.rad2deg(np.asarray(q_rad, dtype=float)), REV_DEG)
+    if not intervals:
+        return np.zeros(a.shape)
+    dist = np.full(a.shape, np.inf)
+    for lo, hi in intervals:
+        if lo <= hi:
+            inside = (a >= lo) & (a <= hi)
+            d = np.minimum(np.mod(lo - a, REV_DEG), np.mod(a - hi, REV_DEG))
+        else:  # wraps through 0
+            inside = (a >= lo) | (a <= hi)
+            d = np.minimum(np.mod(lo - a, REV_DEG), np.mod(a - hi, REV_DEG))
+        dist = np.minimum(dist, np.where(inside, 0.0, d))
+    if taper_deg <= 0:
+        return (dist == 0).astype(float)
+    t = np.clip(dist / taper_deg, 0.0, 1.0)
+    return 0.5 * (1.0 + np.cos(np.pi * t))
+
+
+def fourier_signal(q_rad: np.ndarray, harmonics: np.ndarray, weight: np.ndarray | None = None) -> np.ndarray:
+    """``S (m, 2H)``: ``[sin(h q) ..., cos(h q) ...]`` for the harmonics ``h`` (times ``weight`` when given)."""
+    q = np.asarray(q_rad, dtype=float)[:, None]
+    h = np.asarray(harmonics, dtype=float)[None, :]
+    S = np.concatenate([np.sin(h * q), np.cos(h * q)], axis=1)
+    return S if weight is None else S * np.asarray(weight, dtype=float)[:, None]
+
+
+def transmission_signal(q_rad: np.ndarray, record: dict[str, Any]) -> np.ndarray:
+    """The transmission-error signal of a stored effect (``harmonics``, ``visited_deg``, ``taper_deg``)."""
+    w = coverage_weight(q_rad, record["visited_deg"], float(record["taper_deg"]))
+    return fourier_signal(q_rad, np.asarray(record["harmonics"], dtype=int), w)
+
+
+def gravity_regressor(robot: RobotDescription, q: np.ndarray) -> np.ndarray:
+    """``Y (m, n, 4 n)``: the gravity load torque of every joint (N·m) per unit mass moment of every body:
+    column ``4 i`` is body ``i``'s mass (1 kg at its frame origin), columns ``4 i + 1..3`` its first mass moment
+    (1 kg·m along its frame's x, y, z). ``tau = Y @ pi`` for any masses (nominal kinematics, the robot's
+    gravity vector)."""
+    from robocal.kinematics.chain import build_chain
+    from robocal.kinematics.gravity import gravity_torques
+
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    n = robot.n_joints
+    chain = build_chain(robot)
+    cols = []
+    zero_com = np.zeros((n, 3))
+    for i in range(n):
+        e = np.zeros(n)
+        e[i] = 1.0
+        kw = {"chain": chain, "link_mass_kg": e, "payload_com_mm": np.zeros(3)}
+        t0 = gravity_torques(robot, q, 0.0, link_com_mm=zero_com, **kw)
+        cols.append(t0)
+        for a in range(3):
+            com = np.zeros((n, 3))
+            com[i, a] = 1000.0  # 1 m: 1 kg·m of first moment
+            cols.append(gravity_torques(robot, q, 0.0, link_com_mm=com, **kw) - t0)
+    return np.stack(cols, axis=2)
+
+
+def weight_basis(Y_j: np.ndarray, rtol: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
+    """The mass-moment combinations of joint ``j`` the poses tell apart: ``(V (4n, r), scale (r,))`` such that
+    ``S = Y_j @ V / scale`` has orthogonal columns of unit RMS over the poses. ``r = 0`` when gravity exerts no
+    torque on the joint (an axis along gravity)."""
+    m = Y_j.shape[0]
+    _U, s, Vt = np.linalg.svd(Y_j, full_matrices=False)
+    if len(s) == 0 or s[0] <= 1e-9 * np.sqrt(m):  # N·m: no gravity torque at all on this joint
+        return np.zeros((Y_j.shape[1], 0)), np.zeros(0)
+    keep = s > rtol * s[0]
+    return Vt[keep].T, s[keep] / np.sqrt(m)
+
+
+def weight_signal(robot: RobotDescription, q: np.ndarray, record: dict[str, Any]) -> np.ndarray:
+    """The compliance-under-own-weight signal of a stored effect (``basis``, ``scale``)."""
+    j = int(record["joint"]) - 1
+    Y = gravity_regressor(robot, q)[:, j, :]
+    return Y @ np.asarray(record["basis"], dtype=float) / np.asarray(record["scale"], dtype=float)
+
+
+__all__ = [
+    "coverage_weight",
+    "fourier_signal",
+    "gravity_regressor",
+    "transmission_signal",
+    "visited_intervals",
+    "weight_basis",
+    "weight_signal",
+]
