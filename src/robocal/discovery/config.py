@@ -76,7 +76,7 @@ class DiscoveryConfig:
     transmission_gap_deg: float = setting(2.0, gt=0)
     transmission_taper_deg: float = setting(2.0, ge=0)
     compliance_prior_deg: float = setting(0.05, gt=0)
-    cv_alpha: float = setting(0.001, gt=0, lt=1)
+    cv_alpha: float = setting(0.01, gt=0, lt=1)
     grow_max_steps: int = setting(12, ge=0)
     seed: int = 0
     dictionary: bool = True

@@ -38,10 +38,11 @@ _DEG = float(np.rad2deg(1.0))
 
 @dataclass(frozen=True)
 class Variant:
-    """One variant of a candidate: which of its signal columns and which prior (rad per coefficient)."""
+    """One variant of a candidate: which of its signal columns and which prior (rad per coefficient, one value or
+    one per column)."""
 
     columns: np.ndarray
-    prior_rad: float | None
+    prior_rad: float | np.ndarray | None
     label: str
 
 
@@ -111,6 +112,39 @@ def physics_candidates(
     return out
 
 
+Pool = list[tuple[list[Candidate], list[Variant]]]
+
+
+def pooled(single: list[tuple[Candidate, list[Variant]]]) -> Pool:
+    """Every candidate on its own, plus the compliance under the arm's own weight of all joints as one candidate
+    (one physical cause: tested once, so that small deflections on several joints are not lost to the
+    multiple-testing correction of testing each joint alone)."""
+    pool: Pool = [([c], v) for c, v in single]
+    weights = [(c, v[0]) for c, v in single if c.effect == "weight"]
+    if len(weights) > 1:
+        cols, taus, k0 = [], [], 0
+        for c, v in weights:
+            cols.append(k0 + v.columns)
+            taus.append(np.full(len(v.columns), v.prior_rad))
+            k0 += c.S.shape[1]
+        pool.append(([c for c, _ in weights], [Variant(np.concatenate(cols), np.concatenate(taus), weights[0][1].label)]))
+    return pool
+
+
+def _member_variants(members: list[Candidate], v: Variant) -> list[tuple[Candidate, Variant]]:
+    """A pooled variant split back into one variant per member candidate."""
+    if len(members) == 1:
+        return [(members[0], v)]
+    out, k0 = [], 0
+    tau = np.broadcast_to(np.asarray(v.prior_rad, dtype=float), (len(v.columns),))
+    for c in members:
+        k = c.S.shape[1]
+        sel = (v.columns >= k0) & (v.columns < k0 + k)
+        out.append((c, Variant(v.columns[sel] - k0, float(tau[sel][0]), v.label)))
+        k0 += k
+    return out
+
+
 def variant_candidate(cand: Candidate, v: Variant) -> Candidate:
     """The candidate restricted to a variant's columns, with the variant's prior."""
     extra = dict(cand.extra)
@@ -165,7 +199,7 @@ class FoldCV:
         A = self.fit.J_w
         r = self.fit.r_w
         err = np.empty_like(r)
-        pz = 0.0 if prior_rad is None else 1.0 / prior_rad**2
+        pz = np.zeros(Z.shape[1]) if prior_rad is None else 1.0 / np.broadcast_to(prior_rad, (Z.shape[1],)) ** 2
         C_all = A.T @ Z
         Z2_all = Z.T @ Z
         bz_all = Z.T @ r
@@ -173,7 +207,7 @@ class FoldCV:
             t = self.fold == k
             At, Zt = A[t], Z[t]
             C = C_all - At.T @ Zt
-            Hz = Z2_all - Zt.T @ Zt + pz * np.eye(Z.shape[1])
+            Hz = Z2_all - Zt.T @ Zt + np.diag(pz)
             gz = bz_all - Zt.T @ r[t]
             Hi = self.Hinv[k]
             W = Hi @ C  # (k, q)
@@ -220,22 +254,23 @@ def grow(
     saying why it stopped); returns the fit, the accepted effects and the cross-validation record."""
     from robocal.discovery.search import Score, Step, regressor
 
-    pool: list[tuple[Candidate, list[Variant]]] = [
+    single: list[tuple[Candidate, list[Variant]]] = [
         (c, [Variant(np.arange(c.S.shape[1]), None, "")]) for c in leftovers if c.shape == "joint"
     ]
-    pool += physics_candidates(campaign, robot, cfg, rows)
+    pool = pooled(single + physics_candidates(campaign, robot, cfg, rows))
     n_var = sum(len(v) for _, v in pool)
-    record: dict[str, Any] = {"candidates": [c.key for c, _ in pool], "n_variants": n_var, "steps": []}
+    record: dict[str, Any] = {"candidates": ["+".join(c.key for c in m) for m, _ in pool], "n_variants": n_var,
+                              "steps": []}  # fmt: skip
     if cfg.cv_folds < 2 or not pool:
         return fit, accepted, record
     cv = FoldCV(fit, groups, cfg.cv_folds, cfg.seed)
     for _ in range(cfg.grow_max_steps):
         sse0 = cv.group_sse(cv.base_err)
-        scores: list[tuple[float, float, Score, Candidate, Variant]] = []
+        scores: list[tuple[float, float, Score, list[Candidate], Variant]] = []
         n_tests = max(sum(len(v) for _, v in pool), 1)
         thr = float(np.log10(cfg.cv_alpha / n_tests))
-        for cand, variants in pool:
-            Z_all, _ = regressor(cand, fit, rows, data)
+        for members, variants in pool:
+            Z_all = np.hstack([regressor(c, fit, rows, data)[0] for c in members])
             best: tuple[float, float, Variant] | None = None
             for v in variants:
                 err = cv.with_candidate(Z_all[:, v.columns], v.prior_rad)
@@ -246,9 +281,11 @@ def grow(
             assert best is not None
             tot, lp, v = best
             gain = float((sse0.sum() - tot) / sse0.sum()) if sse0.sum() > 0 else 0.0
-            sc = Score(cand.key, cand.label, "tested", float("nan"), len(v.columns), log10_p=lp, cv_gain=gain)
+            key = members[0].key if len(members) == 1 else f"{members[0].effect}:all"
+            label = members[0].label if len(members) == 1 else f"{members[0].effect}, every joint"
+            sc = Score(key, label, "tested", float("nan"), len(v.columns), log10_p=lp, cv_gain=gain)
             sc.passes = bool(gain > 0 and lp < thr)
-            scores.append((tot, lp, sc, cand, v))
+            scores.append((tot, lp, sc, members, v))
         scores.sort(key=lambda s: s[0])
         passing = [s for s in scores if s[2].passes]
         if not passing:
@@ -256,19 +293,20 @@ def grow(
                               "significantly", fit.rms_mm, fit.rms_mm, fit.rss, fit.rss, fit.dof,
                               [s[2] for s in scores]))  # fmt: skip
             break
-        _tot, lp, sc, cand, v = passing[0]
+        _tot, lp, sc, members, v = passing[0]
         sc.status = "accepted"
-        chosen = variant_candidate(cand, v)
+        chosen = [variant_candidate(c, vv) for c, vv in _member_variants(members, v)]
         before = fit
-        accepted = [*accepted, Accepted(chosen)]
+        accepted = [*accepted, *(Accepted(c) for c in chosen)]
         fit = refit(accepted, fit)
         steps.append(
-            Step(chosen.key, f"{chosen.label} ({v.label})" if v.label else chosen.label, before.rms_mm, fit.rms_mm,
+            Step(sc.key, f"{sc.label} ({v.label})" if v.label else sc.label, before.rms_mm, fit.rms_mm,
                  before.rss, fit.rss, fit.dof, [s[2] for s in scores], [], before.residuals_mm, fit.residuals_mm)
         )  # fmt: skip
-        record["steps"].append({"key": chosen.key, "variant": v.label, "log10_p": lp, "threshold_log10_p": thr,
+        record["steps"].append({"key": sc.key, "variant": v.label, "log10_p": lp, "threshold_log10_p": thr,
                                 "cv_gain": sc.cv_gain})  # fmt: skip
-        pool = [(c, vs) for c, vs in pool if c.key != cand.key]
+        taken = {c.key for c in members}
+        pool = [(m, vs) for m, vs in pool if not taken & {c.key for c in m}]
         cv = FoldCV(fit, groups, cfg.cv_folds, cfg.seed)
         if not pool:
             break

@@ -37,6 +37,20 @@ def estimates(fit: Fit, acc: Accepted) -> dict[str, Any]:
         # dq = A sin(h q + phi) = A cos(phi) sin(h q) + A sin(phi) cos(h q)
         gp = np.array([-co, s]) / amp**2 if amp > 0 else np.zeros(2)
         out["phase_deg"] = _est(np.rad2deg(np.arctan2(co, s)), float(np.sqrt(gp @ C @ gp)) * _DEG, "deg")
+    elif c.effect == "transmission":
+        h = np.asarray(c.extra["harmonics"], dtype=int)
+        H = len(h)
+        amp = np.hypot(val[:H], val[H:])
+        order = np.argsort(-amp)[:3]
+        for k in order:
+            g = np.zeros(2 * H)
+            if amp[k] > 0:
+                g[k], g[H + k] = val[k] / amp[k], val[H + k] / amp[k]
+            out[f"harmonic_{int(h[k])}_amplitude_deg"] = _est(amp[k] * _DEG, float(np.sqrt(g @ C @ g)) * _DEG, "deg")
+        out["order"] = {"value": int(h.max()), "stderr": None, "unit": "harmonics per revolution"}
+        out.update(_deflection(fit, acc, val, C))
+    elif c.effect == "weight":
+        out.update(_deflection(fit, acc, val, C))
     elif c.effect == "backlash":
         out["band_deg"] = _est(2 * val[0] * _DEG, 2 * se[0] * _DEG, "deg")
     elif c.effect == "compliance":
@@ -65,6 +79,27 @@ def estimates(fit: Fit, acc: Accepted) -> dict[str, Any]:
                 st = np.sqrt(np.diag(R @ Ct @ R.T))
                 for a, axis in enumerate("xyz"):
                     out[f"tracker_{axis}_mm_per_h"] = _est(vt[a], st[a], "mm/h")
+    return out
+
+
+def _deflection(fit: Fit, acc: Accepted, val: np.ndarray, C: np.ndarray) -> dict[str, Any]:
+    """RMS and largest joint deflection of a many-coefficient joint effect over the fitted poses, with standard
+    errors (the RMS's by the delta method), and whether it is physical (``weight``: at most three times the
+    prior's RMS)."""
+    S = acc.cand.S[_rows(fit)]
+    dq = S @ val
+    rms = float(np.sqrt(np.mean(dq**2)))
+    g = (S.T @ dq) / (len(dq) * rms) if rms > 0 else np.zeros(len(val))
+    Cf = np.where(np.isfinite(C), C, 0.0)
+    k = int(np.argmax(np.abs(dq)))
+    out = {
+        "rms_deflection_deg": _est(rms * _DEG, float(np.sqrt(max(g @ Cf @ g, 0.0))) * _DEG, "deg"),
+        "max_deflection_deg": _est(float(dq[k]) * _DEG, float(np.sqrt(max(S[k] @ Cf @ S[k], 0.0))) * _DEG, "deg"),
+    }
+    prior = acc.cand.extra.get("prior_deg")
+    if prior is not None:
+        out["physical"] = {"value": bool(rms * _DEG <= 3.0 * float(prior)), "stderr": None,
+                           "unit": f"RMS deflection within 3x the prior ({prior} deg)"}  # fmt: skip
     return out
 
 
@@ -262,6 +297,8 @@ def summary(res: DiscoveryResult, validation: dict[str, Any] | None = None) -> d
                 "signal": c.signal,
                 "selection": None if sc is None else sc.to_dict(),
                 "rms_of_effect_mm": float(np.sqrt(np.mean(np.sum(effect_displacement(fit, acc) ** 2, axis=1)))),
+                "side": "measurement" if c.effect == "drift" else "robot",
+                "held_out": (res.extra.get("cv") or {}).get("effects", {}).get(c.key),
             }
         )
         if c.effect in ("thermal", "drift"):
@@ -316,6 +353,9 @@ def summary(res: DiscoveryResult, validation: dict[str, Any] | None = None) -> d
     }
     if res.unexplained:
         out["unexplained_where"] = locate(res)
+    cv = res.extra.get("cv") or {}
+    if cv:
+        out["cross_validation"] = {k: v for k, v in cv.items() if k != "effects"}
     if validation is not None:
         out["validation"] = validation
     return out

@@ -49,12 +49,26 @@ def _validate_fit(res: DiscoveryResult, fit: Fit) -> dict[str, Any]:
 
 
 def validation_errors(res: DiscoveryResult) -> dict[str, Any] | None:
-    """The geometric model and the discovered one on the campaign's validation rows, with the same rows and the
-    same tool and station handling as ``calibrate`` (``{"geometric": {...}, "discovered": {...}}``, mm / deg)."""
+    """The geometric calibration, the discovered (parametric extended) model and the final model on the
+    campaign's validation rows, with the same rows and the same tool and station handling as ``calibrate``
+    (``{"geometric": {...}, "discovered": {...}, "final": {...}}``, mm / deg).
+
+    ``geometric`` is ``robocal calibrate``'s own result on the same campaign (the discovery's first step: same
+    rows, same noise, same gross errors), so the two commands can be read one against the other. ``final`` is
+    the model the service applies: the discovered one (a residual layer on top is applied only when
+    cross-validation accepts it; none is accepted today, which ``final["layer"]`` says)."""
+    from robocal.identification.calibrate import validate
+
     camp = res.campaign
     if not np.any(camp.split == "validation"):
         return None
-    return {"geometric": _validate_fit(res, res.geometric), "discovered": _validate_fit(res, res.final)}
+    geo = res.extra.get("geometric_calibration")
+    if geo is not None:
+        g = {k: v for k, v in validate(geo, camp).items() if k not in ("errors_mm", "kept_rows")}
+    else:
+        g = _validate_fit(res, res.geometric)
+    disc = _validate_fit(res, res.final)
+    return {"geometric": g, "discovered": disc, "final": {**disc, "layer": "none"}}
 
 
 __all__ = ["validation_errors"]
