@@ -45,6 +45,9 @@ class DiscoveryConfig:
     cv_alpha : false-discovery control of the cross-validated selection (:mod:`robocal.discovery.grow`): a
         candidate's held-out gain must pass a one-sided paired t-test over poses at cv_alpha / (candidates tried).
     grow_max_steps : at most this many effects are added by the cross-validated selection.
+    layer : offer the residual layer after the parametric model (kernel ridge on the joint angles, accepted only
+        when the cross-validated selection says it helps); layer_centres : kernel centres (k-means of the
+        calibration poses); layer_length_deg : kernel length scales tried; layer_prior_deg : prior widths tried.
     seed : seed of the cross-validation folds (and of the dictionary's resamples).
     dictionary : after the library, propose equations from the term dictionary (:mod:`robocal.discovery.dictionary`).
     dictionary_harmonics : harmonics 1..H of every joint angle; dictionary_product_harmonics : of the products of
@@ -78,6 +81,10 @@ class DiscoveryConfig:
     compliance_prior_deg: float = setting(0.05, gt=0)
     cv_alpha: float = setting(0.01, gt=0, lt=1)
     grow_max_steps: int = setting(12, ge=0)
+    layer: bool = True
+    layer_centres: int = setting(100, ge=4)
+    layer_length_deg: tuple[float, ...] = setting((15.0, 30.0, 60.0), gt=0)
+    layer_prior_deg: tuple[float, ...] = setting((0.002, 0.01), gt=0)
     seed: int = 0
     dictionary: bool = True
     dictionary_harmonics: int = setting(3, ge=1)

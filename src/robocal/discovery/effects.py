@@ -11,7 +11,9 @@ angles, exactly as the discovery fitted it (``q_true = q_cmd + dq``) and as the 
 * ``direction``: the approach direction ``±1`` of joint ``j`` (backlash; given with the target);
 * ``transmission``: the gear transmission error, a Fourier series of the commanded angle, zero outside the angles
   the calibration visited (``harmonics``, ``visited_deg``, ``taper_deg``; :mod:`robocal.discovery.physics`);
-* ``weight``: the compliance under the arm's own weight without link masses (``basis``, ``scale``).
+* ``weight``: the compliance under the arm's own weight without link masses (``basis``, ``scale``);
+* ``layer``: the residual layer, a kernel ridge on all joint angles, zero outside the calibrated region
+  (``centres_rad``, ``length_rad``, ``inside_rad``).
 
 Parameter drifts (thermal, drift) need the temperatures or the time of the moment: they are written under
 ``not_compensated`` with the reason, never applied silently.
@@ -28,7 +30,7 @@ from robocal.identification.calibrate import CalibrationConfig, CalibrationResul
 from robocal.identification.identifiability import Eliminated, Identifiability
 from robocal.robot import RobotDescription
 
-SIGNALS = ("angle", "gravity", "torque", "current", "direction", "dictionary", "transmission", "weight")
+SIGNALS = ("angle", "gravity", "torque", "current", "direction", "dictionary", "transmission", "weight", "layer")
 
 
 def signal_kind(acc: Accepted) -> str | None:
@@ -38,7 +40,7 @@ def signal_kind(acc: Accepted) -> str | None:
         return None
     if c.effect == "gear":
         return "angle"
-    if c.effect in ("transmission", "weight"):
+    if c.effect in ("transmission", "weight", "layer"):
         return c.effect
     if c.effect == "backlash":
         return "direction"
@@ -83,6 +85,8 @@ def effect_records(fit: Fit) -> tuple[list[dict[str, Any]], list[dict[str, Any]]
             rec_terms = {k: c.extra[k] for k in ("harmonics", "visited_deg", "taper_deg")}
         elif kind == "weight":
             rec_terms = {k: c.extra[k] for k in ("basis", "scale", "prior_deg")}
+        elif kind == "layer":
+            rec_terms = {k: c.extra[k] for k in ("centres_rad", "length_rad", "inside_rad")}
         joint_level.append(
             {
                 **rec_terms,
@@ -132,6 +136,10 @@ def joint_offsets(
             from robocal.discovery.physics import weight_signal
 
             S = weight_signal(robot, q, e)
+        elif kind == "layer":
+            from robocal.discovery.physics import layer_signal
+
+            S = layer_signal(q, e)[0]
         elif kind == "dictionary":
             from robocal.discovery.dictionary import evaluate_factor
 

@@ -265,53 +265,122 @@ def grow(
         return fit, accepted, record
     cv = FoldCV(fit, groups, cfg.cv_folds, cfg.seed)
     for _ in range(cfg.grow_max_steps):
-        sse0 = cv.group_sse(cv.base_err)
-        scores: list[tuple[float, float, Score, list[Candidate], Variant]] = []
-        n_tests = max(sum(len(v) for _, v in pool), 1)
-        thr = float(np.log10(cfg.cv_alpha / n_tests))
-        for members, variants in pool:
-            Z_all = np.hstack([regressor(c, fit, rows, data)[0] for c in members])
-            best: tuple[float, float, Variant] | None = None
-            for v in variants:
-                err = cv.with_candidate(Z_all[:, v.columns], v.prior_rad)
-                sse1 = cv.group_sse(err)
-                tot = float(sse1.sum())
-                if best is None or tot < best[0]:
-                    best = (tot, paired_log10_p(sse0, sse1), v)
-            assert best is not None
-            tot, lp, v = best
-            gain = float((sse0.sum() - tot) / sse0.sum()) if sse0.sum() > 0 else 0.0
-            key = members[0].key if len(members) == 1 else f"{members[0].effect}:all"
-            label = members[0].label if len(members) == 1 else f"{members[0].effect}, every joint"
-            sc = Score(key, label, "tested", float("nan"), len(v.columns), log10_p=lp, cv_gain=gain)
-            sc.passes = bool(gain > 0 and lp < thr)
-            scores.append((tot, lp, sc, members, v))
-        scores.sort(key=lambda s: s[0])
-        passing = [s for s in scores if s[2].passes]
-        if not passing:
-            steps.append(Step(None, "cross-validated selection: nothing more lowers the held-out error "
-                              "significantly", fit.rms_mm, fit.rms_mm, fit.rss, fit.rss, fit.dof,
-                              [s[2] for s in scores]))  # fmt: skip
+        fit_new, accepted, pool, cv = _step(pool, fit, accepted, cv, rows, data, cfg, steps, record, refit, groups)
+        if fit_new is fit or not pool:
+            fit = fit_new
             break
-        _tot, lp, sc, members, v = passing[0]
-        sc.status = "accepted"
-        chosen = [variant_candidate(c, vv) for c, vv in _member_variants(members, v)]
-        before = fit
-        accepted = [*accepted, *(Accepted(c) for c in chosen)]
-        fit = refit(accepted, fit)
-        steps.append(
-            Step(sc.key, f"{sc.label} ({v.label})" if v.label else sc.label, before.rms_mm, fit.rms_mm,
-                 before.rss, fit.rss, fit.dof, [s[2] for s in scores], [], before.residuals_mm, fit.residuals_mm)
-        )  # fmt: skip
-        record["steps"].append({"key": sc.key, "variant": v.label, "log10_p": lp, "threshold_log10_p": thr,
-                                "cv_gain": sc.cv_gain})  # fmt: skip
-        taken = {c.key for c in members}
-        pool = [(m, vs) for m, vs in pool if not taken & {c.key for c in m}]
-        cv = FoldCV(fit, groups, cfg.cv_folds, cfg.seed)
-        if not pool:
-            break
+        fit = fit_new
+    record["parametric_fit"] = fit
+    if cfg.layer and cfg.cv_folds >= 2:
+        layer_pool = layer_candidates(campaign, cfg, rows)
+        if layer_pool:
+            cv = FoldCV(fit, groups, cfg.cv_folds, cfg.seed)
+            fit, accepted, _, _ = _step(layer_pool, fit, accepted, cv, rows, data, cfg, steps, record, refit, groups,
+                                        what="residual layer")  # fmt: skip
     record.update(contributions(fit, accepted, groups, cfg))
     return fit, accepted, record
+
+
+def _step(
+    pool: Pool,
+    fit: Fit,
+    accepted: list[Accepted],
+    cv: FoldCV,
+    rows: np.ndarray,
+    data: FitData,
+    cfg: DiscoveryConfig,
+    steps: list[Any],
+    record: dict[str, Any],
+    refit: Any,
+    groups: np.ndarray,
+    what: str = "cross-validated selection",
+) -> tuple[Fit, list[Accepted], Pool, FoldCV]:
+    """One step of the selection: score every pool entry, accept the best significant one (refit jointly) or
+    record why nothing was accepted (then the same ``fit`` object comes back)."""
+    from robocal.discovery.search import Score, Step, regressor
+
+    sse0 = cv.group_sse(cv.base_err)
+    scores: list[tuple[float, float, Score, list[Candidate], Variant]] = []
+    n_tests = max(sum(len(v) for _, v in pool), 1)
+    thr = float(np.log10(cfg.cv_alpha / n_tests))
+    for members, variants in pool:
+        Z_all = np.hstack([regressor(c, fit, rows, data)[0] for c in members])
+        best: tuple[float, float, Variant] | None = None
+        for v in variants:
+            err = cv.with_candidate(Z_all[:, v.columns], v.prior_rad)
+            sse1 = cv.group_sse(err)
+            tot = float(sse1.sum())
+            if best is None or tot < best[0]:
+                best = (tot, paired_log10_p(sse0, sse1), v)
+        assert best is not None
+        tot, lp, v = best
+        gain = float((sse0.sum() - tot) / sse0.sum()) if sse0.sum() > 0 else 0.0
+        key = members[0].key if len(members) == 1 else f"{members[0].effect}:all"
+        label = members[0].label if len(members) == 1 else f"{members[0].effect}, every joint"
+        sc = Score(key, label, "tested", float("nan"), len(v.columns), log10_p=lp, cv_gain=gain)
+        sc.passes = bool(gain > 0 and lp < thr)
+        scores.append((tot, lp, sc, members, v))
+    scores.sort(key=lambda s: s[0])
+    passing = [s for s in scores if s[2].passes]
+    if not passing:
+        steps.append(Step(None, f"{what}: nothing lowers the held-out error significantly", fit.rms_mm, fit.rms_mm,
+                          fit.rss, fit.rss, fit.dof, [s[2] for s in scores]))  # fmt: skip
+        return fit, accepted, pool, cv
+    _tot, lp, sc, members, v = passing[0]
+    sc.status = "accepted"
+    chosen = [variant_candidate(c, vv) for c, vv in _member_variants(members, v)]
+    before = fit
+    accepted = [*accepted, *(Accepted(c) for c in chosen)]
+    fit = refit(accepted, fit)
+    steps.append(
+        Step(sc.key, f"{sc.label} ({v.label})" if v.label else sc.label, before.rms_mm, fit.rms_mm, before.rss,
+             fit.rss, fit.dof, [s[2] for s in scores], [], before.residuals_mm, fit.residuals_mm)
+    )  # fmt: skip
+    record["steps"].append({"key": sc.key, "variant": v.label, "log10_p": lp, "threshold_log10_p": thr,
+                            "cv_gain": sc.cv_gain})  # fmt: skip
+    taken = {c.key for c in members}
+    pool = [(m, vs) for m, vs in pool if not taken & {c.key for c in m}]
+    return fit, accepted, pool, FoldCV(fit, groups, cfg.cv_folds, cfg.seed)
+
+
+def layer_candidates(campaign: Campaign, cfg: DiscoveryConfig, rows: np.ndarray) -> Pool:
+    """The residual layer: every joint's leftover error as a kernel ridge (Gaussian kernel on all joint angles,
+    k-means centres of the calibration poses) — one pool entry per length scale, the prior widths as variants.
+    Gated to the calibrated region (:func:`robocal.discovery.physics.layer_gate`)."""
+    from robocal.discovery.physics import layer_centres, layer_features, layer_gate
+
+    q = campaign.q
+    n_poses = len(np.unique(np.asarray(campaign.pose_id)[rows].astype(str)))
+    D = min(cfg.layer_centres, max(n_poses // 4, 0))
+    if D < 4:
+        return []
+    centres = layer_centres(q[rows], D, cfg.seed)
+    moving = [j for j in range(q.shape[1]) if float(np.ptp(q[rows, j])) >= np.deg2rad(1.0)]
+    pool: Pool = []
+    for ell_deg in cfg.layer_length_deg:
+        ell = float(np.deg2rad(ell_deg))
+        F, d = layer_features(q, centres, ell)
+        inside = float(np.quantile(d[rows], 0.95))
+        S = F * layer_gate(d, inside, ell)[:, None]
+        extra = {"centres_rad": centres.tolist(), "length_rad": ell, "inside_rad": inside}
+        members = [
+            Candidate(
+                f"layer:j{j + 1}", "layer", j + 1, None,
+                cause="residual layer: what the parametric model leaves on joint "
+                f"{j + 1}, a smooth function of all joint angles (kernel ridge, Gaussian kernel of {ell_deg}°), "
+                "applied only inside the calibrated region",
+                signal=f"Gaussian kernel features of q ({len(centres)} centres)", shape="joint", S=S,
+                coef_names=tuple(f"k{i + 1}" for i in range(len(centres))), coef_units=("rad",) * len(centres),
+                extra=extra,
+            )  # fmt: skip
+            for j in moving
+        ]
+        ncol = len(centres) * len(members)
+        variants = [
+            Variant(np.arange(ncol), float(np.deg2rad(t)), f"length {ell_deg}°, tau {t}°") for t in cfg.layer_prior_deg
+        ]
+        pool.append((members, variants))
+    return pool
 
 
 def contributions(fit: Fit, accepted: list[Accepted], groups: np.ndarray, cfg: DiscoveryConfig) -> dict[str, Any]:

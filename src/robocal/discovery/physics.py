@@ -144,3 +144,42 @@ __all__ = [
     "weight_basis",
     "weight_signal",
 ]
+
+
+# ------------------------------------------------------------------------------------------ the residual layer
+def layer_centres(q_rad: np.ndarray, n_centres: int, seed: int) -> np.ndarray:
+    """``(D, n)`` rad: centres of the residual layer's kernel, k-means of the calibration poses' joint angles
+    (scikit-learn, seeded; all poses when there are fewer)."""
+    q = np.asarray(q_rad, dtype=float)
+    uniq = np.unique(np.round(q, 9), axis=0)
+    if len(uniq) <= n_centres:
+        return uniq
+    from sklearn.cluster import KMeans
+
+    km = KMeans(n_clusters=n_centres, n_init=1, random_state=seed).fit(uniq)
+    return np.asarray(km.cluster_centers_)
+
+
+def layer_features(q_rad: np.ndarray, centres: np.ndarray, length_rad: float) -> tuple[np.ndarray, np.ndarray]:
+    """Gaussian kernel features ``exp(-|q - c|² / (2 l²))`` ``(m, D)`` and each pose's distance to its nearest
+    centre ``(m,)`` rad (scikit-learn's pairwise kernels)."""
+    from sklearn.metrics.pairwise import euclidean_distances
+
+    d = euclidean_distances(np.atleast_2d(np.asarray(q_rad, dtype=float)), centres)
+    return np.exp(-(d**2) / (2.0 * length_rad**2)), d.min(axis=1)
+
+
+def layer_gate(dist_rad: np.ndarray, inside_rad: float, length_rad: float) -> np.ndarray:
+    """1 within ``inside_rad`` of a centre (the calibrated region), a raised cosine to 0 one length scale
+    further: outside the calibrated region the layer is not applied (the parametric model alone)."""
+    t = np.clip((np.asarray(dist_rad, dtype=float) - inside_rad) / length_rad, 0.0, 1.0)
+    return np.asarray(0.5 * (1.0 + np.cos(np.pi * t)))
+
+
+def layer_signal(q_rad: np.ndarray, record: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
+    """The residual layer's gated features ``(m, D)`` of a stored effect and the gate ``(m,)`` (1 = inside the
+    calibrated region, 0 = outside: parametric correction only)."""
+    ell = float(record["length_rad"])
+    F, d = layer_features(q_rad, np.asarray(record["centres_rad"], dtype=float), ell)
+    g = layer_gate(d, float(record["inside_rad"]), ell)
+    return F * g[:, None], g

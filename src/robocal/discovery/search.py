@@ -403,6 +403,7 @@ def _search(
         taken = {a.cand.key for a in accepted}
         leftovers = [c for c in library if c.key not in taken and c.key not in unident]
         fit, accepted, grown = grow(campaign, robot, cfg, rows, data, fit, accepted, steps, groups, refit, leftovers)
+    parametric = grown.pop("parametric_fit", fit)
     return DiscoveryResult(
         robot=robot,
         config=cfg,
@@ -418,7 +419,7 @@ def _search(
         n_tests=n_tests,
         threshold_log10_p=log_thr,
         wall_time_s=time.perf_counter() - t0,
-        extra={"cv": grown},
+        extra={"cv": grown, "parametric": parametric},
     )
 
 

@@ -55,8 +55,8 @@ def validation_errors(res: DiscoveryResult) -> dict[str, Any] | None:
 
     ``geometric`` is ``robocal calibrate``'s own result on the same campaign (the discovery's first step: same
     rows, same noise, same gross errors), so the two commands can be read one against the other. ``final`` is
-    the model the service applies: the discovered one (a residual layer on top is applied only when
-    cross-validation accepts it; none is accepted today, which ``final["layer"]`` says)."""
+    the model the service applies: the discovered one with the residual layer on top when the cross-validated
+    selection accepted it (``final["layer"]``: ``"accepted"`` or ``"none"``)."""
     from robocal.identification.calibrate import validate
 
     camp = res.campaign
@@ -67,8 +67,11 @@ def validation_errors(res: DiscoveryResult) -> dict[str, Any] | None:
         g = {k: v for k, v in validate(geo, camp).items() if k not in ("errors_mm", "kept_rows")}
     else:
         g = _validate_fit(res, res.geometric)
-    disc = _validate_fit(res, res.final)
-    return {"geometric": g, "discovered": disc, "final": {**disc, "layer": "none"}}
+    parametric = res.extra.get("parametric", res.final)
+    disc = _validate_fit(res, parametric)
+    if parametric is res.final:
+        return {"geometric": g, "discovered": disc, "final": {**disc, "layer": "none"}}
+    return {"geometric": g, "discovered": disc, "final": {**_validate_fit(res, res.final), "layer": "accepted"}}
 
 
 __all__ = ["validation_errors"]

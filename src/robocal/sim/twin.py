@@ -146,6 +146,44 @@ class GearEffect:
         ctx.truth.setdefault("effects", {})["gear"] = {"joint": j + 1, "harmonics": truth}
 
 
+@register_effect("transmission")
+class TransmissionEffect:
+    """Gear transmission error of a real reducer: many harmonics per output revolution (tooth mesh, bearing
+    races), ``dq_j = sum_h A_h sin(h q_j + phi_h)`` for every ``h`` in ``cycles``.
+
+    Config: ``joint`` (1-based), ``cycles`` (harmonics per revolution, e.g. ``[17, 18, 19, 20]``),
+    ``amplitude_deg`` (one value or one per harmonic); phases from the twin's seeded stream ``transmission``
+    unless ``phase_deg`` gives them. Truth: every harmonic's amplitude, phase and sin/cos pair.
+    """
+
+    name = "transmission"
+
+    def __init__(self, cfg: Mapping[str, Any]) -> None:
+        self.cfg = dict(cfg)
+
+    def plan(self, rows: Rows, ctx: TwinContext) -> Rows:
+        return rows
+
+    def apply(self, rows: Rows, ctx: TwinContext) -> None:
+        j = _joint(self.cfg, ctx.robot.n_joints)
+        cycles = [int(c) for c in self.cfg.get("cycles", [])]
+        if not cycles or min(cycles) < 1:
+            raise ConfigError(f"The 'cycles' setting of the transmission effect must list harmonics >= 1. Got {cycles}")
+        amps = np.broadcast_to(np.asarray(self.cfg.get("amplitude_deg", 0.004), dtype=float), (len(cycles),))
+        if "phase_deg" in self.cfg:
+            phases = np.broadcast_to(np.asarray(self.cfg["phase_deg"], dtype=float), (len(cycles),))
+        else:
+            phases = ctx.rng_factory("transmission").uniform(0.0, 360.0, len(cycles))
+        truth = []
+        for k, a_deg, ph_deg in zip(cycles, amps, phases, strict=True):
+            amp, ph = np.deg2rad(float(a_deg)), np.deg2rad(float(ph_deg))
+            rows.dq[:, j] += amp * np.sin(k * rows.q_cmd[:, j] + ph)
+            truth.append({"harmonic": k, "amplitude_deg": float(a_deg), "phase_deg": float(ph_deg),
+                          "sin_deg": float(np.rad2deg(amp * np.cos(ph))),
+                          "cos_deg": float(np.rad2deg(amp * np.sin(ph)))})  # fmt: skip
+        ctx.truth.setdefault("effects", {})["transmission"] = {"joint": j + 1, "harmonics": truth}
+
+
 @register_effect("backlash")
 class BacklashEffect:
     """Backlash: the joint lags by half the dead band against its approach direction.

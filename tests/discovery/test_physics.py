@@ -1,0 +1,124 @@
+"""Real-robot effects (issue 25): the transmission error's coverage window, the mass-free gravity regressor,
+the cross-validated selection on the twin (recovery and null), and the effects in calibration.json."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from robocal.discovery.config import DiscoveryConfig
+from robocal.discovery.effects import extended_calibration, joint_offsets
+from robocal.discovery.physics import (
+    coverage_weight,
+    fourier_signal,
+    gravity_regressor,
+    layer_gate,
+    transmission_signal,
+    visited_intervals,
+    weight_basis,
+)
+from robocal.discovery.search import discover
+from robocal.discovery.summary import summary
+from robocal.discovery.validate import validation_errors
+from robocal.kinematics.gravity import gravity_torques
+from robocal.robot import load_robot
+from .conftest import make_campaign
+
+
+def test_visited_intervals_and_window_outside_them():
+    q = np.deg2rad(np.r_[np.linspace(-170, -50, 241), np.linspace(10, 30, 41)])
+    iv = visited_intervals(q, gap_deg=2.0)
+    assert np.array(sorted(iv)) == pytest.approx(np.array([[10.0, 30.0], [190.0, 310.0]]))
+    w = coverage_weight(np.deg2rad([-100.0, -49.0, -48.0, 0.0, 20.0, 370.0 - 360.0 + 10.0]), iv, taper_deg=2.0)
+    # inside -> 1; 1 deg outside (half the taper) -> 0.5; 2 deg outside -> 0; 10 deg outside -> 0; modulo 360
+    assert w == pytest.approx([1.0, 0.5, 0.0, 0.0, 1.0, 1.0])
+    assert visited_intervals(np.deg2rad(np.linspace(-400, 400, 900)), 2.0) == [[0.0, 360.0]]
+    # an interval through 0 deg
+    iv0 = visited_intervals(np.deg2rad(np.linspace(-20, 20, 81)), 2.0)
+    assert coverage_weight(np.deg2rad([0.0, 15.0, 25.0]), iv0, 2.0) == pytest.approx([1.0, 1.0, 0.0])
+
+
+def test_transmission_signal_is_zero_where_the_joint_never_went():
+    q_cal = np.deg2rad(np.linspace(-90, 45, 300))
+    rec = {"harmonics": [17, 18, 19], "visited_deg": visited_intervals(q_cal, 2.0), "taper_deg": 2.0}
+    S_in = transmission_signal(np.deg2rad(np.array([-60.0, 0.0])), rec)
+    S_out = transmission_signal(np.deg2rad(np.array([60.0, 120.0, -120.0])), rec)
+    assert np.all(S_out == 0.0)
+    assert S_in == pytest.approx(fourier_signal(np.deg2rad(np.array([-60.0, 0.0])), np.array([17, 18, 19])))
+
+
+def test_layer_gate():
+    g = layer_gate(np.array([0.0, 0.1, 0.15, 0.2, 1.0]), inside_rad=0.1, length_rad=0.1)
+    assert g == pytest.approx([1.0, 1.0, 0.5, 0.0, 0.0])
+
+
+def test_gravity_regressor_reproduces_the_torques_of_known_masses():
+    """Two ways of one quantity: Y(q) @ pi with pi the description's mass moments equals gravity_torques."""
+    robot = load_robot("sr210")
+    assert robot.has_dynamics
+    rng = np.random.default_rng(3)
+    lo, hi = robot.q_limits[:, 0], robot.q_limits[:, 1]
+    q = lo + (hi - lo) * rng.random((25, robot.n_joints))
+    Y = gravity_regressor(robot, q)
+    pi = np.concatenate([[m, *(m * c / 1000.0)] for m, c in zip(robot.link_mass_kg, robot.link_com_mm, strict=True)])
+    ref = gravity_torques(robot, q, 0.0)
+    assert Y @ pi == pytest.approx(ref, abs=1e-9 * np.abs(ref).max())
+    # joint 1's axis is along gravity: no torque, no combination to fit
+    V, scale = weight_basis(Y[:, 0, :])
+    assert V.shape[1] == 0
+    V2, s2 = weight_basis(Y[:, 1, :])
+    S = Y[:, 1, :] @ V2 / s2
+    assert np.sqrt(np.mean(S**2, axis=0)) == pytest.approx(1.0)  # unit RMS columns over the poses
+
+
+@pytest.fixture(scope="module")
+def transmission_run(tmp_path_factory):
+    """A twin with a joint-2 transmission error at 17 and 19 cycles per revolution, 0.006 deg each."""
+    camp, robot, truth = make_campaign(
+        tmp_path_factory.mktemp("te"), "geometric", 11,
+        {"transmission": {"joint": 2, "cycles": [17, 19], "amplitude_deg": 0.006}},
+        n_poses=240, n_validation_poses=60,
+    )  # fmt: skip
+    res = discover(camp, robot)
+    return camp, robot, truth, res, summary(res, validation_errors(res))
+
+
+def test_transmission_error_recovered_with_its_harmonics(transmission_run):
+    _camp, _robot, truth, res, s = transmission_run
+    keys = [n["key"] for n in s["named"]]
+    assert "transmission:j2" in keys, keys
+    assert all(k.startswith("transmission:j2") for k in keys), keys  # nothing else named
+    est = next(n for n in s["named"] if n["key"] == "transmission:j2")["estimates"]
+    dominant = sorted(int(k.split("_")[1]) for k in est if k.startswith("harmonic_"))[:3]
+    assert {17, 19} <= set(dominant), est
+    for h in truth["effects"]["transmission"]["harmonics"]:
+        got = est[f"harmonic_{h['harmonic']}_amplitude_deg"]
+        # within 4 standard errors + 15 % shrinkage of the ridge prior (0.002-0.005 deg per coefficient)
+        assert abs(got["value"] - h["amplitude_deg"]) < 4 * got["stderr"] + 0.15 * h["amplitude_deg"], (h, got)
+    v = s["validation"]
+    assert v["final"]["mean_position_mm"] < 0.8 * v["geometric"]["mean_position_mm"]
+
+
+def test_transmission_effect_in_calibration_json_reproduces_the_fit(transmission_run):
+    camp, robot, _truth, res, s = transmission_run
+    cal = extended_calibration(res.final, robot, {})
+    eff = [e for e in cal["effects"] if e["signal"] == "transmission"]
+    assert eff and set(eff[0]) >= {"harmonics", "visited_deg", "taper_deg", "coefficients"}
+    dq_file = joint_offsets(cal["effects"], robot, camp.q)
+    dq_fit = res.final.model.joint_offsets(res.final.theta, np.arange(camp.n_rows), 0)
+    assert dq_file == pytest.approx(dq_fit, abs=1e-12)
+
+
+def test_null_twin_names_nothing_and_the_layer_declines(tmp_path):
+    camp, robot, _ = make_campaign(tmp_path, "geometric", 5, {}, n_poses=200, n_validation_poses=40)
+    res = discover(camp, robot)
+    assert res.accepted == []
+    layer_steps = [st for st in res.steps if st.label and st.label.startswith("residual layer")]
+    assert layer_steps and layer_steps[0].accepted is None  # offered, declined
+
+
+def test_grow_off_keeps_the_library_search(tmp_path):
+    camp, robot, _ = make_campaign(tmp_path, "geometric", 5, {}, n_poses=80, n_validation_poses=20)
+    cfg = DiscoveryConfig.from_mapping({"grow_max_steps": 0, "layer": False})
+    res = discover(camp, robot, cfg)
+    assert not any(st.label and "cross-validated" in st.label for st in res.steps)
