@@ -2,8 +2,8 @@
 
     python benchmarks/real_robots.py                       # every dataset in ../shared/data/
     python benchmarks/real_robots.py --data ../shared/data/ur10-ipa
-    python benchmarks/real_robots.py --hold-out-range      # also: hold out the top 25 % of each moving joint's
-                                                           # range (validation outside the calibrated angles)
+    python benchmarks/real_robots.py --hold-out-range      # also: hold out the top 25 % of joint 2's range
+                                                           # (validation outside the calibrated angles)
 
 For each dataset (a folder with poses.csv and robot.yaml, its own description, no link masses unless it has
 them): the held-out validation rows' mean / RMS / max position error of the nominal model (best rigid fit: the
@@ -11,7 +11,7 @@ true "before"), robocal calibrate's geometric model, the discovered parametric e
 model (the one the service applies), what each named effect contributes (the pose-grouped cross-validated
 error with the effect removed) and the cross-validated estimate beside the held-out figure.
 
-``--hold-out-range``: for the joint with the widest range, the calibration keeps the poses in the lower 75 % of
+``--hold-out-range [--joint J]``: for joint J (default 2, the shoulder), the calibration keeps the poses in the lower 75 % of
 its range and the validation is the rest (angles the calibration never visited): the extended model must be no
 worse there than the geometric one (its transmission error is zero outside the visited angles).
 """
@@ -40,10 +40,15 @@ SHARED = HERE.parent.parent / "shared" / "data"
 
 
 def _row(label: str, v: dict) -> str:
-    return (
+    out = (
         f"  {label:<26} mean {v['mean_position_mm']:.4f}  RMS {v['rms_position_mm']:.4f}  "
         f"max {v['max_position_mm']:.4f} mm"
     )
+    w = v.get("without_gross_errors")
+    if w and w.get("n_rows") and w["n_rows"] != v["n_rows"]:
+        out += (f"   | without gross errors ({w['n_rows']} rows): mean {w['mean_position_mm']:.4f}  "
+                f"RMS {w['rms_position_mm']:.4f}  max {w['max_position_mm']:.4f}")  # fmt: skip
+    return out
 
 
 def bench(path: Path, campaign=None) -> dict:  # type: ignore[no-untyped-def]
@@ -63,6 +68,10 @@ def bench(path: Path, campaign=None) -> dict:  # type: ignore[no-untyped-def]
     print(_row("geometric (calibrate)", val["geometric"]))
     print(_row("parametric extended", val["discovered"]))
     print(_row(f"final (layer: {val['final']['layer']})", val["final"]))
+    ge = val["gross_errors"]["rows"]
+    if ge:
+        print("  validation gross errors (" + val["gross_errors"]["rule"] + "): "
+              + ", ".join(f"{g['pose_id']} ({g['error_mm']:.3f} mm)" for g in ge))  # fmt: skip
     cv = summ.get("cross_validation", {})
     if cv:
         print(f"  cross-validated estimate (calibration poses, pose-grouped): mean {cv['cv_mean_position_mm']:.4f}  "
@@ -71,13 +80,15 @@ def bench(path: Path, campaign=None) -> dict:  # type: ignore[no-untyped-def]
         ho = n.get("held_out") or {}
         extra = f"; held-out mean without it {ho['cv_mean_without_mm']:.4f} mm" if ho else ""
         print(f"  named {n['key']:<18} ({n['side']}) RMS of effect {n['rms_of_effect_mm']:.4f} mm{extra}")
+    if cv.get("pruned"):
+        print(f"  dropped by the cross-validated backward check: {cv['pruned']}")
     return val
 
 
-def hold_out_range(path: Path) -> None:
+def hold_out_range(path: Path, joint: int) -> None:
     robot = load_robot(path / "robot.yaml")
     camp = read_campaign(path, robot)
-    j = int(np.argmax(np.ptp(camp.q, axis=0)))
+    j = joint - 1
     lim = np.quantile(camp.q[:, j], 0.75)
     split = np.where(camp.q[:, j] <= lim, "calibration", "validation").astype(object)
     camp2 = _resplit(camp, split)
@@ -97,6 +108,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, action="append", help="a dataset folder (default: every one in ../shared)")
     ap.add_argument("--hold-out-range", action="store_true")
+    ap.add_argument("--joint", type=int, default=2, help="the joint whose top 25 %% is held out (default 2)")
     args = ap.parse_args(argv)
     paths = args.data or sorted(p for p in SHARED.glob("*") if (p / "robot.yaml").exists())
     if not paths:
@@ -105,7 +117,7 @@ def main(argv: list[str] | None = None) -> int:
     for p in paths:
         bench(p)
         if args.hold_out_range:
-            hold_out_range(p)
+            hold_out_range(p, args.joint)
     return 0
 
 

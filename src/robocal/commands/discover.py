@@ -37,10 +37,24 @@ def run(args: argparse.Namespace) -> int:
 
     print(outlier_line(s.get("outliers", []), s.get("n_rows_total")))
     if "validation" in s:
-        vg, vd = s["validation"]["geometric"], s["validation"]["discovered"]
+        vg, vd, vf = (s["validation"][k] for k in ("geometric", "discovered", "final"))
         print(
             f"validation ({vd['n_rows']} rows): mean {vg['mean_position_mm']:.4f} mm geometric -> "
-            f"{vd['mean_position_mm']:.4f} mm discovered"
+            f"{vd['mean_position_mm']:.4f} mm discovered -> {vf['mean_position_mm']:.4f} mm final "
+            f"(residual layer: {vf['layer']}); max {vg['max_position_mm']:.4f} -> {vf['max_position_mm']:.4f} mm"
         )
+        ge = s["validation"]["gross_errors"]["rows"]
+        if ge:
+            w = vf["without_gross_errors"]
+            print(
+                f"  {len(ge)} held-out row(s) are gross errors against the final model ("
+                + ", ".join(f"{g['pose_id']} {g['error_mm']:.3f} mm" for g in ge[:5])
+                + (", ..." if len(ge) > 5 else "")
+                + f"); without them: mean {w['mean_position_mm']:.4f}, max {w['max_position_mm']:.4f} mm"
+            )
+    cv = s.get("cross_validation")
+    if cv and "cv_mean_position_mm" in cv:
+        print(f"cross-validated estimate on the calibration poses (pose-grouped): mean "
+              f"{cv['cv_mean_position_mm']:.4f} mm, RMS {cv['cv_rms_position_mm']:.4f} mm")  # fmt: skip
     print(f"wrote {args.out}/discovery.json, calibration.json (the discovered model) and compensation.csv")
     return 0

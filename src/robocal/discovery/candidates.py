@@ -162,6 +162,8 @@ def build_library(
                     if rng < 1e-6:
                         skipped.append(SkippedCandidate(key, effect, j + 1, f"joint {j + 1} does not move"))
                         continue
+                    # harmonics 1-2 (eccentricity) are one revolution's error: evaluated everywhere, unlike the
+                    # transmission error's many harmonics (robocal.discovery.physics), which are windowed
                     S = np.column_stack([np.sin(h * q[:, j]), np.cos(h * q[:, j])])
                     cands.append(
                         Candidate(
@@ -254,6 +256,14 @@ def build_library(
                     )
                 )  # fmt: skip
     return cands, skipped
+
+
+def periodic_window(cfg: DiscoveryConfig, h_max: int) -> tuple[float, float]:
+    """``(gap_deg, taper_deg)`` of the coverage window of a periodic joint error up to harmonic ``h_max``:
+    visits closer than a quarter of the shortest period (and at least ``transmission_gap_deg``) are joined,
+    and the error falls to zero over an eighth of it (at least ``transmission_taper_deg``) outside."""
+    period = 360.0 / max(int(h_max), 1)
+    return max(cfg.transmission_gap_deg, period / 4.0), max(cfg.transmission_taper_deg, period / 8.0)
 
 
 def with_beta(robot: RobotDescription, joint: int) -> RobotDescription:

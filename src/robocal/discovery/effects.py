@@ -82,7 +82,9 @@ def effect_records(fit: Fit) -> tuple[list[dict[str, Any]], list[dict[str, Any]]
         assert c.joint is not None
         rec_terms: dict[str, Any] = {"terms": c.extra["terms"]} if kind == "dictionary" else {}
         if kind == "transmission":
-            rec_terms = {k: c.extra[k] for k in ("harmonics", "visited_deg", "taper_deg")}
+            rec_terms = {k: c.extra[k] for k in ("harmonics", "visited_deg", "taper_deg", "centre")}
+        elif kind == "angle" and "visited_deg" in c.extra:
+            rec_terms = {k: c.extra[k] for k in ("visited_deg", "taper_deg", "centre")}
         elif kind == "weight":
             rec_terms = {k: c.extra[k] for k in ("basis", "scale", "prior_deg")}
         elif kind == "layer":
@@ -128,6 +130,11 @@ def joint_offsets(
         if kind == "angle":
             h = int(e["harmonic"])
             S = np.column_stack([np.sin(h * q[:, j]), np.cos(h * q[:, j])])
+            if "visited_deg" in e:  # zero outside the angles the calibration visited
+                from robocal.discovery.physics import coverage_weight
+
+                S = S * coverage_weight(q[:, j], e["visited_deg"], float(e["taper_deg"]))[:, None]
+                S = S - np.asarray(e.get("centre", 0.0), dtype=float)
         elif kind == "transmission":
             from robocal.discovery.physics import transmission_signal
 

@@ -52,6 +52,7 @@ def physics_candidates(
     """The transmission-error candidate of every moving joint (Fourier orders x prior widths as variants) and,
     without link masses, torques or currents, the compliance under the arm's own weight of every joint with a
     gravity torque. Signals for every campaign row; coverage and bases from the fitted ``rows``."""
+    from robocal.discovery.candidates import periodic_window
     from robocal.discovery.physics import (
         coverage_weight,
         fourier_signal,
@@ -71,10 +72,13 @@ def physics_candidates(
         for j in range(n):
             if kmax == 0 or float(np.ptp(q[rows, j])) < np.deg2rad(1.0):
                 continue
-            visited = visited_intervals(q[rows, j], cfg.transmission_gap_deg)
-            w = coverage_weight(q[:, j], visited, cfg.transmission_taper_deg)
+            gap, taper = periodic_window(cfg, kmax)
+            visited = visited_intervals(q[rows, j], gap)
+            w = coverage_weight(q[:, j], visited, taper)
             h = np.arange(1, kmax + 1)
             S = fourier_signal(q[:, j], h, w)
+            centre = S[rows].mean(axis=0)  # the constant part belongs to the geometry's joint offset
+            S = S - centre
             names = tuple(f"sin{k}" for k in h) + tuple(f"cos{k}" for k in h)
             cand = Candidate(
                 f"transmission:j{j + 1}", "transmission", j + 1, None,
@@ -82,7 +86,7 @@ def physics_candidates(
                 "angle with many harmonics per revolution (applied only on the angles the calibration visited)",
                 signal=f"sin/cos(h·q{j + 1}), h = 1..K", shape="joint", S=S,
                 coef_names=names, coef_units=("rad",) * len(names),
-                extra={"visited_deg": visited, "taper_deg": cfg.transmission_taper_deg, "harmonics": h.tolist()},
+                extra={"visited_deg": visited, "taper_deg": taper, "harmonics": h.tolist(), "centre": centre.tolist()},
             )  # fmt: skip
             variants = [
                 Variant(np.concatenate([np.arange(k), kmax + np.arange(k)]), float(np.deg2rad(t)), f"K={k}, tau={t}°")
@@ -153,6 +157,8 @@ def variant_candidate(cand: Candidate, v: Variant) -> Candidate:
     if "harmonics" in extra:
         h = np.asarray(cand.extra["harmonics"])
         extra["harmonics"] = h[v.columns[: len(v.columns) // 2]].tolist()
+    if "centre" in extra:
+        extra["centre"] = np.asarray(cand.extra["centre"])[v.columns].tolist()
     extra["variant"] = v.label
     names = tuple(cand.coef_names[i] for i in v.columns)
     return replace(
@@ -270,6 +276,7 @@ def grow(
             fit = fit_new
             break
         fit = fit_new
+    fit, accepted = _prune(fit, accepted, record, groups, cfg, refit)
     record["parametric_fit"] = fit
     if cfg.layer and cfg.cv_folds >= 2:
         layer_pool = layer_candidates(campaign, cfg, rows)
@@ -279,6 +286,30 @@ def grow(
                                         what="residual layer")  # fmt: skip
     record.update(contributions(fit, accepted, groups, cfg))
     return fit, accepted, record
+
+
+def _prune(
+    fit: Fit, accepted: list[Accepted], record: dict[str, Any], groups: np.ndarray, cfg: DiscoveryConfig, refit: Any
+) -> tuple[Fit, list[Accepted]]:
+    """Backward check of what the selection added: an effect (a member of a pooled candidate included) whose
+    removal does not raise the cross-validated error contributes nothing held-out and is dropped (one pass,
+    then the model is refitted). The library's F-test effects are left to their own Wald check."""
+    added = {c for st in record["steps"] for c in st.get("members", [st["key"]])}
+    cv = FoldCV(fit, groups, cfg.cv_folds, cfg.seed)
+    base = float(np.sum(cv.base_err**2))
+    drop = []
+    for a, sl in zip(fit.model.accepted, fit.model.slices, strict=True):
+        if a.cand.key not in added or a.cand.shape != "joint":
+            continue
+        keep = np.array([i for i, p in enumerate(fit.free) if not (sl.start <= p < sl.stop)])
+        e = FoldCV(replace_fit_columns(fit, keep), groups, cfg.cv_folds, cfg.seed).base_err
+        if float(np.sum(e**2)) <= base:
+            drop.append(a.cand.key)
+    record["pruned"] = drop
+    if drop:
+        accepted = [a for a in accepted if a.cand.key not in drop]
+        fit = refit(accepted, fit)
+    return fit, accepted
 
 
 def _step(
@@ -337,7 +368,7 @@ def _step(
              fit.rss, fit.dof, [s[2] for s in scores], [], before.residuals_mm, fit.residuals_mm)
     )  # fmt: skip
     record["steps"].append({"key": sc.key, "variant": v.label, "log10_p": lp, "threshold_log10_p": thr,
-                            "cv_gain": sc.cv_gain})  # fmt: skip
+                            "cv_gain": sc.cv_gain, "members": [c.key for c in chosen]})  # fmt: skip
     taken = {c.key for c in members}
     pool = [(m, vs) for m, vs in pool if not taken & {c.key for c in m}]
     return fit, accepted, pool, FoldCV(fit, groups, cfg.cv_folds, cfg.seed)

@@ -85,9 +85,12 @@ def fourier_signal(q_rad: np.ndarray, harmonics: np.ndarray, weight: np.ndarray 
 
 
 def transmission_signal(q_rad: np.ndarray, record: dict[str, Any]) -> np.ndarray:
-    """The transmission-error signal of a stored effect (``harmonics``, ``visited_deg``, ``taper_deg``)."""
+    """The transmission-error signal of a stored effect (``harmonics``, ``visited_deg``, ``taper_deg``, and the
+    ``centre`` subtracted: the signal's mean over the calibration poses, whose constant part the geometry's
+    joint offset carries)."""
     w = coverage_weight(q_rad, record["visited_deg"], float(record["taper_deg"]))
-    return fourier_signal(q_rad, np.asarray(record["harmonics"], dtype=int), w)
+    S = fourier_signal(q_rad, np.asarray(record["harmonics"], dtype=int), w)
+    return S - np.asarray(record.get("centre", 0.0), dtype=float)
 
 
 def gravity_regressor(robot: RobotDescription, q: np.ndarray) -> np.ndarray:

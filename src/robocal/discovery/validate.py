@@ -1,4 +1,5 @@
-"""Validation of a discovery: the geometric and the discovered model on the campaign's held-out rows."""
+"""Validation of a discovery: the geometric calibration, the discovered model and the final one on the
+campaign's held-out rows, with and without the held-out rows that are gross errors."""
 
 from __future__ import annotations
 
@@ -11,6 +12,40 @@ from robocal.discovery.search import DiscoveryResult
 from robocal.identification.calibrate import validate_rows
 from robocal.identification.model import FitData
 from robocal.kinematics.chain import fk
+
+
+def _public(v: dict[str, Any]) -> dict[str, Any]:
+    return {k: x for k, x in v.items() if k not in ("errors_mm", "kept_rows")}
+
+
+def gross_errors(errors_mm: np.ndarray, kept: np.ndarray, alpha: float) -> np.ndarray:
+    """Validation rows that are gross errors: the calibration's rule (a row whose error stands out at the
+    family-wise ``alpha`` over the rows, Bonferroni) with the scale taken robustly from the held-out rows
+    themselves — ``|e|² / s²`` against chi²(3), ``s² = median |e|² / median of chi²(3)`` — so that a model
+    error shared by many held-out rows (e.g. angles the calibration never visited) is not called a blunder.
+    Returns a mask over ``errors_mm``'s rows."""
+    from scipy import stats
+
+    e2 = np.sum(np.asarray(errors_mm) ** 2, axis=1)
+    m = int(kept.sum())
+    if m < 5:
+        return np.zeros(len(e2), dtype=bool)
+    s2 = float(np.median(e2[kept])) / float(stats.chi2.ppf(0.5, 3))
+    p = stats.chi2.sf(e2 / max(s2, 1e-300), 3)
+    return np.asarray(kept & (p < alpha / m))
+
+
+def _stats_without(v: dict[str, Any], flagged: np.ndarray) -> dict[str, Any]:
+    keep = v["kept_rows"] & ~flagged
+    e = np.linalg.norm(v["errors_mm"][keep], axis=1)
+    if len(e) == 0:
+        return {"n_rows": 0}
+    return {
+        "n_rows": int(keep.sum()),
+        "mean_position_mm": float(e.mean()),
+        "rms_position_mm": float(np.sqrt(np.mean(e**2))),
+        "max_position_mm": float(e.max()),
+    }
 
 
 def _validate_fit(res: DiscoveryResult, fit: Fit) -> dict[str, Any]:
@@ -45,7 +80,7 @@ def _validate_fit(res: DiscoveryResult, fit: Fit) -> dict[str, Any]:
             cols = (Jx[:, :, idx][:, :, :, None] * a.cand.S[vrows][:, None, None, :]).reshape(val.n_rows, 3, -1)
             dp += np.einsum("mij,j->mi", cols, fit.theta[sl])
     v = validate_rows(val, base_T_flange, stations, tools, tool_R, dp_mm=dp)
-    return {k: val_ for k, val_ in v.items() if k not in ("errors_mm", "kept_rows")}
+    return v
 
 
 def validation_errors(res: DiscoveryResult) -> dict[str, Any] | None:
@@ -63,15 +98,30 @@ def validation_errors(res: DiscoveryResult) -> dict[str, Any] | None:
     if not np.any(camp.split == "validation"):
         return None
     geo = res.extra.get("geometric_calibration")
-    if geo is not None:
-        g = {k: v for k, v in validate(geo, camp).items() if k not in ("errors_mm", "kept_rows")}
-    else:
-        g = _validate_fit(res, res.geometric)
+    g = validate(geo, camp) if geo is not None else _validate_fit(res, res.geometric)
     parametric = res.extra.get("parametric", res.final)
     disc = _validate_fit(res, parametric)
-    if parametric is res.final:
-        return {"geometric": g, "discovered": disc, "final": {**disc, "layer": "none"}}
-    return {"geometric": g, "discovered": disc, "final": {**_validate_fit(res, res.final), "layer": "accepted"}}
+    fin = disc if parametric is res.final else _validate_fit(res, res.final)
+    # gross errors among the validation rows, by the calibration's row test against the final model (the most
+    # complete one, where a blunder stands out most); every model is also reported without those rows
+    flagged = gross_errors(fin["errors_mm"], fin["kept_rows"], res.config.outlier_alpha)
+    val = camp.subset(np.flatnonzero(camp.split == "validation"))
+    left_out = [
+        {"row": int(val.row_number[i]), "pose_id": str(val.pose_id[i]), "target": str(val.target[i]),
+         "error_mm": float(np.linalg.norm(fin["errors_mm"][i]))}
+        for i in np.flatnonzero(flagged)
+    ]  # fmt: skip
+    out: dict[str, Any] = {}
+    for key, v in (("geometric", g), ("discovered", disc), ("final", fin)):
+        out[key] = _public(v)
+        out[key]["without_gross_errors"] = _stats_without(v, flagged)
+    out["final"]["layer"] = "none" if parametric is res.final else "accepted"
+    out["gross_errors"] = {
+        "rule": "a held-out row whose final-model error stands out: |e|^2 / s^2 against chi2(3) at "
+        f"{res.config.outlier_alpha} / rows (Bonferroni), s^2 robust (median |e|^2 / median of chi2(3))",
+        "rows": left_out,
+    }
+    return out
 
 
 __all__ = ["validation_errors"]

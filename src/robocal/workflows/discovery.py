@@ -70,6 +70,7 @@ def write_report(res: DiscoveryResult, summ: dict[str, Any], path: Path) -> Path
         )
     if "validation" in summ:
         vg, vd = summ["validation"]["geometric"], summ["validation"]["discovered"]
+        vf = summ["validation"]["final"]
         rows_v = []
         for key, label in (
             ("mean_position_mm", "mean, mm"),
@@ -78,7 +79,15 @@ def write_report(res: DiscoveryResult, summ: dict[str, Any], path: Path) -> Path
             ("mean_orientation_deg", "mean orientation, deg"),
         ):
             if key in vg:
-                rows_v.append({"error": label, "geometric model": vg[key], "discovered model": vd[key]})
+                rows_v.append({"error": label, "geometric (calibrate)": vg[key], "parametric extended": vd[key],
+                               f"final (residual layer: {vf['layer']})": vf[key]})  # fmt: skip
+        ge = summ["validation"].get("gross_errors", {}).get("rows", [])
+        if ge:
+            for key, label in (("mean_position_mm", "mean without gross errors, mm"),
+                               ("max_position_mm", "max without gross errors, mm")):  # fmt: skip
+                rows_v.append({"error": label, "geometric (calibrate)": vg["without_gross_errors"][key],
+                               "parametric extended": vd["without_gross_errors"][key],
+                               f"final (residual layer: {vf['layer']})": vf["without_gross_errors"][key]})  # fmt: skip
         rep.table(rows_v, caption=f"Validation rows (held out, {vg['n_rows']} rows): tool offsets from "
                   + "; ".join(f"{t}: {src}" for t, src in vg["tool_source"].items()))  # fmt: skip
     if summ["named"]:
