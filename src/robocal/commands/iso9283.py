@@ -1,0 +1,38 @@
+"""``robocal iso9283 CAMPAIGN --robot R --calibration calibration.json --out DIR [--after DIR] [key=value ...]``."""
+
+from __future__ import annotations
+
+import argparse
+
+from robocal.commands import parse_overrides
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("campaign", help="ISO test campaign (data contract + iso_pose, cycle, cmd_x_mm .. columns)")
+    p.add_argument("--robot", required=True, help="robot name (conf/robot/<name>.yaml) or a YAML path")
+    p.add_argument("--calibration", required=True, help="calibration.json (robocal calibrate): registers the tracker")
+    p.add_argument("--out", required=True, help="output directory: iso9283.json, iso9283_after.json, report.html")
+    p.add_argument(
+        "--after",
+        default=None,
+        help="the test measured again after compensation (default: CAMPAIGN/after when it exists, else the "
+        "calibrated model's prediction, labelled as predicted)",
+    )
+    p.add_argument("--no-report", action="store_true", help="skip report.html")
+    p.add_argument(
+        "overrides", nargs="*", help="settings of conf/iso9283/default.yaml, e.g. certificate.serial=123 cycles=30"
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    from robocal.iso9283.run import run_iso9283
+    from robocal.iso9283.settings import IsoSettings
+
+    st = IsoSettings.load(parse_overrides(args.overrides))
+    res = run_iso9283(args.campaign, args.robot, args.calibration, args.out, args.after, st, not args.no_report)
+    for p in res.before.poses:
+        a = next((x for x in res.after.poses if x.pose == p.pose), None)
+        after = "" if a is None else f"; {res.after_kind} after: AP_p {a.AP_p_mm:.4f} mm, RP_l {a.RP_l_mm:.4f} mm"
+        print(f"{p.pose}: {p.n_cycles} cycles, AP_p {p.AP_p_mm:.4f} mm, RP_l {p.RP_l_mm:.4f} mm{after}")
+    print(f"{len(res.before.left_out)} row(s) left out; wrote {args.out}/iso9283.json, iso9283_after.json")
+    return 0
