@@ -39,33 +39,58 @@ def _fmt(v: float | None, nd: int = 4) -> Any:
 
 
 def characteristics_rows(before: IsoResult, after: IsoResult, after_label: str) -> list[dict[str, Any]]:
-    """One row per pose: n and each characteristic before / after."""
+    """Position characteristics, one row per pose: before / after (mm)."""
     rows = []
-    orient = any(p.AP_abc_deg is not None for p in before.poses)
     for pb in before.poses:
         pa = next((p for p in after.poses if p.pose == pb.pose), None)
-        r: dict[str, Any] = {
-            "pose": pb.pose,
-            "cycles used": pb.n_cycles,
-            "AP_p before (mm)": _fmt(pb.AP_p_mm),
-            f"AP_p {after_label} (mm)": _fmt(pa.AP_p_mm if pa else None),
-            "RP_l before (mm)": _fmt(pb.RP_l_mm),
-            f"RP_l {after_label} (mm)": _fmt(pa.RP_l_mm if pa else None),
-            "vAP_p before (mm)": _fmt(before.vAP_p_mm.get(pb.pose)),
-            f"vAP_p {after_label} (mm)": _fmt(after.vAP_p_mm.get(pb.pose)),
-        }
-        if orient and pb.AP_abc_deg is not None and pb.RP_abc_deg is not None:
-            for k, c in enumerate("abc"):
-                r[f"AP_{c} before (deg)"] = _fmt(pb.AP_abc_deg[k], 5)
-                r[f"AP_{c} {after_label} (deg)"] = _fmt(
-                    pa.AP_abc_deg[k] if pa is not None and pa.AP_abc_deg is not None else None, 5
-                )
-            for k, c in enumerate("abc"):
-                r[f"RP_{c} ± (deg)"] = _fmt(pb.RP_abc_deg[k], 5)
-        if pb.dAP_p_mm is not None:
-            r["dAP_p before (mm)"] = _fmt(pb.dAP_p_mm)
-            r["dRP_l before (mm)"] = _fmt(pb.dRP_l_mm)
+        rows.append(
+            {
+                "pose": pb.pose,
+                "AP_p before": _fmt(pb.AP_p_mm),
+                f"AP_p {after_label}": _fmt(pa.AP_p_mm if pa else None),
+                "RP_l before": _fmt(pb.RP_l_mm),
+                f"RP_l {after_label}": _fmt(pa.RP_l_mm if pa else None),
+                "vAP_p before": _fmt(before.vAP_p_mm.get(pb.pose)),
+                f"vAP_p {after_label}": _fmt(after.vAP_p_mm.get(pb.pose)),
+            }
+        )
+    return rows
+
+
+def orientation_rows(before: IsoResult, after: IsoResult, after_label: str) -> list[dict[str, Any]]:
+    """Orientation characteristics (deg), one row per pose; empty without measured orientations."""
+    rows = []
+    for pb in before.poses:
+        if pb.AP_abc_deg is None or pb.RP_abc_deg is None:
+            continue
+        pa = next((p for p in after.poses if p.pose == pb.pose), None)
+        r: dict[str, Any] = {"pose": pb.pose}
+        for k, c in enumerate("abc"):
+            r[f"AP_{c} before"] = _fmt(pb.AP_abc_deg[k], 5)
+            r[f"AP_{c} {after_label}"] = _fmt(None if pa is None or pa.AP_abc_deg is None else pa.AP_abc_deg[k], 5)
+        for k, c in enumerate("abc"):
+            r[f"RP_{c} ±"] = _fmt(pb.RP_abc_deg[k], 5)
         rows.append(r)
+    return rows
+
+
+def drift_rows(before: IsoResult, after: IsoResult, after_label: str) -> list[dict[str, Any]]:
+    """Drift (mm) of the poses whose cycles span time; empty when none does."""
+    rows = []
+    for pb in before.poses:
+        if pb.dAP_p_mm is None:
+            continue
+        pa = next((p for p in after.poses if p.pose == pb.pose), None)
+        rows.append(
+            {
+                "pose": pb.pose,
+                "between group centres (min)": _fmt(pb.drift_span_min, 1),
+                "dAP_p before": _fmt(pb.dAP_p_mm),
+                f"dAP_p {after_label}": _fmt(None if pa is None else pa.dAP_p_mm),
+                "dRP_l before": _fmt(pb.dRP_l_mm),
+                f"dRP_l {after_label}": _fmt(None if pa is None else pa.dRP_l_mm),
+            }
+        )
     return rows
 
 
@@ -85,7 +110,8 @@ def bars_figure(before: IsoResult, after: IsoResult, after_label: str) -> Figure
         ax.set_xticks(x, poses)
         ax.set_ylabel("mm")
         ax.set_title(title)
-        ax.legend()
+        ax.set_ylim(0, 1.25 * float(np.nanmax([*b, *a, 1e-9])))
+        ax.legend(loc="upper center", ncol=2)
     fig.tight_layout()
     return fig
 
@@ -111,7 +137,10 @@ def scatter_figure(before: IsoResult, after: IsoResult, after_label: str) -> Fig
                 if pr is None:
                     continue
                 d = 1e3 * pr.deviations_mm
-                ax.scatter(d[:, i], d[:, j], s=9, color=col, alpha=0.7, label=name, linewidths=0)
+                if name == "before":  # hollow rings, so that the after dots stay visible where they coincide
+                    ax.scatter(d[:, i], d[:, j], s=22, facecolors="none", edgecolors=col, linewidths=0.8, label=name)
+                else:
+                    ax.scatter(d[:, i], d[:, j], s=6, color=col, label=name, linewidths=0)
                 ax.plot(1e3 * pr.RP_l_mm * np.cos(t), 1e3 * pr.RP_l_mm * np.sin(t), color=col, lw=0.9)
             ax.set_xlim(-lim, lim)
             ax.set_ylim(-lim, lim)
@@ -132,7 +161,7 @@ def _cube(run: IsoRun) -> dict[str, Any]:
     out: dict[str, Any] = {}
     if "P1" in cmd:
         c = cmd["P1"]
-        out["cube centre P1 (base, mm)"] = ", ".join(f"{v:.1f}" for v in c)
+        out["cube centre P1 (base, mm)"] = ", ".join(f"{v + 0.0:.1f}" for v in np.round(c, 1))
         others = [cmd[k] for k in ("P2", "P3", "P4", "P5") if k in cmd]
         if others:
             half = np.mean([np.abs(o - c).max() for o in others]) / (1.0 - 2.0 * inset)
@@ -179,7 +208,17 @@ def write_report(run: IsoRun, path: str | Path) -> Path:
             kind="warn",
         )
     rep.heading("Characteristics per pose")
-    rep.table(characteristics_rows(run.before, run.after, label), caption="before vs " + label, float_fmt="{:.4g}")
+    rep.table(
+        characteristics_rows(run.before, run.after, label),
+        caption=f"position (mm): accuracy AP_p, repeatability RP_l, multi-directional variation vAP_p; before vs {label}",
+    )
+    orient = orientation_rows(run.before, run.after, label)
+    if orient:
+        rep.table(orient, caption=f"orientation (deg): AP_a, AP_b, AP_c before vs {label}; RP ± (before)")
+    drift = drift_rows(run.before, run.after, label)
+    if drift:
+        g = run.settings.analysis.drift_group_cycles
+        rep.table(drift, caption=f"drift (mm): the first {g} cycles vs the last {g}")
     pair = run.before.distance_pair
     rep.table(
         [
@@ -191,7 +230,7 @@ def write_report(run: IsoRun, path: str | Path) -> Path:
                 f"RD ± {label} (mm)": _fmt(run.after.RD_l_mm),
             }
         ],
-        caption="distance accuracy and repeatability",
+        caption="distance accuracy and repeatability (mm)",
     )
     rep.figure(bars_figure(run.before, run.after, label), "AP_p and RP_l per pose, before and " + label)
     rep.heading("Scatter of the cycles")
@@ -213,4 +252,12 @@ def write_report(run: IsoRun, path: str | Path) -> Path:
     return rep.save(path)
 
 
-__all__ = ["DEFINITIONS", "bars_figure", "characteristics_rows", "scatter_figure", "write_report"]
+__all__ = [
+    "DEFINITIONS",
+    "bars_figure",
+    "characteristics_rows",
+    "drift_rows",
+    "orientation_rows",
+    "scatter_figure",
+    "write_report",
+]
