@@ -271,7 +271,8 @@ def _compensated(
 ) -> np.ndarray:
     """Every commanded target corrected by the compensation service over ``bundle``: a pose target (the commanded
     position; the commanded orientation when it is one, else the test configuration's flange orientation with the
-    bundle's tool), from the test configuration as the seed; ``position`` mode unless the orientation is commanded."""
+    bundle's tool), from the test configuration as the seed; ``position`` mode unless the orientation is commanded
+    and the bundle's calibration has orientations."""
     from robocal.serve.bundle import load_bundle
     from robocal.serve.protocol import Service
 
@@ -281,6 +282,8 @@ def _compensated(
     if b.robot.n_joints != n:
         raise ConfigError(f"the bundle {bundle} is for {b.robot.name}, not this scenario's robot")
     dirs = np.column_stack([rows.columns[f"dir{j + 1}"] for j in range(n)])
+    if not b.calibration.model.orientation:
+        cmd_R = None  # a position-only calibration knows no tool rotation: the position is compensated
     tool_R = b.tools[b.default_tool][:3, :3]
     quat = matrix_to_quat(flange_R @ tool_R if cmd_R is None else cmd_R)
     groups = [np.arange(len(cyc))] if b.thermal is None else [np.flatnonzero(cyc == c) for c in np.unique(cyc)]
