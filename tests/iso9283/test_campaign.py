@@ -95,3 +95,19 @@ def test_cli_simulate_and_certify(calibrated_cell, tmp_path: Path, capsys) -> No
     for text in ("KR-0042", "line 3", "PREDICTED", "vAP_p", "Definitions", "RP_l"):
         assert text in html
     assert main(["simulate", "geometric", "--out", str(tmp_path / "g"), "--bundle", "x"]) == 2  # iso9283 only
+
+
+def test_program_is_what_the_twin_runs(small_test: Path, tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]
+    from robocal.cli import main
+
+    rc = main(["iso9283", "--program", str(tmp_path), "--robot", "kr16_2", "test.cycles=3", "test.tcp_mm=[35,-20,120]"])
+    assert rc == 0 and "3 cycles x 3 approaches x 5 poses" in capsys.readouterr().out
+    prog = pd.read_csv(tmp_path / "iso_program.csv")
+    twin = pd.read_csv(small_test / "poses.csv")
+    q = [f"q{j}_deg" for j in range(1, 7)]
+    assert list(prog["iso_pose"]) == list(twin["iso_pose"]) and list(prog["approach"]) == list(twin["approach"])
+    assert (prog[q].to_numpy() == twin[q].to_numpy()).all()  # the same visits, the same joint targets
+    back = prog[["cmd_x_mm", "cmd_y_mm", "cmd_z_mm"]].to_numpy() - prog[["pre_x_mm", "pre_y_mm", "pre_z_mm"]].to_numpy()
+    first = prog["approach"] == "-x"
+    # approached moving along -x: the pre-position is 100 mm further along +x
+    assert abs(back[first.to_numpy()] - [-100.0, 0.0, 0.0]).max() < 1e-5

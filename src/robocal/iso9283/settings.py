@@ -39,6 +39,8 @@ class TestConfig:
     )
     inset: float = setting(0.1, gt=0, lt=0.5)
     interval_s: float = setting(8.0, gt=0)
+    approach_mm: float = setting(100.0, gt=0)
+    tcp_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def validate(self) -> None:
         if self.volume.kind != "iso9283":

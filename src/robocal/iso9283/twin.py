@@ -36,9 +36,10 @@ from typing import Any
 import numpy as np
 import yaml
 
-from robocal.compensation import ActualRobot, compensate
+from robocal.compensation import ActualRobot
 from robocal.errors import ConfigError
 from robocal.io import atomic_write, write_json, write_text
+from robocal.iso9283.program import cube_joints, joint_directions
 from robocal.iso9283.settings import AXES, IsoSettings
 from robocal.kinematics.chain import build_chain, propagate
 from robocal.kinematics.transforms import homogeneous, matrix_from_rpy, matrix_to_quat, rotvec_to_matrix
@@ -99,7 +100,7 @@ def _run(st: IsoSettings, sc: dict[str, Any], out: Path, seed: int | None, bundl
     assert vol.center_mm is not None and vol.side_mm is not None
     pts = iso9283_cube_points(np.asarray(vol.center_mm), float(vol.side_mm), st.test.inset)
     nominal = ActualRobot(chain, np.zeros(P), np.eye(4), tool, tool_R)
-    q_pts = _cube_joints(nominal, robot, pts, st.twin.seed_q_deg)
+    q_pts = cube_joints(nominal, robot, pts, st.twin.seed_q_deg)
     labels = [f"P{k + 1}" for k in range(5)]
     appr = list(st.test.approaches)
     N = st.test.cycles
@@ -107,7 +108,7 @@ def _run(st: IsoSettings, sc: dict[str, Any], out: Path, seed: int | None, bundl
     m = len(cyc)
     q_cmd = q_pts[pt_i]
     t_s = np.arange(m) * st.test.interval_s
-    dirs_pa = _joint_directions(nominal, q_pts, [np.asarray(AXES[a]) for a in appr])  # (5, A, n)
+    dirs_pa = joint_directions(nominal, q_pts, [np.asarray(AXES[a]) for a in appr])  # (5, A, n)
     dirs = dirs_pa[pt_i, ap_i]
     rated = st.test.rated_payload_kg
     payload = np.full(m, 0.0 if rated is None else rated * st.test.load_percent / 100.0)
@@ -212,52 +213,6 @@ def _run(st: IsoSettings, sc: dict[str, Any], out: Path, seed: int | None, bundl
     _write(out, sc, st, truth, rows, p_meas, R_meas if orientation else None, labels, appr, cyc, ap_i, pt_i,
            cmd_p, cmd_R if orientation else None, tname, thermal, ctx, seed)  # fmt: skip
     return truth
-
-
-def _cube_joints(nominal: ActualRobot, robot: Any, pts: np.ndarray, seed_deg: Any) -> np.ndarray:
-    """One joint configuration per cube point: the nominal inverse kinematics, P1 from the seed, the others from
-    P1's solution (one arm configuration for the whole test)."""
-    n = robot.n_joints
-    if seed_deg is None:
-        lim = np.rad2deg(robot.q_limits)
-        seed = np.clip(np.array([0.0, -90.0, 90.0, 0.0, 60.0, 0.0][:n] + [0.0] * max(0, n - 6)), lim[:, 0], lim[:, 1])
-    else:
-        seed = np.asarray(seed_deg, dtype=float)
-        if seed.shape != (n,):
-            raise ConfigError(f"iso9283.twin.seed_q_deg: must be {n} joint angles (deg); got {list(seed)}")
-    q0 = np.deg2rad(seed)[None, :]
-    c1 = compensate(nominal, q0, pts[:1], max_iter=80, tol_mm=1e-6, stall=False)
-    c = compensate(nominal, np.tile(c1.q, (5, 1)), pts, max_iter=80, tol_mm=1e-6, stall=False)
-    if not (c1.converged.all() and c.converged.all()):
-        raise ConfigError(
-            f"iso9283.test.volume: the cube (centre {list(pts[0])}) is out of reach of {robot.name} from "
-            f"seed_q_deg {seed.tolist()}; move the cube or give twin.seed_q_deg"
-        )
-    q = np.deg2rad(np.round(np.rad2deg(c.q), 6))
-    lim = robot.q_limits
-    bad = (q < lim[:, 0]) | (q > lim[:, 1])
-    if bad.any():
-        k, j = (int(v[0]) for v in np.nonzero(bad))
-        raise ConfigError(
-            f"iso9283.test.volume: P{k + 1} needs joint {j + 1} at {np.rad2deg(q[k, j]):.1f} deg, outside its limits"
-        )
-    return q
-
-
-def _joint_directions(nominal: ActualRobot, q: np.ndarray, dirs: list[np.ndarray]) -> np.ndarray:
-    """``(points, approaches, n)`` of -1 / +1: the sign of each joint's velocity ``J⁺ d`` when the tool travels
-    along ``d`` into the point (numerical position Jacobian of the nominal robot; a zero counts as +1)."""
-    h = 1e-6
-    p0, _, _ = nominal.pose(q)
-    n = q.shape[1]
-    J = np.zeros((len(q), 3, n))
-    for j in range(n):
-        dq = np.zeros(n)
-        dq[j] = h
-        J[:, :, j] = (nominal.pose(q + dq)[0] - p0) / h
-    Jp = np.linalg.pinv(J)  # (k, n, 3)
-    out = np.stack([np.einsum("knc,c->kn", Jp, d) for d in dirs], axis=1)
-    return np.where(out < 0, -1, 1)
 
 
 def _compensated(
