@@ -221,7 +221,8 @@ def _stations_T_base(cal: CalibrationResult) -> dict[str, np.ndarray]:
 def predicted_after(iso: IsoCampaign, cal: CalibrationResult) -> IsoTest:
     """The test as the calibrated model predicts it after compensation (real data measured once): each attained
     pose moved by the model's predicted error at its joints, ``p_after = p_measured - (p_model - p_commanded)``,
-    i.e. the commanded pose plus the model's residual (orientation likewise, by rotations)."""
+    i.e. the commanded pose plus the model's residual (orientation likewise, by rotations, when the calibration
+    has orientations; a position-only calibration gives no orientation after)."""
     camp = iso.campaign
     tnames = list(cal.tools)
     if iso.target not in tnames:
@@ -235,8 +236,8 @@ def predicted_after(iso: IsoCampaign, cal: CalibrationResult) -> IsoTest:
     p_pred = np.einsum("kij,kj->ki", B[:, :3, :3], p_pred_t) + B[:, :3, 3]
     t = iso.test
     p_after = t.p_mm - (p_pred - t.cmd_mm)
-    rpy = t.rpy_deg
-    if iso.R_meas is not None and iso.R_cmd is not None and len(R_pred_t):
+    rpy = None  # a position-only calibration predicts no orientation error: no orientation after
+    if iso.R_meas is not None and iso.R_cmd is not None and len(R_pred_t) and cal.model.orientation:
         R_pred = B[:, :3, :3] @ R_pred_t
         # the residual rotation (measured relative to predicted, base frame) applied to the commanded orientation
         R_after = iso.R_meas @ np.swapaxes(R_pred, 1, 2) @ iso.R_cmd
@@ -250,7 +251,7 @@ def predicted_after(iso: IsoCampaign, cal: CalibrationResult) -> IsoTest:
         t_s=t.t_s,
         row=t.row,
         rpy_deg=rpy,
-        cmd_rpy_deg=t.cmd_rpy_deg,
+        cmd_rpy_deg=None if rpy is None else t.cmd_rpy_deg,
         file=t.file,
     )
 

@@ -57,21 +57,24 @@ def characteristics_rows(before: IsoResult, after: IsoResult, after_label: str) 
     return rows
 
 
-def orientation_rows(before: IsoResult, after: IsoResult, after_label: str) -> list[dict[str, Any]]:
-    """Orientation characteristics (deg), one row per pose; empty without measured orientations."""
-    rows = []
+def orientation_rows(before: IsoResult, after: IsoResult) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+    """Orientation accuracy and repeatability (deg) before / after, one row per pose each; empty without measured
+    orientations."""
+    acc, rep = [], []
     for pb in before.poses:
         if pb.AP_abc_deg is None or pb.RP_abc_deg is None:
             continue
         pa = next((p for p in after.poses if p.pose == pb.pose), None)
-        r: dict[str, Any] = {"pose": pb.pose}
+        ra: dict[str, Any] = {"pose": pb.pose}
+        rr: dict[str, Any] = {"pose": pb.pose}
         for k, c in enumerate("abc"):
-            r[f"AP_{c} before"] = _fmt(pb.AP_abc_deg[k], 5)
-            r[f"AP_{c} {after_label}"] = _fmt(None if pa is None or pa.AP_abc_deg is None else pa.AP_abc_deg[k], 5)
-        for k, c in enumerate("abc"):
-            r[f"RP_{c} ±"] = _fmt(pb.RP_abc_deg[k], 5)
-        rows.append(r)
-    return rows
+            ra[f"AP_{c} before"] = _fmt(pb.AP_abc_deg[k], 5)
+            ra[f"AP_{c} after"] = None if pa is None or pa.AP_abc_deg is None else _fmt(pa.AP_abc_deg[k], 5)
+            rr[f"RP_{c} before"] = _fmt(pb.RP_abc_deg[k], 5)
+            rr[f"RP_{c} after"] = None if pa is None or pa.RP_abc_deg is None else _fmt(pa.RP_abc_deg[k], 5)
+        acc.append(ra)
+        rep.append(rr)
+    return acc, rep
 
 
 def drift_rows(before: IsoResult, after: IsoResult, after_label: str) -> list[dict[str, Any]]:
@@ -175,7 +178,8 @@ def write_report(run: IsoRun, path: str | Path) -> Path:
     label = "after" if run.after_kind == "measured" else "after (predicted)"
     rep = Report(
         "ISO 9283 performance certificate: pose characteristics",
-        f"{info['robot']} · tested {info['date']} · before and {label} calibration",
+        f"{info['robot']} · tested {info['date']} · before and after calibration"
+        + ("" if run.after_kind == "measured" else " (after: predicted)"),
     )
     rep.heading("Robot and test")
     kv: dict[str, Any] = {
@@ -209,28 +213,30 @@ def write_report(run: IsoRun, path: str | Path) -> Path:
         )
     rep.heading("Characteristics per pose")
     rep.table(
-        characteristics_rows(run.before, run.after, label),
+        characteristics_rows(run.before, run.after, "after"),
         caption=f"position (mm): accuracy AP_p, repeatability RP_l, multi-directional variation vAP_p; before vs {label}",
     )
-    orient = orientation_rows(run.before, run.after, label)
-    if orient:
-        rep.table(orient, caption=f"orientation (deg): AP_a, AP_b, AP_c before vs {label}; RP ± (before)")
-    drift = drift_rows(run.before, run.after, label)
+    acc, rpt = orientation_rows(run.before, run.after)
+    if acc:
+        none = "" if any(r.get("AP_a after") is not None for r in acc) else "; no after: the calibration has no orientations"
+        rep.table(acc, caption=f"orientation accuracy (deg, about base x, y, z): before vs {label}{none}")
+        rep.table(rpt, caption=f"orientation repeatability ± (deg): before vs {label}")
+    drift = drift_rows(run.before, run.after, "after")
     if drift:
         g = run.settings.analysis.drift_group_cycles
-        rep.table(drift, caption=f"drift (mm): the first {g} cycles vs the last {g}")
+        rep.table(drift, caption=f"drift (mm): the first {g} cycles vs the last {g}; before vs {label}")
     pair = run.before.distance_pair
     rep.table(
         [
             {
                 "pair": "-" if pair is None else f"{pair[0]}-{pair[1]}",
                 "AD_p before (mm)": _fmt(run.before.AD_p_mm),
-                f"AD_p {label} (mm)": _fmt(run.after.AD_p_mm),
+                "AD_p after (mm)": _fmt(run.after.AD_p_mm),
                 "RD ± before (mm)": _fmt(run.before.RD_l_mm),
-                f"RD ± {label} (mm)": _fmt(run.after.RD_l_mm),
+                "RD ± after (mm)": _fmt(run.after.RD_l_mm),
             }
         ],
-        caption="distance accuracy and repeatability (mm)",
+        caption=f"distance accuracy and repeatability (mm): before vs {label}",
     )
     rep.figure(bars_figure(run.before, run.after, label), "AP_p and RP_l per pose, before and " + label)
     rep.heading("Scatter of the cycles")
