@@ -39,7 +39,7 @@ def test_before_is_the_uncalibrated_error_at_the_points(calibrated_cell: dict[st
     from robocal.kinematics.transforms import inv_transform
     from robocal.robot import load_robot
 
-    truth, res, out = iso_run
+    truth, res, _ = iso_run
     robot = load_robot("kr16_2")
     chain = build_chain(robot)
     eta = np.array([truth["kinematic_errors"][n] for n in chain.param_names])

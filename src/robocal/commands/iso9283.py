@@ -31,10 +31,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
     from robocal.errors import ConfigError
     from robocal.iso9283.settings import IsoSettings
-
-    from pathlib import Path
 
     if args.campaign is not None and "=" in args.campaign and not Path(args.campaign).exists():
         args.overrides = [args.campaign, *(args.overrides or [])]  # a key=value taken for the optional CAMPAIGN

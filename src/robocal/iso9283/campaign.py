@@ -19,7 +19,6 @@ Registration: the measured points (tracker frame) are taken to the robot base fr
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -104,7 +103,9 @@ def read_iso(camp: Campaign, calibration: CalibrationResult, target: str | None 
         raise DataError(f"has {present_q} but not {miss}: give all four or none", file=f, row=1, column=miss[0])
     tname = target if target is not None else camp.target_names[0]
     if tname not in camp.target_names:
-        raise DataError(f"no row of target {tname!r}; the campaign has {list(camp.target_names)}", file=f, column="target")
+        raise DataError(
+            f"no row of target {tname!r}; the campaign has {list(camp.target_names)}", file=f, column="target"
+        )
     rows = np.flatnonzero(camp.target == tname)
     rn = camp.row_number
 
@@ -125,7 +126,10 @@ def read_iso(camp: Campaign, calibration: CalibrationResult, target: str | None 
         off = np.flatnonzero(np.abs(norm - 1.0) > 1e-3)
         if off.size:
             raise DataError(
-                f"commanded quaternion norm {norm[off[0]]:.6g}, expected 1", file=f, row=int(rn[rows[off[0]]]), column="cmd_qw"
+                f"commanded quaternion norm {norm[off[0]]:.6g}, expected 1",
+                file=f,
+                row=int(rn[rows[off[0]]]),
+                column="cmd_qw",
             )
         cq = cq / norm[:, None]
         cq = cq * np.where(cq[:, :1] < 0, -1.0, 1.0)  # q and -q are one orientation
@@ -254,7 +258,6 @@ def predicted_after(iso: IsoCampaign, cal: CalibrationResult) -> IsoTest:
         cmd_rpy_deg=None if rpy is None else t.cmd_rpy_deg,
         file=t.file,
     )
-
 
 
 __all__ = ["CMD_QUAT", "ISO_COLUMNS", "IsoCampaign", "iso_columns_present", "predicted_after", "read_iso"]

@@ -86,11 +86,11 @@ def write_program(out_dir: str | Path, robot: Any, settings: IsoSettings | None 
     appr = list(st.test.approaches)
     pre_p = np.stack([p - st.test.approach_mm * np.asarray(AXES[a]) for a in appr], axis=1)  # (5, A, 3)
     pre_q = np.zeros((5, len(appr), robot.n_joints))
-    for k, a in enumerate(appr):
-        c = compensate(nominal, q, pre_p[:, k], R, max_iter=80, tol_mm=1e-6, stall=False)
-        if not c.converged.all():
-            raise ConfigError(f"iso9283.test.approach_mm: a pre-position of approach {a!r} is out of reach")
-        pre_q[:, k] = c.q
+    for k, lab in enumerate(appr):
+        sol = compensate(nominal, q, pre_p[:, k], R, max_iter=80, tol_mm=1e-6, stall=False)
+        if not sol.converged.all():
+            raise ConfigError(f"iso9283.test.approach_mm: a pre-position of approach {lab!r} is out of reach")
+        pre_q[:, k] = sol.q
     n = robot.n_joints
     head = ["visit", "cycle", "approach", "iso_pose", "cmd_x_mm", "cmd_y_mm", "cmd_z_mm"]
     head += ["cmd_qw", "cmd_qx", "cmd_qy", "cmd_qz", *[f"q{j + 1}_deg" for j in range(n)]]

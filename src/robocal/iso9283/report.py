@@ -214,11 +214,13 @@ def write_report(run: IsoRun, path: str | Path) -> Path:
     rep.heading("Characteristics per pose")
     rep.table(
         characteristics_rows(run.before, run.after, "after"),
-        caption=f"position (mm): accuracy AP_p, repeatability RP_l, multi-directional variation vAP_p; before vs {label}",
+        caption="position (mm): accuracy AP_p, repeatability RP_l, multi-directional variation vAP_p; "
+        f"before vs {label}",
     )
     acc, rpt = orientation_rows(run.before, run.after)
     if acc:
-        none = "" if any(r.get("AP_a after") is not None for r in acc) else "; no after: the calibration has no orientations"
+        has_after = any(r.get("AP_a after") is not None for r in acc)
+        none = "" if has_after else "; no after: the calibration has no orientations"
         rep.table(acc, caption=f"orientation accuracy (deg, about base x, y, z): before vs {label}{none}")
         rep.table(rpt, caption=f"orientation repeatability ± (deg): before vs {label}")
     drift = drift_rows(run.before, run.after, "after")

@@ -168,7 +168,8 @@ def _run(st: IsoSettings, sc: dict[str, Any], out: Path, seed: int | None, bundl
     cmd_p = s0.o + s0.x * tool[0] + s0.y * tool[1] + s0.z * tool[2]
     cmd_R = s0.R @ tool_R
     if bundle is not None:
-        rows.q_cmd = _compensated(bundle, rows, thermal, cmd_p[pt_i], s0.R[pt_i], cmd_R[pt_i] if orientation else None, cyc)
+        cmd_R_rows = cmd_R[pt_i] if orientation else None
+        rows.q_cmd = _compensated(bundle, rows, thermal, cmd_p[pt_i], s0.R[pt_i], cmd_R_rows, cyc)
     rows.q_cmd = np.deg2rad(np.round(np.rad2deg(rows.q_cmd), 6))
 
     # what the true robot attains (base frame), what the tracker reads
