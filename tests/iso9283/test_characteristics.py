@@ -104,3 +104,19 @@ def test_wrap_and_input_checks() -> None:
         ch.pose_repeatability(np.zeros((1, 3)))
     with pytest.raises(ValueError, match=r"\(n, 3\)"):
         ch.pose_accuracy(np.zeros((3, 2)), np.zeros(3))
+
+
+def test_gross_error_rule_follows_a_drift() -> None:
+    """A warm-up drifts the pose 0.3 mm over the cycles (15 sigma of the scatter): no cycle is a gross error; a
+    0.3 mm jump in the middle of it is. (A rule around one median of all cycles misses the jump: the drift widens
+    the spread it is judged against.)"""
+    rng = np.random.default_rng(5)
+    n = 30
+    p = rng.normal(0.0, 0.02, (n, 3)) + np.outer(np.linspace(0.0, 0.3, n), [1.0, 0.0, 0.0])
+    test = IsoTest(np.array(["P1"] * n), np.arange(1, n + 1), np.array(["-"] * n), p, np.zeros((n, 3)),
+                   60.0 * np.arange(n), np.arange(n) + 2)  # fmt: skip
+    assert evaluate(test).left_out == []
+    p2 = p.copy()
+    p2[12] += [0.0, 0.3, 0.0]
+    jumped = IsoTest(test.pose, test.cycle, test.approach, p2, test.cmd_mm, test.t_s, test.row)
+    assert [r["cycle"] for r in evaluate(jumped).left_out] == [13]

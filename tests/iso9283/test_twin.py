@@ -125,3 +125,25 @@ def test_drift_over_a_warm_up(calibrated_cell: dict[str, Path], tmp_path: Path) 
     p1 = warm.before.pose("P1")
     assert p1.AP_abc_deg is not None and p1.RP_abc_deg is not None
     assert warm.before.poses[0].drift_span_min == pytest.approx(40.0)  # 15 visits x 8 s x 20 cycles
+
+
+def test_thermal_bundle_compensates_the_drift(tmp_path: Path) -> None:
+    """A bundle with the thermal model (fitted on the thermal scenario's warm-up campaign) corrects every target at
+    the temperatures of its cycle, full pose (the 6-DoF calibration): the drift and the orientation error go."""
+    from robocal.robot import load_robot
+    from robocal.serve.closed_loop import build_bundle
+    from robocal.sim.twin import simulate
+
+    simulate(load_scenario("thermal"), tmp_path / "warm_up")
+    bundle = build_bundle(tmp_path / "warm_up", load_robot("kr16_2"), tmp_path / "models")
+    st = IsoSettings.load({"twin": {"scenario": "thermal"}, "test": {"cycles": 20}})
+    simulate_iso(st, tmp_path / "test", "thermal", bundle=bundle)
+    res = run_iso9283(tmp_path / "test", "kr16_2", bundle / "calibration.json", tmp_path / "o", settings=st,
+                      report=False)  # fmt: skip
+    for b, a in zip(res.before.poses, res.after.poses, strict=True):
+        assert b.dAP_p_mm is not None and a.dAP_p_mm is not None
+        assert a.AP_p_mm <= 2.0 * a.RP_l_mm
+        assert a.RP_l_mm < 0.8 * b.RP_l_mm  # the warm-up's drift no longer inflates the scatter
+        assert b.AP_abc_deg is not None and a.AP_abc_deg is not None
+        assert np.abs(a.AP_abc_deg).max() < 0.2 * np.abs(b.AP_abc_deg).max()
+    assert np.mean([a.dAP_p_mm for a in res.after.poses]) < 0.5 * np.mean([b.dAP_p_mm for b in res.before.poses])

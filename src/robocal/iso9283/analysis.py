@@ -131,8 +131,8 @@ class IsoResult:
 
 
 GROSS_RULE = (
-    "per pose and approach, a cycle is left out when its distance to the coordinate-wise median of the attained "
-    "positions exceeds median(d) + {k:g} x max(1.4826 x MAD(d), {floor:g} mm); one pass"
+    "per pose and approach, a cycle is left out when its distance d to the coordinate-wise median of the 5 cycles "
+    "around it exceeds median(d) + {k:g} x max(1.4826 x MAD(d), {floor:g} mm); one pass"
 )
 
 
@@ -153,8 +153,9 @@ def evaluate(test: IsoTest, cfg: AnalysisConfig | None = None) -> IsoResult:
             idx = np.flatnonzero((test.pose == pose) & (test.approach == a))
             if len(idx) < 3:
                 continue
+            idx = idx[np.argsort(test.cycle[idx], kind="stable")]
             bad = ch.gross_errors(test.p_mm[idx], cfg.gross_error_k, cfg.gross_error_floor_mm)
-            med = np.median(test.p_mm[idx], axis=0)
+            med = np.median(test.p_mm[idx[~bad]], axis=0)
             for i in idx[bad]:
                 keep[i] = False
                 left_out.append(

@@ -101,16 +101,23 @@ def distance_characteristics(
     return Dbar - Dc, rd, Dbar, Dc
 
 
-def gross_errors(p: np.ndarray, k: float, floor_mm: float) -> np.ndarray:
+def gross_errors(p: np.ndarray, k: float, floor_mm: float, window: int = 5) -> np.ndarray:
     """The stated gross-error rule: a mask of the cycles left out of one pose (and approach).
 
-    A cycle is left out when its distance ``d_j`` from the coordinate-wise median of the attained positions
-    exceeds ``median(d) + k · max(1.4826 · MAD(d), floor_mm)`` (MAD the median absolute deviation of the ``d_j``;
-    1.4826 makes it a standard deviation for normal data; ``floor_mm`` the smallest spread credited, so that a few
-    identical readings do not make every other one an outlier). One pass, no iteration.
+    ``p`` in cycle order. Each cycle's distance ``d_j`` to the coordinate-wise median of the ``window`` cycles around
+    it (shifted at the ends; all cycles when fewer) is compared with ``median(d) + k · max(1.4826 · MAD(d), floor_mm)``
+    (MAD the median absolute deviation of the ``d_j``; 1.4826 makes it a standard deviation for normal data;
+    ``floor_mm`` the smallest spread credited, so that a few identical readings do not make every other one an
+    outlier). A local median follows a slow drift (a warm-up), so only jumps stand out. One pass, no iteration.
     """
     a = _points(p)
-    d = np.sqrt(np.sum((a - np.median(a, axis=0)) ** 2, axis=1))
+    n = len(a)
+    if n <= window:
+        ref = np.broadcast_to(np.median(a, axis=0), a.shape)
+    else:
+        start = np.clip(np.arange(n) - window // 2, 0, n - window)
+        ref = np.array([np.median(a[s : s + window], axis=0) for s in start])
+    d = np.sqrt(np.sum((a - ref) ** 2, axis=1))
     med = float(np.median(d))
     mad = float(np.median(np.abs(d - med)))
     limit = med + k * max(1.4826 * mad, floor_mm)

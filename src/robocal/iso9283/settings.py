@@ -79,7 +79,7 @@ class AnalysisConfig:
     ap_approach: str | None = None
     distance_pair: tuple[str, str] = ("P2", "P4")
     drift_group_cycles: int = setting(10, ge=2)
-    gross_error_k: float = setting(5.0, gt=0)
+    gross_error_k: float = setting(7.0, gt=0)
     gross_error_floor_mm: float = setting(0.005, ge=0)
 
 

@@ -230,10 +230,11 @@ def _compensated(
     bundle's tool), from the test configuration as the seed; ``position`` mode unless the orientation is commanded
     and the bundle's calibration has orientations."""
     from robocal.serve.bundle import load_bundle
-    from robocal.serve.protocol import Service
+    from robocal.serve.protocol import Service, ServiceConfig
 
     b = load_bundle(bundle)
-    service = Service(b)
+    # the closed loop's service settings: the test starts cold, at the edge of a thermal model's fitted range
+    service = Service(b, ServiceConfig.from_mapping({"safety": {"temperature_margin_C": 1.0}}))
     n = rows.q_cmd.shape[1]
     if b.robot.n_joints != n:
         raise ConfigError(f"the bundle {bundle} is for {b.robot.name}, not this scenario's robot")
