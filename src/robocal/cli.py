@@ -28,6 +28,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "filter": ("robocal.commands.filter", "a KRL or RAPID program with every target corrected by a calibration bundle"),
     "urdf": ("robocal.commands.urdf", "the calibrated kinematics written as a URDF (+ the calibration as YAML)"),
     "fleet": ("robocal.commands.fleet", "calibrate a fleet of robots over time (local or Ray), track, flag, report"),
+    "iso9283": ("robocal.commands.iso9283", "ISO 9283 pose characteristics before / after calibration, certificate"),
 }
 
 

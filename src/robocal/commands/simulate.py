@@ -1,4 +1,5 @@
-"""``robocal simulate SCENARIO --out DIR [--seed N]``."""
+"""``robocal simulate SCENARIO --out DIR [--seed N]``; ``robocal simulate iso9283 --out DIR [--bundle B]``: the
+twin runs an ISO 9283 pose test (:mod:`robocal.iso9283.twin`)."""
 
 from __future__ import annotations
 
@@ -8,9 +9,16 @@ from robocal.commands import parse_overrides
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("scenario", help="scenario name (conf/scenario/<name>.yaml) or a YAML path")
+    p.add_argument(
+        "scenario",
+        help="scenario name (conf/scenario/<name>.yaml) or a YAML path; 'iso9283': an ISO 9283 pose test "
+        "(settings conf/iso9283/default.yaml, overrides test.cycles=.. twin.scenario=..; others go to the scenario)",
+    )
     p.add_argument("--out", required=True, help="output directory (created)")
     p.add_argument("--seed", type=int, default=None, help="random seed (default: the scenario's)")
+    p.add_argument(
+        "--bundle", default=None, help="iso9283 only: also run the test compensated by this bundle into OUT/after"
+    )
     p.add_argument("overrides", nargs="*", help="scenario overrides key=value (dotted keys nest)")
 
 
@@ -24,9 +32,33 @@ def _merge(base: dict, over: dict) -> dict:
 def run(args: argparse.Namespace) -> int:
     from robocal.sim.twin import load_scenario, simulate
 
+    if args.scenario == "iso9283":
+        return _iso9283(args)
+    if args.bundle is not None:
+        from robocal.errors import ConfigError
+
+        raise ConfigError("--bundle is for 'robocal simulate iso9283' (the compensated ISO test)")
     sc = _merge(load_scenario(args.scenario), parse_overrides(args.overrides))
     truth = simulate(sc, args.out, seed=args.seed)
     print(
         f"wrote campaign {sc.get('name', args.scenario)!r} (robot {truth['robot']}, seed {truth['seed']}) to {args.out}"
+    )
+    return 0
+
+
+def _iso9283(args: argparse.Namespace) -> int:
+    from robocal.iso9283.settings import SECTIONS, IsoSettings
+    from robocal.iso9283.twin import simulate_iso
+    from robocal.sim.twin import load_scenario
+
+    ov = parse_overrides(args.overrides)
+    st = IsoSettings.load({k: v for k, v in ov.items() if k in SECTIONS})
+    sc = _merge(load_scenario(st.twin.scenario), {k: v for k, v in ov.items() if k not in SECTIONS})
+    truth = simulate_iso(st, args.out, sc, seed=args.seed, bundle=args.bundle)
+    iso = truth["iso9283"]
+    print(
+        f"wrote ISO 9283 test (robot {truth['robot']}, scenario {truth['scenario']!r}, seed {truth['seed']}, "
+        f"{iso['cycles']} cycles x {len(iso['approaches'])} approaches x 5 poses) to {args.out}"
+        + ("" if args.bundle is None else f"; compensated by {args.bundle} to {args.out}/after")
     )
     return 0
