@@ -42,5 +42,8 @@ def run(args: argparse.Namespace) -> int:
             f"validation ({vd['n_rows']} rows): mean {vg['mean_position_mm']:.4f} mm geometric -> "
             f"{vd['mean_position_mm']:.4f} mm discovered"
         )
-    print(f"wrote {args.out}/discovery.json, calibration.json (the discovered model) and compensation.csv")
+    shown = {"calibration.json": "calibration.json (the discovered model)"}
+    print(f"wrote {args.out}/" + ", ".join(shown.get(f, f) for f in s["written"]))
+    for name, why in s["not_written"].items():
+        print(f"no {name}: {why}")
     return 0
