@@ -42,7 +42,7 @@ from robocal.errors import ConfigError
 from robocal.identification.calibrate import CalibrationResult, load_calibration
 from robocal.io import write_json
 from robocal.kinematics.chain import Chain
-from robocal.robot import RobotDescription, load_robot
+from robocal.robot import _CONF_ROBOT_DIR, RobotDescription, find_robot, is_robot_path, load_robot
 
 FORMAT = "robocal-bundle"
 VERSION = 1
@@ -264,16 +264,16 @@ def write_bundle(
 ) -> Path:
     """Copy the model files into ``out_dir`` and write the manifest last (atomically) with their sha256.
 
-    robot : a robot name (conf/robot) or a YAML file (copied as ``robot.yaml``).
+    robot : a robot name or a YAML file (:func:`robocal.robot.find_robot`); a file, or a name found in the
+        current project's ``conf/robot/`` rather than among the packaged robots, is copied as ``robot.yaml`` so
+        that the bundle loads anywhere.
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     files: dict[str, str] = {}
     manifest: dict[str, Any] = {"format": FORMAT, "version": VERSION}
-    rp = Path(robot)
-    if rp.suffix in (".yaml", ".yml"):
-        if not rp.is_file():
-            raise ConfigError(f"robot file {rp} does not exist")
+    rp = find_robot(robot)
+    if is_robot_path(robot) or rp.resolve().parent != _CONF_ROBOT_DIR.resolve():
         shutil.copyfile(rp, out / "robot.yaml")
         manifest["robot"] = "robot.yaml"
         files["robot.yaml"] = "robot.yaml"
