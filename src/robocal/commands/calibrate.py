@@ -90,5 +90,7 @@ def run(args: argparse.Namespace) -> int:
     problems = summary.get("problems", [])
     for text in problems:
         print(f"robocal calibrate: FAILED: {text}")
+    for text in summary.get("warnings", []):  # status "warning": usable with care, exit 0
+        print(f"robocal calibrate: WARNING: {text}")
     print(f"wrote {args.out}/calibration.json and summary.json")
     return 1 if problems else 0

@@ -47,6 +47,37 @@ def result_problems(summary: Mapping[str, Any]) -> list[str]:
     return out
 
 
+def result_warnings(summary: Mapping[str, Any]) -> list[str]:
+    """Why a calibration that is not failed must still not be called ok: its fit stopped without converging
+    (e.g. on its iteration limit), or its largest validation error is worse than the nominal model's (while the
+    mean is not: that is a failure, :func:`result_problems`). Empty when neither."""
+    out = []
+    fit = summary["fit"]
+    if fit.get("success") is False:
+        out.append(
+            f"the fit did not converge: {fit.get('message', 'no message')} ({fit.get('nit')} iterations); the "
+            "result may be far from the least-squares minimum (raise max_iter, or check the data: joint units, "
+            "robot, targets)"
+        )
+    val, before = summary.get("validation"), summary.get("validation_before")
+    if (
+        val
+        and before
+        and val["mean_position_mm"] <= before["mean_position_mm"]
+        and val.get("max_position_mm", 0.0) > before.get("max_position_mm", float("inf"))
+    ):
+        out.append(
+            f"on the validation poses the largest error of the calibrated model ({val['max_position_mm']:.4f} mm) "
+            f"is worse than the nominal one's ({before['max_position_mm']:.4f} mm), although the mean improved"
+        )
+    return out
+
+
+def status_of(summary: Mapping[str, Any]) -> str:
+    """``failed`` (:func:`result_problems`), ``warning`` (:func:`result_warnings`) or ``ok``."""
+    return "failed" if summary.get("problems") else ("warning" if summary.get("warnings") else "ok")
+
+
 def run(
     data_dir: str | Path | None,
     robot: str | Path | RobotDescription,
@@ -96,7 +127,10 @@ def run(
     before = np.linalg.norm(result.extra["residuals_before_mm"], axis=1)
     summary["start_rms_position_mm"] = float(np.sqrt(np.mean(before**2))) if before.size else None
     summary["problems"] = result_problems(summary)
-    summary["status"] = "failed" if summary["problems"] else "ok"
+    warnings = result_warnings(summary)
+    if warnings:  # the key only when there are some (a clean run's summary.json is unchanged)
+        summary["warnings"] = warnings
+    summary["status"] = status_of(summary)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     write_json(out / "calibration.json", result.to_dict())
