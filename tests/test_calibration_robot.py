@@ -52,7 +52,9 @@ def test_make_bundle_refuses_another_robot_naming_both(abb_calibration, tmp_path
     assert "made for robot 'abb_irb120', not for 'kr16_2'" in err and str(abb_calibration) in err, err
     assert not (out / "manifest.json").exists()  # nothing written
     # the right robot still makes a bundle
-    assert main(["serve", "--make-bundle", str(out), "--robot", "abb_irb120", "--calibration", str(abb_calibration)]) == 0
+    assert (
+        main(["serve", "--make-bundle", str(out), "--robot", "abb_irb120", "--calibration", str(abb_calibration)]) == 0
+    )
 
 
 def test_urdf_refuses_another_robot_naming_both(abb_calibration, tmp_path, capsys):

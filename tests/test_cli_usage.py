@@ -36,7 +36,9 @@ def test_an_unknown_option_is_reported_by_the_command(capsys):
 
 
 def test_a_misspelt_optimizer_gets_did_you_mean(tmp_path, capsys):
-    with pytest.raises(ConfigError, match=r"^optimizer: must be one of \[.*'lm'.*\]; got 'levenberg'\. Did you mean 'lm'\?"):
+    with pytest.raises(
+        ConfigError, match=r"^optimizer: must be one of \[.*'lm'.*\]; got 'levenberg'\. Did you mean 'lm'\?"
+    ):
         optimizer_config("levenberg")
     with pytest.raises(ConfigError, match=r"got 'gauss-newton'\. Did you mean 'gn'\?"):
         optimizer_config("gauss-newton")

@@ -61,9 +61,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from robocal.errors import RobocalError
-
     from robocal.commands import not_a_setting
+    from robocal.errors import RobocalError
 
     parser = build_parser()
     args, extra = parser.parse_known_args(argv)

@@ -243,7 +243,9 @@ def unknown_setting(path: str, key: Any, value: Any, known: Iterable[str]) -> Se
     return SettingError(_join(path, str(key)), "unknown setting", value, f"{hint}Known: {', '.join(names)}")
 
 
-def unknown_choice(path: str, value: Any, known: Iterable[str], aliases: Mapping[str, str] | None = None) -> SettingError:
+def unknown_choice(
+    path: str, value: Any, known: Iterable[str], aliases: Mapping[str, str] | None = None
+) -> SettingError:
     """The error of a value of ``path`` that is none of the ``known`` names: the allowed ones, and the closest
     (also through ``aliases``, see :func:`closest_name`)."""
     names = sorted(known)

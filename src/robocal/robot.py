@@ -320,9 +320,7 @@ def find_robot(name_or_path: str | Path, conf_dir: str | Path | None = None) -> 
                 return d / f"{name}.yaml"
     known = sorted({x.stem for d in dirs if d.is_dir() for x in d.glob("*.yaml")})
     where = " nor ".join(str(d) for d in dirs)
-    raise ConfigError(
-        f"unknown robot {name!r}: no {name}.yaml in {where}; known robots: {known} (or give a YAML path)"
-    )
+    raise ConfigError(f"unknown robot {name!r}: no {name}.yaml in {where}; known robots: {known} (or give a YAML path)")
 
 
 def load_robot(name_or_path: str | Path, conf_dir: str | Path | None = None) -> RobotDescription:

@@ -48,7 +48,9 @@ def test_a_twin_campaign_in_radians_is_refused_naming_the_column_and_nothing_els
         read_campaign(rad, robot)
     err = exc.value
     assert err.column in QCOLS and err.row is not None and Path(str(err.file)).name == "poses.csv"
-    assert "look like radians" in str(err) and f"'{err.column}'" in str(err) and "12 distinct configurations" in str(err)
+    assert (
+        "look like radians" in str(err) and f"'{err.column}'" in str(err) and "12 distinct configurations" in str(err)
+    )
     # no false alarm: a drift test near zero, the real campaigns and the twin's other campaigns
     _a_campaign_standing_still_near_zero_is_not_taken_for_radians(tmp_path)
     shared = Path(__file__).resolve().parents[2].parent / "shared"

@@ -31,7 +31,9 @@ def twin(tmp_path_factory) -> Path:
 def test_a_fit_stopped_by_its_iteration_limit_is_a_warning(twin, tmp_path, capsys):
     out = tmp_path / "cal"
     # one Levenberg-Marquardt iteration from the nominal model cannot converge (it needs several)
-    code = main(["calibrate", str(twin), "--robot", "kr16_2", "--out", str(out), "optimizer=lm", "optimizer.max_iter=1"])
+    code = main(
+        ["calibrate", str(twin), "--robot", "kr16_2", "--out", str(out), "optimizer=lm", "optimizer.max_iter=1"]
+    )
     summary = json.loads((out / "summary.json").read_text())
     assert summary["fit"]["success"] is False and summary["fit"]["nit"] == 1
     assert summary["status"] == "warning" and summary["problems"] == []

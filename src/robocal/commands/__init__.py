@@ -12,8 +12,7 @@ from robocal.errors import ConfigError
 def not_a_setting(item: str) -> str:
     """The error text of a command-line word that stands where settings go but has no ``=``."""
     return (
-        f"{item!r} is not a setting: settings are key=value (e.g. {item}=<value>); options start with -- "
-        "(see --help)"
+        f"{item!r} is not a setting: settings are key=value (e.g. {item}=<value>); options start with -- (see --help)"
     )
 
 

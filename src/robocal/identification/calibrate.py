@@ -291,7 +291,11 @@ def nominal_record(robot: RobotDescription) -> dict[str, Any]:
     """The robot's nominal kinematics as ``calibration.json`` records them (``nominal``), so that a calibration
     is never applied to another robot (:func:`check_robot`): the joint names and the MD-H table (mm, deg) or
     the POE twists and flange pose at zero."""
-    out: dict[str, Any] = {"convention": robot.convention, "n_joints": robot.n_joints, "joints": list(robot.joint_names)}
+    out: dict[str, Any] = {
+        "convention": robot.convention,
+        "n_joints": robot.n_joints,
+        "joints": list(robot.joint_names),
+    }
     if robot.is_mdh:
         out["mdh"] = {
             "a_mm": robot.a_mm.tolist(),
@@ -332,9 +336,7 @@ def check_robot(data: dict[str, Any], robot: RobotDescription, where: str = "the
                 if a.shape != b.shape or not np.allclose(a, b, rtol=NOMINAL_TOL, atol=NOMINAL_TOL):
                     if a.shape == b.shape and a.ndim == 1:
                         j = int(np.argmax(np.abs(a - b)))
-                        problems.append(
-                            f"its nominal {key} of joint {j + 1} is {a[j]:g}, {robot.name!r} has {b[j]:g}"
-                        )
+                        problems.append(f"its nominal {key} of joint {j + 1} is {a[j]:g}, {robot.name!r} has {b[j]:g}")
                     else:
                         problems.append(f"its nominal {section} {key} differs from {robot.name!r}'s")
                     break

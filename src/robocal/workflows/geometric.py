@@ -75,13 +75,11 @@ def cannot_start(campaign: Campaign, robot: RobotDescription, start_rms_mm: floa
     )
     cols = [f"q{j + 1}_deg" for j in range(campaign.n_joints)]
     try:  # the joint columns read as radians (values v in q*_deg: the contract made them v*pi/180 rad)
-        as_rad = replace(campaign, q=np.degrees(campaign.q)).calibration()
-        if not np.any(campaign.split == "validation"):
-            as_rad = replace(campaign, q=np.degrees(campaign.q))
+        as_rad = replace(campaign, q=np.degrees(campaign.q))
         cfg = CalibrationConfig.from_mapping({"max_iter": 1, "outliers": "off"})
         rad = calibrate(as_rad, robot, cfg).extra["residuals_before_mm"]
         rad_rms = float(np.sqrt(np.mean(np.sum(rad**2, axis=1))))
-    except Exception:  # noqa: BLE001 - a diagnosis only: without it the reason stands
+    except Exception:
         rad_rms = float("inf")
     if rad_rms < 0.1 * start_rms_mm:
         return (
