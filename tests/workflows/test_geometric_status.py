@@ -38,11 +38,11 @@ def test_a_fit_stopped_by_its_iteration_limit_is_a_warning(twin, tmp_path, capsy
     assert summary["fit"]["success"] is False and summary["fit"]["nit"] == 1
     assert summary["status"] == "warning" and summary["problems"] == []
     (text,) = summary["warnings"]
-    assert text.startswith("the fit did not converge: the maximum number of iterations was reached (1 iterations)")
+    assert text.startswith("the fit did not converge: the maximum number of iterations was reached (1 iteration)")
     assert code == 0  # usable with care: the warning is said, the run does not fail
     assert f"robocal calibrate: WARNING: {text}" in capsys.readouterr().out
     html = (out / "report.html").read_text()
-    assert "WARNING: the fit did not converge" in html
+    assert "the fit did not converge: the maximum number of iterations was reached" in html
     # the same campaign run to convergence is ok, with no warnings key
     out2 = tmp_path / "cal2"
     assert main(["calibrate", str(twin), "--robot", "kr16_2", "--out", str(out2), "--no-report"]) == 0

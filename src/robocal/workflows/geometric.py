@@ -89,6 +89,10 @@ def cannot_start(campaign: Campaign, robot: RobotDescription, start_rms_mm: floa
     return f"{text}. Check the joint angles' unit (degrees), the robot (--robot) and the targets"
 
 
+def _iterations(n: Any) -> str:
+    return f"{n} iteration" + ("" if n == 1 else "s")
+
+
 def result_warnings(summary: Mapping[str, Any]) -> list[str]:
     """Why a calibration that is not failed must still not be called ok: its fit stopped without converging
     (e.g. on its iteration limit), or its largest validation error is worse than the nominal model's (while the
@@ -97,7 +101,7 @@ def result_warnings(summary: Mapping[str, Any]) -> list[str]:
     fit = summary["fit"]
     if fit.get("success") is False:
         out.append(
-            f"the fit did not converge: {fit.get('message', 'no message')} ({fit.get('nit')} iterations); the "
+            f"the fit did not converge: {fit.get('message', 'no message')} ({_iterations(fit.get('nit'))}); the "
             "result may be far from the least-squares minimum (raise max_iter, or check the data: joint units, "
             "robot, targets)"
         )
