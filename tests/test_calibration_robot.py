@@ -86,3 +86,18 @@ def test_an_older_calibration_without_the_nominal_record_is_checked_by_name_and_
     with pytest.raises(ConfigError, match=r"made for robot 'abb_irb120', not for 'kr16_2'"):
         load_calibration(data, robocal.load_robot("kr16_2"))
     load_calibration(data, robocal.load_robot("abb_irb120"))
+
+
+def test_a_urdf_robots_calibration_bundles_by_reference_and_refuses_another(tmp_path):
+    from robocal.serve.bundle import load_bundle, write_bundle
+
+    ref = f"{Path(__file__).resolve().parent / 'cell' / 'data' / 'ur5_robot.urdf'}#base_link:tool0"
+    robot = robocal.load_robot(ref)
+    sc = robocal.load_scenario("geometric")
+    sc.update(n_poses=30, n_validation_poses=0)
+    robocal.simulate(sc, tmp_path / "camp", seed=7, robot=robot)
+    write_json(tmp_path / "c.json", robocal.calibrate(robocal.read_campaign(tmp_path / "camp", robot), robot).to_dict())
+    b = write_bundle(tmp_path / "B", ref, tmp_path / "c.json")
+    assert json.loads((b / "manifest.json").read_text())["robot"] == ref and load_bundle(b).robot.name == "ur5"
+    with pytest.raises(ConfigError, match=r"made for robot 'ur5', not for 'kr16_2'.*its convention is 'poe'"):
+        write_bundle(tmp_path / "B2", "kr16_2", tmp_path / "c.json")

@@ -270,19 +270,20 @@ def write_bundle(
         current project's ``conf/robot/`` rather than among the packaged robots, is copied as ``robot.yaml`` so
         that the bundle loads anywhere.
     """
-    rp = find_robot(robot)
+    urdf = str(robot).endswith(".urdf") or ".urdf#" in str(robot)  # referenced as given (robocal.cell.urdf)
+    rp = None if urdf else find_robot(robot)
     cal_path = Path(calibration)
     try:  # a calibration of another robot is refused before anything is written
         cal_data = json.loads(cal_path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise ConfigError(f"cannot read the calibration {cal_path}: {exc}") from None
     if isinstance(cal_data, dict):
-        check_robot(cal_data, load_robot(rp), f"the calibration {cal_path}")
+        check_robot(cal_data, load_robot(robot if rp is None else rp), f"the calibration {cal_path}")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     files: dict[str, str] = {}
     manifest: dict[str, Any] = {"format": FORMAT, "version": VERSION}
-    if is_robot_path(robot) or rp.resolve().parent != _CONF_ROBOT_DIR.resolve():
+    if rp is not None and (is_robot_path(robot) or rp.resolve().parent != _CONF_ROBOT_DIR.resolve()):
         shutil.copyfile(rp, out / "robot.yaml")
         manifest["robot"] = "robot.yaml"
         files["robot.yaml"] = "robot.yaml"
