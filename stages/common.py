@@ -199,7 +199,8 @@ class Metrics:
     """What ``compute`` may return instead of a plain mapping: a few ``headline`` numbers for the metrics
     file (``dvc metrics show`` / ``dvc exp show``: keep it short, names unique across stages) and
     ``details`` that go to MLflow only (the stage's own JSON outputs hold them too). ``status`` is "ok"
-    unless the stage found the result unusable (e.g. "failed": worse than its start)."""
+    unless the stage found the result unusable (e.g. "failed": worse than its start) or usable with care
+    ("warning": e.g. a fit that stopped on its iteration limit)."""
 
     headline: Mapping[str, Any]
     details: Mapping[str, Any] = field(default_factory=dict)
@@ -255,7 +256,7 @@ def execute(
 ) -> dict[str, Any]:
     """Run one stage job: tracking run, ``compute``, metrics / skipped result, artifacts.
 
-    Writes ``metrics_path`` = ``{<stage name>: status, **headline}`` (status "ok", "skipped" or "failed").
+    Writes ``metrics_path`` = ``{<stage name>: status, **headline}`` (status "ok", "warning", "skipped" or "failed").
     Returns everything: ``status`` (and ``reason`` of a skip), details, headline numbers and the times."""
     from robocal.tracking import PendingRun, StageRun
 

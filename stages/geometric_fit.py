@@ -127,7 +127,13 @@ def compute(ctx: Context) -> Metrics:
     if problems:
         details["reason"] = "; ".join(problems)
         ctx.tracker.set_tags({"robocal.failure": details["reason"]})
-    return Metrics(headline, details, status="failed" if problems else "ok")
+    warnings = list(summary.get("warnings", []))
+    for text in warnings:
+        print(f"stage geometric_fit: WARNING: {text}")
+    if warnings:
+        details["warning"] = "; ".join(warnings)
+        ctx.tracker.set_tags({"robocal.warning": details["warning"]})
+    return Metrics(headline, details, status=summary["status"])
 
 
 if __name__ == "__main__":

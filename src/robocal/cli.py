@@ -1,5 +1,7 @@
 """The ``robocal`` command line: ``robocal <command> ...``; ``robocal <command> --help`` for each.
 
+Help texts are plain text (``--help`` shows no reStructuredText markup: :class:`PlainFormatter`).
+
 Each command lives in its own module under :mod:`robocal.commands` with ``add_arguments(parser)``
 and ``run(args) -> int``; modules are imported only when their command runs.
 """
@@ -32,30 +34,54 @@ COMMANDS: dict[str, tuple[str, str]] = {
 }
 
 
+#: what ``robocal --help`` says above the commands
+DESCRIPTION = (
+    "robocal: calibration of industrial robots from laser-tracker measurements. "
+    "Run 'robocal COMMAND --help' for the options of a command."
+)
+
+
+class PlainFormatter(argparse.HelpFormatter):
+    """Help without reStructuredText literals: ``text`` is shown as text."""
+
+    def _format_text(self, text: str) -> str:
+        return super()._format_text(text.replace("``", ""))
+
+    def _expand_help(self, action: argparse.Action) -> str:
+        return super()._expand_help(action).replace("``", "")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="robocal", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="robocal", description=DESCRIPTION, formatter_class=PlainFormatter)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, (module, help_text) in COMMANDS.items():
-        p = sub.add_parser(name, help=help_text, description=help_text)
-        p.set_defaults(_module=module)
+        p = sub.add_parser(name, help=help_text, description=help_text, formatter_class=PlainFormatter)
+        p.set_defaults(_module=module, _parser=p)
         importlib.import_module(module).add_arguments(p)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
+    from robocal.commands import not_a_setting
     from robocal.errors import RobocalError
 
     parser = build_parser()
     args, extra = parser.parse_known_args(argv)
-    if extra:
-        # argparse leaves positional key=value overrides given after the options (--out DIR k=v) unparsed
-        if hasattr(args, "overrides") and all("=" in a and not a.startswith("-") for a in extra):
-            args.overrides = [*(args.overrides or []), *extra]
-        else:
-            parser.error(f"unrecognized arguments: {' '.join(extra)}")
     if not getattr(args, "command", None):
+        if extra:
+            parser.error(f"unrecognized arguments: {' '.join(extra)}")
         parser.print_help()
         return 2
+    command_parser: argparse.ArgumentParser = args._parser
+    if extra:
+        # argparse leaves positional key=value overrides given after the options (--out DIR k=v) unparsed
+        if hasattr(args, "overrides") and not any(a.startswith("-") for a in extra):
+            args.overrides = [*(args.overrides or []), *extra]
+        else:
+            command_parser.error(f"unrecognized arguments: {' '.join(extra)}")
+    bare = [a for a in getattr(args, "overrides", None) or [] if "=" not in a]
+    if bare:  # a setting without '=' (noise_mm 0.02): say so, with the command's usage, before running anything
+        command_parser.error(not_a_setting(bare[0]))
     try:
         return int(importlib.import_module(args._module).run(args) or 0)
     except RobocalError as exc:

@@ -55,7 +55,16 @@ import numpy as np
 
 from robocal.errors import ConfigError
 
-__all__ = ["SettingError", "check_fields", "parse", "setting", "sub_settings", "unknown_setting"]
+__all__ = [
+    "SettingError",
+    "check_fields",
+    "closest_name",
+    "parse",
+    "setting",
+    "sub_settings",
+    "unknown_choice",
+    "unknown_setting",
+]
 
 T = TypeVar("T")
 
@@ -210,12 +219,38 @@ def _build(cls: type[T], mapping: Any, path: str, ignore: frozenset[str]) -> T:
     return obj
 
 
+def closest_name(word: Any, names: Iterable[str], aliases: Mapping[str, str] | None = None) -> str | None:
+    """The known name closest to ``word`` (difflib), or None when none is close. ``aliases`` maps other
+    spellings of a name to it (``{"levenberg-marquardt": "lm"}``), so that a long or a class name finds its
+    short name too."""
+    known = list(names)
+    pool = {n: n for n in known}
+    for alias, name in (aliases or {}).items():
+        if name in pool:
+            pool.setdefault(alias.lower(), name)
+    for w in dict.fromkeys((str(word), str(word).lower())):  # as written first (keys are case-sensitive)
+        close = difflib.get_close_matches(w, list(pool), n=1)
+        if close:
+            return pool[close[0]]
+    return None
+
+
 def unknown_setting(path: str, key: Any, value: Any, known: Iterable[str]) -> SettingError:
     """The error of a key ``key`` of section ``path`` that is no setting: the closest known key, and the known."""
     names = sorted(known)
-    close = difflib.get_close_matches(str(key), names, n=1)
-    hint = f"Did you mean {close[0]!r}? " if close else ""
+    close = closest_name(key, names)
+    hint = f"Did you mean {close!r}? " if close else ""
     return SettingError(_join(path, str(key)), "unknown setting", value, f"{hint}Known: {', '.join(names)}")
+
+
+def unknown_choice(
+    path: str, value: Any, known: Iterable[str], aliases: Mapping[str, str] | None = None
+) -> SettingError:
+    """The error of a value of ``path`` that is none of the ``known`` names: the allowed ones, and the closest
+    (also through ``aliases``, see :func:`closest_name`)."""
+    names = sorted(known)
+    close = closest_name(value, names, aliases)
+    return SettingError(path, f"must be one of {names}", value, f"Did you mean {close!r}?" if close else "")
 
 
 def _field_value(f: dataclasses.Field[Any], tp: Any, value: Any, path: str) -> Any:

@@ -4,6 +4,11 @@ A description is read from YAML (``conf/robot/<name>.yaml`` or any path) into a 
 :class:`RobotDescription`. Units are converted once, here: lengths stay in mm, angles become
 radians.
 
+A robot is found by one lookup order (:func:`find_robot`, used by :func:`load_robot` and so by every command
+and workflow that takes a robot name): a path (a ``.yaml`` / ``.yml`` name or an existing file), then
+``conf/robot/<name>.yaml`` of the current project (the nearest of the working directory and its parents that
+has a ``conf/robot/`` folder), then the robots shipped with the package (:data:`_CONF_ROBOT_DIR`).
+
 YAML format (keys not listed are kept in ``extra`` and ignored)::
 
     name: kr16_2
@@ -269,26 +274,66 @@ def robot_from_dict(data: dict[str, Any], source: str = "<dict>") -> RobotDescri
     )
 
 
+def project_robot_dir(start: str | Path | None = None) -> Path | None:
+    """``conf/robot/`` of the current project: the nearest of ``start`` (default: the working directory) and its
+    parents that has one; None when none has."""
+    here = Path(start) if start is not None else Path.cwd()
+    for d in (here, *here.parents):
+        if (d / "conf" / "robot").is_dir():
+            return d / "conf" / "robot"
+    return None
+
+
+def robot_dirs(conf_dir: str | Path | None = None) -> list[Path]:
+    """The folders a robot name is looked up in, in order: ``conf_dir`` alone when given, else the current
+    project's ``conf/robot/`` (:func:`project_robot_dir`) and then the packaged robots."""
+    if conf_dir is not None:
+        return [Path(conf_dir)]
+    project = project_robot_dir()
+    dirs = [] if project is None else [project]
+    if project is None or project.resolve() != _CONF_ROBOT_DIR.resolve():
+        dirs.append(_CONF_ROBOT_DIR)
+    return dirs
+
+
+def is_robot_path(name_or_path: str | Path) -> bool:
+    """Whether a robot reference is a path (a ``.yaml`` / ``.yml`` / URDF name or an existing file), not a name."""
+    s = str(name_or_path)
+    return s.endswith((".yaml", ".yml", ".urdf")) or ".urdf#" in s or Path(s).is_file()
+
+
+def find_robot(name_or_path: str | Path, conf_dir: str | Path | None = None) -> Path:
+    """The YAML file of a robot reference, by the one lookup order: a path as given, else ``<name>.yaml`` in
+    :func:`robot_dirs` (the current project's ``conf/robot/``, then the packaged robots).
+
+    Raises :class:`ConfigError` naming the folders searched and the robots they have."""
+    if is_robot_path(name_or_path):
+        path = Path(name_or_path)
+        if not path.is_file():
+            raise ConfigError(f"robot description {path} does not exist")
+        return path
+    name = str(name_or_path)
+    dirs = robot_dirs(conf_dir)
+    if name and "/" not in name and "\\" not in name:
+        for d in dirs:
+            if (d / f"{name}.yaml").is_file():
+                return d / f"{name}.yaml"
+    known = sorted({x.stem for d in dirs if d.is_dir() for x in d.glob("*.yaml")})
+    where = " nor ".join(str(d) for d in dirs)
+    raise ConfigError(f"unknown robot {name!r}: no {name}.yaml in {where}; known robots: {known} (or give a YAML path)")
+
+
 def load_robot(name_or_path: str | Path, conf_dir: str | Path | None = None) -> RobotDescription:
-    """Load a robot by name (``conf/robot/<name>.yaml``), from a YAML path, or from a URDF
-    (``robot.urdf`` or ``robot.urdf#BASE:TIP``, see :mod:`robocal.cell.urdf`)."""
+    """Load a robot by name, from a YAML path, or from a URDF (``robot.urdf`` or ``robot.urdf#BASE:TIP``, see
+    :mod:`robocal.cell.urdf`). A name is looked up as :func:`find_robot` says: ``conf/robot/<name>.yaml`` of the
+    current project first, then the packaged robots (``conf_dir``: only that folder)."""
     if str(name_or_path).endswith(".urdf") or ".urdf#" in str(name_or_path):
         import importlib
 
         mod, func = URDF_READER.split(":")
         robot: RobotDescription = getattr(importlib.import_module(mod), func)(name_or_path)
         return robot
-    p = Path(name_or_path)
-    if p.suffix in (".yaml", ".yml") or p.exists():
-        path = p
-    else:
-        base = Path(conf_dir) if conf_dir is not None else _CONF_ROBOT_DIR
-        path = base / f"{name_or_path}.yaml"
-        if not path.exists():
-            known = sorted(x.stem for x in base.glob("*.yaml")) if base.exists() else []
-            raise ConfigError(f"unknown robot {str(name_or_path)!r}: no {path}; known robots: {known}")
-    if not path.exists():
-        raise ConfigError(f"robot description {path} does not exist")
+    path = find_robot(name_or_path, conf_dir)
     try:
         data = yaml.safe_load(path.read_text())
     except yaml.YAMLError as exc:

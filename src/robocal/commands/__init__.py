@@ -9,12 +9,19 @@ import yaml
 from robocal.errors import ConfigError
 
 
+def not_a_setting(item: str) -> str:
+    """The error text of a command-line word that stands where settings go but has no ``=``."""
+    return (
+        f"{item!r} is not a setting: settings are key=value (e.g. {item}=<value>); options start with -- (see --help)"
+    )
+
+
 def parse_overrides(items: list[str] | None) -> dict[str, Any]:
     """``key=value`` pairs (values parsed as YAML: numbers, lists, booleans); dotted keys nest."""
     out: dict[str, Any] = {}
     for item in items or []:
         if "=" not in item:
-            raise ConfigError(f"override {item!r} must look like key=value")
+            raise ConfigError(not_a_setting(item))
         key, raw = item.split("=", 1)
         try:
             value = yaml.safe_load(raw) if raw != "" else None

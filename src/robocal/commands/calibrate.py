@@ -9,7 +9,7 @@ from typing import Any
 import yaml
 
 from robocal.commands import parse_overrides
-from robocal.config import unknown_setting
+from robocal.config import unknown_choice, unknown_setting
 from robocal.errors import ConfigError
 
 
@@ -43,8 +43,9 @@ def optimizer_config(value: Any, conf_dir: Path = OPTIMIZER_DIR) -> dict[str, An
     name = keys.pop("name", "lm")
     path = conf_dir / f"{name}.yaml"
     if not isinstance(name, str) or not path.is_file():
-        known = sorted(p.stem for p in conf_dir.glob("*.yaml"))
-        raise ConfigError(f"The setting 'optimizer' must be one of {known}. Got {name!r} instead.")
+        from robocal.optimizers.registry import aliases
+
+        raise unknown_choice("optimizer", name, (p.stem for p in conf_dir.glob("*.yaml")), aliases())
     cfg = dict(yaml.safe_load(path.read_text(encoding="utf-8")) or {})
     unknown = sorted(set(keys) - set(cfg))
     if unknown:
@@ -89,5 +90,7 @@ def run(args: argparse.Namespace) -> int:
     problems = summary.get("problems", [])
     for text in problems:
         print(f"robocal calibrate: FAILED: {text}")
+    for text in summary.get("warnings", []):  # status "warning": usable with care, exit 0
+        print(f"robocal calibrate: WARNING: {text}")
     print(f"wrote {args.out}/calibration.json and summary.json")
     return 1 if problems else 0

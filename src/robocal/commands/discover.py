@@ -56,5 +56,8 @@ def run(args: argparse.Namespace) -> int:
     if cv and "cv_mean_position_mm" in cv:
         print(f"cross-validated estimate on the calibration poses (pose-grouped): mean "
               f"{cv['cv_mean_position_mm']:.4f} mm, RMS {cv['cv_rms_position_mm']:.4f} mm")  # fmt: skip
-    print(f"wrote {args.out}/discovery.json, calibration.json (the discovered model) and compensation.csv")
+    shown = {"calibration.json": "calibration.json (the discovered model)"}
+    print(f"wrote {args.out}/" + ", ".join(shown.get(f, f) for f in s["written"]))
+    for name, why in s["not_written"].items():
+        print(f"no {name}: {why}")
     return 0

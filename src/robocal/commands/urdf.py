@@ -28,6 +28,8 @@ def run(args: argparse.Namespace) -> int:
     path = Path(args.calibration)
     try:
         cal = load_calibration(json.loads(path.read_text(encoding="utf-8")), robot)
+    except ConfigError as exc:  # e.g. a calibration of another robot: the error names both
+        raise ConfigError(f"{path}: {exc}") from None
     except (OSError, json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
         raise ConfigError(f"cannot load the calibration {path}: {type(exc).__name__}: {exc}") from None
     u, y = export_calibration(cal, args.out, name=args.name)

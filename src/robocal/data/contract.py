@@ -34,6 +34,13 @@ SPLIT_VALUES = ("calibration", "validation")
 METRES_SUSPECT_MM = 10.0
 #: the station of every row when the file has no ``station`` column
 DEFAULT_STATION = "S1"
+#: Joint angles that look like radians (:func:`_check_not_radians`): every value of every joint column inside
+#: +-2 pi, over at least RADIANS_MIN_CONFIGS distinct joint configurations, on a robot whose every joint may move
+#: over at least RADIANS_MIN_SPAN_DEG (7x the +-2 pi band): a campaign in degrees would then use less than a
+#: seventh of every joint's range at once, which no calibration or validation campaign does.
+RADIANS_BOUND = 2.0 * np.pi
+RADIANS_MIN_CONFIGS = 8
+RADIANS_MIN_SPAN_DEG = 90.0
 
 
 @dataclass(frozen=True)
@@ -400,6 +407,8 @@ def read_campaign(
                 column=c,
             )
 
+    _check_not_radians(q_deg, qcols, lim, robot.name, path)
+
     # positions (mm; reject metres, row by row, so that a file mixing units is caught too)
     pcols = ("x_mm", "y_mm", "z_mm")
     p = np.column_stack([_numeric(df, c, path) for c in pcols])
@@ -544,6 +553,28 @@ def read_campaign(
     if tpath is not None:
         camp = _join_temperatures(camp, tpath, ts, robot, temperature_tolerance_s)
     return camp
+
+
+def _check_not_radians(q_deg: np.ndarray, qcols: list[str], lim_deg: np.ndarray, robot: str, path: Path) -> None:
+    """Joint angles in radians written into the ``q*_deg`` columns: every value of every joint column inside
+    +-2 pi while the robot's limits span far more (see :data:`RADIANS_BOUND`). Repeated configurations (a
+    drift test at one pose) count once, so a campaign standing still near zero is not taken for radians."""
+    if q_deg.size == 0 or np.abs(q_deg).max() > RADIANS_BOUND:
+        return
+    span = lim_deg[:, 1] - lim_deg[:, 0]
+    n_configs = len(np.unique(np.round(q_deg, 6), axis=0))
+    if n_configs < RADIANS_MIN_CONFIGS or span.min() < RADIANS_MIN_SPAN_DEG:
+        return
+    i, j = (int(v) for v in np.unravel_index(np.argmax(np.abs(q_deg)), q_deg.shape))
+    raise DataError(
+        f"joint angles look like radians: every value of {qcols[0]}..{qcols[-1]} lies within +-{RADIANS_BOUND:.4g} "
+        f"(largest |{qcols[j]}| = {abs(q_deg[i, j]):.4g}) over {n_configs} distinct configurations, while every "
+        f"joint of {robot!r} may move over at least {span.min():g} deg; the contract wants degrees "
+        "(multiply radians by 180/pi)",
+        file=path,
+        row=_row(i),
+        column=qcols[j],
+    )
 
 
 def _check_same_joints(camp: Campaign, path: Path, qcols: list[str]) -> None:

@@ -45,6 +45,8 @@ class DiscoveryConfig:
     cv_alpha : false-discovery control of the cross-validated selection (:mod:`robocal.discovery.grow`): a
         candidate's held-out gain must pass a one-sided paired t-test over poses at cv_alpha / (candidates tried).
     grow_max_steps : at most this many effects are added by the cross-validated selection.
+    grow_geometry : ``joint`` (the geometry is refitted with the effects the selection adds) or ``frozen`` (held
+        at the model found before the selection: where a windowed effect is off, the model is that one).
     layer : offer the residual layer after the parametric model (kernel ridge on the joint angles, accepted only
         when the cross-validated selection says it helps); layer_centres : kernel centres (k-means of the
         calibration poses); layer_length_deg : kernel length scales tried; layer_prior_deg : prior widths tried.
@@ -81,6 +83,7 @@ class DiscoveryConfig:
     compliance_prior_deg: float = setting(0.05, gt=0)
     cv_alpha: float = setting(0.01, gt=0, lt=1)
     grow_max_steps: int = setting(12, ge=0)
+    grow_geometry: str = setting("joint", choices=("joint", "frozen"))
     layer: bool = True
     layer_centres: int = setting(100, ge=4)
     layer_length_deg: tuple[float, ...] = setting((15.0, 30.0, 60.0), gt=0)

@@ -402,7 +402,22 @@ def _search(
 
         taken = {a.cand.key for a in accepted}
         leftovers = [c for c in library if c.key not in taken and c.key not in unident]
-        fit, accepted, grown = grow(campaign, robot, cfg, rows, data, fit, accepted, steps, groups, refit, leftovers)
+        grow_refit = refit
+        if cfg.grow_geometry == "frozen":
+
+            def grow_refit(accepted: list[Accepted], prev: Fit | None) -> Fit:
+                """The selection's effects on top of the geometry found so far, held (the geometry stays the
+                calibration's, so where a windowed effect is off the model is the geometric one)."""
+                assert prev is not None
+                model = ExtendedModel(robot, targets, T_ref, accepted, like=geo.model)
+                theta0 = model.map_from(prev.model.names, prev.theta)
+                held = fixed | set(model.base.names)
+                return fit_model(model, theta0, data, rows, sigma, held, cfg.rank_tol, cfg.max_iter,
+                                 sigma_rad=sigma_rad)  # fmt: skip
+
+        fit, accepted, grown = grow(
+            campaign, robot, cfg, rows, data, fit, accepted, steps, groups, grow_refit, leftovers
+        )
     parametric = grown.pop("parametric_fit", fit)
     return DiscoveryResult(
         robot=robot,

@@ -107,7 +107,7 @@ def folder_sha256(path: Path) -> str:
 
 def _robot_ref(folder: Path, raw: Any) -> tuple[str, str]:
     """(reference for load_robot, sha256 of the description's bytes)."""
-    from robocal.robot import _CONF_ROBOT_DIR
+    from robocal.robot import _CONF_ROBOT_DIR, find_robot
 
     if not isinstance(raw, str) or not raw.strip():
         raise ConfigError(f"{folder / ROBOT_FILE}: 'robot' must name a robot description (e.g. kr16_2 or a YAML file)")
@@ -116,11 +116,13 @@ def _robot_ref(folder: Path, raw: Any) -> tuple[str, str]:
         if not p.is_file():
             raise ConfigError(f"{folder / ROBOT_FILE}: the robot description {p} does not exist")
         return str(p), hashlib.sha256(p.read_bytes()).hexdigest()
-    p = _CONF_ROBOT_DIR / f"{raw}.yaml"
-    if not p.is_file():
-        known = sorted(x.stem for x in _CONF_ROBOT_DIR.glob("*.yaml"))
-        raise ConfigError(f"{folder / ROBOT_FILE}: unknown robot {raw!r}; known robots: {known} (or a YAML file)")
-    return raw, hashlib.sha256(p.read_bytes()).hexdigest()
+    try:  # the one lookup order: the current project's conf/robot/, then the packaged robots
+        p = find_robot(raw)
+    except ConfigError as exc:
+        raise ConfigError(f"{folder / ROBOT_FILE}: {exc}") from None
+    # a packaged robot stays a name; a project's own is referenced by its path (workers may run elsewhere)
+    ref = raw if p.resolve().parent == _CONF_ROBOT_DIR.resolve() else str(p.resolve())
+    return ref, hashlib.sha256(p.read_bytes()).hexdigest()
 
 
 def read_robot_folder(folder: str | Path) -> RobotFolder:

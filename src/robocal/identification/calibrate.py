@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import fnmatch
+import re
 import time
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
@@ -23,7 +24,7 @@ from robocal.kinematics.transforms import (
     quat_to_matrix,
     rpy_from_matrix,
 )
-from robocal.robot import RobotDescription
+from robocal.robot import MDH, RobotDescription
 
 if TYPE_CHECKING:
     from robocal.data.contract import Campaign
@@ -246,6 +247,7 @@ class CalibrationResult:
         return {
             "robot": self.model.robot.name,
             "convention": self.model.robot.convention,
+            "nominal": nominal_record(self.model.robot),
             "parameters": self.parameter_table(),
             "kinematic_errors": {n: float(self.x[k]) for k, n in enumerate(self.model.chain.param_names)},
             "eliminated": [e.to_dict() for e in self.eliminated],
@@ -281,11 +283,79 @@ class CalibrationResult:
         }
 
 
+#: tolerance of the nominal-table comparison (mm and deg): calibration.json keeps 9 significant digits
+NOMINAL_TOL = 1e-6
+
+
+def nominal_record(robot: RobotDescription) -> dict[str, Any]:
+    """The robot's nominal kinematics as ``calibration.json`` records them (``nominal``), so that a calibration
+    is never applied to another robot (:func:`check_robot`): the joint names and the MD-H table (mm, deg) or
+    the POE twists and flange pose at zero."""
+    out: dict[str, Any] = {
+        "convention": robot.convention,
+        "n_joints": robot.n_joints,
+        "joints": list(robot.joint_names),
+    }
+    if robot.is_mdh:
+        out["mdh"] = {
+            "a_mm": robot.a_mm.tolist(),
+            "alpha_deg": np.rad2deg(robot.alpha).tolist(),
+            "d_mm": robot.d_mm.tolist(),
+            "theta_offset_deg": np.rad2deg(robot.theta_offset).tolist(),
+            "beta_deg": np.rad2deg(robot.beta).tolist(),
+        }
+    else:
+        assert robot.poe_w is not None and robot.poe_p_mm is not None and robot.poe_flange0 is not None
+        out["poe"] = {"w": robot.poe_w.tolist(), "p_mm": robot.poe_p_mm.tolist(), "flange0": robot.poe_flange0.tolist()}
+    return out
+
+
+def check_robot(data: dict[str, Any], robot: RobotDescription, where: str = "the calibration") -> None:
+    """Refuse a calibration made for another robot: its recorded robot name, joint count and (when recorded)
+    nominal table must be ``robot``'s. The error names both robots."""
+    theirs = data.get("robot")
+    rec = data.get("nominal")
+    n_theirs = rec.get("n_joints") if isinstance(rec, dict) else None
+    if n_theirs is None and data.get("convention") == MDH and isinstance(data.get("names"), list):
+        # older files (no nominal record): one MD-H theta<i> per joint
+        n_theirs = sum(1 for n in data["names"] if re.fullmatch(r"theta\d+", str(n)))
+    problems = []
+    if theirs is not None and str(theirs) != robot.name:
+        problems.append(f"it names robot {theirs!r}")
+    if n_theirs is not None and int(n_theirs) != robot.n_joints:
+        problems.append(f"it has {int(n_theirs)} joints, {robot.name!r} has {robot.n_joints}")
+    if isinstance(rec, dict):
+        mine = nominal_record(robot)
+        if rec.get("convention") != mine["convention"]:
+            problems.append(f"its convention is {rec.get('convention')!r}, {robot.name!r} uses {mine['convention']!r}")
+        elif rec.get("n_joints") == mine["n_joints"]:
+            section = "mdh" if robot.is_mdh else "poe"
+            for key, ours in mine[section].items():
+                a = np.asarray((rec.get(section) or {}).get(key), dtype=float)
+                b = np.asarray(ours, dtype=float)
+                if a.shape != b.shape or not np.allclose(a, b, rtol=NOMINAL_TOL, atol=NOMINAL_TOL):
+                    if a.shape == b.shape and a.ndim == 1:
+                        j = int(np.argmax(np.abs(a - b)))
+                        problems.append(f"its nominal {key} of joint {j + 1} is {a[j]:g}, {robot.name!r} has {b[j]:g}")
+                    else:
+                        problems.append(f"its nominal {section} {key} differs from {robot.name!r}'s")
+                    break
+    if problems == [f"it names robot {theirs!r}"] and isinstance(rec, dict):
+        problems.append("(the nominal tables agree: if it is the same robot, name the description it was made with)")
+    if problems:
+        raise ConfigError(
+            f"{where} was made for robot {theirs!r}, not for {robot.name!r} ({robot.source or 'given'}): "
+            f"{'; '.join(problems)}. Use the robot the calibration was made with."
+        )
+
+
 def load_calibration(data: dict[str, Any], robot: RobotDescription) -> CalibrationResult:
     """Rebuild a :class:`CalibrationResult` (enough to predict and compensate) from :meth:`to_dict` output.
 
     A calibration written by discovery also carries joint-level ``effects`` (in ``extra["effects"]``) and, when
-    it freed a Hayati beta, the robot's ``beta_free``."""
+    it freed a Hayati beta, the robot's ``beta_free``. A calibration of another robot (name, joint count,
+    nominal table: :func:`check_robot`) is refused."""
+    check_robot(data, robot)
     if "beta_free" in data:
         bf = np.array(data["beta_free"], dtype=bool)
         if bf.shape != np.shape(robot.beta_free):

@@ -10,11 +10,12 @@ Registered: ``gn``, ``lm``, ``ipopt``, ``igoa``, ``goa``, ``woa``; add more with
 from __future__ import annotations
 
 import inspect
+import re
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from robocal.config import SettingError, unknown_setting
+from robocal.config import SettingError, unknown_choice, unknown_setting
 from robocal.errors import ConfigError
 from robocal.optimizers.goa import GOA, ImprovedGOA
 from robocal.optimizers.gradient import GaussNewton, LevenbergMarquardt
@@ -24,6 +25,7 @@ from robocal.optimizers.woa import WOA
 
 __all__ = [
     "PIPELINE_KEYS",
+    "aliases",
     "make_optimizer",
     "pipeline_options",
     "register",
@@ -91,6 +93,19 @@ def registered(family: str | None = None) -> tuple[str, ...]:
     return tuple(n for n in names if getattr(_REGISTRY[n].factory, "family", None) == family)
 
 
+def aliases() -> dict[str, str]:
+    """Other spellings of the registered names, for "did you mean": each factory's class name, as written and
+    split at its capitals (``LevenbergMarquardt``: ``levenbergmarquardt``, ``levenberg-marquardt``) -> name."""
+    out: dict[str, str] = {}
+    for name, entry in _REGISTRY.items():
+        cls = getattr(entry.factory, "__name__", "")
+        if cls and cls.lower() != name:
+            out[cls.lower()] = name
+            words = re.findall(r"[A-Z]+(?![a-z])|[A-Z]?[a-z]+|\d+", cls)
+            out["-".join(words).lower()] = name
+    return out
+
+
 def _resolve(cfg: Mapping[str, Any]) -> str:
     name = cfg.get("name")
     target = cfg.get("_target_")
@@ -99,7 +114,7 @@ def _resolve(cfg: Mapping[str, Any]) -> str:
             f"The optimizer config must have a 'name' or a '_target_' key. Got keys {sorted(map(str, cfg))} instead."
         )
     if name is not None and name not in _REGISTRY:
-        raise SettingError("optimizer.name", f"must be one of {list(registered())}", name)
+        raise unknown_choice("optimizer.name", name, registered(), aliases())
     by_target = [k for k, e in _REGISTRY.items() if target is not None and e.target == target]
     if target is not None and not by_target:
         known = sorted(e.target for e in _REGISTRY.values() if e.target)

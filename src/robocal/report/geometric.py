@@ -35,6 +35,8 @@ def geometric_report(
     )
     for text in (summary or {}).get("problems", []):
         rep.note(f"FAILED: {text}. Do not use this calibration.", kind="warn")
+    for text in (summary or {}).get("warnings", []):
+        rep.note(f"{text}. Check before using this calibration.", kind="warn")
     rep.heading("Fit")
     kv = {
         "RMS 3-D position error (mm)": f"{fit['rms_position_mm']:.4f}",

@@ -39,10 +39,10 @@ from typing import Any
 import numpy as np
 
 from robocal.errors import ConfigError
-from robocal.identification.calibrate import CalibrationResult, load_calibration
+from robocal.identification.calibrate import CalibrationResult, check_robot, load_calibration
 from robocal.io import write_json
 from robocal.kinematics.chain import Chain
-from robocal.robot import RobotDescription, load_robot
+from robocal.robot import _CONF_ROBOT_DIR, RobotDescription, find_robot, is_robot_path, load_robot
 
 FORMAT = "robocal-bundle"
 VERSION = 1
@@ -196,6 +196,8 @@ def load_bundle(path: str | Path, loaders: Mapping[str, Loader] | None = None) -
     cal_file = d / str(manifest.get("calibration") or "calibration.json")
     try:
         cal = load_calibration(json.loads(cal_file.read_text(encoding="utf-8")), robot)
+    except ConfigError as exc:  # e.g. a calibration of another robot: the error names both
+        raise ConfigError(f"bundle {d}: {cal_file.name}: {exc}") from None
     except (OSError, json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
         raise ConfigError(f"bundle {d}: cannot load {cal_file.name}: {type(exc).__name__}: {exc}") from exc
     chain = cal.model.chain
@@ -264,16 +266,24 @@ def write_bundle(
 ) -> Path:
     """Copy the model files into ``out_dir`` and write the manifest last (atomically) with their sha256.
 
-    robot : a robot name (conf/robot) or a YAML file (copied as ``robot.yaml``).
+    robot : a robot name or a YAML file (:func:`robocal.robot.find_robot`); a file, or a name found in the
+        current project's ``conf/robot/`` rather than among the packaged robots, is copied as ``robot.yaml`` so
+        that the bundle loads anywhere.
     """
+    urdf = str(robot).endswith(".urdf") or ".urdf#" in str(robot)  # referenced as given (robocal.cell.urdf)
+    rp = None if urdf else find_robot(robot)
+    cal_path = Path(calibration)
+    try:  # a calibration of another robot is refused before anything is written
+        cal_data = json.loads(cal_path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ConfigError(f"cannot read the calibration {cal_path}: {exc}") from None
+    if isinstance(cal_data, dict):
+        check_robot(cal_data, load_robot(robot if rp is None else rp), f"the calibration {cal_path}")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     files: dict[str, str] = {}
     manifest: dict[str, Any] = {"format": FORMAT, "version": VERSION}
-    rp = Path(robot)
-    if rp.suffix in (".yaml", ".yml"):
-        if not rp.is_file():
-            raise ConfigError(f"robot file {rp} does not exist")
+    if rp is not None and (is_robot_path(robot) or rp.resolve().parent != _CONF_ROBOT_DIR.resolve()):
         shutil.copyfile(rp, out / "robot.yaml")
         manifest["robot"] = "robot.yaml"
         files["robot.yaml"] = "robot.yaml"

@@ -226,10 +226,13 @@ def write_report(res: DiscoveryResult, summ: dict[str, Any], path: Path) -> Path
     return rep.save(path)
 
 
-def write_product(res: DiscoveryResult, summ: dict[str, Any], out: Path) -> None:
+def write_product(res: DiscoveryResult, summ: dict[str, Any], out: Path) -> str | None:
     """The discovered model as the product: ``calibration.json`` (geometry + joint-level effects, readable by
     ``robocal serve --make-bundle --calibration`` and every reader of a calibration) and ``compensation.csv``
-    (the corrected joints and command for the campaign's validation poses, or all its poses without a split)."""
+    (the corrected joints and command for the campaign's validation poses, or all its poses without a split).
+
+    Returns None when both were written, else why ``compensation.csv`` was not (a stale one is removed, so
+    that the folder never pairs a new model with an old file)."""
     from robocal.compensation import write_compensation_csv
     from robocal.discovery.effects import compensate_targets, extended_calibration
     from robocal.identification.calibrate import load_calibration
@@ -242,7 +245,14 @@ def write_product(res: DiscoveryResult, summ: dict[str, Any], out: Path) -> None
     sel = camp.split == "validation" if np.any(camp.split == "validation") else np.ones(camp.n_rows, dtype=bool)
     sub = camp.subset(sel & np.isin(camp.target.astype(str), cal.model.target_names))
     if sub.n_rows == 0:
-        return
+        (out / "compensation.csv").unlink(missing_ok=True)
+        shown = "validation" if np.any(camp.split == "validation") else "campaign"
+        targets = sorted(set(camp.target[sel].astype(str).tolist()))
+        return (
+            f"the {shown} rows measure target(s) {targets}, which the model does not know (its targets: "
+            f"{list(cal.model.target_names)}), so their tool offsets are unknown; to compensate them, calibrate with "
+            "rows of these targets"
+        )
     first: dict[str, tuple[int, str]] = {}
     for i, (pid, t) in enumerate(zip(sub.pose_id, sub.target, strict=True)):
         first.setdefault(str(pid), (i, str(t)))
@@ -266,6 +276,7 @@ def write_product(res: DiscoveryResult, summ: dict[str, Any], out: Path) -> None
         qc[rows], cmd[rows], res_mm[rows] = comp.q, c, comp.error_before_mm
     ids = [f"{p}/{t}" for p, t in zip(first, tgt, strict=True)]
     write_compensation_csv(out / "compensation.csv", ids, qc, cmd, res_mm)
+    return None
 
 
 def run(
@@ -280,7 +291,7 @@ def run(
 ) -> dict[str, Any]:
     """Discover the effects in the campaign (``settings``: a :class:`DiscoveryConfig` mapping); write
     ``discovery.json``, the product (:func:`write_product`) and ``report.html`` into ``out_dir``. Returns the
-    summary."""
+    summary (``discovery.json``) and ``written``: the files written, ``not_written``: {file: why not}."""
     rob = robot_of(robot)
     cfg = DiscoveryConfig.from_mapping(settings)
     camp = campaign_of(data_dir, rob, split, campaign)
@@ -288,11 +299,13 @@ def run(
     summ = summary(res, validation_errors(res))
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    write_product(res, summ, out)
+    why_not = write_product(res, summ, out)
     write_json(out / "discovery.json", summ)
     if report:
         write_report(res, summ, out / "report.html")
-    return summ
+    written = ["discovery.json", "calibration.json", *([] if why_not else ["compensation.csv"])]
+    not_written = {"compensation.csv": why_not} if why_not else {}
+    return {**summ, "written": [*written, *(["report.html"] if report else [])], "not_written": not_written}
 
 
 __all__ = ["run", "write_product", "write_report"]

@@ -47,6 +47,83 @@ def result_problems(summary: Mapping[str, Any]) -> list[str]:
     return out
 
 
+#: A fit that cannot start: the nominal model's best rigid fit ("before") misses the measurements by more than
+#: this share of the measured points' RMS distance from their centroid (the cell's size), and by more than
+#: START_MIN_MM. A nominal robot misses by millimetres; by a tenth of the cell, the joint angles, the robot or
+#: the targets are wrong, and a calibration (which corrects millimetres) has nothing to start from.
+START_SHARE = 0.1
+START_MIN_MM = 20.0
+
+
+def start_limit_mm(campaign: Campaign) -> float:
+    """The largest "before" RMS error (mm) a calibration of ``campaign`` may start from (:data:`START_SHARE`)."""
+    p = campaign.p_mm
+    size = float(np.sqrt(np.mean(np.sum((p - p.mean(axis=0)) ** 2, axis=1)))) if len(p) else 0.0
+    return max(START_MIN_MM, START_SHARE * size)
+
+
+def cannot_start(campaign: Campaign, robot: RobotDescription, start_rms_mm: float | None) -> str | None:
+    """Why the calibration had nothing to start from (:data:`START_SHARE`), or None. When the joint columns read
+    as radians let the nominal model fit, the reason says so, naming the columns."""
+    limit = start_limit_mm(campaign)
+    if start_rms_mm is None or not start_rms_mm > limit:
+        return None
+    text = (
+        f"the fit cannot start: the nominal model misses the measurements by {start_rms_mm:.1f} mm RMS after fitting "
+        f"the tracker frame and tools (more than {limit:.1f} mm, a tenth of the cell); a calibration corrects "
+        "millimetres"
+    )
+    cols = [f"q{j + 1}_deg" for j in range(campaign.n_joints)]
+    try:  # the joint columns read as radians (values v in q*_deg: the contract made them v*pi/180 rad)
+        as_rad = replace(campaign, q=np.degrees(campaign.q))
+        cfg = CalibrationConfig.from_mapping({"max_iter": 1, "outliers": "off"})
+        rad = calibrate(as_rad, robot, cfg).extra["residuals_before_mm"]
+        rad_rms = float(np.sqrt(np.mean(np.sum(rad**2, axis=1))))
+    except Exception:
+        rad_rms = float("inf")
+    if rad_rms < 0.1 * start_rms_mm:
+        return (
+            f"{text}. Read as radians, {cols[0]}..{cols[-1]} fit the nominal model to {rad_rms:.2f} mm: the joint "
+            "angles look like radians; the contract wants degrees (multiply radians by 180/pi)"
+        )
+    return f"{text}. Check the joint angles' unit (degrees), the robot (--robot) and the targets"
+
+
+def _iterations(n: Any) -> str:
+    return f"{n} iteration" + ("" if n == 1 else "s")
+
+
+def result_warnings(summary: Mapping[str, Any]) -> list[str]:
+    """Why a calibration that is not failed must still not be called ok: its fit stopped without converging
+    (e.g. on its iteration limit), or its largest validation error is worse than the nominal model's (while the
+    mean is not: that is a failure, :func:`result_problems`). Empty when neither."""
+    out = []
+    fit = summary["fit"]
+    if fit.get("success") is False:
+        out.append(
+            f"the fit did not converge: {fit.get('message', 'no message')} ({_iterations(fit.get('nit'))}); the "
+            "result may be far from the least-squares minimum (raise max_iter, or check the data: joint units, "
+            "robot, targets)"
+        )
+    val, before = summary.get("validation"), summary.get("validation_before")
+    if (
+        val
+        and before
+        and val["mean_position_mm"] <= before["mean_position_mm"]
+        and val.get("max_position_mm", 0.0) > before.get("max_position_mm", float("inf"))
+    ):
+        out.append(
+            f"on the validation poses the largest error of the calibrated model ({val['max_position_mm']:.4f} mm) "
+            f"is worse than the nominal one's ({before['max_position_mm']:.4f} mm), although the mean improved"
+        )
+    return out
+
+
+def status_of(summary: Mapping[str, Any]) -> str:
+    """``failed`` (:func:`result_problems`), ``warning`` (:func:`result_warnings`) or ``ok``."""
+    return "failed" if summary.get("problems") else ("warning" if summary.get("warnings") else "ok")
+
+
 def run(
     data_dir: str | Path | None,
     robot: str | Path | RobotDescription,
@@ -96,7 +173,13 @@ def run(
     before = np.linalg.norm(result.extra["residuals_before_mm"], axis=1)
     summary["start_rms_position_mm"] = float(np.sqrt(np.mean(before**2))) if before.size else None
     summary["problems"] = result_problems(summary)
-    summary["status"] = "failed" if summary["problems"] else "ok"
+    why = cannot_start(camp, rob, summary["start_rms_position_mm"])
+    if why:
+        summary["problems"].insert(0, why)
+    warnings = result_warnings(summary)
+    if warnings:  # the key only when there are some (a clean run's summary.json is unchanged)
+        summary["warnings"] = warnings
+    summary["status"] = status_of(summary)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     write_json(out / "calibration.json", result.to_dict())

@@ -1,0 +1,48 @@
+"""``robocal discover`` says what it wrote (issue 23, item 8): on the real ABB IRB 120 the validation rows measure
+target T4, which the calibration targets T1..T3 do not include, so there is no compensation.csv; the command
+must not claim one, must say why, and must not leave a stale one beside the new model."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from robocal.cli import main
+
+
+@pytest.fixture()
+def abb(shared_dir: Path) -> Path:
+    d = shared_dir / "data" / "abb-irb120"
+    if not (d / "poses.csv").is_file():
+        pytest.skip(f"{d} has no poses.csv")
+    return d
+
+
+def test_discover_says_what_it_wrote_and_why_not_compensation_csv(abb, tmp_path, capsys):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "compensation.csv").write_text("stale from an earlier run\n")
+    code = main(["discover", str(abb), "--robot", str(abb / "robot.yaml"), "--out", str(out), "--no-report"])
+    assert code == 0
+    text = capsys.readouterr().out
+    wrote = next(line for line in text.splitlines() if line.startswith("wrote "))
+    assert "discovery.json" in wrote and "calibration.json" in wrote and "compensation.csv" not in wrote, text
+    assert "no compensation.csv: the validation rows measure target(s) ['T4']" in text, text
+    assert "['T1', 'T2', 'T3']" in text
+    assert not (out / "compensation.csv").exists()  # the stale file is gone, not paired with the new model
+    assert sorted(p.name for p in out.iterdir()) == ["calibration.json", "discovery.json"]
+
+    # and when it does write one, it says so: without the T4 validation rows every row is a model target, so
+    # compensation.csv of all poses is written
+    camp = tmp_path / "abb_t1_t3"
+    camp.mkdir()
+    df = pd.read_csv(abb / "poses.csv", dtype=str, keep_default_na=False)
+    df[df["target"] != "T4"].to_csv(camp / "poses.csv", index=False)
+    out = tmp_path / "out"
+    assert main(["discover", str(camp), "--robot", str(abb / "robot.yaml"), "--out", str(out), "--no-report"]) == 0
+    text = capsys.readouterr().out
+    assert "compensation.csv" in next(line for line in text.splitlines() if line.startswith("wrote ")), text
+    assert "no compensation.csv" not in text
+    assert (out / "compensation.csv").is_file()
