@@ -57,7 +57,9 @@ def physics_candidates(
         coverage_weight,
         fourier_signal,
         gravity_regressor,
+        lowest_harmonic,
         visited_intervals,
+        visited_span_deg,
         weight_basis,
     )
 
@@ -74,8 +76,11 @@ def physics_candidates(
                 continue
             gap, taper = periodic_window(cfg, kmax)
             visited = visited_intervals(q[rows, j], gap)
+            h0 = lowest_harmonic(visited_span_deg(visited))
+            if h0 > kmax:
+                continue
             w = coverage_weight(q[:, j], visited, taper)
-            h = np.arange(1, kmax + 1)
+            h = np.arange(h0, kmax + 1)
             S = fourier_signal(q[:, j], h, w)
             centre = S[rows].mean(axis=0)  # the constant part belongs to the geometry's joint offset
             S = S - centre
@@ -84,15 +89,18 @@ def physics_candidates(
                 f"transmission:j{j + 1}", "transmission", j + 1, None,
                 cause=f"gear transmission error of the joint-{j + 1} reducer: a periodic error of the joint's own "
                 "angle with many harmonics per revolution (applied only on the angles the calibration visited)",
-                signal=f"sin/cos(h·q{j + 1}), h = 1..K", shape="joint", S=S,
+                signal=f"sin/cos(h·q{j + 1}), h = {h0}..K", shape="joint", S=S,
                 coef_names=names, coef_units=("rad",) * len(names),
                 extra={"visited_deg": visited, "taper_deg": taper, "harmonics": h.tolist(), "centre": centre.tolist()},
             )  # fmt: skip
+            H = len(h)
             variants = [
-                Variant(np.concatenate([np.arange(k), kmax + np.arange(k)]), float(np.deg2rad(t)), f"K={k}, tau={t}°")
+                Variant(np.concatenate([np.arange(k - h0 + 1), H + np.arange(k - h0 + 1)]), float(np.deg2rad(t)),
+                        f"harmonics {h0}..{k}, tau={t}°")
                 for k in orders
+                if k >= h0
                 for t in cfg.transmission_prior_deg
-            ]
+            ]  # fmt: skip
             out.append((cand, variants))
     has_load_signal = campaign.tau_Nm is not None or campaign.current_A is not None or robot.has_dynamics
     if "weight" in cfg.effects and not has_load_signal:

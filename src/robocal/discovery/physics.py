@@ -56,6 +56,18 @@ def visited_intervals(q_rad: np.ndarray, gap_deg: float) -> list[list[float]]:
     return out
 
 
+def visited_span_deg(intervals: list[list[float]]) -> float:
+    """Total angle (deg) of the visited intervals of :func:`visited_intervals`."""
+    return float(sum(REV_DEG if (hi - lo) == REV_DEG else (hi - lo) % REV_DEG for lo, hi in intervals))
+
+
+def lowest_harmonic(span_deg: float) -> int:
+    """The lowest harmonic a periodic error over ``span_deg`` of visited angles is fitted with: at least two of its
+    periods must lie within the visited angles. A slower harmonic looks like a smooth trend there, which the
+    geometry (joint offset, link lengths) absorbs and which cannot be extrapolated."""
+    return max(1, int(np.ceil(2.0 * REV_DEG / max(span_deg, 1e-9))))
+
+
 def coverage_weight(q_rad: np.ndarray, intervals: list[list[float]], taper_deg: float) -> np.ndarray:
     """``w (m,)`` in [0, 1]: 1 on the visited intervals, a raised cosine to 0 over ``taper_deg`` outside."""
     a = np.mod(np.rad2deg(np.asarray(q_rad, dtype=float)), REV_DEG)
@@ -97,26 +109,57 @@ def gravity_regressor(robot: RobotDescription, q: np.ndarray) -> np.ndarray:
     """``Y (m, n, 4 n)``: the gravity load torque of every joint (N·m) per unit mass moment of every body:
     column ``4 i`` is body ``i``'s mass (1 kg at its frame origin), columns ``4 i + 1..3`` its first mass moment
     (1 kg·m along its frame's x, y, z). ``tau = Y @ pi`` for any masses (nominal kinematics, the robot's
-    gravity vector)."""
-    from robocal.kinematics.chain import build_chain
-    from robocal.kinematics.gravity import gravity_torques
+    gravity vector); the tests check it against :func:`robocal.kinematics.gravity.gravity_torques`.
+
+    One pass over the chain: ``tau_j = u_j · sum_{i >= j} ((o_i - o_j) m_i + R_i (m c)_i) x g`` with ``u_j, o_j``
+    joint ``j``'s world axis and a point on it, ``o_i, R_i`` body ``i``'s frame (same body frames as
+    ``gravity_torques``)."""
+    from robocal.kinematics.chain import FIXED, step
+    from robocal.kinematics.gravity import MM, body_frame_boundaries
 
     q = np.atleast_2d(np.asarray(q, dtype=float))
-    n = robot.n_joints
-    chain = build_chain(robot)
-    cols = []
-    zero_com = np.zeros((n, 3))
-    for i in range(n):
-        e = np.zeros(n)
-        e[i] = 1.0
-        kw = {"chain": chain, "link_mass_kg": e, "payload_com_mm": np.zeros(3)}
-        t0 = gravity_torques(robot, q, 0.0, link_com_mm=zero_com, **kw)
-        cols.append(t0)
-        for a in range(3):
-            com = np.zeros((n, 3))
-            com[i, a] = 1000.0  # 1 m: 1 kg·m of first moment
-            cols.append(gravity_torques(robot, q, 0.0, link_com_mm=com, **kw) - t0)
-    return np.stack(cols, axis=2)
+    m, n = q.shape
+    chain = _chain(robot)
+    bounds = body_frame_boundaries(chain, robot.is_mdh)
+    joint_el = [int(np.flatnonzero(chain.joint == j)[0]) for j in range(n)]
+    want = set(bounds) | set(joint_el)
+    rec: dict[int, tuple[np.ndarray, ...]] = {}
+    one = np.ones((m, 1))
+    frame = (np.eye(3)[0] * one, np.eye(3)[1] * one, np.eye(3)[2] * one, np.zeros((m, 3)))
+    for e, kind in enumerate(chain.kinds):
+        if e in want:
+            rec[e] = frame
+        if kind == FIXED:
+            frame = step(FIXED, 0.0, frame, chain.fixed[e])
+            continue
+        v = chain.nominal[e] + (q[:, chain.joint[e]] if chain.joint[e] >= 0 else 0.0)
+        frame = step(kind, np.broadcast_to(v, (m,))[:, None], frame)
+    rec[len(chain.kinds)] = frame
+    g = np.asarray(robot.gravity, dtype=float)
+    U = np.stack([rec[joint_el[j]][chain.kinds[joint_el[j]] % 3] for j in range(n)], axis=1)  # (m, n, 3)
+    Oj = np.stack([rec[joint_el[j]][3] for j in range(n)], axis=1) * MM
+    Ob = np.stack([rec[bounds[i]][3] for i in range(n)], axis=1) * MM
+    Ab = np.stack([np.stack(rec[bounds[i]][:3], axis=1) for i in range(n)], axis=1)  # (m, n, 3 axes, 3)
+    # u_j · ((o_i - o_j) x g) = u_j · (o_i x g) - u_j · (o_j x g); u_j · (a x g) for the body axes
+    mass = np.einsum("mjk,mik->mji", U, np.cross(Ob, g)) - np.einsum("mjk,mjk->mj", U, np.cross(Oj, g))[:, :, None]
+    first = np.einsum("mjk,miak->mjia", U, np.cross(Ab, g))
+    carried = np.triu(np.ones((n, n), dtype=bool))[None, :, :]  # body i >= joint j
+    Y = np.concatenate([(mass * carried)[..., None], first * carried[..., None]], axis=3).reshape(m, n, 4 * n)
+    return Y
+
+
+_CHAINS: dict[int, tuple[RobotDescription, Any]] = {}
+
+
+def _chain(robot: RobotDescription) -> Any:
+    """The robot's chain, built once per description object (the service evaluates effects per request)."""
+    from robocal.kinematics.chain import build_chain
+
+    hit = _CHAINS.get(id(robot))
+    if hit is None or hit[0] is not robot:
+        hit = (robot, build_chain(robot))
+        _CHAINS[id(robot)] = hit
+    return hit[1]
 
 
 def weight_basis(Y_j: np.ndarray, rtol: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
