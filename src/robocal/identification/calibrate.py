@@ -63,6 +63,10 @@ class CalibrationConfig:
     outliers : ``"auto"`` (gross errors found by the test in :mod:`robocal.identification.robust`), ``"off"``,
         or a list of file rows (header = row 1) to leave out.
     outlier_alpha : family-wise false-flag rate of the outlier test over the rows of a campaign.
+    max_stderr_mm, max_stderr_deg : a parameter whose standard error exceeds this (lengths, angles) is poorly
+        determined by the data (e.g. a tool offset with a constant tool orientation): ``poorly_determined: fix``
+        holds it at its start (nominal, or the registration's frame / tool) and fits the rest again; ``report``
+        keeps it and says so. Either way it is listed under ``fit.poorly_determined``, never as identified.
     outlier_max_share : gross errors are rare: when more than this share of the rows stands out, the residuals
         are a model error, not blunders (e.g. a warm-up the geometric model cannot follow); then no row is left
         out, the rows are reported as suspects and the fit says to run discovery.
@@ -85,6 +89,9 @@ class CalibrationConfig:
     outliers: str | tuple[int, ...] = setting("auto", choices=("auto", "off"), convert=outlier_rule, check=data_rows)
     outlier_alpha: float = setting(0.001, gt=0, lt=1)
     outlier_max_share: float = setting(0.05, ge=0, lt=1)
+    max_stderr_mm: float = setting(1.0, gt=0)
+    max_stderr_deg: float = setting(0.1, gt=0)
+    poorly_determined: str = setting("fix", choices=("fix", "report"))
     noise_model: str = setting("constant", choices=NOISE_MODELS)
     u_coverage: float = setting(2.0, gt=0)
     noise_mm_per_m: float = setting(0.0, ge=0)
@@ -571,6 +578,8 @@ def calibrate(
     robot: RobotDescription,
     config: CalibrationConfig | None = None,
     x0: np.ndarray | None = None,
+    *,
+    held: tuple[str, ...] = (),
 ) -> CalibrationResult:
     """Geometric calibration from the campaign's calibration rows.
 
@@ -617,7 +626,7 @@ def calibrate(
     if use_rot:
         weights = np.concatenate([weights, np.full(3 * m, 1.0 / np.deg2rad(cfg.noise_deg))])
     rows = robust.row_index(m, 3, use_rot)
-    fixed = _resolve_fixed(model.names, tuple(cfg.fixed))
+    fixed = _resolve_fixed(model.names, tuple(cfg.fixed)) | set(held)
 
     if isinstance(cfg.outliers, tuple):
         kept = _outlier_rows(cal, cfg.outliers)
@@ -748,6 +757,14 @@ def calibrate(
         "max_position_mm": float(np.max(e0)),
         "definition": "nominal kinematics with frames and tools fitted to convergence (best rigid fit), kept rows",
     }
+    poor = poorly_determined(model, stderr, cfg)
+    if poor and cfg.poorly_determined == "fix":
+        # held at their start and the rest fitted again; the list says why (and with which standard error)
+        res = calibrate(campaign, robot, config, x0, held=(*held, *(p["name"] for p in poor)))
+        res.fit["poorly_determined"] = [*res.fit.get("poorly_determined", []), *poor]
+        return res
+    if poor:
+        fit["poorly_determined"] = [{**p, "action": "reported (poorly_determined: report)"} for p in poor]
     return CalibrationResult(
         model=model,
         x=x,
@@ -755,7 +772,7 @@ def calibrate(
         stderr=stderr,
         covariance=cov,
         identifiability=ident,
-        fixed_by_user=tuple(sorted(fixed)),
+        fixed_by_user=tuple(sorted(fixed - set(held))),
         fit=fit,
         residuals_mm=r_pos,
         residuals_deg=None if r_rot is None else np.rad2deg(r_rot),
@@ -769,6 +786,29 @@ def calibrate(
             "row_test": test,
         },
     )
+
+
+def poorly_determined(model: CalibrationModel, stderr: np.ndarray, cfg: CalibrationConfig) -> list[dict[str, Any]]:
+    """Identified parameters whose standard error exceeds the configured bound (``max_stderr_mm`` for lengths,
+    ``max_stderr_deg`` for angles): the data do not determine them, whatever the rank test said."""
+    out = []
+    for i, name in enumerate(model.names):
+        se = float(stderr[i])
+        if not np.isfinite(se):
+            continue
+        mm = model.units[i] == "mm"
+        bound = cfg.max_stderr_mm if mm else float(np.deg2rad(cfg.max_stderr_deg))
+        if se > bound:
+            out.append(
+                {
+                    "name": name,
+                    "stderr": se if mm else float(np.rad2deg(se)),
+                    "bound": cfg.max_stderr_mm if mm else cfg.max_stderr_deg,
+                    "unit": "mm" if mm else "deg",
+                    "action": "held at its start value (nominal, or the registration's frame and tool)",
+                }
+            )
+    return out
 
 
 def validate(result: CalibrationResult, campaign: Campaign, x: np.ndarray | None = None) -> dict[str, Any]:
