@@ -208,31 +208,45 @@ class FoldCV:
     def group_sse(self, err: np.ndarray) -> np.ndarray:
         return np.bincount(self.gidx, weights=err**2, minlength=self.n_groups)
 
-    def with_candidate(self, Z: np.ndarray, prior_rad: float | None) -> np.ndarray:
+    def with_candidate(self, Z: np.ndarray, prior_rad: float | np.ndarray | None) -> np.ndarray:
         """Held-out errors (M,) when the whitened regressor ``Z (M, q)`` joins the model (coefficients from 0)."""
+        return self.with_variants(Z, [Variant(np.arange(Z.shape[1]), prior_rad, "")])[0]
+
+    def with_variants(self, Z: np.ndarray, variants: list[Variant]) -> list[np.ndarray]:
+        """Held-out errors (M,) of each variant (columns of ``Z (M, q)`` and a prior). The products with the
+        model's Jacobian are formed once for all columns; each variant slices them (``W = H⁻¹ C`` commutes with
+        taking columns) and solves only its own Schur complement."""
         A = self.fit.J_w
         r = self.fit.r_w
-        err = np.empty_like(r)
-        pz = np.zeros(Z.shape[1]) if prior_rad is None else 1.0 / np.broadcast_to(prior_rad, (Z.shape[1],)) ** 2
-        C_all = A.T @ Z
-        Z2_all = Z.T @ Z
-        bz_all = Z.T @ r
-        for k in self.folds:
-            t = self.fold == k
-            At, Zt = A[t], Z[t]
-            C = C_all - At.T @ Zt
-            Hz = Z2_all - Zt.T @ Zt + np.diag(pz)
-            gz = bz_all - Zt.T @ r[t]
-            Hi = self.Hinv[k]
-            W = Hi @ C  # (k, q)
-            Sz = Hz - C.T @ W
-            rhs = gz - W.T @ self._g[k]
-            try:
-                dz = -np.linalg.solve(Sz, rhs)
-            except np.linalg.LinAlgError:
-                dz = -np.linalg.lstsq(Sz, rhs, rcond=1e-12)[0]
-            err[t] = self.base_err[t] + (Zt - At @ W) @ dz
-        return err
+        tests = [self.fold == k for k in self.folds]
+        Ct = [A[t].T @ Z[t] for t in tests]
+        Z2t = [Z[t].T @ Z[t] for t in tests]
+        bzt = [Z[t].T @ r[t] for t in tests]
+        C_all, Z2_all, bz_all = sum(Ct), sum(Z2t), sum(bzt)
+        per_fold = []
+        for i, k in enumerate(self.folds):
+            C = C_all - Ct[i]
+            W = self.Hinv[k] @ C  # (k, q)
+            P = Z[tests[i]] - A[tests[i]] @ W  # held-out rows' response to each column, the model refitted
+            per_fold.append((Z2_all - Z2t[i], bz_all - bzt[i], C, W, P))
+        out = []
+        for v in variants:
+            cols = v.columns
+            q = len(cols)
+            pz = np.zeros(q) if v.prior_rad is None else 1.0 / np.broadcast_to(v.prior_rad, (q,)) ** 2
+            err = np.empty_like(r)
+            for i, k in enumerate(self.folds):
+                Z2, bz, C, W, P = per_fold[i]
+                Wc = W[:, cols]
+                Sz = Z2[np.ix_(cols, cols)] + np.diag(pz) - C[:, cols].T @ Wc
+                rhs = bz[cols] - Wc.T @ self._g[k]
+                try:
+                    dz = -np.linalg.solve(Sz, rhs)
+                except np.linalg.LinAlgError:
+                    dz = -np.linalg.lstsq(Sz, rhs, rcond=1e-12)[0]
+                err[tests[i]] = self.base_err[tests[i]] + P[:, cols] @ dz
+            out.append(err)
+        return out
 
 
 def paired_log10_p(sse0: np.ndarray, sse1: np.ndarray) -> float:
@@ -345,8 +359,7 @@ def _step(
     for members, variants in pool:
         Z_all = np.hstack([regressor(c, fit, rows, data)[0] for c in members])
         best: tuple[float, float, Variant] | None = None
-        for v in variants:
-            err = cv.with_candidate(Z_all[:, v.columns], v.prior_rad)
+        for v, err in zip(variants, cv.with_variants(Z_all, variants), strict=True):
             sse1 = cv.group_sse(err)
             tot = float(sse1.sum())
             if best is None or tot < best[0]:
