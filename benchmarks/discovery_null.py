@@ -5,6 +5,8 @@
     python benchmarks/discovery_null.py --mode power       # gear joint 4 harmonic 1: detection rate vs amplitude
     python benchmarks/discovery_null.py --mode power-outside  # the q1-q5 coupling: proposal rate vs amplitude
     python benchmarks/discovery_null.py --mode runtime     # seconds per discovery run on 100 poses
+    python benchmarks/discovery_null.py --mode products    # three two-joint products the search was not tuned
+                                                           # on (--amplitude, default 0.03 deg): exact proposals
     (--poses 80 | 200, --amplitude for --mode outside)
 
 Prints the figures quoted in the issue: runs naming anything (null), wrong names / "unexplained" (outside),
@@ -46,6 +48,35 @@ class Q1Q5:
         rows.dq[:, 3] += self.amp * np.sin(2 * rows.q_cmd[:, 0]) * np.cos(rows.q_cmd[:, 4])
 
 
+@register_effect("bench_product")
+class Product:
+    """A two-joint product the dictionary was not tuned on: dq_j = A f1(h1 q_a) f2(h2 q_b)."""
+
+    name = "bench_product"
+
+    def __init__(self, cfg):  # type: ignore[no-untyped-def]
+        self.cfg = cfg
+
+    def plan(self, rows, ctx):  # type: ignore[no-untyped-def]
+        return rows
+
+    def apply(self, rows, ctx):  # type: ignore[no-untyped-def]
+        c = self.cfg
+        f = {"sin": np.sin, "cos": np.cos}
+        (k1, a, h1), (k2, b, h2) = c["factors"]
+        rows.dq[:, c["joint"] - 1] += np.deg2rad(c["amplitude_deg"]) * f[k1](h1 * rows.q_cmd[:, a - 1]) * f[k2](
+            h2 * rows.q_cmd[:, b - 1]
+        )
+
+
+#: (joint, factors) of the products the dictionary was not tuned on
+PRODUCTS = [
+    (2, [("sin", 1, 1), ("cos", 3, 1)]),
+    (3, [("cos", 4, 2), ("sin", 6, 1)]),
+    (5, [("sin", 2, 1), ("sin", 4, 1)]),
+]
+
+
 def run_one(effects: dict, seed: int, tmp: Path, n_poses: int = 80):  # type: ignore[no-untyped-def]
     sc = load_scenario("geometric")
     sc["effects"] = effects
@@ -61,7 +92,8 @@ def run_one(effects: dict, seed: int, tmp: Path, n_poses: int = 80):  # type: ig
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--mode", choices=["null", "outside", "power", "power-outside", "runtime"], default="null")
+    ap.add_argument("--mode", choices=["null", "outside", "power", "power-outside", "runtime", "products"],
+                    default="null")  # fmt: skip
     ap.add_argument("--seeds", type=int, default=200)
     ap.add_argument("--poses", type=int, default=80)
     ap.add_argument("--amplitude", type=float, default=0.02)
@@ -94,6 +126,27 @@ def main(argv: list[str] | None = None) -> int:
                 f"  'unexplained' flagged: {n_unexpl}/{len(seeds)}; final RMS / floor: median {np.median(r):.3f}, "
                 f"max {r.max():.3f}, > 1.1 in {int(np.sum(r > 1.1))}; median run {np.median(times):.3f} s"
             )
+        elif args.mode == "products":
+            amp = args.amplitude if args.amplitude != 0.02 else 0.03
+            n = min(args.seeds, 20)
+            for joint, factors in PRODUCTS:
+                hits, other = 0, {}
+                for s in range(args.first_seed, args.first_seed + n):
+                    eff = {"bench_product": {"joint": joint, "factors": factors, "amplitude_deg": amp}}
+                    res, _ = run_one(eff, s, tmp, n_poses=args.poses)
+                    prop = [a for a in res.accepted if a.cand.effect == "proposed"]
+                    want = sorted((k, a, h) for k, a, h in factors)
+                    ok = any(
+                        a.cand.joint == joint
+                        and [sorted((f["kind"], f["index"], f["harmonic"]) for f in t["factors"]) for t in
+                             a.cand.extra["terms"]][0] == want
+                        for a in prop
+                    )  # fmt: skip
+                    hits += ok
+                    for a in res.accepted:
+                        other[a.cand.key] = other.get(a.cand.key, 0) + 1
+                label = "·".join(f"{k}({h}q{a})" for k, a, h in factors)
+                print(f"  dθ{joint} = {amp}° {label}: proposed exactly on {hits}/{n} seeds; accepted keys {other}")
         elif args.mode == "power":
             n = min(args.seeds, 30)
             print(f"gear joint 4, harmonic 1, random phase; {n} seeds per amplitude")

@@ -184,6 +184,7 @@ def select(
     stability: float,
     absorbed_tol: float,
     seed: int,
+    merge_corr: float = 0.9,
 ) -> list[Proposal]:
     """Stability selection with orthogonal matching pursuit over every joint's dictionary columns.
 
@@ -208,12 +209,15 @@ def select(
     rng = np.random.default_rng(seed)
     uniq = np.unique(groups)
     counts = np.zeros(len(idx))
+    picks: list[np.ndarray] = []
     for _ in range(n_resamples):
         pick = rng.choice(len(uniq), size=len(uniq) // 2, replace=False)
         rows = np.isin(groups, uniq[pick])
         coef = orthogonal_mp(X[rows], r_w[rows], n_nonzero_coefs=max_terms, precompute=False)
-        counts[np.flatnonzero(coef)] += 1
-    freq = counts / n_resamples
+        sel = np.flatnonzero(coef)
+        counts[sel] += 1
+        picks.append(sel)
+    freq = cluster_votes(X, counts, picks, n_resamples, merge_corr)
     stable = np.flatnonzero(freq >= stability)
     out: dict[int, Proposal] = {}
     for s_i in stable[np.argsort(-freq[stable])]:
@@ -223,6 +227,44 @@ def select(
         p.atoms.append(atom)
         p.stability.append(float(freq[s_i]))
     return list(out.values())
+
+
+def cluster_votes(
+    X: np.ndarray, counts: np.ndarray, picks: list[np.ndarray], n_resamples: int, merge_corr: float
+) -> np.ndarray:
+    """Selection frequency per column with the votes of strongly correlated columns pooled: columns picked in
+    any resample whose (projected, normalised) correlation exceeds ``merge_corr`` form one cluster; a cluster's
+    frequency is the share of resamples that picked any of its members, credited to its most picked member
+    (the others get 0). Without this, two near-copies of one term split the vote and neither looks stable."""
+    freq = counts / max(n_resamples, 1)
+    used = np.flatnonzero(counts > 0)
+    if len(used) < 2:
+        return freq
+    C = np.abs(X[:, used].T @ X[:, used])
+    parent = list(range(len(used)))
+
+    def root(a: int) -> int:
+        while parent[a] != a:
+            parent[a] = parent[parent[a]]
+            a = parent[a]
+        return a
+
+    for a in range(len(used)):
+        for b in range(a + 1, len(used)):
+            if C[a, b] > merge_corr:
+                parent[root(a)] = root(b)
+    clusters: dict[int, list[int]] = {}
+    for a in range(len(used)):
+        clusters.setdefault(root(a), []).append(int(used[a]))
+    out = freq.copy()
+    for members in clusters.values():
+        if len(members) == 1:
+            continue
+        hit = sum(1 for sel in picks if np.isin(members, sel).any())
+        best = max(members, key=lambda c: (counts[c], -c))
+        out[members] = 0.0
+        out[best] = hit / max(n_resamples, 1)
+    return out
 
 
 def log10_threshold(alpha: float, n_columns: int, n_terms: int) -> float:
