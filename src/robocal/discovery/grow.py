@@ -299,14 +299,32 @@ def grow(
             break
         fit = fit_new
     fit, accepted = _prune(fit, accepted, record, groups, cfg, refit)
-    record["parametric_fit"] = fit
+    return fit, accepted, record
+
+
+def finish(
+    campaign: Campaign,
+    cfg: DiscoveryConfig,
+    rows: np.ndarray,
+    data: FitData,
+    fit: Fit,
+    accepted: list[Accepted],
+    steps: list[Any],
+    groups: np.ndarray,
+    refit: Any,
+    record: dict[str, Any],
+) -> tuple[Fit, list[Accepted], dict[str, Any]]:
+    """After the parametric model (library, selection, equations): the residual layer when the same
+    cross-validated test accepts it, then the cross-validated estimate and each effect's contribution."""
+    record.setdefault("steps", [])
     if cfg.layer and cfg.cv_folds >= 2:
         layer_pool = layer_candidates(campaign, cfg, rows)
         if layer_pool:
             cv = FoldCV(fit, groups, cfg.cv_folds, cfg.seed)
             fit, accepted, _, _ = _step(layer_pool, fit, accepted, cv, rows, data, cfg, steps, record, refit, groups,
                                         what="residual layer")  # fmt: skip
-    record.update(contributions(fit, accepted, groups, cfg))
+    if cfg.cv_folds >= 2:
+        record.update(contributions(fit, accepted, groups, cfg))
     return fit, accepted, record
 
 

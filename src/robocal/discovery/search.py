@@ -394,12 +394,12 @@ def _search(
                 before.residuals_mm, fit.residuals_mm,
             )
         )  # fmt: skip
-    if cfg.dictionary:
-        fit, accepted = _propose(campaign, robot, cfg, rows, data, fit, accepted, steps, groups, refit)
+    # many small effects chosen together by cross-validation (physics first), then equations for what is left,
+    # then the residual layer (robocal.discovery.grow)
+    from robocal.discovery.grow import finish, grow
+
     grown: dict[str, Any] = {}
     if cfg.grow_max_steps > 0:
-        from robocal.discovery.grow import grow
-
         taken = {a.cand.key for a in accepted}
         leftovers = [c for c in library if c.key not in taken and c.key not in unident]
         grow_refit = refit
@@ -418,7 +418,10 @@ def _search(
         fit, accepted, grown = grow(
             campaign, robot, cfg, rows, data, fit, accepted, steps, groups, grow_refit, leftovers
         )
-    parametric = grown.pop("parametric_fit", fit)
+    if cfg.dictionary:
+        fit, accepted = _propose(campaign, robot, cfg, rows, data, fit, accepted, steps, groups, refit)
+    parametric = fit
+    fit, accepted, grown = finish(campaign, cfg, rows, data, fit, accepted, steps, groups, refit, grown)
     return DiscoveryResult(
         robot=robot,
         config=cfg,
