@@ -138,10 +138,10 @@ def main(argv: list[str] | None = None) -> int:
                     want = sorted((k, a, h) for k, a, h in factors)
                     ok = any(
                         a.cand.joint == joint
-                        and [sorted((f["kind"], f["index"], f["harmonic"]) for f in t["factors"]) for t in
-                             a.cand.extra["terms"]][0] == want
+                        and sorted((f["kind"], f["index"], f["harmonic"]) for f in a.cand.extra["terms"][0]["factors"])
+                        == want
                         for a in prop
-                    )  # fmt: skip
+                    )
                     hits += ok
                     for a in res.accepted:
                         other[a.cand.key] = other.get(a.cand.key, 0) + 1

@@ -3,7 +3,6 @@
     python benchmarks/real_robots.py                       # every dataset in ../shared/data/
     python benchmarks/real_robots.py --data ../shared/data/ur10-ipa
     python benchmarks/real_robots.py --hold-out-range      # also: hold out the top 25 % of joint 2's range
-                                                           # (validation outside the calibrated angles)
 
 For each dataset (a folder with poses.csv and robot.yaml, its own description, no link masses unless it has
 them): the held-out validation rows' mean / RMS / max position error of the nominal model (best rigid fit: the
@@ -11,9 +10,9 @@ true "before"), robocal calibrate's geometric model, the discovered parametric e
 model (the one the service applies), what each named effect contributes (the pose-grouped cross-validated
 error with the effect removed) and the cross-validated estimate beside the held-out figure.
 
-``--hold-out-range [--joint J]``: for joint J (default 2, the shoulder), the calibration keeps the poses in the lower 75 % of
-its range and the validation is the rest (angles the calibration never visited): the extended model must be no
-worse there than the geometric one (its transmission error is zero outside the visited angles).
+``--hold-out-range [--joint J]``: for joint J (default 2, the shoulder), the calibration keeps the poses in the
+lower 75 % of its range and the validation is the rest (angles the calibration never visited): the extended model
+must be no worse there than the geometric one (its transmission error is zero outside the visited angles).
 """
 
 from __future__ import annotations

@@ -22,6 +22,7 @@ from robocal.discovery.summary import summary
 from robocal.discovery.validate import validation_errors
 from robocal.kinematics.gravity import gravity_torques
 from robocal.robot import load_robot
+
 from .conftest import make_campaign
 
 
@@ -64,7 +65,7 @@ def test_gravity_regressor_reproduces_the_torques_of_known_masses():
     ref = gravity_torques(robot, q, 0.0)
     assert Y @ pi == pytest.approx(ref, abs=1e-9 * np.abs(ref).max())
     # joint 1's axis is along gravity: no torque, no combination to fit
-    V, scale = weight_basis(Y[:, 0, :])
+    V, _scale = weight_basis(Y[:, 0, :])
     assert V.shape[1] == 0
     V2, s2 = weight_basis(Y[:, 1, :])
     S = Y[:, 1, :] @ V2 / s2
@@ -84,7 +85,7 @@ def transmission_run(tmp_path_factory):
 
 
 def test_transmission_error_recovered_with_its_harmonics(transmission_run):
-    _camp, _robot, truth, res, s = transmission_run
+    _camp, _robot, truth, _res, s = transmission_run
     keys = [n["key"] for n in s["named"]]
     assert "transmission:j2" in keys, keys
     assert all(k.startswith("transmission:j2") for k in keys), keys  # nothing else named
@@ -100,7 +101,7 @@ def test_transmission_error_recovered_with_its_harmonics(transmission_run):
 
 
 def test_transmission_effect_in_calibration_json_reproduces_the_fit(transmission_run):
-    camp, robot, _truth, res, s = transmission_run
+    camp, robot, _truth, res, _s = transmission_run
     cal = extended_calibration(res.final, robot, {})
     eff = [e for e in cal["effects"] if e["signal"] == "transmission"]
     assert eff and set(eff[0]) >= {"harmonics", "visited_deg", "taper_deg", "coefficients"}

@@ -139,7 +139,9 @@ def pooled(single: list[tuple[Candidate, list[Variant]]]) -> Pool:
             cols.append(k0 + v.columns)
             taus.append(np.full(len(v.columns), v.prior_rad))
             k0 += c.S.shape[1]
-        pool.append(([c for c, _ in weights], [Variant(np.concatenate(cols), np.concatenate(taus), weights[0][1].label)]))
+        pool.append(
+            ([c for c, _ in weights], [Variant(np.concatenate(cols), np.concatenate(taus), weights[0][1].label)])
+        )
     return pool
 
 
@@ -280,7 +282,6 @@ def grow(
     """The cross-validated selection (module docstring). ``leftovers``: library candidates not accepted by the
     F-test search. Appends one :class:`~robocal.discovery.search.Step` per accepted candidate (and a final one
     saying why it stopped); returns the fit, the accepted effects and the cross-validation record."""
-    from robocal.discovery.search import Score, Step, regressor
 
     single: list[tuple[Candidate, list[Variant]]] = [
         (c, [Variant(np.arange(c.S.shape[1]), None, "")]) for c in leftovers if c.shape == "joint"
@@ -435,14 +436,20 @@ def layer_candidates(campaign: Campaign, cfg: DiscoveryConfig, rows: np.ndarray)
         extra = {"centres_rad": centres.tolist(), "length_rad": ell, "inside_rad": inside}
         members = [
             Candidate(
-                f"layer:j{j + 1}", "layer", j + 1, None,
+                f"layer:j{j + 1}",
+                "layer",
+                j + 1,
+                None,
                 cause="residual layer: what the parametric model leaves on joint "
                 f"{j + 1}, a smooth function of all joint angles (kernel ridge, Gaussian kernel of {ell_deg}°), "
                 "applied only inside the calibrated region",
-                signal=f"Gaussian kernel features of q ({len(centres)} centres)", shape="joint", S=S,
-                coef_names=tuple(f"k{i + 1}" for i in range(len(centres))), coef_units=("rad",) * len(centres),
+                signal=f"Gaussian kernel features of q ({len(centres)} centres)",
+                shape="joint",
+                S=S,
+                coef_names=tuple(f"k{i + 1}" for i in range(len(centres))),
+                coef_units=("rad",) * len(centres),
                 extra=extra,
-            )  # fmt: skip
+            )
             for j in moving
         ]
         ncol = len(centres) * len(members)

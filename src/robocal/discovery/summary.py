@@ -40,13 +40,13 @@ def estimates(fit: Fit, acc: Accepted) -> dict[str, Any]:
     elif c.effect == "transmission":
         h = np.asarray(c.extra["harmonics"], dtype=int)
         H = len(h)
-        amp = np.hypot(val[:H], val[H:])
-        order = np.argsort(-amp)[:3]
-        for k in order:
+        amps = np.hypot(val[:H], val[H:])
+        for k in np.argsort(-amps)[:3]:
             g = np.zeros(2 * H)
-            if amp[k] > 0:
-                g[k], g[H + k] = val[k] / amp[k], val[H + k] / amp[k]
-            out[f"harmonic_{int(h[k])}_amplitude_deg"] = _est(amp[k] * _DEG, float(np.sqrt(g @ C @ g)) * _DEG, "deg")
+            if amps[k] > 0:
+                g[k], g[H + k] = val[k] / amps[k], val[H + k] / amps[k]
+            se_k = float(np.sqrt(g @ C @ g)) * _DEG
+            out[f"harmonic_{int(h[k])}_amplitude_deg"] = _est(float(amps[k]) * _DEG, se_k, "deg")
         out["order"] = {"value": int(h.max()), "stderr": None, "unit": "harmonics per revolution"}
         out.update(_deflection(fit, acc, val, C))
     elif c.effect == "weight":

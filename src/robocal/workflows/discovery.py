@@ -106,7 +106,10 @@ def write_report(res: DiscoveryResult, summ: dict[str, Any], path: Path) -> Path
                             }
                         )
                     continue
-                rows.append({"effect": n["key"], "estimate": k, "value": e["value"], "stderr": e["stderr"],
+                val = e["value"]
+                if isinstance(val, bool):
+                    val = "yes" if val else "no"
+                rows.append({"effect": n["key"], "estimate": k, "value": val, "stderr": e["stderr"],
                              "unit": e["unit"]})  # fmt: skip
         rep.table(rows, caption="Estimates with standard errors (joint fit of geometry and every named effect)")
         if drift_rows:
@@ -119,6 +122,24 @@ def write_report(res: DiscoveryResult, summ: dict[str, Any], path: Path) -> Path
             [{"effect": n["key"], "cause": n["cause"], "signal": n["signal"]} for n in summ["named"]],
             caption="Physical causes and signals",
         )
+        cv = summ.get("cross_validation") or {}
+        held = [n for n in summ["named"] if n.get("held_out")]
+        if held and "cv_mean_position_mm" in cv:
+            rep.table(
+                [
+                    {
+                        "effect": n["key"],
+                        "side": n["side"],
+                        "held-out mean without it, mm": n["held_out"]["cv_mean_without_mm"],
+                        "its contribution, mm": n["held_out"]["cv_mean_without_mm"] - cv["cv_mean_position_mm"],
+                    }
+                    for n in held
+                ],
+                caption=f"Each joint-level effect's own contribution to the held-out error: the pose-grouped "
+                f"cross-validated mean error of the final model is {cv['cv_mean_position_mm']:.4f} mm; without the "
+                "effect (linearised) it is the value shown. Robot-side effects go to the controller; "
+                "measurement-side ones (tracker drift) never do",
+            )
     if summ.get("proposed"):
         rep.heading("Proposed equations (beyond the library)")
         rep.paragraph(
