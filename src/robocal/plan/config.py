@@ -170,13 +170,19 @@ class RegionConfig:
             return f"the robot's working range (its joint limits less {margin_deg:g} deg)"
         if self.kind == "joints":
             assert self.ranges_deg is not None
-            return "joint ranges " + ", ".join(f"q{j + 1} {lo:g}..{hi:g}" for j, (lo, hi) in enumerate(self.ranges_deg)) + " deg"
+            return (
+                "joint ranges "
+                + ", ".join(f"q{j + 1} {lo:g}..{hi:g}" for j, (lo, hi) in enumerate(self.ranges_deg))
+                + " deg"
+            )
         if self.kind == "box":
             assert self.min_mm is not None and self.max_mm is not None
             lo, hi = self.min_mm, self.max_mm
-            return "tool point in the box " + ", ".join(
-                f"{a} {lo[k]:g}..{hi[k]:g}" for k, a in enumerate("xyz")
-            ) + " mm (base frame)"
+            return (
+                "tool point in the box "
+                + ", ".join(f"{a} {lo[k]:g}..{hi[k]:g}" for k, a in enumerate("xyz"))
+                + " mm (base frame)"
+            )
         if self.kind == "poses":
             return f"the given poses ({self.poses})" if isinstance(self.poses, str) else "the given poses"
         return "the poses the cell allows (the tracker's view, the volume, the singularity checks)"

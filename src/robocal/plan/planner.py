@@ -226,7 +226,9 @@ def _region_poses(robot: RobotDescription, poses: str | tuple[tuple[float, ...],
         rows = [tuple(r) for r in poses]
         wrong = [k for k, r in enumerate(rows) if len(r) != n]
         if wrong:
-            raise ConfigError(f"region.poses[{wrong[0]}]: must give {n} joint angles in degrees; got {len(rows[wrong[0]])}")
+            raise ConfigError(
+                f"region.poses[{wrong[0]}]: must give {n} joint angles in degrees; got {len(rows[wrong[0]])}"
+            )
         q = np.asarray(rows, dtype=float).reshape(-1, n)
     if len(q) == 0:
         raise ConfigError(f"{where}: no poses")

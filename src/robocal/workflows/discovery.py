@@ -64,8 +64,8 @@ def write_report(res: DiscoveryResult, summ: dict[str, Any], path: Path) -> Path
         w = summ["unexplained_where"]
         rep.note(
             "The residual is still above the tracker-noise floor and no candidate explains it. Joints with the "
-            f"largest share: {[j['joint'] for j in w['joints'][:2]]}; worst workspace region: "
-            f"{w['workspace_regions'][0]}; time span: {w['time_span']}.",
+            f"largest share: {', '.join(str(j['joint']) for j in w['joints'][:2])}; worst workspace region: "
+            f"{_words(w['workspace_regions'][0])}; time span: {_words(w['time_span'])}.",
             kind="warn",
         )
     if "validation" in summ:
@@ -287,3 +287,14 @@ def run(
 
 
 __all__ = ["run", "write_product", "write_report"]
+
+
+def _words(value: Any) -> str:
+    """A summary value as words (``x 0.12..0.34, rows 12``), never a Python dict or list repr."""
+    if isinstance(value, dict):
+        return ", ".join(f"{k.replace('_', ' ')} {_words(v)}" for k, v in value.items())
+    if isinstance(value, list | tuple):
+        return "..".join(_words(v) for v in value) if len(value) == 2 else ", ".join(_words(v) for v in value)
+    if isinstance(value, float):
+        return f"{value:.4g}"
+    return str(value)
