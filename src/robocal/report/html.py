@@ -469,7 +469,8 @@ for (const p of pages) {
   f.onload = () => {
     try {
       const d = f.contentDocument, w = d.documentElement.clientWidth, probs = [];
-      if (d.documentElement.scrollWidth > w + 1) probs.push("the page is " + d.documentElement.scrollWidth + " px wide");
+      const sw = d.documentElement.scrollWidth;
+      if (sw > w + 1) probs.push("the page is " + sw + " px wide");
       d.querySelectorAll(".table-wrap, pre, figure, .note, p, h2, h3").forEach((e) => {
         if (e.scrollWidth > e.clientWidth + 1)
           probs.push(e.tagName.toLowerCase() + " " + e.scrollWidth + " px in " + e.clientWidth + " px: "
