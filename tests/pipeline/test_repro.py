@@ -170,6 +170,22 @@ def test_first_repro_runs_every_stage(copy: dict[str, Any]) -> None:
     ]
 
 
+def test_every_pipeline_report_reads_clean(copy: dict[str, Any]) -> None:
+    """Issue 23, item 12: no page the pipeline writes shows a Python repr, nan / True / False, or text wider than
+    the page (headless Chromium at 1000 px where installed). The commands' pages: tests/report/test_pages.py."""
+    from robocal.report.html import layout_problems, page_problems
+
+    pages = sorted((copy["root"] / "reports").glob("*/report.html"))
+    assert {p.parent.name for p in pages} >= {"plan", "geometric", "thermal", "screen", "validate", "discovery"}
+    for page in pages:
+        problems = page_problems(page.read_text(encoding="utf-8"))
+        assert not problems, f"{page.parent.name}:\n" + "\n".join(problems[:10])
+    layout = layout_problems(pages)
+    if layout is not None:
+        wide = {Path(p).parent.name: v for p, v in layout.items() if v}
+        assert not wide, wide
+
+
 def test_second_repro_runs_nothing(copy: dict[str, Any]) -> None:
     assert _reproduce(copy["root"]) == []
 

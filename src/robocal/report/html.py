@@ -58,6 +58,7 @@ h2 a.anchor, h3 a.anchor, h4 a.anchor { color: var(--line); text-decoration: non
        font-weight: normal; }
 h2:hover a.anchor, h3:hover a.anchor, h4:hover a.anchor { color: var(--muted); }
 p { margin: .5rem 0 .8rem; }
+p, .note, .caption, figcaption, .subtitle { overflow-wrap: break-word; }  /* a long path breaks, not the page */
 nav.toc { background: var(--stripe); border: 1px solid var(--line); border-radius: 4px; padding: .6rem 1.2rem;
           margin: 0 0 1.5rem; }
 nav.toc .toc-title { font-weight: 600; margin: 0 0 .3rem; }
@@ -441,8 +442,9 @@ def _visible_text(page: str) -> str:
 
 
 def page_problems(page: str) -> list[str]:
-    """What a reader should never see on a report page: a Python repr, ``nan`` / ``True`` / ``False`` / ``None``
-    as a value, a token too long to wrap (wider than the page), a preformatted line over 110 characters.
+    """What a reader should never see on a report page: a Python repr, ``nan`` / ``True`` / ``False`` in the text
+    or ``None`` as a cell, a token too long to wrap (wider than the page; a path breaks at the edge), a
+    preformatted line over 110 characters.
     Returns one line per problem (empty: the page is clean). Tables themselves scroll inside their frame."""
     out: list[str] = []
     text = _visible_text(page)
@@ -450,10 +452,10 @@ def page_problems(page: str) -> list[str]:
         out.append(f"a Python repr: ...{text[max(0, m.start() - 30) : m.end() + 40]!s}...")
     for m in _RAW_CELL.finditer(page):
         out.append(f"a raw value in a cell: {m.group(0)}")
-    for m in re.finditer(r"(?<![\w.])(nan|NaN|True|False|None)(?![\w.])", text):
+    for m in re.finditer(r"(?<![\w.])(nan|NaN|True|False)(?![\w.])", text):
         out.append(f"{m.group(1)!r} in the text: ...{text[max(0, m.start() - 40) : m.end() + 20]}...")
     for tok in set(text.split()):
-        if len(tok) > LONGEST_TOKEN:
+        if len(tok) > LONGEST_TOKEN and "/" not in tok:  # paths break at the box's edge (overflow-wrap)
             out.append(f"an unbreakable token of {len(tok)} characters: {tok[:80]}")
     for pre in re.findall(r"<pre[^>]*>(.*?)</pre>", page, flags=re.S):
         for line in html.unescape(_TAG.sub("", pre)).splitlines():

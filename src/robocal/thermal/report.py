@@ -227,6 +227,24 @@ COL_LABELS = {
 }
 
 
+def _lines(equations: list[str], width: int = 100) -> str:
+    """Equations for a preformatted block that fits the page: the reference temperatures of a long line on a
+    continuation line of their own, and long sums broken before a term."""
+    out: list[str] = []
+    for eq in equations:
+        body, sep, refs = eq.partition("    (")
+        parts = [body]
+        while len(parts[-1]) > width and " +" in parts[-1][:width]:
+            cut = parts[-1].rfind(" +", 0, width)
+            if cut <= 0:
+                break
+            parts[-1:] = [parts[-1][:cut], "    " + parts[-1][cut + 1 :]]
+        out += parts
+        if sep:
+            out.append("    (" + refs)
+    return "\n".join(out)
+
+
 def table_rows(tab: Mapping[str, Mapping[str, float]], paper: bool = True) -> list[dict[str, Any]]:
     rows = []
     for m, s in tab.items():
@@ -286,10 +304,10 @@ def fit_report(fit: ThermalFit, rep: Report, truth: Mapping[str, Any] | None = N
         f"(chi-square test at {fit.cfg.regression_config.alpha:g}). Coefficients ± standard error, in temperature "
         "differences from the cold state. " + EQUATION_UNITS
     )
-    rep.code("\n".join(fit.model_all.equations(stderr=True, deg=True)) or "(no parameter drifts significantly)")
+    rep.code(_lines(fit.model_all.equations(stderr=True, deg=True)) or "(no parameter drifts significantly)")
     if fit.model_all.parameters:
         rep.paragraph("The same model as the paper prints eq. 28 (polynomials in absolute temperatures, °C):")
-        rep.code("\n".join(fit.model_all.equations(absolute=True, deg=True)))
+        rep.code(_lines(fit.model_all.equations(absolute=True, deg=True)))
     rows_cv = cv_rows(fit)
     if rows_cv:
         rep.table(rows_cv, caption="cross-validated choice of sensors and order per parameter", float_fmt="{:.3g}")
@@ -297,9 +315,9 @@ def fit_report(fit: ThermalFit, rep: Report, truth: Mapping[str, Any] | None = N
         rep.paragraph("Twin truth (reference T0 for every sensor):")
         from robocal.thermal.model import ThermalModel
 
-        rep.code("\n".join(ThermalModel.from_dict(truth["effects"]["thermal"]["model"]).equations(deg=True)))
+        rep.code(_lines(ThermalModel.from_dict(truth["effects"]["thermal"]["model"]).equations(deg=True)))
     rep.heading("Traditional model (non-zero a and d, linear expansion)", level=3)
-    rep.code("\n".join(fit.model_traditional.equations(deg=True)) or "(none)")
+    rep.code(_lines(fit.model_traditional.equations(deg=True)) or "(none)")
     return rep
 
 
@@ -313,7 +331,7 @@ def validation_report(
 ) -> Report:
     rep.heading("Proposed model (the selected parameters, eq. 28 form)")
     rep.paragraph(f"Selected ({source}): {', '.join(selected) or 'none'}. {EQUATION_UNITS}")
-    rep.code("\n".join(proposed.equations(stderr=True, deg=True)) or "(empty)")
+    rep.code(_lines(proposed.equations(stderr=True, deg=True)) or "(empty)")
     ref = dict(zip(fit.model_all.sensors, fit.model_all.T_ref_C.tolist(), strict=True))
     ref_p = dict(zip(proposed.sensors, proposed.T_ref_C.tolist(), strict=True))
     by_all = {q.name: q for q in fit.model_all.parameters}
@@ -338,7 +356,7 @@ def validation_report(
         )
     if proposed.parameters:
         rep.paragraph("In absolute temperatures (°C), as the paper prints eq. 28:")
-        rep.code("\n".join(proposed.equations(absolute=True, deg=True)))
+        rep.code(_lines(proposed.equations(absolute=True, deg=True)))
         rep.table(
             [model_cv_row(p) for p in proposed.parameters],
             caption="sensors and order of the proposed model, chosen by leave-one-state-out cross-validation",
