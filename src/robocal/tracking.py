@@ -241,9 +241,9 @@ def default_tags(stage: str) -> dict[str, str]:
 
 #: what joins the parts of a run's name: ``<stage> · <campaign> · <experiment>``
 NAME_SEP = " · "
-#: The MLflow run status of a skipped stage: not FINISHED (a green tick, as if it had computed something) and not
-#: FAILED; the UI shows KILLED as a grey "killed" mark. The tags say why: ``robocal.status = skipped`` and
-#: ``robocal.skipped = <reason>``.
+#: The MLflow run status of a skipped stage: not FINISHED (a green tick, as if it had computed something). KILLED is
+#: MLflow's status for a run that ended without a result (the UI marks it like a failure); the run's name says
+#: ``(skipped)`` and the tags say why: ``robocal.status = skipped`` and ``robocal.skipped = <reason>``.
 SKIPPED_STATUS = "KILLED"
 #: The experiment tag that makes the MLflow UI open an experiment on its runs table (its "model training"
 #: view), not on the GenAI traces view; and the URL query that selects that view.
@@ -267,6 +267,12 @@ def run_title(stage: str, campaign: str, experiment: str | None = None) -> str:
     ``experiment`` (e.g. a Hydra job's overrides), else ``workspace`` (a plain ``dvc repro``)."""
     exp = os.environ.get("DVC_EXP_NAME") or experiment or "workspace"
     return NAME_SEP.join((stage, campaign, exp))
+
+
+def skipped_title(name: str) -> str:
+    """``compliance_fit · twin thermal · workspace`` -> ``compliance_fit (skipped) · twin thermal · workspace``."""
+    stage, sep, rest = name.partition(NAME_SEP)
+    return name if stage.endswith("(skipped)") else f"{stage} (skipped){sep}{rest}"
 
 
 def runs_view_url(experiment_id: str, base: str = "http://127.0.0.1:5000") -> str:
@@ -425,7 +431,8 @@ class StageRun:
     def mark_skipped(self, reason: str) -> None:
         """The stage had nothing to do: tag it (``robocal.status``, ``robocal.skipped``) and end it as
         :data:`SKIPPED_STATUS`, so it does not look like a computed success."""
-        self.set_tags({"robocal.status": "skipped", "robocal.skipped": reason[:5000]})
+        self.run_name = skipped_title(self.run_name)
+        self.set_tags({"robocal.status": "skipped", "robocal.skipped": reason[:5000], "mlflow.runName": self.run_name})
         self.end_status = SKIPPED_STATUS
 
     def close(self, status: str = "FINISHED") -> None:
@@ -580,6 +587,11 @@ class PendingRun:
 
     def mark_skipped(self, reason: str) -> None:
         """As :meth:`StageRun.mark_skipped`."""
+        if self._fallback is not None:
+            return self._fallback.mark_skipped(reason)
+        self.run_name = skipped_title(self.run_name)
+        if self._tmp is not None:
+            self._record["run_name"] = self.run_name
         self.set_tags({"robocal.status": "skipped", "robocal.skipped": reason[:5000]})
         self.end_status = SKIPPED_STATUS
 

@@ -228,7 +228,10 @@ def test_mlflow_holds_a_run_per_stage_with_metrics(copy: dict[str, Any]) -> None
         ]
         assert runs, stage
         run = runs[0]
-        assert run.info.status == "FINISHED"
+        # a skipped stage (no payload; the comparison is off) ends KILLED, named so: not a green success
+        skipped = stage in ("compliance_fit", "compare_optimizers")
+        assert run.info.status == ("KILLED" if skipped else "FINISHED"), stage
+        assert run.info.run_name == f"{stage}{' (skipped)' if skipped else ''} · twin thermal · workspace"
         assert "wall_time_s" in run.data.metrics, stage
         assert run.data.tags.get("dvc.stage") == stage
     fit = _runs(copy["uri"], "tags.`robocal.stage` = 'geometric_fit'")

@@ -306,8 +306,8 @@ def test_runs_are_named_by_stage_campaign_and_experiment_and_skips_are_not_succe
     exp = client.get_experiment_by_name("robocal")
     assert exp is not None and exp.tags.get("mlflow.experimentKind") == "custom_model_development"
     runs = {r.info.run_name: r for r in client.search_runs([exp.experiment_id])}
-    assert sorted(runs) == ["thermal_fit · abb-irb120 · workspace", "thermal_fit · twin thermal · warm-start"]
-    skipped = runs["thermal_fit · abb-irb120 · workspace"]
+    assert sorted(runs) == ["thermal_fit (skipped) · abb-irb120 · workspace", "thermal_fit · twin thermal · warm-start"]
+    skipped = runs["thermal_fit (skipped) · abb-irb120 · workspace"]
     assert skipped.info.status == "KILLED"
     assert skipped.data.tags["robocal.status"] == "skipped"
     assert skipped.data.tags["robocal.skipped"] == "the campaign has no temperatures.csv"
