@@ -40,14 +40,15 @@ def _check(pages: list[Path]) -> None:
         assert not wide, wide
 
 
+@pytest.mark.slow
 def test_the_commands_pages_read_clean(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     camp, fleet = tmp_path / "camp", tmp_path / "fleet"
     args = ["simulate", "geometric", "n_poses=25", "n_validation_poses=8", "--out", str(camp), "--seed", "1"]
     assert main(args) == 0
     assert main(["calibrate", str(camp), "--robot", "kr16_2", "--out", str(tmp_path / "cal")]) == 0
-    plan = ["plan", "--robot", "kr16_2", "--n", "15", "--out", str(tmp_path / "plan"), "n_candidates=3000"]
-    assert main([*plan, "region.n=100"]) == 0
-    assert main(["fleet", "--simulate", "3", "--campaigns", "2", "--out", str(fleet), "twin.n_poses=30"]) == 0
+    plan = ["plan", "--robot", "kr16_2", "--n", "15", "--out", str(tmp_path / "plan"), "n_candidates=2000"]
+    assert main([*plan, "region.n=60", "max_exchanges=200"]) == 0
+    assert main(["fleet", "--simulate", "2", "--campaigns", "2", "--out", str(fleet), "twin.n_poses=30"]) == 0
     out = tmp_path / "fleet-out"
     assert main(["fleet", str(fleet), "--out", str(out), "--no-tracking", "--no-progress"]) == 0
     capsys.readouterr()
