@@ -164,7 +164,10 @@ def write_report(res: DiscoveryResult, summ: dict[str, Any], path: Path) -> Path
         caption="One effect accepted per step; everything refitted jointly",
     )
     for k, st in enumerate(res.steps):
-        srows = summ["steps"][k]["candidates"][:8]
+        cands = summ["steps"][k]["candidates"]
+        srows = cands[:8]
+        # the accepted candidate is always shown, also when eight others have a smaller p
+        srows += [s for s in cands[8:] if st.accepted is not None and s["key"] == st.accepted]
         rep.heading(f"Step {k + 1}: {st.label or 'stop (no candidate passes)'}", level=3)
         rep.table(
             [
@@ -186,7 +189,7 @@ def write_report(res: DiscoveryResult, summ: dict[str, Any], path: Path) -> Path
             ],
             caption="Best candidates by log10 p (projected nested F-test). cv_gain (relative drop of the held-out "
             "error over whole poses) is computed only for a candidate that passes the F-test, the BIC and the "
-            "excess share, in order, until one is accepted; empty otherwise",
+            "excess share, in order, until one is accepted; a dash otherwise. The accepted one is always listed",
         )
         if st.residuals_before_mm is not None and st.residuals_after_mm is not None:
             fig = plots.residuals_vs_joints(camp.q, st.residuals_before_mm, list(res.robot.joint_names))
