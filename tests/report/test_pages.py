@@ -51,5 +51,9 @@ def test_the_commands_pages_read_clean(tmp_path: Path, capsys: pytest.CaptureFix
     assert main(["fleet", "--simulate", "2", "--campaigns", "2", "--out", str(fleet), "twin.n_poses=30"]) == 0
     out = tmp_path / "fleet-out"
     assert main(["fleet", str(fleet), "--out", str(out), "--no-tracking", "--no-progress"]) == 0
+    heavy = tmp_path / "heavy"
+    assert main(["simulate", "heavy_load", "n_poses=30", "--out", str(heavy), "--seed", "0"]) == 0
+    assert main(["compliance", str(heavy), "--robot", "sr210", "--out", str(tmp_path / "comp")]) == 0
     capsys.readouterr()
-    _check([tmp_path / "cal" / "report.html", tmp_path / "plan" / "report.html", out / "report.html"])
+    pages = ["cal", "plan", "comp"]
+    _check([tmp_path / p / "report.html" for p in pages] + [out / "report.html"])
