@@ -122,7 +122,7 @@ def compliance_report(
     rep.table(crow, float_fmt="{:.3f}")
     rep.figure(condition_figure(summary), "mean position error per load condition (validation rows)")
     rep.heading("Load table (table 4 in kind)")
-    labels = {  # the load table's columns in words (compliance.json keeps its keys)
+    columns = {  # the load table's columns in words (compliance.json keeps its keys)
         "payload_kg": "payload (kg)",
         "load_ratio_pct": "load ratio (%)",
         "position_before_mm": "position before (mm)",
@@ -131,7 +131,7 @@ def compliance_report(
         "distance_after_mm": "distance after (mm)",
         "n_rows": "rows",
     }
-    rep.table([{labels.get(k, k): v for k, v in r.items()} for r in summary["load_table"]], float_fmt="{:.3f}")
+    rep.table([{columns.get(k, k): v for k, v in r.items()} for r in summary["load_table"]], float_fmt="{:.3f}")
     rep.figure(load_table_figure(summary), "compensation fitted at full load, applied at each load")
     val = campaign.validation() if np.any(campaign.split == "validation") else campaign
     e0 = position_errors(geo, geo.x, val)
