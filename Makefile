@@ -52,16 +52,15 @@ params: $(STAMP) ## regenerate params.yaml from conf/ (DVC's Hydra composition)
 
 ui: $(STAMP) ## MLflow UI on http://127.0.0.1:$(UI_PORT) over the repository's mlflow.db
 	$(BIN)/python -m robocal.tracking flush
-	@$(BIN)/python -c "from robocal.tracking import ensure_store; \
-		print('open the runs view: http://127.0.0.1:$(UI_PORT)/#/experiments/' + ensure_store() + '/runs')"
+	@echo "open the runs table: $$($(BIN)/python -m robocal.tracking ui-url --port $(UI_PORT))"
 	$(BIN)/mlflow ui --backend-store-uri "sqlite:///$(CURDIR)/mlflow.db" \
 		--default-artifact-root "$(CURDIR)/mlartifacts" --host 127.0.0.1 --port $(UI_PORT)
 
 exps: $(STAMP) ## compare the DVC experiments: the parameters and headline metrics that differ
 	$(BIN)/dvc exp show --no-pager --only-changed --drop '.*/|(robot|scenario)\.(?!name$$)'
 
-compare: $(STAMP) ## the thermal paper's optimizer comparison (~2 min; not part of make run)
-	$(BIN)/dvc repro experiments/dvc.yaml:compare_optimizers
+compare: $(STAMP) ## the thermal paper's optimizer comparison (~2 min; off in make run): a DVC experiment
+	$(BIN)/dvc exp run -S compare.run=true
 	@echo "report: $(CURDIR)/reports/compare_optimizers/report.html"
 
 bench: $(STAMP) ## time the full default pipeline (dvc repro --force), then a second repro (nothing to do)

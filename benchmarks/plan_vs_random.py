@@ -99,7 +99,7 @@ def table(robot_name: str, seeds: int, tmp: Path, region: bool = False) -> None:
     robot = load_robot(robot_name)
     sc, base = cell(robot_name)
     if region:
-        base = {**base, "region": {"ranges_deg": REGIONS[robot_name]}}
+        base = {**base, "region": {"kind": "cell", "ranges_deg": REGIONS[robot_name]}}
     keys = ("D", "I", "random", "random_region", "pred_D", "pred_random", "true_D", "true_I", "true_random")
     rows: dict[str, list[list[float]]] = {k: [] for k in keys}
     r50: list[float] = []

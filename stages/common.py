@@ -231,6 +231,21 @@ def _sections(stage: Stage, cfg: Mapping[str, Any], source: str) -> Sections:
     return out
 
 
+def run_title(stage: str, cfg: Mapping[str, Any], experiment: str | None = None) -> str:
+    """The MLflow run name ``<stage> · <campaign> · <experiment>`` (robocal.tracking.run_title): the campaign
+    from ``data.campaign`` (``twin <scenario>`` for the twin's), read here for the name only (it reruns nothing);
+    the experiment is DVC's, else ``experiment`` (a Hydra job's), else ``workspace``."""
+    from robocal.tracking import campaign_label
+    from robocal.tracking import run_title as title
+
+    data = cfg.get("data") if isinstance(cfg.get("data"), Mapping) else {}
+    scenario = cfg.get("scenario") if isinstance(cfg.get("scenario"), Mapping) else {}
+    campaign = data.get("campaign") if isinstance(data, Mapping) else None
+    name = scenario.get("name") if isinstance(scenario, Mapping) else None
+    label = campaign_label(None if campaign is None else str(campaign), None if name is None else str(name))
+    return title(stage, label, experiment)
+
+
 def _tracking(cfg: Mapping[str, Any]) -> dict[str, Any]:
     t = cfg.get("tracking") or {}
     if not isinstance(t, Mapping):
@@ -262,6 +277,7 @@ def execute(
 
     sections = _sections(stage, cfg, "the config" if hydra else PARAMS_FILE)
     tcfg = _tracking(cfg)
+    run_name = run_title(stage.name, cfg, run_name)
     common = {"enabled": bool(tcfg["enabled"]), "uri": tcfg["uri"], "experiment": str(tcfg["experiment"])}
     tracker: Any
     if hydra or stage.inline_tracking or tcfg["required"]:  # nested runs, or the run must exist before exit
@@ -286,6 +302,7 @@ def execute(
             outcome = {**write_skipped(out, result.reason), "skipped": 1}
             headline: dict[str, Any] = {}
             print(f"stage {stage.name}: skipped: {result.reason}")
+            tracker.mark_skipped(result.reason)  # not a green FINISHED run in MLflow
             if plots is not None:  # an empty plots folder makes DVC warn; say why there is no plot
                 write_text(plots / "skipped.svg", _skipped_svg(result.reason))
         elif isinstance(result, Metrics):
@@ -393,10 +410,10 @@ def _run_hydra(stage: Stage, compute: Compute, root: Path, args: list[str]) -> i
         job_dir = Path(hc.runtime.output_dir).resolve()
         overrides = " ".join(hc.overrides.task)
         tags = {"hydra.overrides": overrides or "(none)", "hydra.job_dir": str(job_dir)}
-        run_name = f"{stage.name} {overrides}".strip()
+        run_name = f"hydra {overrides}".strip()
         if multirun:
             tags["hydra.job_num"] = str(hc.job.num)
-            run_name = f"{stage.name} #{hc.job.num} {overrides}".strip()
+            run_name = f"sweep #{hc.job.num} {overrides}".strip()
         try:
             return execute(
                 stage,

@@ -4,7 +4,7 @@ Improved GOA vs GOA vs WOA on the geometric calibration (robocal.workflows.optim
 algorithm x population x run, each run a nested MLflow run (time, iterations, error, convergence curve); writes
 ``reports/compare_optimizers/`` (runs.csv, table.csv, summary.json, report.html with fig.-4-like plots).
 
-    dvc exp run experiments/dvc.yaml:compare_optimizers        # by name: not part of the default `dvc repro`
+    make compare        # = dvc exp run -S compare.run=true (off by default: a plain `dvc repro` skips it)
     python stages/compare_optimizers.py -m compare.populations=[500],[1000],[1500]   # a sweep, one job each
 """
 
@@ -27,7 +27,11 @@ INPUT = "data/interim"
 COEFFICIENTS = "conf/optimizer/{name}.yaml"
 
 
-def compute(ctx: Context) -> Metrics:
+#: why a default `dvc repro` does not run the comparison (its skipped result says so)
+OFF = "the optimizer comparison takes minutes and is off by default (compare.run: false); run it with `make compare`"
+
+
+def compute(ctx: Context) -> Any:
     import numpy as np
     import yaml
 
@@ -45,6 +49,8 @@ def compute(ctx: Context) -> Metrics:
     )
 
     settings = CompareSettings.from_mapping(ctx.cfg["compare"])
+    if not settings.run:
+        return ctx.skip(OFF)
     cal_settings = dict(ctx.cfg["calibration"])
     cal_settings.pop("report", None)
     cfg = CalibrationConfig.from_mapping(cal_settings)

@@ -139,7 +139,8 @@ def ensure_store(uri: str | None = None, experiment: str = DEFAULT_EXPERIMENT) -
     """Create the store (SQLite tables and migrations) and the experiment once; return the experiment id.
 
     Safe to call from several processes at once: SQLite stores are created under a lock on their directory.
-    Call it in the parent process before starting parallel jobs.
+    Call it in the parent process before starting parallel jobs. The experiment is tagged
+    :data:`EXPERIMENT_KIND` (also an existing one that is not), so the UI opens it on its runs table.
     """
     uri = tracking_uri(uri)
     key = (uri, experiment)
@@ -155,8 +156,13 @@ def ensure_store(uri: str | None = None, experiment: str = DEFAULT_EXPERIMENT) -
         exp = client.get_experiment_by_name(experiment)  # creates / migrates the SQLite tables on first use
         if exp is not None:
             exp_id = str(exp.experiment_id)
+            for k, v in EXPERIMENT_KIND.items():
+                if exp.tags.get(k) != v:
+                    client.set_experiment_tag(exp_id, k, v)
         else:
-            exp_id = str(client.create_experiment(experiment, artifact_location=artifact_location(uri)))
+            exp_id = str(
+                client.create_experiment(experiment, artifact_location=artifact_location(uri), tags=EXPERIMENT_KIND)
+            )
     _ENSURED[key] = exp_id
     return exp_id
 
@@ -233,6 +239,47 @@ def default_tags(stage: str) -> dict[str, str]:
     return tags
 
 
+#: what joins the parts of a run's name: ``<stage> · <campaign> · <experiment>``
+NAME_SEP = " · "
+#: The MLflow run status of a skipped stage: not FINISHED (a green tick, as if it had computed something). KILLED is
+#: MLflow's status for a run that ended without a result (the UI marks it like a failure); the run's name says
+#: ``(skipped)`` and the tags say why: ``robocal.status = skipped`` and ``robocal.skipped = <reason>``.
+SKIPPED_STATUS = "KILLED"
+#: The experiment tag that makes the MLflow UI open an experiment on its runs table (its "model training"
+#: view), not on the GenAI traces view; and the URL query that selects that view.
+EXPERIMENT_KIND = {"mlflow.experimentKind": "custom_model_development"}
+RUNS_VIEW_QUERY = "?workflowType=machine_learning"
+
+
+def campaign_label(campaign: str | None, scenario: str | None = None) -> str:
+    """How a run names its campaign: the folder's name (``abb-irb120`` for ``../shared/data/abb-irb120``), or
+    ``twin <scenario>`` for the twin's default campaign (``data/raw/default``)."""
+    if not campaign:
+        return f"twin {scenario}" if scenario else "no campaign"
+    name = Path(str(campaign).rstrip("/")).name or str(campaign)
+    if Path(str(campaign)).as_posix().rstrip("/").endswith("data/raw/default") and scenario:
+        return f"twin {scenario}"
+    return name
+
+
+def run_title(stage: str, campaign: str, experiment: str | None = None) -> str:
+    """``<stage> · <campaign> · <experiment>``: the DVC experiment (``$DVC_EXP_NAME``) when DVC runs one, else
+    ``experiment`` (e.g. a Hydra job's overrides), else ``workspace`` (a plain ``dvc repro``)."""
+    exp = os.environ.get("DVC_EXP_NAME") or experiment or "workspace"
+    return NAME_SEP.join((stage, campaign, exp))
+
+
+def skipped_title(name: str) -> str:
+    """``compliance_fit · twin thermal · workspace`` -> ``compliance_fit (skipped) · twin thermal · workspace``."""
+    stage, sep, rest = name.partition(NAME_SEP)
+    return name if stage.endswith("(skipped)") else f"{stage} (skipped){sep}{rest}"
+
+
+def runs_view_url(experiment_id: str, base: str = "http://127.0.0.1:5000") -> str:
+    """The MLflow UI's runs table of an experiment (what ``make ui`` prints)."""
+    return f"{base.rstrip('/')}/#/experiments/{experiment_id}/runs{RUNS_VIEW_QUERY}"
+
+
 def _report(what: str, exc: BaseException) -> None:
     print(f"robocal tracking: {what} failed: {type(exc).__name__}: {exc}", file=sys.stderr)
     if os.environ.get("ROBOCAL_DEBUG"):
@@ -300,6 +347,7 @@ class StageRun:
         self.errors: list[str] = []
         self._client: Any = None
         self._closed = False
+        self.end_status = "FINISHED"  # how a run that raised nothing ends (see mark_skipped)
 
     # -- guarded call
     def _call(self, what: str, fn: Callable[[], Any]) -> Any:
@@ -380,6 +428,13 @@ class StageRun:
         """Log ``text`` as the artifact file ``artifact_file`` (e.g. the stage's parameters as YAML)."""
         self._call("log text", lambda: self._client.log_text(self.run_id, text, artifact_file))
 
+    def mark_skipped(self, reason: str) -> None:
+        """The stage had nothing to do: tag it (``robocal.status``, ``robocal.skipped``) and end it as
+        :data:`SKIPPED_STATUS`, so it does not look like a computed success."""
+        self.run_name = skipped_title(self.run_name)
+        self.set_tags({"robocal.status": "skipped", "robocal.skipped": reason[:5000], "mlflow.runName": self.run_name})
+        self.end_status = SKIPPED_STATUS
+
     def close(self, status: str = "FINISHED") -> None:
         """End the run with ``status`` (FINISHED, FAILED, KILLED); raise if ``required`` and MLflow failed."""
         if self._closed:
@@ -394,7 +449,7 @@ class StageRun:
 
     def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
         if exc_type is None:
-            self.close("FINISHED")
+            self.close(self.end_status)
         else:
             with contextlib.suppress(TrackingError):  # the stage's own error wins
                 self.close("KILLED" if exc_type is KeyboardInterrupt else "FAILED")
@@ -480,6 +535,7 @@ class PendingRun:
         self._tmp: Path | None = None
         self._fallback: StageRun | None = None
         self._closed = False
+        self.end_status = "FINISHED"
 
     def start(self) -> PendingRun:
         if not self.enabled:
@@ -528,6 +584,16 @@ class PendingRun:
             return self._fallback.set_tags(tags)
         if self._tmp is not None:
             self._record["tags"].update({str(k): str(v) for k, v in tags.items()})
+
+    def mark_skipped(self, reason: str) -> None:
+        """As :meth:`StageRun.mark_skipped`."""
+        if self._fallback is not None:
+            return self._fallback.mark_skipped(reason)
+        self.run_name = skipped_title(self.run_name)
+        if self._tmp is not None:
+            self._record["run_name"] = self.run_name
+        self.set_tags({"robocal.status": "skipped", "robocal.skipped": reason[:5000]})
+        self.end_status = SKIPPED_STATUS
 
     def log_text(self, text: str, artifact_file: str) -> None:
         if self._fallback is not None:
@@ -592,7 +658,7 @@ class PendingRun:
         return self.start()
 
     def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
-        self.close("FINISHED" if exc_type is None else ("KILLED" if exc_type is KeyboardInterrupt else "FAILED"))
+        self.close(self.end_status if exc_type is None else ("KILLED" if exc_type is KeyboardInterrupt else "FAILED"))
 
 
 def _write_record(record_dir: Path) -> str:
@@ -662,7 +728,12 @@ def main(argv: list[str] | None = None) -> int:
     sub = parser.add_subparsers(dest="action", required=True)
     f = sub.add_parser("flush", help="write the pending runs (mlflow-pending/) to MLflow; waits for a flusher at work")
     f.add_argument("--dir", default=None, help="the pending-runs folder (default: the one of the tracking store)")
+    u = sub.add_parser("ui-url", help="print the MLflow UI's address of the runs table (what `make ui` opens)")
+    u.add_argument("--port", type=int, default=5000)
     args = parser.parse_args(argv)
+    if args.action == "ui-url":
+        print(runs_view_url(ensure_store(), f"http://127.0.0.1:{args.port}"))
+        return 0
     n = flush(args.dir)
     left = [d for d in (Path(args.dir) if args.dir else pending_dir()).glob("*") if d.is_dir()]
     print(f"robocal tracking: {n} pending run(s) written" + (f"; {len(left)} could not be" if left else ""))

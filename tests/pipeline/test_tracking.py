@@ -128,3 +128,19 @@ def test_a_pending_run_reaches_mlflow_with_everything(tmp_path: Path, monkeypatc
     assert {"params.yaml", "report.html"} <= names  # a folder's files, as StageRun.log_artifact logs them
     local = client.download_artifacts(r.info.run_id, "report.html", str(tmp_path / "dl"))
     assert Path(local).read_text() == "<html></html>"
+
+
+def test_make_ui_prints_the_runs_table_not_the_genai_view(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Issue 23, item 11: the UI's start view is GenAI unless the URL asks for the machine-learning workflow; the
+    experiment is tagged so that opening it shows its runs; `make ui` prints that address."""
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", uri)
+    cmd = [sys.executable, "-m", "robocal.tracking", "ui-url", "--port", "5123"]
+    out = subprocess.run(cmd, capture_output=True, text=True, check=True)
+    exp_id = tracking.ensure_store(uri)
+    assert out.stdout.strip() == f"http://127.0.0.1:5123/#/experiments/{exp_id}/runs?workflowType=machine_learning"
+    from mlflow.tracking import MlflowClient
+
+    exp = MlflowClient(uri).get_experiment(exp_id)
+    assert exp.tags["mlflow.experimentKind"] == "custom_model_development"
+    assert "robocal.tracking ui-url" in (REPO / "Makefile").read_text()

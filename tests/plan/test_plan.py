@@ -22,6 +22,7 @@ from robocal.plan.planner import rng_stream
 TOOL = np.array([35.0, -20.0, 120.0])
 TRACKER = np.array([922.26, 2618.05, 328.26])
 SETTINGS = {
+    "criterion": "D",
     "n_poses": 20,
     "n_candidates": 4000,
     "seed": 3,
@@ -264,6 +265,11 @@ def test_impossible_constraints_name_the_setting(kr16):
         ({"tracker": {"position_mm": [1, 2]}}, "tracker.position_mm"),
         ({"bogus": 1}, "bogus"),
         ({"ranges_deg": [[0, 1]]}, "ranges_deg"),
+        ({"region": {"kind": "box", "min_mm": [0, 0, 0]}}, "region.max_mm"),
+        ({"region": {"kind": "joints"}}, "region.ranges_deg"),
+        ({"region": {"ranges_deg": [[0, 1]] * 6}}, "region.ranges_deg"),
+        ({"region": {"kind": "poses", "poses": [[0, -90, 90, 0, 30]]}}, r"region.poses\[0\]"),
+        ({"region": {"kind": "sphere"}}, "region.kind"),
     ],
 )
 def test_bad_settings_name_the_key(kr16, settings, key):
@@ -323,3 +329,87 @@ def test_iso9283_cube_volume(kr16):
     _, p = _tool_points(kr16, res.q)
     assert np.all(np.abs(p - np.array([600.0, 600.0, 900.0])) <= 500.0)
     assert res.problem.cand.refused["volume"] > 0
+
+
+# ------------------------------------------------------------------------------------- the region (issue 23, item 14)
+
+
+def test_the_default_plan_is_i_optimal_for_the_robots_working_range(kr16):
+    """The default region is the robot's working range (joint limits less the margin), not the poses the tracker
+    sees: the robot works where the tracker cannot look. It is said in plan.json and the report."""
+    assert PlanConfig().criterion == "I" and PlanConfig().region.kind == "working_range"
+    res = plan_poses(kr16, {k: v for k, v in SETTINGS.items() if k != "criterion"} | {"collision": {}}, curve=False)
+    pr = res.problem
+    margin = np.deg2rad(SETTINGS["joint_margin_deg"])
+    lim = kr16.q_limits
+    assert np.all(pr.region_q >= lim[:, 0] + margin - 1e-12) and np.all(pr.region_q <= lim[:, 1] - margin + 1e-12)
+    # most of the working range is out of the tracker's view: the cell's checks refuse most region configurations
+    ev = evaluate(kr16, build_chain(kr16), pr.region_q, pr.config)
+    assert np.mean(ev["line_of_sight"] | ev["tracker_range"]) > 0.5
+    d = res.to_dict()["region"]
+    assert d["kind"] == "working_range" and "working range" in d["optimal_for"] and "7 deg" in d["optimal_for"]
+    # the plan spans what the region needs: its I value is no worse than the D plan's of the same candidates
+    d_plan = plan_poses(kr16, {**SETTINGS, "collision": {}}, curve=False)
+    assert criterion_value(information(pr.F, res.idx), "I", pr.L) <= criterion_value(
+        information(pr.F, d_plan.idx), "I", pr.L
+    )
+
+
+def test_a_box_where_the_parts_sit_is_planned_for(kr16):
+    box = {"kind": "box", "min_mm": [700, 300, 300], "max_mm": [1300, 900, 900], "n": 120}
+    base = {**SETTINGS, "criterion": "I", "collision": {}}
+    res = plan_poses(kr16, {**base, "region": box}, curve=False)
+    pr = res.problem
+    assert pr.region_q.shape == (120, 6) and res.to_dict()["region"]["n"] == 120
+    xyz = pr.region_xyz
+    assert np.all(xyz >= np.array(box["min_mm"]) - 1e-9) and np.all(xyz <= np.array(box["max_mm"]) + 1e-9)
+    assert "box x 700..1300, y 300..900, z 300..900 mm" in res.to_dict()["region"]["optimal_for"]
+    # planned for the box, the plan predicts a smaller error there than the plan made for the whole working range
+    whole = plan_poses(kr16, base, curve=False)
+    I_box = criterion_value(information(pr.F, res.idx), "I", pr.L)
+    I_whole_in_box = criterion_value(information(pr.F, whole.idx), "I", pr.L)
+    assert I_box < I_whole_in_box
+    with pytest.raises(ConfigError, match=r"region\.min_mm / region\.max_mm: .*reaches no point of the box"):
+        plan_poses(kr16, {**base, "region": {"kind": "box", "min_mm": [9000, 0, 0], "max_mm": [9100, 100, 100]}})
+
+
+def test_region_poses_from_a_list_or_a_csv(kr16, tmp_path):
+    poses = [[10, -90, 90, 0, 30, 0], [60, -100, 80, 20, 45, -30], [80, -60, 40, -10, 60, 90]]
+    base = {**SETTINGS, "criterion": "I", "collision": {}}
+    res = plan_poses(kr16, {**base, "region": {"kind": "poses", "poses": poses}}, curve=False)
+    np.testing.assert_allclose(res.problem.region_q, np.deg2rad(poses))
+    csv = tmp_path / "parts.csv"
+    csv.write_text(
+        "pose_id,q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg\n"
+        + "".join(f"p{k}," + ",".join(str(v) for v in q) + "\n" for k, q in enumerate(poses))
+    )
+    res2 = plan_poses(kr16, {**base, "region": {"kind": "poses", "poses": str(csv)}}, curve=False)
+    np.testing.assert_allclose(res2.problem.region_q, np.deg2rad(poses))
+    assert np.array_equal(res.idx, res2.idx)
+    assert str(csv) in res2.to_dict()["region"]["optimal_for"]
+    bad = tmp_path / "bad.csv"
+    bad.write_text("q1_deg,q2_deg\n1,2\n")
+    from robocal.errors import DataError
+
+    with pytest.raises(DataError, match=r"bad\.csv: .*missing \['q3_deg'"):
+        plan_poses(kr16, {**base, "region": {"kind": "poses", "poses": str(bad)}})
+    with pytest.raises(ConfigError, match=r"pose 0: q1 = 500 deg is outside the joint limits"):
+        plan_poses(kr16, {**base, "region": {"kind": "poses", "poses": [[500, -90, 90, 0, 30, 0]]}})
+
+
+def test_the_command_prints_the_region(tmp_path, capsys):
+    from robocal.cli import main
+
+    out = tmp_path / "plan"
+    args = ["plan", "--robot", "kr16_2", "--n", "15", "--out", str(out), "n_candidates=3000", "region.n=100"]
+    assert main([*args, "--no-report"]) == 0
+    text = capsys.readouterr().out
+    assert "optimal for: the robot's working range (its joint limits less 5 deg); the tool point there spans x" in text
+    assert (
+        main([*args, "region.kind=joints", "region.ranges_deg=[[0,90],[-120,-40],[0,90],[-90,90],[-90,90],[-90,90]]"])
+        == 0
+    )
+    text = capsys.readouterr().out
+    assert "optimal for: joint ranges q1 0..90, q2 -120..-40, q3 0..90" in text
+    html = (out / "report.html").read_text()
+    assert "Region the plan is made for" in html and "PlanConfig(" not in html

@@ -101,8 +101,9 @@ def test_report_with_every_element_renders() -> None:
     doc = _full_report().to_html()
     assert doc.startswith("<!DOCTYPE html>")
     c = _parse(doc)
-    for tag in ("h1", "h2", "h3", "nav", "table", "caption", "thead", "figure", "figcaption", "img", "pre", "code"):
+    for tag in ("h1", "h2", "h3", "nav", "table", "thead", "figure", "figcaption", "img", "pre", "code"):
         assert tag in c.tags, tag
+    assert '<div class="caption">' in doc  # above the table, as wide as the page (not a <caption>)
     assert doc.count("<img ") == 3
     assert doc.count('class="note info"') == 1 and doc.count('class="note warn"') == 1
     assert "<style>" in doc and "</style>" in doc
@@ -161,10 +162,10 @@ def test_cell_formatting() -> None:
     assert ">0.02512<" in doc  # default {:.4g}
     assert ">0.01<" in doc and ">-0.50<" in doc  # float_fmt="{:.2f}", index column kept
     assert ">a2<" in doc and ">value_mm<" in doc
-    assert ">nan<" in doc
+    assert '<td class="num empty">–</td>' in doc and ">nan<" not in doc  # undefined: a dash (issue 23, item 12)
     assert ">1e-07<" in doc
     assert '<td class="num">6</td>' in doc  # ints as they are
-    assert ">True<" in doc
+    assert "<td>yes</td>" in doc and ">True<" not in doc  # words, not Python's True / False
 
 
 def test_figure_is_closed_after_rendering() -> None:

@@ -69,7 +69,7 @@ def test_deta_chain_order_and_round_trip(tmp_path) -> None:
     assert m.out_of_range(np.array([[31.0, 25.0]])).tolist() == [[True, False]]
     with pytest.raises(ValueError, match=r"shape \(m, 2\)"):
         m.deta(np.zeros((2, 3)))
-    assert "Δd1 = 0.01 × (t_a − 20.00)" in m.equations()[0]
+    assert "Δd1 = 0.01 × (T_a_C − 20.00)" in m.equations()[0]  # the sensor by its one name (issue 23, item 12)
 
 
 def test_equations_in_the_papers_absolute_form_and_with_uncertainties() -> None:
@@ -96,8 +96,11 @@ def test_equations_in_the_papers_absolute_form_and_with_uncertainties() -> None:
     assert np.allclose(mc.std(axis=0), se_abs, rtol=0.12)
     eq_abs, eq_se = m.equations(absolute=True), m.equations(stderr=True)
     assert eq_abs[0] == m.equations()[0]  # expansions are printed c × (t − T_ref), as in the paper
-    assert eq_abs[1].startswith("Δtheta4 = 0.0003923 ") and "t_a^2" in eq_abs[1] and "Δ" not in eq_abs[1][9:]
-    assert "(0.01 ± 0.001) × (t_a − 20.00)" in eq_se[0] and eq_se[1].count("±") == 5
+    assert eq_abs[1].startswith("Δtheta4 = 0.0003923 ") and "T_a_C^2" in eq_abs[1] and "Δ" not in eq_abs[1][9:]
+    assert "(0.01 ± 0.001) × (T_a_C − 20.00)" in eq_se[0] and eq_se[1].count("±") == 5
+    # the reports print angles in degrees, as their tables do; lengths unchanged (issue 23, item 12)
+    deg = m.equations(absolute=True, deg=True)
+    assert deg[0] == eq_abs[0] and deg[1].startswith(f"Δtheta4 = {0.0003923 * 180 / np.pi:.4g} ")
 
 
 def _warm_up(n: int = 6) -> np.ndarray:

@@ -36,10 +36,23 @@ def run(args: argparse.Namespace) -> int:
         cfg["n_poses"] = args.n
     m = run_plan(args.robot, cfg, args.out, report=False if args.no_report else None)
     rnd = m["random_region_rms_mm"]
+    lo, hi = m["region_tool_point_min_mm"], m["region_tool_point_max_mm"]
+    box = ", ".join(f"{a} {lo[k]:.0f}..{hi[k]:.0f}" for k, a in enumerate("xyz"))
     print(
         f"planned {m['n_poses']} poses from {m['candidates_accepted']} accepted candidates, "
-        f"{m['n_identifiable']} identifiable parameters; predicted RMS error over the region "
-        f"{m['predicted_region_rms_mm']:.4f} mm (random poses: {rnd:.4f} mm); {m['total_s']:.1f} s"
+        f"{m['n_identifiable']} identifiable parameters; {m['total_s']:.1f} s"
+    )
+    if m["criterion"] == "I":
+        print(f"optimal for: {m['region']}; the tool point there spans {box} mm")
+    else:
+        print(
+            f"{m['criterion']}-optimal (parameter precision, whatever the region); predicted error reported over "
+            f"{m['region']} (tool point {box} mm); criterion=I plans for the region"
+        )
+    print(
+        f"predicted RMS error over that region {m['predicted_region_rms_mm']:.4f} mm "
+        f"(random poses of the same cell: {rnd:.4f} mm); choose the region with region.kind=joints|box|poses "
+        "(conf/plan/default.yaml)"
     )
     print(f"wrote {args.out}/plan.csv and plan.json")
     return 0

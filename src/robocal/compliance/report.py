@@ -94,7 +94,15 @@ def compliance_report(
             "identified compliance ± 2 standard errors",
         )
     if summary["selection"]:
-        rep.note("joints dropped by the automatic selection: " + str(summary["selection"]))
+        rep.note(
+            "joints dropped by the automatic selection: "
+            + "; ".join(
+                f"joint {s['dropped_joint']} (t = {s['t']:.2f}, compliance {s['c']:.3g})"
+                if {"dropped_joint", "t", "c"} <= set(s)
+                else ", ".join(f"{k} {v}" for k, v in s.items())
+                for s in summary["selection"]
+            )
+        )
     rep.heading("Accuracy per condition (fig. 8 / table 3 in kind)")
     crow = []
     for c in summary["conditions"]:
@@ -114,7 +122,16 @@ def compliance_report(
     rep.table(crow, float_fmt="{:.3f}")
     rep.figure(condition_figure(summary), "mean position error per load condition (validation rows)")
     rep.heading("Load table (table 4 in kind)")
-    rep.table(summary["load_table"], float_fmt="{:.3f}")
+    columns = {  # the load table's columns in words (compliance.json keeps its keys)
+        "payload_kg": "payload (kg)",
+        "load_ratio_pct": "load ratio (%)",
+        "position_before_mm": "position before (mm)",
+        "position_after_mm": "position after (mm)",
+        "distance_before_mm": "distance before (mm)",
+        "distance_after_mm": "distance after (mm)",
+        "n_rows": "rows",
+    }
+    rep.table([{columns.get(k, k): v for k, v in r.items()} for r in summary["load_table"]], float_fmt="{:.3f}")
     rep.figure(load_table_figure(summary), "compensation fitted at full load, applied at each load")
     val = campaign.validation() if np.any(campaign.split == "validation") else campaign
     e0 = position_errors(geo, geo.x, val)

@@ -66,7 +66,7 @@ def estimates(fit: Fit, acc: Accepted) -> dict[str, Any]:
             pname, sig = p.split("*")
             unit_p = model.base.units[model.base.index(pname)]
             f = _DEG if unit_p == "rad" else 1.0
-            per = "h" if sig == "t_h" else f"degC({sig})"
+            per = "h" if sig == "t_h" else f"°C ({sig})"
             out[f"{pname}_per_{sig}"] = _est(val[k] * f, se[k] * f, f"{'deg' if unit_p == 'rad' else 'mm'}/{per}")
         if c.effect == "drift":
             R = model.base.T_ref[:3, :3]

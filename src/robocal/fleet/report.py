@@ -138,7 +138,7 @@ def write_report(path: str | Path, fleet_summary: Mapping[str, Any]) -> Path:
     else:
         rep.note("No parameter moved more than its uncertainty allows.")
     if "truth" in fleet_summary:
-        rep.kv(fleet_summary["truth"], caption="Twin fleet: planted events against the flags")
+        rep.kv(_truth_rows(fleet_summary["truth"]), caption="Twin fleet: planted events against the flags")
     rep.heading("Robots")
     by_serial = {r["serial"]: r for r in robots}
     shown = sorted({f["serial"] for f in flags})[:MAX_ROBOT_FIGURES]
@@ -178,7 +178,7 @@ def write_report(path: str | Path, fleet_summary: Mapping[str, Any]) -> Path:
                 "RMS after (mm)": c.get("fit", {}).get("rms_after_mm"),
                 "validation mean (mm)": (c.get("validation") or {}).get("mean_position_mm"),
                 "gross errors left out": c.get("fit", {}).get("n_outliers"),
-                "note": "" if c["status"] == "ok" else c.get("reason", ""),
+                "note": "–" if c["status"] == "ok" else c.get("reason") or "–",
             }
             for r in robots
             for c in r["campaigns"]
@@ -186,3 +186,35 @@ def write_report(path: str | Path, fleet_summary: Mapping[str, Any]) -> Path:
         caption="Accuracy of every calibration (RMS over the calibration rows; mean over the validation rows)",
     )
     return rep.save(path)
+
+
+#: the twin fleet's truth check, in words (fleet.json keeps its keys)
+TRUTH_LABELS = {
+    "n_events": "events planted",
+    "n_detected": "events flagged",
+    "n_right_kind": "flagged as the right kind",
+    "missed": "missed",
+    "wrong_kind": "flagged as another kind",
+    "n_false_flags": "false flags",
+    "false_flags": "false flags (robot, parameter)",
+    "n_robots_without_event": "robots without an event",
+}
+
+
+def _truth_rows(truth: Mapping[str, Any]) -> dict[str, Any]:
+    """The truth check with readable keys and "none" for an empty list (not a blank cell)."""
+    out: dict[str, Any] = {}
+    for k, v in truth.items():
+        label = TRUTH_LABELS.get(k, k.replace("_", " "))
+        if isinstance(v, list | tuple):
+            v = "; ".join(_item(x) for x in v) if v else "none"
+        out[label] = v
+    return out
+
+
+def _item(x: Any) -> str:
+    if isinstance(x, Mapping):
+        return ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in x.items())
+    if isinstance(x, list | tuple):
+        return " ".join(str(v) for v in x)
+    return str(x)

@@ -29,11 +29,21 @@ class Eliminated:
     leftover: float
     reason: str
 
+    def combination(self) -> str:
+        """The parameters that absorb this one, as a signed sum: ``0.5·d2 − 35·tool_T1_y`` (no ``+ +35``)."""
+        out = ""
+        for k, (n, c) in enumerate(self.absorbed_by):
+            mag = f"{abs(c):.3g}·{n}"
+            if k == 0:
+                out = f"−{mag}" if c < 0 else mag
+            else:
+                out += f" − {mag}" if c < 0 else f" + {mag}"
+        return out
+
     def describe(self) -> str:
         if not self.absorbed_by:
             return f"{self.name}: {self.reason}"
-        parts = " + ".join(f"{c:+.3g}·{n}" for n, c in self.absorbed_by)
-        return f"{self.name} with {parts} ({self.reason})"
+        return f"{self.name} with {self.combination()} ({self.reason})"
 
     def to_dict(self) -> dict[str, object]:
         return {

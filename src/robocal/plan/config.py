@@ -120,13 +120,72 @@ class CollisionConfig:
     clearance_mm: float = setting(0.0, ge=0)
 
 
+REGION_KINDS = ("working_range", "joints", "box", "poses", "cell")
+
+
 @dataclass(frozen=True)
 class RegionConfig:
-    """The validation region (I-optimality, the predicted error map): ``n`` configurations sampled inside
-    ``ranges_deg`` (default: the candidate ranges) that satisfy the same constraints."""
+    """The region the plan is made for: where the calibrated model must be accurate (the I-criterion, the
+    predicted error map and the reported RMS are over it). ``n`` configurations of
 
+    * ``working_range`` (default): the robot's working range, its joint limits less ``joint_margin_deg``
+      (and no self-collision when the capsules are on). The tracker need not see them: the robot works there;
+    * ``joints``: ``ranges_deg`` per joint (within the working range);
+    * ``box``: the tool point (the first target) inside ``min_mm`` .. ``max_mm`` (robot base frame), within
+      the working range -- where the parts sit;
+    * ``poses``: exactly the given joint configurations (``poses``: a list of ``[q1, ..., qN]`` in degrees, or
+      a CSV file with ``q1_deg .. qN_deg`` columns, e.g. a program's poses or another plan.csv);
+    * ``cell``: what the candidates are drawn from, with every check of the cell (tracker range, line of sight,
+      volume, singularity): only poses the tracker can measure (the planner's region before issue 23).
+    """
+
+    kind: str = setting("working_range", choices=REGION_KINDS)
     n: int = setting(400, ge=1)
     ranges_deg: tuple[tuple[float, float], ...] | None = setting(None, check=_ranges)
+    min_mm: Vec3 | None = None
+    max_mm: Vec3 | None = None
+    poses: str | tuple[tuple[float, ...], ...] | None = None
+
+    def validate(self) -> None:
+        wants = {"joints": "ranges_deg", "box": "min_mm", "poses": "poses"}
+        for kind, key in wants.items():
+            if self.kind == kind and getattr(self, key) is None:
+                raise SettingError(key, f"must be given for a region of kind {kind!r}", None)
+        for key, kinds in (("ranges_deg", ("joints", "cell")), ("min_mm", ("box",)), ("poses", ("poses",))):
+            if getattr(self, key) is not None and self.kind not in kinds:
+                raise SettingError(
+                    key,
+                    f"is a setting of region.kind {' or '.join(map(repr, kinds))}, not {self.kind!r}",
+                    getattr(self, key),
+                )
+        if self.kind == "box":
+            if self.max_mm is None:
+                raise SettingError("max_mm", "must be given (with region.min_mm) for a box region", None)
+            if np.any(np.asarray(self.min_mm) >= np.asarray(self.max_mm)):
+                raise SettingError("min_mm", "must be below region.max_mm on every axis", self.min_mm)
+
+    def describe(self, margin_deg: float = 5.0) -> str:
+        """One line for the console and the report: which region the plan is optimal for."""
+        if self.kind == "working_range":
+            return f"the robot's working range (its joint limits less {margin_deg:g} deg)"
+        if self.kind == "joints":
+            assert self.ranges_deg is not None
+            return (
+                "joint ranges "
+                + ", ".join(f"q{j + 1} {lo:g}..{hi:g}" for j, (lo, hi) in enumerate(self.ranges_deg))
+                + " deg"
+            )
+        if self.kind == "box":
+            assert self.min_mm is not None and self.max_mm is not None
+            lo, hi = self.min_mm, self.max_mm
+            return (
+                "tool point in the box "
+                + ", ".join(f"{a} {lo[k]:g}..{hi[k]:g}" for k, a in enumerate("xyz"))
+                + " mm (base frame)"
+            )
+        if self.kind == "poses":
+            return f"the given poses ({self.poses})" if isinstance(self.poses, str) else "the given poses"
+        return "the poses the cell allows (the tracker's view, the volume, the singularity checks)"
 
 
 @dataclass(frozen=True)
@@ -134,7 +193,7 @@ class PlanConfig:
     """Settings of :func:`robocal.plan.plan_poses` (see ``conf/plan/default.yaml`` for each key)."""
 
     n_poses: int = setting(40, ge=1)
-    criterion: str = setting("D", choices=CRITERIA, convert=_upper)
+    criterion: str = setting("I", choices=CRITERIA, convert=_upper)
     seed: int = setting(0, ge=0)
     n_candidates: int = setting(20000, ge=1)
     joint_margin_deg: float = setting(5.0, ge=0)

@@ -72,10 +72,14 @@ def run_plan(
     pred = summary["planned"]
     return {
         "n_poses": summary["n_poses"],
+        "criterion": summary["criterion"],
         "candidates_accepted": summary["candidates"]["accepted"],
         "n_identifiable": summary["identifiable"]["n"],
         "D_logdet": pred["D_logdet"],
         "A_trace": pred["A_trace"],
+        "region": summary["region"]["optimal_for"],
+        "region_tool_point_min_mm": summary["region"]["tool_point_min_mm"],
+        "region_tool_point_max_mm": summary["region"]["tool_point_max_mm"],
         "predicted_region_rms_mm": pred.get("region_rms_mm"),
         "random_region_rms_mm": summary["random_baseline"].get("region_rms_mm_mean"),
         "n_needed_for_accuracy": summary["n_needed_for_accuracy"],
@@ -119,6 +123,30 @@ def build_report(result: PlanResult) -> Any:
             f"poses needed for {cfg.accuracy_mm} mm RMS over the region": result.n_needed,
         }
     )
+    reg = d["region"]
+    rep.heading("Region the plan is made for")
+    lo, hi = reg["tool_point_min_mm"], reg["tool_point_max_mm"]
+    rep.kv(
+        {
+            "region": reg["optimal_for"],
+            "configurations in it": reg["n"],
+            "tool point x (mm)": f"{lo[0]:.0f} .. {hi[0]:.0f}",
+            "tool point y (mm)": f"{lo[1]:.0f} .. {hi[1]:.0f}",
+            "tool point z (mm)": f"{lo[2]:.0f} .. {hi[2]:.0f}",
+            "criterion": cfg.criterion,
+        }
+    )
+    if cfg.criterion == "I":
+        rep.paragraph(
+            "The plan minimises the mean predicted error of the calibrated model over this region (I-optimal). "
+            "Choose it with region.kind: joints (ranges_deg), box (min_mm, max_mm: where the parts sit) or poses "
+            "(a list or a CSV of joint configurations)."
+        )
+    else:
+        rep.paragraph(
+            f"A {cfg.criterion}-optimal plan maximises parameter precision whatever the region; the predicted "
+            "errors below are over this region. criterion=I plans for the region itself."
+        )
     rep.heading("Candidates and what the cell refused")
     rep.paragraph(
         "Each refused candidate is counted once, under the first check it fails (in this order); 'failing' "
@@ -190,7 +218,7 @@ def build_report(result: PlanResult) -> Any:
             ax.set_aspect("equal", adjustable="datalim")
             fig.colorbar(sc, ax=ax, label="predicted error (mm)")
         fig.tight_layout()
-        rep.heading("Predicted error map over the validation region")
+        rep.heading("Predicted error map over the region")
         rep.figure(fig, "Predicted RMS 3-D error of the calibrated model at each region configuration (top view)")
 
     if result.curve:
@@ -208,8 +236,51 @@ def build_report(result: PlanResult) -> Any:
         fig.tight_layout()
         rep.heading("Poses needed for an accuracy")
         rep.figure(fig, "Predicted RMS model error over the region against the number of poses")
-        rep.table(result.curve, caption="The curve")
+        rep.table(
+            [
+                {
+                    "poses": r["n_poses"],
+                    "planned: RMS over the region (mm)": r["planned_region_rms_mm"],
+                    "random: RMS over the region (mm)": r["random_region_rms_mm"],
+                    "random draws singular": r["random_singular"],
+                }
+                for r in result.curve
+            ],
+            caption="The curve (random: the median of 5 draws from the accepted candidates)",
+        )
     rep.heading("Settings")
-    rep.code(str(cfg))
-    _ = d
+    rep.kv(settings_rows(cfg), caption="The plan settings (conf/plan/default.yaml and overrides)")
     return rep
+
+
+def settings_rows(cfg: PlanConfig) -> dict[str, str]:
+    """The settings as ``dotted.key: value`` text, one row each (not a dataclass repr)."""
+    from dataclasses import asdict
+
+    def text(v: Any) -> str:
+        if v is None:
+            return "none"
+        if isinstance(v, bool):
+            return "yes" if v else "no"
+        if isinstance(v, float):
+            return f"{v:g}"
+        if isinstance(v, list | tuple):
+            inner = [text(x) for x in v]
+            return "[" + ", ".join(inner) + "]"
+        return str(v)
+
+    out: dict[str, str] = {}
+
+    def walk(prefix: str, node: Any) -> None:
+        if isinstance(node, dict):
+            for k, v in node.items():
+                walk(f"{prefix}.{k}" if prefix else str(k), v)
+        else:
+            out[prefix] = text(node)
+
+    raw = asdict(cfg)
+    raw["targets"] = {
+        t.name: f"position {text(list(t.position_mm))} mm, normal {text(list(t.normal))}" for t in cfg.targets
+    }
+    walk("", raw)
+    return out

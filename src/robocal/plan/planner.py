@@ -183,6 +183,109 @@ def cell_from_scenario(scenario: Mapping[str, Any]) -> dict[str, Any]:
     return out
 
 
+def _working_range_config(cfg: PlanConfig) -> PlanConfig:
+    """``cfg`` with only the robot's own checks left (joint margin, self-collision): no tracker, volume or
+    singularity check (the robot works where the tracker cannot see)."""
+    from dataclasses import replace
+
+    from robocal.plan.config import SingularityConfig, TrackerConfig, VolumeConfig
+
+    return replace(
+        cfg,
+        tracker=TrackerConfig(acceptance_half_angle_deg=180.0, min_range_mm=0.0, max_range_mm=1e12),
+        volume=VolumeConfig(),
+        singularity=SingularityConfig(min_sigma=0.0, min_wrist_deg=0.0),
+    )
+
+
+def _region_poses(robot: RobotDescription, poses: str | tuple[tuple[float, ...], ...]) -> np.ndarray:
+    """The ``region.poses`` configurations (rad): a list in degrees or a CSV file with ``q1_deg ..`` columns."""
+    n = robot.n_joints
+    where = "region.poses"
+    if isinstance(poses, str):
+        import pandas as pd
+
+        from robocal.errors import DataError
+
+        path = poses
+        try:
+            df = pd.read_csv(path)
+        except (OSError, ValueError) as exc:
+            raise ConfigError(f"{where}: cannot read the CSV file {path!r}: {exc}") from exc
+        cols = [f"q{j + 1}_deg" for j in range(n)]
+        missing = [c for c in cols if c not in df.columns]
+        if missing:
+            raise DataError(f"{path}: region poses need the columns {cols}; missing {missing}")
+        q = df[cols].to_numpy(dtype=float)
+        bad = np.argwhere(~np.isfinite(q))
+        if len(bad):
+            r, c = bad[0]
+            raise DataError(f"{path}: row {int(r) + 2}, column {cols[c]}: not a number ({df[cols[c]].iloc[r]!r})")
+        where = path
+    else:
+        rows = [tuple(r) for r in poses]
+        wrong = [k for k, r in enumerate(rows) if len(r) != n]
+        if wrong:
+            raise ConfigError(
+                f"region.poses[{wrong[0]}]: must give {n} joint angles in degrees; got {len(rows[wrong[0]])}"
+            )
+        q = np.asarray(rows, dtype=float).reshape(-1, n)
+    if len(q) == 0:
+        raise ConfigError(f"{where}: no poses")
+    lim = np.rad2deg(robot.q_limits)
+    out = np.argwhere((q < lim[:, 0] - 1e-9) | (q > lim[:, 1] + 1e-9))
+    if len(out):
+        r, j = out[0]
+        raise ConfigError(
+            f"{where}: pose {int(r)}: q{j + 1} = {q[r, j]:g} deg is outside the joint limits "
+            f"[{lim[j, 0]:g}, {lim[j, 1]:g}] of {robot.name}"
+        )
+    return np.deg2rad(q)
+
+
+def region_configurations(robot: RobotDescription, chain: Any, cfg: PlanConfig, limits: np.ndarray) -> np.ndarray:
+    """``region.n`` configurations (rad) of the region the plan is made for (:class:`RegionConfig`), drawn from
+    the plan's ``region`` stream (the given ones for ``poses``). ``limits``: the candidates' joint ranges."""
+    reg = cfg.region
+    if reg.kind == "poses":
+        assert reg.poses is not None
+        return _region_poses(robot, reg.poses)
+    if reg.kind == "cell":
+        checks = cfg
+        lim = sampling_limits(robot, reg.ranges_deg) if reg.ranges_deg is not None else limits
+    else:
+        checks = _working_range_config(cfg)
+        lim = sampling_limits(robot, reg.ranges_deg if reg.kind == "joints" else None)
+    box = None
+    if reg.kind == "box":
+        assert reg.min_mm is not None and reg.max_mm is not None
+        box = np.asarray(reg.min_mm), np.asarray(reg.max_mm)
+    rrng = rng_stream(cfg.seed, "region")
+    got: list[np.ndarray] = []
+    drawn = 0
+    last: Screened | None = None
+    cap = (1000 if box is not None else 200) * reg.n  # a small box is hit by few configurations
+    while sum(len(g) for g in got) < reg.n and drawn < cap:
+        batch = max(4 * reg.n, 2000)
+        last = screen(robot, chain, sample_configurations(lim, batch, rrng), checks)
+        drawn += batch
+        q = last.q
+        if box is not None:
+            xyz = last.targets_mm[:, 0]
+            q = q[np.all((xyz >= box[0]) & (xyz <= box[1]), axis=1)]
+        got.append(q)
+    qv = np.concatenate(got)[: reg.n] if got else np.zeros((0, robot.n_joints))
+    if len(qv) == 0:
+        assert last is not None
+        if box is not None:
+            raise ConfigError(
+                f"region.min_mm / region.max_mm: the tool point of {robot.name} reaches no point of the box in "
+                f"{drawn} configurations drawn in its working range; move or enlarge the box"
+            )
+        raise _nothing_left(last, f"configuration of the region ({reg.describe(cfg.joint_margin_deg)})")
+    return qv
+
+
 def build_problem(
     robot: RobotDescription | str | Mapping[str, Any], config: PlanConfig | Mapping[str, Any] | None = None
 ) -> Problem:
@@ -213,21 +316,8 @@ def build_problem(
     scale = 1.0 / np.where(rms > 0, rms, 1.0)
     F = np.ascontiguousarray(Jb[:, :, kept] * scale)
 
-    # the validation region: feasible configurations in its ranges, from their own stream
-    reg_limits = sampling_limits(robot, cfg.region.ranges_deg) if cfg.region.ranges_deg is not None else limits
-    rrng = rng_stream(cfg.seed, "region")
-    got: list[np.ndarray] = []
-    drawn = 0
-    last: Screened | None = None
-    while sum(len(g) for g in got) < cfg.region.n and drawn < 200 * cfg.region.n:
-        batch = max(4 * cfg.region.n, 2000)
-        last = screen(robot, chain, sample_configurations(reg_limits, batch, rrng), cfg)
-        drawn += batch
-        got.append(last.q)
-    qv = np.concatenate(got)[: cfg.region.n] if got else np.zeros((0, robot.n_joints))
-    if len(qv) == 0:
-        assert last is not None
-        raise _nothing_left(last, "configuration of the validation region ('region.ranges_deg')")
+    # the region the plan is made for (region.kind), from its own stream
+    qv = region_configurations(robot, chain, cfg, limits)
     # position error of the first target (the tool point) at each region configuration: mm per scaled parameter
     tv = np.zeros(len(qv), dtype=int)
     pv, _ = model.predict(x0, qv, tv)
@@ -405,6 +495,10 @@ class PlanResult:
             "exchange": self.exchange,
             "orientation_spread": self.orientation_spread,
             "region": {
+                "kind": cfg.region.kind,
+                "optimal_for": cfg.region.describe(cfg.joint_margin_deg),
+                "tool_point_min_mm": [round(float(v), 3) for v in pr.region_xyz.min(axis=0)],
+                "tool_point_max_mm": [round(float(v), 3) for v in pr.region_xyz.max(axis=0)],
                 "n": len(pr.region_q),
                 "predicted_rms_mm": self.prediction.get("region_rms_mm"),
                 "predicted_max_mm": self.prediction.get("region_max_mm"),

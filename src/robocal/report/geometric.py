@@ -45,7 +45,7 @@ def geometric_report(
         "chi² / dof": f"{fit['chi2']:.1f} / {fit['dof']} (95 % band {fit['chi2_band_95'][0]:.0f}–"
         f"{fit['chi2_band_95'][1]:.0f}; {'inside' if fit['chi2_within_band'] else 'OUTSIDE'})",
         "tracker noise assumed (mm)": f"{result.config.noise_mm}",
-        "iterations / time": _iterations_time(fit),
+        **_iterations_time(fit),
         "solver status": fit["message"],
     }
     if "rms_orientation_deg" in fit:
@@ -145,7 +145,9 @@ def geometric_report(
     rep.table(
         [[r["name"], r["kind"], r["unit"], r["value"], r["stderr"], r["status"]] for r in table],
         columns=["parameter", "kind", "unit", "value", "std. error", "status"],
-        caption="Kinematic errors are deviations from the nominal model; frames and tools are absolute.",
+        caption="Kinematic errors are deviations from the nominal model; base_* are corrections of the base "
+        "frame's closed-form registration (zero: the registration itself, see 'Frames and tools' for the frame); "
+        "tool_* are the targets' positions in the flange frame.",
     )
     kin = [r for r in table if r["kind"] == "kinematic" and r["status"] == "identified"]
     if kin:
@@ -160,7 +162,7 @@ def geometric_report(
     rep.heading("Eliminated parameters")
     if result.eliminated:
         rep.table(
-            [[e.name, e.describe(), e.reason] for e in result.eliminated],
+            [[e.name, e.combination() or "–", e.reason] for e in result.eliminated],
             columns=["parameter", "absorbed by", "reason"],
         )
     else:
@@ -185,13 +187,13 @@ def geometric_report(
     return rep
 
 
-def _iterations_time(fit: Mapping[str, Any]) -> str:
-    """Iterations and the measured time of the fit (seconds). Pipeline reports (reproducible mode: same config,
-    same bytes) leave the time out and say where it is."""
+def _iterations_time(fit: Mapping[str, Any]) -> dict[str, str]:
+    """The iterations and the measured time of the fit. Pipeline reports (reproducible mode: same config, same
+    bytes) show the iterations only (the time is in the MLflow run and on the console)."""
     if is_reproducible():
-        return f"{fit['nit']} (time: in the MLflow run and the console, not in files tracked by DVC)"
+        return {"iterations": str(fit["nit"])}
     t = float(fit["wall_time_s"])
-    return f"{fit['nit']} / {t:.3f} s" if t >= 0.1 else f"{fit['nit']} / {t * 1e3:.1f} ms"
+    return {"iterations / time": f"{fit['nit']} / {t:.3f} s" if t >= 0.1 else f"{fit['nit']} / {t * 1e3:.1f} ms"}
 
 
 def _xyz(v: Any) -> str:

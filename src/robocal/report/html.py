@@ -58,6 +58,7 @@ h2 a.anchor, h3 a.anchor, h4 a.anchor { color: var(--line); text-decoration: non
        font-weight: normal; }
 h2:hover a.anchor, h3:hover a.anchor, h4:hover a.anchor { color: var(--muted); }
 p { margin: .5rem 0 .8rem; }
+p, .note, .caption, figcaption, .subtitle { overflow-wrap: break-word; }  /* a long path breaks, not the page */
 nav.toc { background: var(--stripe); border: 1px solid var(--line); border-radius: 4px; padding: .6rem 1.2rem;
           margin: 0 0 1.5rem; }
 nav.toc .toc-title { font-weight: 600; margin: 0 0 .3rem; }
@@ -66,9 +67,9 @@ nav.toc a { color: var(--accent); text-decoration: none; }
 nav.toc a:hover { text-decoration: underline; }
 .table-wrap { overflow-x: auto; margin: .6rem 0 1.2rem; }
 table { border-collapse: collapse; font-size: .92rem; font-variant-numeric: tabular-nums; }
-caption { caption-side: top; text-align: left; color: var(--muted); padding: 0 0 .3rem; font-size: .9rem; }
+.caption { text-align: left; color: var(--muted); padding: 0 0 .3rem; font-size: .9rem; max-width: 60rem; }
 th, td { border-bottom: 1px solid var(--line); padding: .28rem .7rem; vertical-align: top; text-align: left; }
-thead th { border-bottom: 2px solid var(--fg); font-weight: 600; white-space: nowrap; }
+thead th { border-bottom: 2px solid var(--fg); font-weight: 600; vertical-align: bottom; }
 tbody tr:nth-child(even) { background: var(--stripe); }
 td.num { text-align: right; font-family: ui-monospace, "SFMono-Regular", Menlo, Consolas, monospace; }
 td.empty { color: var(--muted); }
@@ -111,16 +112,18 @@ def _is_number(v: object) -> bool:
 
 def _format_cell(v: object, float_fmt: str) -> tuple[str, str]:
     """(escaped text, css class) of one table cell."""
-    if v is None:
-        return "", "empty"
-    if isinstance(v, bool | np.bool_):
-        return _esc(bool(v)), ""
+    if v is None:  # no value: a dash, not a blank cell that reads as missing output
+        return "–", "empty"
+    if isinstance(v, bool | np.bool_):  # words, not Python's True / False
+        return ("yes" if v else "no"), ""
     if isinstance(v, int | np.integer):
         return _esc(int(v)), "num"
     if isinstance(v, float | np.floating):
         f = float(v)
-        if math.isnan(f):
-            return "nan", "num empty"
+        if math.isnan(f):  # undefined: a dash, not Python's nan
+            return "–", "num empty"
+        if math.isinf(f):
+            return ("∞" if f > 0 else "−∞"), "num"
         return _esc(float_fmt.format(f)), "num"
     if isinstance(v, list | tuple | np.ndarray | Mapping):  # never a Python / numpy repr on the page
         return _esc(_plain(v, float_fmt)), ""
@@ -137,8 +140,12 @@ def _plain(v: object, float_fmt: str) -> str:
         if any(isinstance(x, list | tuple | np.ndarray | Mapping) for x in v):
             return "; ".join(f"({_plain(x, float_fmt)})" for x in v)
         return ", ".join(_plain(x, float_fmt) for x in v)
-    if isinstance(v, float | np.floating) and not isinstance(v, bool):
-        return float_fmt.format(float(v))
+    if isinstance(v, bool | np.bool_):
+        return "yes" if v else "no"
+    if isinstance(v, float | np.floating):
+        return "–" if math.isnan(float(v)) else float_fmt.format(float(v))
+    if v is None:
+        return "–"
     return str(v)
 
 
@@ -198,9 +205,10 @@ class Report:
             text, cls = _format_cell(v, float_fmt)
             td = f'<td class="{cls}">' if cls else "<td>"
             rows.append(f'<tr><th scope="row">{_esc(k)}</th>{td}{text}</td></tr>')
-        cap = f"<caption>{_esc(caption)}</caption>" if caption else ""
+        # the caption above the table, as wide as the page (a <caption> is as narrow as its table: one word a line)
+        cap = f'<div class="caption">{_esc(caption)}</div>' if caption else ""
         self._parts.append(
-            f'<div class="table-wrap"><table class="kv">{cap}<tbody>{"".join(rows)}</tbody></table></div>'
+            f'<div class="table-wrap">{cap}<table class="kv"><tbody>{"".join(rows)}</tbody></table></div>'
         )
         return self
 
@@ -227,7 +235,7 @@ class Report:
         """
         _check_float_fmt(float_fmt, "Report.table")
         header, rows = _table_rows(df_or_rows, columns)
-        cap = f"<caption>{_esc(caption)}</caption>" if caption else ""
+        cap = f'<div class="caption">{_esc(caption)}</div>' if caption else ""
         head = ""
         if header is not None:
             head = "<thead><tr>" + "".join(f'<th scope="col">{_esc(h)}</th>' for h in header) + "</tr></thead>"
@@ -238,7 +246,7 @@ class Report:
                 text, cls = _format_cell(v, float_fmt)
                 cells.append(f'<td class="{cls}">{text}</td>' if cls else f"<td>{text}</td>")
             body.append("<tr>" + "".join(cells) + "</tr>")
-        self._parts.append(f'<div class="table-wrap"><table>{cap}{head}<tbody>{"".join(body)}</tbody></table></div>')
+        self._parts.append(f'<div class="table-wrap">{cap}<table>{head}<tbody>{"".join(body)}</tbody></table></div>')
         return self
 
     def figure(self, fig_or_png_bytes: Any, caption: str = "", dpi: int = 120) -> Self:
@@ -410,3 +418,108 @@ def _to_png(obj: Any, dpi: int) -> bytes:
         if plt is not None:
             plt.close(obj)
     return buf.getvalue()
+
+
+# ------------------------------------------------------------------------------------------------ page check
+
+#: a Python / numpy repr on a page: ``PlanConfig(n=..``, ``np.str_('B1')``, ``array([``, ``{'a': ..}``, ``['a', ..]``
+_REPR = re.compile(
+    r"\b[A-Z][A-Za-z]+\((?:[a-z_]+=)|\bnp\.[a-z_0-9]+\(|\barray\(\[|\{\s*'[^']*'\s*:|\[\s*'[^']*'\s*,|"
+    r"\bdtype=|<[a-z_.]+ object at 0x"
+)
+#: a cell that shows Python's spelling of a value instead of words or a blank
+_RAW_CELL = re.compile(r"<t[dh][^>]*>\s*(True|False|None|nan|NaN|inf|-inf)\s*</t[dh]>")
+_TAG = re.compile(r"<[^>]+>")
+#: the longest run of non-space characters a line of text may hold (a long path or key breaks the layout)
+LONGEST_TOKEN = 60
+
+
+def _visible_text(page: str) -> str:
+    body = page.split("<body", 1)[-1]
+    body = re.sub(r"<style.*?</style>", " ", body, flags=re.S)
+    body = re.sub(r'src="data:[^"]*"', " ", body)
+    return html.unescape(_TAG.sub(" ", body))
+
+
+def page_problems(page: str) -> list[str]:
+    """What a reader should never see on a report page: a Python repr, ``nan`` / ``True`` / ``False`` in the text
+    or ``None`` as a cell, a token too long to wrap (wider than the page; a path breaks at the edge), a
+    preformatted line over 110 characters.
+    Returns one line per problem (empty: the page is clean). Tables themselves scroll inside their frame."""
+    out: list[str] = []
+    text = _visible_text(page)
+    for m in _REPR.finditer(text):
+        out.append(f"a Python repr: ...{text[max(0, m.start() - 30) : m.end() + 40]!s}...")
+    for m in _RAW_CELL.finditer(page):
+        out.append(f"a raw value in a cell: {m.group(0)}")
+    for m in re.finditer(r"(?<![\w.])(nan|NaN|True|False)(?![\w.])", text):
+        out.append(f"{m.group(1)!r} in the text: ...{text[max(0, m.start() - 40) : m.end() + 20]}...")
+    for tok in set(text.split()):
+        if len(tok) > LONGEST_TOKEN and "/" not in tok:  # paths break at the box's edge (overflow-wrap)
+            out.append(f"an unbreakable token of {len(tok)} characters: {tok[:80]}")
+    for pre in re.findall(r"<pre[^>]*>(.*?)</pre>", page, flags=re.S):
+        for line in html.unescape(_TAG.sub("", pre)).splitlines():
+            if len(line) > 110:
+                out.append(f"a preformatted line of {len(line)} characters: {line[:80]}...")
+    return out
+
+
+_LAYOUT_PROBE = """<!DOCTYPE html><html><body><div id="out">pending</div><script>
+const pages = %s, width = %d, res = {}; let left = pages.length;
+for (const p of pages) {
+  const f = document.createElement("iframe"); f.style.width = width + "px"; f.style.height = "900px"; f.src = p;
+  f.onload = () => {
+    try {
+      const d = f.contentDocument, w = d.documentElement.clientWidth, probs = [];
+      const sw = d.documentElement.scrollWidth;
+      if (sw > w + 1) probs.push("the page is " + sw + " px wide");
+      d.querySelectorAll(".table-wrap, pre, figure, .note, p, h2, h3").forEach((e) => {
+        if (e.scrollWidth > e.clientWidth + 1)
+          probs.push(e.tagName.toLowerCase() + " " + e.scrollWidth + " px in " + e.clientWidth + " px: "
+                     + e.textContent.trim().slice(0, 70));
+      });
+      res[p] = probs;
+    } catch (err) { res[p] = ["not checked: " + err]; }
+    if (--left === 0) document.getElementById("out").textContent = JSON.stringify(res);
+  };
+  document.body.appendChild(f);
+}
+</script></body></html>
+"""
+
+
+def layout_problems(
+    pages: Sequence[str | Path], width: int = 1000, chromium: str | None = None
+) -> dict[str, list[str]] | None:
+    """Render ``pages`` in headless Chromium at ``width`` px and list what is wider than its box (the page itself,
+    a table, a preformatted block, a figure, a paragraph): ``{page: [problem, ...]}``. None when no Chromium is
+    installed (``chromium`` / ``chromium-browser`` / ``google-chrome`` on PATH, or the ``chromium`` argument)."""
+    import json
+    import shutil
+    import subprocess
+    import tempfile
+
+    exe = chromium or next(
+        (p for p in (shutil.which(n) for n in ("chromium", "chromium-browser", "google-chrome")) if p), None
+    )
+    if exe is None:
+        return None
+    with tempfile.TemporaryDirectory() as tmp:
+        names = []
+        for k, page in enumerate(pages):  # one folder, so the probe may read every page (file:// same origin)
+            name = f"page{k}.html"
+            Path(tmp, name).write_bytes(Path(page).read_bytes())
+            names.append(name)
+        probe = Path(tmp, "probe.html")
+        probe.write_text(_LAYOUT_PROBE % (json.dumps(names), width), encoding="utf-8")
+        cmd = [
+            exe, "--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+            "--disable-component-update", "--disable-sync", "--no-first-run", "--allow-file-access-from-files",
+            "--virtual-time-budget=15000", "--dump-dom", probe.as_uri(),
+        ]  # fmt: skip
+        out = subprocess.run(cmd, capture_output=True, text=True, timeout=120).stdout
+    m = re.search(r'<div id="out">(.*?)</div>', out, flags=re.S)
+    if m is None or m.group(1) == "pending":
+        raise RuntimeError(f"the layout probe did not finish in Chromium ({exe}): {out[-500:]!s}")
+    found = json.loads(html.unescape(m.group(1)))
+    return {str(page): found[name] for page, name in zip(pages, names, strict=True)}

@@ -109,12 +109,15 @@ class ParameterModel:
             return None
         return float(self.coefficients[0] / self.nominal)
 
-    def equation(self, T_ref: Mapping[str, float], stderr: bool = False) -> str:
+    def equation(self, T_ref: Mapping[str, float], stderr: bool = False, deg: bool = False) -> str:
         """The model in the style of Guo et al. eq. 28 (angles in rad, lengths in mm, temperatures in °C), in
-        differences from the reference temperatures; ``stderr``: every coefficient as ``(c ± standard error)``."""
+        differences from the reference temperatures; ``stderr``: every coefficient as ``(c ± standard error)``;
+        ``deg``: an angle's drift in degrees (as the reports' tables give angles)."""
         short = [_short(s) for s in self.sensors]
+        f = math.degrees(1.0) if deg and self.kind != "length" else 1.0
 
         def coef(c: float, se: float, signed: bool) -> str:
+            c, se = c * f, se * f
             if stderr:
                 return f"{'+' if signed else ''}({c:.4g} ± {se:.2g})"
             return f"{c:+.4g}" if signed else f"{c:.4g}"
@@ -123,7 +126,7 @@ class ParameterModel:
             s = self.sensors[0]
             c0 = coef(float(self.coefficients[0]), float(self.stderr[0]), False)
             return f"Δ{self.name} = {c0} × ({short[0]} − {T_ref[s]:.2f})"
-        parts = [f"{self.intercept:.4g}"] if self.intercept != 0.0 else []
+        parts = [f"{self.intercept * f:.4g}"] if self.intercept != 0.0 else []
         for c, se, e in zip(self.coefficients, self.stderr, self.terms, strict=True):
             mono = "·".join((f"Δ{n}" if k == 1 else f"Δ{n}^{k}") for n, k in zip(short, e, strict=True) if k > 0)
             parts.append(f"{coef(float(c), float(se), True)}·{mono}")
@@ -154,13 +157,14 @@ class ParameterModel:
         cov = M @ np.asarray(self.covariance, dtype=float) @ M.T
         return tuple(out_terms[i] for i in keep), coef, np.sqrt(np.clip(np.diag(cov), 0.0, None))
 
-    def equation_absolute(self, T_ref: Mapping[str, float]) -> str:
+    def equation_absolute(self, T_ref: Mapping[str, float], deg: bool = False) -> str:
         """Guo et al. eq. 28 as printed there: expansions as ``c × (t − T_ref)``, polynomials expanded in the
-        absolute temperatures with a constant term."""
+        absolute temperatures with a constant term (``deg``: an angle's drift in degrees)."""
         if self.form == "expansion":
-            return self.equation(T_ref)
+            return self.equation(T_ref, deg=deg)
         short = [_short(s) for s in self.sensors]
         terms, coef, _ = self.absolute(T_ref)
+        coef = coef * (math.degrees(1.0) if deg and self.kind != "length" else 1.0)
         parts = []
         for c, e in zip(coef, terms, strict=True):
             mono = "·".join((n if k == 1 else f"{n}^{k}") for n, k in zip(short, e, strict=True) if k > 0)
@@ -210,10 +214,9 @@ class ParameterModel:
 
 
 def _short(sensor: str) -> str:
-    """``T_j4_C`` -> ``t_j4`` (the paper writes t4 for joint 4, t44 for link 4)."""
-    s = sensor[2:] if sensor.startswith("T_") else sensor
-    s = s[:-2] if s.endswith("_C") else s
-    return f"t_{s}"
+    """The name a sensor has in an equation: its column name (``T_j4_C``), as in every table and file (the paper
+    writes t4; one name per sensor keeps a report readable)."""
+    return sensor
 
 
 @dataclass(frozen=True)
@@ -295,14 +298,15 @@ class ThermalModel:
         lo, hi = self.fitted_range_C[:, 0] - margin_C, self.fitted_range_C[:, 1] + margin_C
         return (T < lo) | (T > hi)
 
-    def equations(self, stderr: bool = False, absolute: bool = False) -> list[str]:
+    def equations(self, stderr: bool = False, absolute: bool = False, deg: bool = False) -> list[str]:
         """The model in the form of Guo et al. eq. 28, one line per parameter: in temperature differences from
         the reference (default; ``stderr`` adds each coefficient's standard error) or, ``absolute``, with the
-        polynomials expanded in absolute temperatures as the paper prints them."""
+        polynomials expanded in absolute temperatures as the paper prints them. ``deg``: angles in degrees
+        (the reports), else rad (the paper, the JSON files)."""
         ref = dict(zip(self.sensors, self.T_ref_C.tolist(), strict=True))
         if absolute:
-            return [p.equation_absolute(ref) for p in self.parameters]
-        return [p.equation(ref, stderr=stderr) for p in self.parameters]
+            return [p.equation_absolute(ref, deg=deg) for p in self.parameters]
+        return [p.equation(ref, stderr=stderr, deg=deg) for p in self.parameters]
 
     # ------------------------------------------------------------------ persistence
     def to_dict(self) -> dict[str, Any]:

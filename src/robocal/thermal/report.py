@@ -74,8 +74,8 @@ def drift_figure(fit: ThermalFit) -> Figure:
 DEG_PER_RAD = 180.0 / 3.141592653589793
 #: Said beside every equation block: the equations keep the paper's units (eq. 28), the tables use degrees.
 EQUATION_UNITS = (
-    "In the equations Δ of a length is in mm and Δ of an angle in rad (the paper's eq. 28), temperatures in °C; "
-    "the tables give angles in degrees."
+    "In the equations, as in every table of this page, Δ of a length is in mm and Δ of an angle in degrees "
+    "(the JSON files keep the paper's rad, eq. 28); temperatures in °C, each sensor by its column name."
 )
 #: The reference calibration's fit statistics, as labelled in the report (units in the labels).
 REFERENCE_LABELS = {
@@ -122,7 +122,7 @@ def parameter_figures(fit: ThermalFit, model: ThermalModel) -> list[tuple[Figure
             )
         ax.set_xlabel("time (min)")
         ax.set_ylabel(f"drift ({unit})")
-        fig.legend(loc="outside upper center", ncols=min(len(names), 5))  # outside the data
+        fig.legend(loc="outside upper center", ncols=min(len(names), 4))  # outside the data, every entry inside
         figs.append(
             (
                 fig,
@@ -157,7 +157,7 @@ def comparison_figures(ev: Mapping[str, Any]) -> list[tuple[Figure, str]]:
         (
             plots.bar_table(
                 methods,
-                {k: [ev["table"][m][k] for m in methods] for k in ("mean_position_mm", "max_position_mm")},
+                {COL_LABELS[k]: [ev["table"][m][k] for m in methods] for k in ("mean_position_mm", "max_position_mm")},
                 "error (mm)",
             ),
             "table 5 equivalent over the whole validation warm-up",
@@ -218,14 +218,41 @@ def cv_rows(fit: ThermalFit) -> list[dict[str, Any]]:
     return rows
 
 
+#: table 5's columns as a reader sees them (the JSON keys stay as they are)
+COL_LABELS = {
+    "mean_position_mm": "mean position (mm)",
+    "max_position_mm": "max position (mm)",
+    "mean_orientation_deg": "mean orientation (deg)",
+    "max_orientation_deg": "max orientation (deg)",
+}
+
+
+def _lines(equations: list[str], width: int = 100) -> str:
+    """Equations for a preformatted block that fits the page: the reference temperatures of a long line on a
+    continuation line of their own, and long sums broken before a term."""
+    out: list[str] = []
+    for eq in equations:
+        body, sep, refs = eq.partition("    (")
+        parts = [body]
+        while len(parts[-1]) > width and " +" in parts[-1][:width]:
+            cut = parts[-1].rfind(" +", 0, width)
+            if cut <= 0:
+                break
+            parts[-1:] = [parts[-1][:cut], "    " + parts[-1][cut + 1 :]]
+        out += parts
+        if sep:
+            out.append("    (" + refs)
+    return "\n".join(out)
+
+
 def table_rows(tab: Mapping[str, Mapping[str, float]], paper: bool = True) -> list[dict[str, Any]]:
     rows = []
     for m, s in tab.items():
-        row: dict[str, Any] = {"method": m, **{k: s.get(k) for k in COLS}}
+        row: dict[str, Any] = {"method": m, **{COL_LABELS[k]: s.get(k) for k in COLS}}
         if paper:
             p = PAPER_TABLE5.get(m, {})
-            row["paper_mean_position_mm"] = p.get("mean_position_mm")
-            row["paper_mean_orientation_deg"] = p.get("mean_orientation_deg")
+            row["paper: mean position (mm)"] = p.get("mean_position_mm")
+            row["paper: mean orientation (deg)"] = p.get("mean_orientation_deg")
         rows.append(row)
     return rows
 
@@ -277,10 +304,10 @@ def fit_report(fit: ThermalFit, rep: Report, truth: Mapping[str, Any] | None = N
         f"(chi-square test at {fit.cfg.regression_config.alpha:g}). Coefficients ± standard error, in temperature "
         "differences from the cold state. " + EQUATION_UNITS
     )
-    rep.code("\n".join(fit.model_all.equations(stderr=True)) or "(no parameter drifts significantly)")
+    rep.code(_lines(fit.model_all.equations(stderr=True, deg=True)) or "(no parameter drifts significantly)")
     if fit.model_all.parameters:
         rep.paragraph("The same model as the paper prints eq. 28 (polynomials in absolute temperatures, °C):")
-        rep.code("\n".join(fit.model_all.equations(absolute=True)))
+        rep.code(_lines(fit.model_all.equations(absolute=True, deg=True)))
     rows_cv = cv_rows(fit)
     if rows_cv:
         rep.table(rows_cv, caption="cross-validated choice of sensors and order per parameter", float_fmt="{:.3g}")
@@ -288,9 +315,9 @@ def fit_report(fit: ThermalFit, rep: Report, truth: Mapping[str, Any] | None = N
         rep.paragraph("Twin truth (reference T0 for every sensor):")
         from robocal.thermal.model import ThermalModel
 
-        rep.code("\n".join(ThermalModel.from_dict(truth["effects"]["thermal"]["model"]).equations()))
+        rep.code(_lines(ThermalModel.from_dict(truth["effects"]["thermal"]["model"]).equations(deg=True)))
     rep.heading("Traditional model (non-zero a and d, linear expansion)", level=3)
-    rep.code("\n".join(fit.model_traditional.equations()) or "(none)")
+    rep.code(_lines(fit.model_traditional.equations(deg=True)) or "(none)")
     return rep
 
 
@@ -304,7 +331,7 @@ def validation_report(
 ) -> Report:
     rep.heading("Proposed model (the selected parameters, eq. 28 form)")
     rep.paragraph(f"Selected ({source}): {', '.join(selected) or 'none'}. {EQUATION_UNITS}")
-    rep.code("\n".join(proposed.equations(stderr=True)) or "(empty)")
+    rep.code(_lines(proposed.equations(stderr=True, deg=True)) or "(empty)")
     ref = dict(zip(fit.model_all.sensors, fit.model_all.T_ref_C.tolist(), strict=True))
     ref_p = dict(zip(proposed.sensors, proposed.T_ref_C.tolist(), strict=True))
     by_all = {q.name: q for q in fit.model_all.parameters}
@@ -320,8 +347,8 @@ def validation_report(
             [
                 {
                     "parameter": q.name,
-                    "proposed (this page, applied)": q.equation(ref_p).split(" = ", 1)[-1],
-                    "all-parameter model (thermal fit)": by_all[q.name].equation(ref).split(" = ", 1)[-1],
+                    "proposed (this page, applied)": q.equation(ref_p, deg=True).split(" = ", 1)[-1],
+                    "all-parameter model (thermal fit)": by_all[q.name].equation(ref, deg=True).split(" = ", 1)[-1],
                 }
                 for q in both
             ],
@@ -329,7 +356,7 @@ def validation_report(
         )
     if proposed.parameters:
         rep.paragraph("In absolute temperatures (°C), as the paper prints eq. 28:")
-        rep.code("\n".join(proposed.equations(absolute=True)))
+        rep.code(_lines(proposed.equations(absolute=True, deg=True)))
         rep.table(
             [model_cv_row(p) for p in proposed.parameters],
             caption="sensors and order of the proposed model, chosen by leave-one-state-out cross-validation",

@@ -64,8 +64,8 @@ def write_report(res: DiscoveryResult, summ: dict[str, Any], path: Path) -> Path
         w = summ["unexplained_where"]
         rep.note(
             "The residual is still above the tracker-noise floor and no candidate explains it. Joints with the "
-            f"largest share: {[j['joint'] for j in w['joints'][:2]]}; worst workspace region: "
-            f"{w['workspace_regions'][0]}; time span: {w['time_span']}.",
+            f"largest share: {', '.join(str(j['joint']) for j in w['joints'][:2])}; worst workspace region: "
+            f"{_words(w['workspace_regions'][0])}; time span: {_words(w['time_span'])}.",
             kind="warn",
         )
     if "validation" in summ:
@@ -194,7 +194,10 @@ def write_report(res: DiscoveryResult, summ: dict[str, Any], path: Path) -> Path
         caption="One effect accepted per step; everything refitted jointly",
     )
     for k, st in enumerate(res.steps):
-        srows = summ["steps"][k]["candidates"][:8]
+        cands = summ["steps"][k]["candidates"]
+        srows = cands[:8]
+        # the accepted candidate is always shown, also when eight others have a smaller p
+        srows += [s for s in cands[8:] if st.accepted is not None and s["key"] == st.accepted]
         rep.heading(f"Step {k + 1}: {st.label or 'stop (no candidate passes)'}", level=3)
         rep.table(
             [
@@ -216,7 +219,7 @@ def write_report(res: DiscoveryResult, summ: dict[str, Any], path: Path) -> Path
             ],
             caption="Best candidates by log10 p (projected nested F-test). cv_gain (relative drop of the held-out "
             "error over whole poses) is computed only for a candidate that passes the F-test, the BIC and the "
-            "excess share, in order, until one is accepted; empty otherwise",
+            "excess share, in order, until one is accepted; a dash otherwise. The accepted one is always listed",
         )
         if st.residuals_before_mm is not None and st.residuals_after_mm is not None:
             fig = plots.residuals_vs_joints(camp.q, st.residuals_before_mm, list(res.robot.joint_names))
@@ -330,3 +333,14 @@ def run(
 
 
 __all__ = ["run", "write_product", "write_report"]
+
+
+def _words(value: Any) -> str:
+    """A summary value as words (``x 0.12..0.34, rows 12``), never a Python dict or list repr."""
+    if isinstance(value, dict):
+        return ", ".join(f"{k.replace('_', ' ')} {_words(v)}" for k, v in value.items())
+    if isinstance(value, list | tuple):
+        return "..".join(_words(v) for v in value) if len(value) == 2 else ", ".join(_words(v) for v in value)
+    if isinstance(value, float):
+        return f"{value:.4g}"
+    return str(value)

@@ -263,8 +263,10 @@ def _some(values: tuple[Any, ...]) -> str | None:
 
 @dataclass
 class CompareSettings:
-    """``conf/compare/default.yaml``, validated."""
+    """``conf/compare/default.yaml``, validated. ``run``: whether the pipeline's ``compare_optimizers`` stage runs
+    the comparison (off by default: it takes minutes; the stage then skips, saying so)."""
 
+    run: bool = False
     algorithms: tuple[str, ...] = setting(("igoa", "goa", "woa"), choices=POPULATION, check=_some)
     populations: tuple[int, ...] = setting((500, 1000, 1500), ge=3, check=_some)
     runs: int = setting(10, ge=1)

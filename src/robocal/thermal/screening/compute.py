@@ -277,7 +277,7 @@ def screen(
         dmap = _drift_mapping(drift, "drift")
         assert dmap is not None
         drift_internal = {k: np.asarray(v) for k, v in dmap.items()}
-        unit_note = "mm / rad"
+        unit_note = "lengths in mm, angles in deg"  # read in mm / rad; every table shows deg
     elif conf.drift is not None:
         drift_internal = {}
         for pname, v in conf.drift.items():
@@ -285,7 +285,7 @@ def screen(
             if pname in all_names and chain.param_kind[all_names.index(pname)] == "angle":
                 arr = np.deg2rad(arr)
             drift_internal[pname] = arr
-        unit_note = "mm / deg (config)"
+        unit_note = "lengths in mm, angles in deg, from the config"
     else:
         drift_internal = {}
         unit_note = ""
@@ -313,7 +313,8 @@ def screen(
         missing = [n for n in names if n not in drift_internal]
         if missing:
             notes.append(
-                f"no drift known for {', '.join(missing)}: P_o and H are NaN and the rule does not select them"
+                f"no drift known for {', '.join(missing)}: P_o and H are undefined (shown as –) and the rule does "
+                "not select them"
             )
         notes.append(f"drift of {len(drift_internal)} parameter(s) over {n_states} state(s) ({unit_note})")
 

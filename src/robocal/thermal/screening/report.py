@@ -216,6 +216,7 @@ def add_to_report(result: ScreeningResult, report: Report, level: int = 2) -> Re
         shown,
         caption="Per-parameter sensitivity and influence (table 4 equivalent), step and drift in the row's unit; "
         "orientation errors, maxima and the Jacobian cross-check: screening.csv",
+        float_fmt="{:.3g}",
     )
     band, zlim = sel.get("explain_band", 2.0), sel.get("explain_z", 2.0)
     if result.what_if:
