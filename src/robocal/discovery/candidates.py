@@ -233,6 +233,30 @@ def build_library(
                     params=("base_tx", "base_ty", "base_tz", "base_rx", "base_ry", "base_rz"), signal_names=("t_h",),
                 )
             )  # fmt: skip
+        elif effect == "air":
+            key = "air"
+            ambient = [x.name for x in robot.sensors if x.location == "ambient"]
+            names = list(campaign.sensor_names) if campaign.temperatures is not None else []
+            cols = [names.index(a) for a in ambient if a in names]
+            if not cols:
+                skipped.append(SkippedCandidate(key, effect, None, "no air temperature (a sensor with location: "
+                                                "ambient in the robot description) in the temperature log"))  # fmt: skip
+                continue
+            assert campaign.temperatures is not None
+            Ta = np.asarray(campaign.temperatures, dtype=float)[:, cols].mean(axis=1)
+            if not np.all(np.isfinite(Ta)) or float(np.std(Ta)) < max(tol, 0.05):
+                skipped.append(SkippedCandidate(key, effect, None, "the air temperature does not vary"))
+                continue
+            cands.append(
+                Candidate(
+                    key, effect, None, None,
+                    cause="the tracker's frame moves with the air temperature (its stand, the air's refractive "
+                    "index compensation): a measurement-side effect, never sent to the controller",
+                    signal=f"air temperature ({', '.join(ambient)}) from its mean, degC", shape="param",
+                    S=(Ta - Ta.mean())[:, None],
+                    params=("base_tx", "base_ty", "base_tz", "base_rx", "base_ry", "base_rz"), signal_names=("T_air",),
+                )
+            )  # fmt: skip
         elif effect == "beta":
             par = _parallel_joints(robot)
             if not robot.is_mdh:

@@ -10,7 +10,7 @@ from robocal.config import parse, setting
 from robocal.identification.calibrate import data_rows, outlier_rule
 
 #: Every effect the library knows, in the order candidates are built.
-EFFECT_NAMES = ("compliance", "gear", "backlash", "thermal", "drift", "beta", "transmission", "weight")
+EFFECT_NAMES = ("compliance", "gear", "backlash", "thermal", "drift", "air", "beta", "transmission", "weight")
 
 
 @dataclass(frozen=True)

@@ -41,7 +41,7 @@ class Variant:
     """One variant of a candidate: which of its signal columns and which prior (rad per coefficient, one value or
     one per column)."""
 
-    columns: np.ndarray
+    columns: np.ndarray | None  # None: every column (a parameter drift, whose columns depend on the fit)
     prior_rad: float | np.ndarray | None
     label: str
 
@@ -161,6 +161,8 @@ def _member_variants(members: list[Candidate], v: Variant) -> list[tuple[Candida
 
 def variant_candidate(cand: Candidate, v: Variant) -> Candidate:
     """The candidate restricted to a variant's columns, with the variant's prior."""
+    if v.columns is None:
+        return cand
     extra = dict(cand.extra)
     if v.prior_rad is not None:
         extra["prior_rad"] = v.prior_rad
@@ -233,7 +235,7 @@ class FoldCV:
             per_fold.append((Z2_all - Z2t[i], bz_all - bzt[i], C, W, P))
         out = []
         for v in variants:
-            cols = v.columns
+            cols = np.arange(Z.shape[1]) if v.columns is None else v.columns
             q = len(cols)
             pz = np.zeros(q) if v.prior_rad is None else 1.0 / np.broadcast_to(v.prior_rad, (q,)) ** 2
             err = np.empty_like(r)
@@ -284,7 +286,9 @@ def grow(
     saying why it stopped); returns the fit, the accepted effects and the cross-validation record."""
 
     single: list[tuple[Candidate, list[Variant]]] = [
-        (c, [Variant(np.arange(c.S.shape[1]), None, "")]) for c in leftovers if c.shape == "joint"
+        (c, [Variant(np.arange(c.S.shape[1]) if c.shape == "joint" else None, None, "")])
+        for c in leftovers
+        if c.shape in ("joint", "param")
     ]
     pool = pooled(single + physics_candidates(campaign, robot, cfg, rows))
     n_var = sum(len(v) for _, v in pool)
@@ -372,11 +376,13 @@ def _step(
     from robocal.discovery.search import Score, Step, regressor
 
     sse0 = cv.group_sse(cv.base_err)
-    scores: list[tuple[float, float, Score, list[Candidate], Variant]] = []
+    scores: list[tuple[float, float, Score, list[Candidate], Variant, dict[str, tuple[str, ...]]]] = []
     n_tests = max(sum(len(v) for _, v in pool), 1)
     thr = float(np.log10(cfg.cv_alpha / n_tests))
     for members, variants in pool:
-        Z_all = np.hstack([regressor(c, fit, rows, data)[0] for c in members])
+        regs = [regressor(c, fit, rows, data) for c in members]
+        Z_all = np.hstack([z for z, _ in regs])
+        drifted = {c.key: prm for c, (_, prm) in zip(members, regs, strict=True)}
         best: tuple[float, float, Variant] | None = None
         for v, err in zip(variants, cv.with_variants(Z_all, variants), strict=True):
             sse1 = cv.group_sse(err)
@@ -388,20 +394,21 @@ def _step(
         gain = float((sse0.sum() - tot) / sse0.sum()) if sse0.sum() > 0 else 0.0
         key = members[0].key if len(members) == 1 else f"{members[0].effect}:all"
         label = members[0].label if len(members) == 1 else f"{members[0].effect}, every joint"
-        sc = Score(key, label, "tested", float("nan"), len(v.columns), log10_p=lp, cv_gain=gain)
+        q = Z_all.shape[1] if v.columns is None else len(v.columns)
+        sc = Score(key, label, "tested", float("nan"), q, log10_p=lp, cv_gain=gain)
         sc.passes = bool(gain > 0 and lp < thr)
-        scores.append((tot, lp, sc, members, v))
+        scores.append((tot, lp, sc, members, v, drifted))
     scores.sort(key=lambda s: s[0])
     passing = [s for s in scores if s[2].passes]
     if not passing:
         steps.append(Step(None, f"{what}: nothing lowers the held-out error significantly", fit.rms_mm, fit.rms_mm,
                           fit.rss, fit.rss, fit.dof, [s[2] for s in scores]))  # fmt: skip
         return fit, accepted, pool, cv
-    _tot, lp, sc, members, v = passing[0]
+    _tot, lp, sc, members, v, drifted = passing[0]
     sc.status = "accepted"
     chosen = [variant_candidate(c, vv) for c, vv in _member_variants(members, v)]
     before = fit
-    accepted = [*accepted, *(Accepted(c) for c in chosen)]
+    accepted = [*accepted, *(Accepted(c, drifted.get(c.key, ())) for c in chosen)]
     fit = refit(accepted, fit)
     steps.append(
         Step(sc.key, f"{sc.label} ({v.label})" if v.label else sc.label, before.rms_mm, fit.rms_mm, before.rss,

@@ -12,6 +12,8 @@ from robocal.discovery.search import DiscoveryResult, Step
 from robocal.kinematics.chain import fk
 
 _DEG = float(np.rad2deg(1.0))
+#: Effects of the measurement, not of the robot: reported, used in the fit, never sent to the controller.
+MEASUREMENT_SIDE = ("drift", "air")
 
 
 def _est(value: float, se: float, unit: str) -> dict[str, Any]:
@@ -60,7 +62,7 @@ def estimates(fit: Fit, acc: Accepted) -> dict[str, Any]:
     elif c.effect == "beta":
         nm = f"beta{c.joint}"
         out[f"{nm}_deg"] = _est(fit.theta[model.index(nm)] * _DEG, fit.stderr(nm) * _DEG, "deg")
-    elif c.effect in ("thermal", "drift"):
+    elif c.effect in ("thermal", "drift", "air"):
         for k, n in enumerate(names):
             p = n.split(":", 1)[1]
             pname, sig = p.split("*")
@@ -297,11 +299,11 @@ def summary(res: DiscoveryResult, validation: dict[str, Any] | None = None) -> d
                 "signal": c.signal,
                 "selection": None if sc is None else sc.to_dict(),
                 "rms_of_effect_mm": float(np.sqrt(np.mean(np.sum(effect_displacement(fit, acc) ** 2, axis=1)))),
-                "side": "measurement" if c.effect == "drift" else "robot",
+                "side": "measurement" if c.effect in MEASUREMENT_SIDE else "robot",
                 "held_out": (res.extra.get("cv") or {}).get("effects", {}).get(c.key),
             }
         )
-        if c.effect in ("thermal", "drift"):
+        if c.effect in ("thermal", "drift", "air"):
             # the effect at the tool, per measurement state, relative to each pose's first measurement: the
             # quantity with a physical meaning (and a truth on the twin), unlike the per-component coefficients
             est = named[-1]["estimates"]

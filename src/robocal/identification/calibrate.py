@@ -758,13 +758,19 @@ def calibrate(
         "definition": "nominal kinematics with frames and tools fitted to convergence (best rigid fit), kept rows",
     }
     poor = poorly_determined(model, stderr, cfg)
-    if poor and cfg.poorly_determined == "fix":
+    # holding every parameter would leave nothing to fit (a campaign that cannot start): then only report
+    if poor and cfg.poorly_determined == "fix" and len(poor) < int(identified.sum()):
         # held at their start and the rest fitted again; the list says why (and with which standard error)
         res = calibrate(campaign, robot, config, x0, held=(*held, *(p["name"] for p in poor)))
         res.fit["poorly_determined"] = [*res.fit.get("poorly_determined", []), *poor]
         return res
     if poor:
-        fit["poorly_determined"] = [{**p, "action": "reported (poorly_determined: report)"} for p in poor]
+        why = (
+            "reported (poorly_determined: report)"
+            if cfg.poorly_determined == "report"
+            else ("reported: holding every poorly determined parameter would leave nothing to fit")
+        )
+        fit["poorly_determined"] = [{**p, "action": why} for p in poor]
     return CalibrationResult(
         model=model,
         x=x,
