@@ -236,11 +236,11 @@ def build_library(
         elif effect == "air":
             key = "air"
             ambient = [x.name for x in robot.sensors if x.location == "ambient"]
-            names = list(campaign.sensor_names) if campaign.temperatures is not None else []
-            cols = [names.index(a) for a in ambient if a in names]
+            logged = list(campaign.sensor_names) if campaign.temperatures is not None else []
+            cols = [logged.index(a) for a in ambient if a in logged]
             if not cols:
-                skipped.append(SkippedCandidate(key, effect, None, "no air temperature (a sensor with location: "
-                                                "ambient in the robot description) in the temperature log"))  # fmt: skip
+                why = "no air temperature (a sensor with location: ambient in the robot description) in the log"
+                skipped.append(SkippedCandidate(key, effect, None, why))
                 continue
             assert campaign.temperatures is not None
             Ta = np.asarray(campaign.temperatures, dtype=float)[:, cols].mean(axis=1)

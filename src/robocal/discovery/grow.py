@@ -136,6 +136,7 @@ def pooled(single: list[tuple[Candidate, list[Variant]]]) -> Pool:
     if len(weights) > 1:
         cols, taus, k0 = [], [], 0
         for c, v in weights:
+            assert v.columns is not None  # joint effects: their columns are known
             cols.append(k0 + v.columns)
             taus.append(np.full(len(v.columns), v.prior_rad))
             k0 += c.S.shape[1]
@@ -149,6 +150,7 @@ def _member_variants(members: list[Candidate], v: Variant) -> list[tuple[Candida
     """A pooled variant split back into one variant per member candidate."""
     if len(members) == 1:
         return [(members[0], v)]
+    assert v.columns is not None  # pooled candidates are joint effects
     out, k0 = [], 0
     tau = np.broadcast_to(np.asarray(v.prior_rad, dtype=float), (len(v.columns),))
     for c in members:
