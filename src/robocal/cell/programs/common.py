@@ -237,22 +237,80 @@ def abb_confdata(cc: Any, q: np.ndarray) -> np.ndarray:
     return np.column_stack([quad, cfx])
 
 
+#: an angle within this of a configuration boundary (a quadrant boundary of ABB cf1/cf4/cf6, the sign of a
+#: KUKA Turn bit or of axis 5) matches the configurations on both sides, as the controller accepts them: a
+#: target on the boundary (``[0,0,1,0]`` above the y = 0 plane: axis 4 at 0 or -0.0, or -1e-16 from the
+#: inverse kinematics) states either neighbour. 0.001 deg: far above the inverse kinematics' and the written
+#: text's rounding (1e-4 mm over 300 mm is 2e-5 deg), far below any difference between taught poses.
+BOUNDARY_TOL_DEG = 1e-3
+
+
+def _quadrant_ok(q: np.ndarray, quad: np.ndarray, tol: float) -> np.ndarray:
+    """``q`` (m, k) rad lies in quadrant ``quad`` (k,) (``[quad, quad + 1] * 90 deg``) within ``tol`` rad."""
+    lo = quad[None, :] * (np.pi / 2)
+    return (q >= lo - tol) & (q <= lo + np.pi / 2 + tol)
+
+
+def _sign_ok(q: np.ndarray, negative: np.ndarray, tol: float) -> np.ndarray:
+    """``q`` (m, k) rad has the stated sign (``negative`` (k,) bool) within ``tol`` rad (0 matches both)."""
+    return np.where(negative[None, :], q <= tol, q >= -tol)
+
+
 def config_matches(dialect: str, cc: Any, q: np.ndarray, config: dict[str, Any]) -> np.ndarray:
-    """Which joints ``q`` (m, n) rad have the target's configuration (all True when it states none)."""
+    """Which joints ``q`` (m, n) rad have the target's configuration (all True when it states none). Angles
+    within :data:`BOUNDARY_TOL_DEG` of a quadrant or sign boundary match both neighbours."""
     m = len(q)
+    tol = math.radians(BOUNDARY_TOL_DEG)
     if dialect == "krl":
         ok = np.ones(m, dtype=bool)
-        s, t = kuka_status_turn(cc, q)
+        c = arm_configuration(cc, q)
         if config.get("S") is not None:
-            ok &= (s & 7) == (int(config["S"]) & 7)
+            s = int(config["S"])
+            ok &= c["shoulder"] == bool(s & 1)
+            ok &= c["elbow"] == bool(s & 2)
+            ok &= _sign_ok(q[:, 4:5], np.array([bool(s & 4)]), tol)[:, 0]
         if config.get("T") is not None:
-            mask = (1 << q.shape[1]) - 1
-            ok &= (t & mask) == (int(config["T"]) & mask)
+            t = int(config["T"])
+            neg = np.array([bool((t >> j) & 1) for j in range(q.shape[1])])
+            ok &= _sign_ok(q, neg, tol).all(axis=1)
         return ok
     cf = config.get("cf")
     if cf is None:
         return np.ones(m, dtype=bool)
-    return np.all(abb_confdata(cc, q) == np.asarray(cf, dtype=int)[None, :], axis=1)
+    cfa = np.asarray(cf, dtype=int)
+    c = arm_configuration(cc, q)
+    ok_q = np.asarray(_quadrant_ok(q[:, [0, 3, 5]], cfa[:3], tol).all(axis=1), dtype=bool)
+    ok_q = ok_q & (c["shoulder"] == bool(cfa[3] & 4)) & (c["elbow"] == (not cfa[3] & 2))
+    return ok_q & _sign_ok(q[:, 4:5], np.array([bool(cfa[3] & 1)]), tol)[:, 0]
+
+
+def written_config(dialect: str, cc: Any, q: np.ndarray, config: dict[str, Any]) -> dict[str, Any]:
+    """The configuration data to write with the joints ``q`` (n,) rad: computed from ``q``
+    (:func:`kuka_status_turn`, :func:`abb_confdata`), except that a quadrant or sign the target stated and
+    that ``q`` still matches within :data:`BOUNDARY_TOL_DEG` is kept as written (a target on a boundary stays
+    as taught instead of flipping to the other neighbour)."""
+    tol = math.radians(BOUNDARY_TOL_DEG)
+    q2 = np.asarray(q, dtype=float)[None, :]
+    if dialect == "krl":
+        st, tt = kuka_status_turn(cc, q2, int(config.get("S") or 0))
+        s, t = int(st[0]), int(tt[0])
+        if config.get("S") is not None and _sign_ok(q2[:, 4:5], np.array([bool(config["S"] & 4)]), tol)[0, 0]:
+            s = (s & ~4) | (int(config["S"]) & 4)
+        if config.get("T") is not None:
+            t0 = int(config["T"])
+            for j in range(q2.shape[1]):
+                if _sign_ok(q2[:, j : j + 1], np.array([bool((t0 >> j) & 1)]), tol)[0, 0]:
+                    t = (t & ~(1 << j)) | (t0 & (1 << j))
+        return {"S": s, "T": t}
+    cf = [int(v) for v in abb_confdata(cc, q2)[0]]
+    if config.get("cf") is not None:
+        cf0 = [int(v) for v in config["cf"]]
+        for i, j in enumerate((0, 3, 5)):
+            if _quadrant_ok(q2[:, j : j + 1], np.array([cf0[i]]), tol)[0, 0]:
+                cf[i] = cf0[i]
+        if _sign_ok(q2[:, 4:5], np.array([bool(cf0[3] & 1)]), tol)[0, 0]:
+            cf[3] = (cf[3] & ~1) | (cf0[3] & 1)
+    return {"cf": cf}
 
 
 def config_seeds(

@@ -26,10 +26,12 @@ error naming the file and line, and nothing is written.
 
 Limits of the inverse kinematics: it is numerical (a damped least-squares phase from up to 3 x 48 starts, then
 the service's Newton), not the controller's closed form, so it finds the solution with the stated configuration
-with high probability, not certainty; a target within a fraction of a degree of a configuration boundary (the
-stretched elbow, the wrist centre on axis 1, axis 5 at 0) may be reported unreachable or solved on the wrong
-side. A target without configuration data (a KRL POS without S/T) takes the solution nearest to the previous
-target, as the controller's PTP does. The configuration rules are those of
+with high probability, not certainty; a target within a fraction of a degree of a singular configuration
+boundary (the stretched elbow, the wrist centre on axis 1) may be reported unreachable or solved on the wrong
+side. A joint on a quadrant or sign boundary (within :data:`~robocal.cell.programs.common.BOUNDARY_TOL_DEG`)
+matches both neighbours and keeps the configuration the target stated when written back. A target without
+configuration data (a KRL POS without S/T) takes the solution nearest to the previous target, as the
+controller's PTP does. The configuration rules are those of
 :mod:`robocal.cell.programs.common`.
 """
 
@@ -47,11 +49,10 @@ from robocal.cell.programs.common import (
     Program,
     ProgramError,
     Target,
-    abb_confdata,
     apply_edits,
     config_matches,
     config_seeds,
-    kuka_status_turn,
+    written_config,
 )
 from robocal.errors import ConfigError
 from robocal.kinematics.transforms import inv_transform
@@ -387,11 +388,7 @@ def filter_program(
             T = np.eye(4)
             T[:3, :3], T[:3, 3] = R[0], p[0]
             new["T_base_tcp"] = inv_transform(t.base) @ T
-            if prog.dialect == "krl":
-                s, tt = kuka_status_turn(cc_nom, q_c[k][None], int(t.config.get("S", 0)))
-                new["S"], new["T"] = int(s[0]), int(tt[0])
-            else:
-                new["cf"] = abb_confdata(cc_nom, q_c[k][None])[0].tolist()
+            new.update(written_config(prog.dialect, cc_nom, q_c[k], t.config))
         edits.setdefault(t.file, []).append((t.span[0], t.span[1], render(t, new)))
     texts = {p: apply_edits(txt, edits.get(p, [])) for p, txt in prog.texts.items()}
     table = _table(prog.targets, robot, status, reasons, q_t, q_c, err_b, resid)
