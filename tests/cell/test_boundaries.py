@@ -1,7 +1,10 @@
-"""Configuration data on a boundary (ABB quadrants, KUKA Turn/wrist signs): a target on a boundary matches both
-neighbours."""
+"""Configuration data on a boundary (ABB quadrants, KUKA Turn/wrist signs) and KUKA A, B, C near B = 90 deg:
+a target on a boundary matches both neighbours, and a written frame keeps the representation nearest to the
+program's own."""
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 import pytest
@@ -9,8 +12,10 @@ import pytest
 from robocal.cell.programs.common import (
     BOUNDARY_TOL_DEG,
     abb_confdata,
+    abc_deg,
     config_matches,
     kuka_status_turn,
+    rot_zyx_deg,
     written_config,
 )
 
@@ -122,3 +127,75 @@ def test_rapid_target_on_a_quadrant_boundary_is_reachable(tmp_path, irb120):
     assert abs(qd[0, 3]) < 1e-6 and np.abs(qd[1, [0, 3]]).max() < 1e-6  # on the boundaries
     for k in range(2):
         assert written_config("rapid", cc, q[k], prog.targets[k].config)["cf"] == [0, 0, 0, 0]
+
+
+def test_abc_nearest_representation():
+    # B = 90 exactly: only A - C is defined; the split nearest to the original's
+    R = rot_zyx_deg(0.3, 90.0, 0.0)
+    a, b, c = abc_deg(R, near=(0.0, 90.0, 0.0))
+    assert (a, b, c) == pytest.approx((0.15, 90.0, -0.15), abs=1e-9)
+    a, b, c = abc_deg(rot_zyx_deg(20.3, -90.0, 10.0), near=(20.0, -90.0, 10.0))  # B = -90: A + C defined
+    assert (a, b, c) == pytest.approx((20.15, -90.0, 10.15), abs=1e-9)
+    # tool down tilted by 0.04 deg: the principal branch (B < 90, what was written before) has A = C = -170,
+    # the other exact one (B > 90) A = C = 10: that one is written
+    R = _tilted(rot_zyx_deg(0.0, 90.0, 0.0), 0.04, 10.0)
+    pa, pb, _ = abc_deg(R)
+    assert pa == pytest.approx(-170.0, abs=0.1) and pb < 90.0
+    a, b, c = abc_deg(R, near=(0.0, 90.0, 0.0))
+    assert np.allclose(rot_zyx_deg(a, b, c), R, atol=1e-12)  # exact: the same rotation
+    assert a == pytest.approx(10.0, abs=0.1) and c == pytest.approx(10.0, abs=0.1) and b > 90.0
+    # away from the pole the principal branch is the near one; across +-180 the value stays in (-180, 180]
+    assert abc_deg(rot_zyx_deg(179.99, 10.0, -5.0), near=(179.98, 10.0, -5.0)) == pytest.approx(
+        (179.99, 10.0, -5.0), abs=1e-9
+    )
+
+
+def _tilted(R: np.ndarray, angle_deg: float, azimuth_deg: float) -> np.ndarray:
+    """``R`` turned by ``angle_deg`` about the horizontal axis at ``azimuth_deg`` (world frame)."""
+    from robocal.kinematics.transforms import rotvec_to_matrix
+
+    az = math.radians(azimuth_deg)
+    axis = np.array([-math.sin(az), math.cos(az), 0.0])
+    return np.asarray(rotvec_to_matrix(axis * math.radians(angle_deg))) @ R
+
+
+def test_krl_tool_down_target_keeps_its_representation(tmp_path):
+    """A KRL B = 90 target filtered and read back: the same corrected joints, A/C of the nearer branch."""
+    import robocal
+    from robocal.cell.programs.filter import filter_program, nominal_ik, read_program, write_filtered
+    from robocal.io import write_json
+    from robocal.serve.bundle import load_bundle, write_bundle
+
+    robot = robocal.load_robot("kr16_2")
+    sc = robocal.load_scenario("geometric")
+    sc.update(n_poses=40, n_validation_poses=0)
+    robocal.simulate(sc, tmp_path / "camp", seed=2)
+    cal = robocal.calibrate(robocal.read_campaign(tmp_path / "camp", robot), robot)
+    write_json(tmp_path / "calibration.json", cal.to_dict())
+    bundle = load_bundle(write_bundle(tmp_path / "bundle", "kr16_2", tmp_path / "calibration.json"))
+    d = tmp_path / "p"
+    d.mkdir()
+    (d / "Tdown.src").write_bytes(
+        b"DEF Tdown( )\r\nLIN {X 1200,Y 100,Z 900,A 0,B 90,C 0}\r\nLIN {X 1100,Y -200,Z 800,A 30,B 90,C 30}\r\nEND\r\n"
+    )
+    (d / "Tdown.dat").write_bytes(b"DEFDAT Tdown\r\nENDDAT\r\n")
+    res = filter_program(read_program(d / "Tdown.src"), bundle)
+    assert res.status == ["ok", "ok"], res.reasons
+    write_filtered(res, tmp_path / "out")
+    back = read_program(tmp_path / "out" / "Tdown.src")
+    import re
+
+    text = (tmp_path / "out" / "Tdown.src").read_text()
+    abc = [tuple(float(v) for v in m) for m in re.findall(r"A (\S+),B (\S+),C (\S+)\}", text)]
+    for (a, b, c), (a0, c0), t in zip(abc, [(0.0, 0.0), (30.0, 30.0)], back.targets, strict=True):
+        assert abs(b - 90.0) < 0.1
+        # the nearer of the two exact representations: A and C move by less than 90 deg
+        assert abs(a - a0) < 90.0 and abs(c - c0) < 90.0, (a, b, c)
+        alt = abc_deg(t.T_base_tcp[:3, :3])  # the principal representation of the same rotation
+        far = abs(alt[0] - a0) + abs(alt[2] - c0) if abs(alt[1] - b) > 1e-9 else math.inf
+        assert abs(a - a0) + abs(c - c0) <= far
+    # read back, the nominal controller lands on the corrected joints (text rounding: 1e-4 mm, 1e-5 deg)
+    from robocal.serve.engine import compile_chain
+
+    q_back = nominal_ik(back, compile_chain(bundle.chain), bundle.robot.q_limits)
+    assert np.abs(np.rad2deg(q_back) - res.q_corrected_deg).max() < 2e-4

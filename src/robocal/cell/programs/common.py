@@ -162,10 +162,46 @@ def rot_zyx_deg(a: float, b: float, c: float) -> np.ndarray:
     return np.asarray(matrix_from_rpy(np.deg2rad([c, b, a])))
 
 
-def abc_deg(R: np.ndarray) -> tuple[float, float, float]:
-    """KUKA A, B, C (deg) of a rotation, accurate near B = +-90 deg."""
+def abc_deg(R: np.ndarray, near: tuple[float, float, float] | None = None) -> tuple[float, float, float]:
+    """KUKA A, B, C (deg) of a rotation, accurate near B = +-90 deg.
+
+    A rotation has two ZYX representations, ``(A, B, C)`` and ``(A + 180, 180 - B, C + 180)`` (each angle
+    modulo 360), and a one-parameter family at B = +-90 (only A - C, resp. A + C, is defined). Without ``near``
+    the principal one (B in [-90, 90], A and C in (-180, 180]); with ``near`` (the A, B, C the program had) the
+    exact representation nearest to it (angles compared modulo 360, written in (-180, 180]): the nearer branch,
+    and at B = +-90 the split of A -+ C nearest to the original's. Near B = 90 a small tilt of the tool moves A
+    and C by the tilt's direction, whatever the representation; the nearer branch keeps that move within 90 deg
+    (a tool-down ``{A 0, B 90, C 0}`` tilted by 0.04 deg towards 10 deg is written ``{A 10, B 90.04, C 10}``,
+    not ``{A -170, B 89.96, C -170}``).
+    """
     roll, pitch, yaw = rpy_from_matrix(R)
-    return math.degrees(yaw), math.degrees(pitch), math.degrees(roll)
+    abc = (math.degrees(yaw), math.degrees(pitch), math.degrees(roll))
+    if near is None:
+        return abc
+    a0, b0, c0 = (float(v) for v in near)
+    a, b, c = abc
+    cands = [(a, b, c), (a + 180.0, 180.0 - b, c + 180.0)]
+    R = np.asarray(R, dtype=float)
+    if math.hypot(R[0, 0], R[1, 0]) <= 1e-10:  # gimbal lock: only A - C (B = 90) or A + C (B = -90) is defined
+        s = 1.0 if b > 0 else -1.0
+        d = a - s * c  # the defined combination
+        d0 = a0 - s * c0
+        d = d0 + _wrap180(d - d0)
+        da = 0.5 * (d - d0)  # the change of A - s C shared between A and C, nearest to the original
+        cands = [(a0 + da, b, c0 - s * da)]
+    best = min(cands, key=lambda v: _wrap180(v[0] - a0) ** 2 + _wrap180(v[1] - b0) ** 2 + _wrap180(v[2] - c0) ** 2)
+    return _norm180(best[0]), _norm180(best[1]), _norm180(best[2])
+
+
+def _wrap180(d: float) -> float:
+    """``d`` (deg) modulo 360 into [-180, 180)."""
+    return (d + 180.0) % 360.0 - 180.0
+
+
+def _norm180(d: float) -> float:
+    """``d`` (deg) modulo 360 into (-180, 180] (the range the controller shows)."""
+    w = _wrap180(d)
+    return 180.0 if w == -180.0 else w
 
 
 # --------------------------------------------------------------------------------------------- configuration
