@@ -210,8 +210,8 @@ def _norm180(d: float) -> float:
 def arm_configuration(cc: Any, q: np.ndarray) -> dict[str, np.ndarray]:
     """Shoulder (wrist centre behind axis 1), elbow (joint 3 bent positively) and wrist (axis 5 < 0) flags
     ``(m,)`` bool of joints ``q`` (m, n) rad on the compiled nominal chain ``cc`` (6-axis arms)."""
+    from robocal.kinematics.ik import forward
     from robocal.kinematics.transforms import rotvec_to_matrix
-    from robocal.serve.engine import forward
 
     q = np.atleast_2d(q)
     _, _, U, O = forward(cc, q, np.eye(4), record=True)
@@ -231,7 +231,7 @@ def elbow_angle(cc: Any, q: np.ndarray) -> np.ndarray:
     """Signed angle (m,) rad of the forearm (axis 3 -> wrist centre) from the stretched arm (axis 2 -> axis 3),
     about axis 3: its sign is the elbow flag of :func:`arm_configuration`; near 0 the arm is stretched (a
     singularity, where the configuration flips)."""
-    from robocal.serve.engine import forward
+    from robocal.kinematics.ik import forward
 
     q = np.atleast_2d(q)
     _, _, U, O = forward(cc, q, np.eye(4), record=True)

@@ -96,15 +96,15 @@ def compensate(
 
     With ``R_desired`` the full 6-D tool pose is matched (6 equations, a square system for a 6-axis
     arm); without it only the tool position (minimum-norm joint correction). ``max_step_rad`` and ``stall``
-    as :func:`robocal.serve.engine.solve` (inverse kinematics over a large move: a larger step, no stall rule).
+    as :func:`robocal.kinematics.ik.solve` (inverse kinematics over a large move: a larger step, no stall rule).
 
-    One Newton for everything: this is the online service's solver (:func:`robocal.serve.engine.solve`, the
+    One Newton for everything: this is the online service's solver (:func:`robocal.kinematics.ik.solve`, the
     chain folded at ``actual.eta`` and the tracker frame; damped normal equations, steps clipped, a target that
     stops converging near a singularity reported unconverged), so the controller CSV, the thermal and compliance
     compensation, program filtering and the service give the same corrections.
     """
+    from robocal.kinematics.ik import compile_chain, solve
     from robocal.kinematics.transforms import homogeneous
-    from robocal.serve.engine import compile_chain, solve
 
     q0 = np.asarray(q_target, dtype=float)
     cc = compile_chain(actual.chain, np.asarray(actual.eta, dtype=float), actual.tracker_T_base)
