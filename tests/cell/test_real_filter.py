@@ -5,6 +5,7 @@ correction beyond them, so the targets are corrected, not refused, and the bound
 from __future__ import annotations
 
 import csv
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -24,10 +25,9 @@ ENDMODULE
 
 @pytest.fixture(scope="module")
 def irb120_bundle(tmp_path_factory):
-    from conftest import SHARED
     from robocal.cli import main
 
-    d = SHARED / "data" / "abb-irb120"
+    d = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "abb-irb120"  # tests/conftest.py's SHARED
     if not (d / "poses.csv").is_file():
         pytest.skip(f"{d} has no poses.csv (real-data tests need ../shared)")
     w = tmp_path_factory.mktemp("irb120")

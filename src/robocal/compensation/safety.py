@@ -117,7 +117,9 @@ class SafetyPolicy:
                 js = np.flatnonzero(out_j[k])
                 r.append(
                     "outside the joint limits: "
-                    + ", ".join(f"{joint_names[j]}={qt_deg[k, j]:.4f} deg (corrected {qc_deg[k, j]:.4f})" for j in js.tolist())
+                    + ", ".join(
+                        f"{joint_names[j]}={qt_deg[k, j]:.4f} deg (corrected {qc_deg[k, j]:.4f})" for j in js.tolist()
+                    )
                 )
                 refuse |= self.on_joint_limits == "refuse"
             if too_big[k]:

@@ -221,27 +221,34 @@ def compensate_targets(
     """Offline compensation with a calibration and its discovered joint-level effects (robot base frame): the
     joints that put the real tool where the nominal controller expects it at ``q_target (m, n)`` rad.
 
-    Returns the :class:`robocal.compensation.Compensation` and the nominal Cartesian command ``(m, 4, 4)``
+    Returns the :class:`robocal.compensation.Compensation` (with the one safety policy's status per target) and
+    the nominal Cartesian command ``(m, 4, 4)``
     (what the nominal controller must be sent so that its inverse kinematics yields the corrected joints).
     ``newton``: stopping rules of :func:`robocal.compensation.compensate` (``max_iter``, ``tol_mm``, ``tol_rad``)."""
-    from robocal.compensation import ActualRobot, compensate, desired_poses
+    from robocal.compensation import ActualRobot, compensate, desired_poses, judge_compensation
+    from robocal.compensation.effects import Signals, compose, joint_effects
     from robocal.kinematics.chain import fk
 
     model = cal.model
     k = 0 if target is None else model.target_names.index(target)
     tool = model.tools(cal.x)[k]
     tool_R = model.tool_rotations(cal.x)[k]
-    effects = list(cal.extra.get("effects") or [])
     m = len(q_target)
     pay = np.broadcast_to(np.asarray(payload_kg, dtype=float), (m,))
+    effects = joint_effects(discovered=list(cal.extra.get("effects") or []), robot=model.robot)
+    try:
+        offset = compose(effects, Signals(pay, tau_Nm, current_A, direction))
+    except ValueError:  # a signal not given: the effect's own error names it when evaluated
+        from robocal.compensation.effects import JointOffsets
 
-    def offset(q: np.ndarray) -> np.ndarray:
-        return joint_offsets(effects, model.robot, q, pay, tau_Nm, current_A, direction)
-
-    actual = ActualRobot(model.chain, cal.kinematic_errors, np.eye(4), tool, tool_R, offset if effects else None)
+        offset = JointOffsets(tuple(effects), Signals(pay, tau_Nm, current_A, direction))
+    actual = ActualRobot(model.chain, cal.kinematic_errors, np.eye(4), tool, tool_R, offset)
     nominal = ActualRobot(model.chain, np.zeros(model.chain.n_params), np.eye(4), tool, tool_R)
     p_d, R_d = desired_poses(nominal, q_target)
     comp = compensate(actual, q_target, p_d, R_d, **newton)
+    comp.status, comp.reasons = judge_compensation(
+        actual, comp, p_d, None, model.robot.q_limits, model.robot.joint_names
+    )
     T_tool = np.eye(4)
     T_tool[:3, :3], T_tool[:3, 3] = tool_R, tool
     return comp, fk(model.chain, comp.q) @ T_tool
