@@ -3,18 +3,20 @@
 A joint-space effect predicts ``dq (m, n)`` rad added to the commanded joints (``q_real = q_cmd + dq``) from the
 commanded joints and the per-target :class:`Signals` (payload, reported torques or currents, approach
 direction). The calibration's own joint-space corrections are the sum of the effects of a bundle or a
-calibration, composed by :func:`joint_effects` (compliance model, discovered joint-level effects, in this
-order) into one :class:`JointOffsets` that the Newton solver (:func:`robocal.kinematics.ik.solve`) calls.
+calibration (:func:`joint_effects`: compliance model, discovered joint-level effects, ...), composed by
+:func:`compose` into one :class:`JointOffsets` that the Newton solver (:func:`robocal.kinematics.ik.solve`)
+calls.
 
 A new effect (a per-joint periodic gear error, a residual layer on the joint angles) is a class with a
-``name``, the ``needs`` it has among :data:`SIGNALS` and ``offsets(q, signals) -> dq``; given to
-:func:`joint_effects` (``extra=``) it reaches the service, the program filter and the controller CSVs, and the
-safety policy counts it as the calibration's own correction (:mod:`robocal.compensation.safety`).
+``name``, the ``needs`` it has among :data:`SIGNALS` and ``offsets(q, signals) -> dq`` (the protocol
+:class:`JointEffect`); listed once in :meth:`robocal.serve.bundle.Bundle.joint_effects` it reaches the service
+and the program filter (both through :func:`robocal.compensation.correct.correct_targets`), and the safety
+policy counts it as the calibration's own correction (:mod:`robocal.compensation.safety`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol
 
@@ -72,45 +74,15 @@ class ComplianceEffect:
         return np.asarray(self.model.joint_offsets(q, s.payload_kg, s.current_A, s.tau_Nm), dtype=float)
 
 
-@dataclass(frozen=True)
-class DiscoveredEffects:
-    """The joint-level effects a discovery wrote into a calibration (``effects`` records, evaluated by
-    :func:`robocal.discovery.effects.joint_offsets`)."""
-
-    records: tuple[dict[str, Any], ...]
-    robot: Any
-    name: str = "discovered effects"
-
-    @property
-    def needs(self) -> frozenset[str]:
-        from robocal.discovery.effects import needs
-
-        return frozenset("direction" if k == "dir" else k for k in needs(list(self.records)))
-
-    @property
-    def keys(self) -> list[str]:
-        return [str(e["key"]) for e in self.records]
-
-    def offsets(self, q: np.ndarray, s: Signals) -> np.ndarray:
-        from robocal.discovery.effects import joint_offsets
-
-        return joint_offsets(list(self.records), self.robot, q, s.payload_kg, s.tau_Nm, s.current_A, s.direction)
-
-
-def joint_effects(
-    compliance: Any = None,
-    discovered: Sequence[dict[str, Any]] = (),
-    robot: Any = None,
-    extra: Iterable[JointEffect] = (),
-) -> list[JointEffect]:
-    """The joint-space effects of a bundle or a calibration, in the order they are summed: the compliance
-    model, the discovered joint-level effects, then ``extra`` (new effects plug in here)."""
+def joint_effects(compliance: Any = None, *effects: JointEffect | None) -> list[JointEffect]:
+    """The joint-space effects in the order they are summed: the compliance model (a model with
+    ``joint_offsets``, wrapped in :class:`ComplianceEffect`), then ``effects`` (None entries skipped): the
+    discovered joint-level effects (:class:`robocal.discovery.effects.DiscoveredEffects`) and any new one.
+    :meth:`robocal.serve.bundle.Bundle.joint_effects` is where a bundle's effects are listed."""
     out: list[JointEffect] = []
     if compliance is not None:
         out.append(ComplianceEffect(compliance))
-    if discovered:
-        out.append(DiscoveredEffects(tuple(discovered), robot))
-    out.extend(extra)
+    out.extend(e for e in effects if e is not None)
     return out
 
 

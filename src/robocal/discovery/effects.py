@@ -16,7 +16,8 @@ Parameter drifts (thermal, drift) need the temperatures or the time of the momen
 
 from __future__ import annotations
 
-from typing import Any
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -24,6 +25,9 @@ from robocal.discovery.model import Accepted, Fit
 from robocal.identification.calibrate import CalibrationConfig, CalibrationResult
 from robocal.identification.identifiability import Eliminated, Identifiability
 from robocal.robot import RobotDescription
+
+if TYPE_CHECKING:
+    from robocal.compensation.effects import Signals
 
 SIGNALS = ("angle", "gravity", "torque", "current", "direction", "dictionary")
 
@@ -159,6 +163,27 @@ def needs(effects: list[dict[str, Any]]) -> set[str]:
     return {names[e["signal"]] for e in effects if e["signal"] in names}
 
 
+@dataclass(frozen=True)
+class DiscoveredEffects:
+    """The joint-level effects a discovery wrote into a calibration (``effects`` records, evaluated by
+    :func:`joint_offsets`): a joint-space effect of :mod:`robocal.compensation.effects`."""
+
+    records: tuple[dict[str, Any], ...]
+    robot: Any
+    name: str = "discovered effects"
+
+    @property
+    def needs(self) -> frozenset[str]:
+        return frozenset("direction" if k == "dir" else k for k in needs(list(self.records)))
+
+    @property
+    def keys(self) -> list[str]:
+        return [str(e["key"]) for e in self.records]
+
+    def offsets(self, q: np.ndarray, s: Signals) -> np.ndarray:
+        return joint_offsets(list(self.records), self.robot, q, s.payload_kg, s.tau_Nm, s.current_A, s.direction)
+
+
 def extended_calibration(fit: Fit, robot: RobotDescription, summary_fit: dict[str, Any]) -> dict[str, Any]:
     """The discovered model written as a calibration (the geometric format of
     :meth:`CalibrationResult.to_dict`, so every reader of ``calibration.json`` takes it) with its joint-level
@@ -235,7 +260,8 @@ def compensate_targets(
     tool_R = model.tool_rotations(cal.x)[k]
     m = len(q_target)
     pay = np.broadcast_to(np.asarray(payload_kg, dtype=float), (m,))
-    effects = joint_effects(discovered=list(cal.extra.get("effects") or []), robot=model.robot)
+    records = tuple(cal.extra.get("effects") or ())
+    effects = joint_effects(None, DiscoveredEffects(records, model.robot) if records else None)
     try:
         offset = compose(effects, Signals(pay, tau_Nm, current_A, direction))
     except ValueError:  # a signal not given: the effect's own error names it when evaluated

@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from robocal.compensation.correct import SolverConfig, correct_targets, zero_offsets
-from robocal.compensation.effects import Signals, compose, joint_effects, needs
+from robocal.compensation.effects import Signals, compose, needs
 from robocal.compensation.safety import POLICIES, SafetyPolicy
 from robocal.config import parse, setting
 from robocal.errors import ConfigError
@@ -341,7 +341,7 @@ class Service:
             raise RequestError("bad_request", "'temperatures' must be an object or a list")
         cc, zero_off = self._compiled_and_offsets(bundle, temps)
         cc_nom = self._compiled(bundle, None, nominal=True)
-        effects = joint_effects(bundle.compliance, list(bundle.effects), robot)
+        effects = bundle.joint_effects()
         sig = Signals(np.full(m, payload), tg.tau_Nm, tg.current_A, tg.direction)
         missing = sorted(needs(effects) - sig.given())
         if missing:

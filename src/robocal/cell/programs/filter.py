@@ -254,7 +254,7 @@ def filter_program(
     are the service's own code (:func:`robocal.compensation.correct.correct_targets`).
     """
     from robocal.compensation.correct import correct_targets, zero_offsets
-    from robocal.compensation.effects import Signals, compose, joint_effects, needs
+    from robocal.compensation.effects import Signals, compose, needs
     from robocal.compensation.safety import SafetyPolicy
     from robocal.kinematics.ik import compile_chain, forward
 
@@ -282,7 +282,7 @@ def filter_program(
     else:
         tools_true = tools_prog
 
-    effects = joint_effects(bundle.compliance, list(bundle.effects), robot)
+    effects = bundle.joint_effects()
     miss = needs(effects) - {"direction"}
     if miss:
         raise ConfigError(
