@@ -173,8 +173,8 @@ def judge_compensation(
     names = list(joint_names) if joint_names is not None else [f"q{j + 1}" for j in range(n)]
     return pol.judge(
         comp.converged,
-        np.linalg.norm(comp.residual_mm, axis=1),
-        np.rad2deg(np.linalg.norm(comp.residual_rad, axis=1)),
+        comp.residual_mm,
+        comp.residual_rad,
         excess,
         rest,
         q_t,

@@ -158,8 +158,8 @@ def correct_targets(
     excess = np.rad2deg(np.abs(q - q_target - own_correction(q, zero_off, offsets)).max(axis=1))
     status, reasons = sf.judge(
         conv,
-        np.linalg.norm(res_mm, axis=1),
-        np.rad2deg(np.linalg.norm(res_rad, axis=1)),
+        res_mm,
+        res_rad,
         excess,
         rest,
         q_target,

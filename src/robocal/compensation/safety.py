@@ -75,7 +75,7 @@ class SafetyPolicy:
         self,
         converged: np.ndarray,
         residual_mm: np.ndarray,
-        residual_deg: np.ndarray,
+        residual_rad: np.ndarray,
         excess_deg: np.ndarray,
         rest_mm: np.ndarray,
         q_target: np.ndarray,
@@ -87,17 +87,20 @@ class SafetyPolicy:
     ) -> tuple[list[str], list[list[str]]]:
         """Status (one of :data:`STATUSES`) and reasons of every target (module doc for the order).
 
-        converged (m,); residual_mm / residual_deg / excess_deg / rest_mm (m,); q_target / q_corrected (m, n)
-        rad; q_limits (n, 2) rad; request_reasons apply to every target (temperatures outside the fitted range:
+        converged (m,); residual_mm / residual_rad (m, 3) the predicted position / orientation (rotation vector)
+        error after the correction; excess_deg / rest_mm (m,); q_target / q_corrected (m, n) rad; q_limits (n, 2)
+        rad; request_reasons apply to every target (temperatures outside the fitted range:
         ``on_temperature_range``); unreachable (m,) True where the nominal inverse kinematics failed.
         """
         m = len(converged)
+        res_mm = np.linalg.norm(residual_mm, axis=1)
+        res_deg = np.rad2deg(np.linalg.norm(residual_rad, axis=1))
         mg = np.deg2rad(self.joint_limit_margin_deg)
         lo, hi = q_limits[:, 0] + mg, q_limits[:, 1] - mg
         out_j = (q_target < lo) | (q_target > hi) | (q_corrected < lo) | (q_corrected > hi)
         out_any = out_j.any(axis=1)
         too_big = (excess_deg > self.max_correction_deg) | (rest_mm > self.max_error_mm)
-        bad_conv = ~converged | (residual_mm > self.max_residual_mm) | (residual_deg > self.max_residual_deg)
+        bad_conv = ~converged | (res_mm > self.max_residual_mm) | (res_deg > self.max_residual_deg)
         bad_conv |= ~np.isfinite(excess_deg)
         unreach = np.zeros(m, dtype=bool) if unreachable is None else unreachable
         refuse_all = bool(request_reasons) and self.on_temperature_range == "refuse"
@@ -111,7 +114,7 @@ class SafetyPolicy:
                 r.append("the pose target is unreachable from q_seed_deg (nominal inverse kinematics did not converge)")
                 refuse = True
             elif bad_conv[k]:
-                r.append(f"compensation did not converge (residual {residual_mm[k]:.4g} mm; near a singularity?)")
+                r.append(f"compensation did not converge (residual {res_mm[k]:.4g} mm; near a singularity?)")
                 refuse = True
             if out_any[k]:
                 js = np.flatnonzero(out_j[k])

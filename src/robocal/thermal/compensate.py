@@ -212,25 +212,12 @@ def compensate_targets(
             f"temperature {worst} outside the fitted range by {excess_C:.2f} degC (> margin "
             f"{lim.temperature_margin_C:g})"
         )
-    status_l, reasons = lim.judge(
-        conv,
-        np.linalg.norm(res_mm, axis=1),
-        np.rad2deg(np.linalg.norm(res_rad, axis=1)),
-        excess,
-        rest,
-        q_target,
-        q_corr,
-        ql,
-        list(result.model.robot.joint_names),
-        request,
-    )
+    names = list(result.model.robot.joint_names)
+    status_l, reasons = lim.judge(conv, res_mm, res_rad, excess, rest, q_target, q_corr, ql, names, request)
     status = np.array(status_l, dtype=object)
     applied = status != "refused"
     # refused for a reason of the target itself (not the batch's temperature reading)
-    own_status, _ = lim.judge(
-        conv, np.linalg.norm(res_mm, axis=1), np.rad2deg(np.linalg.norm(res_rad, axis=1)), excess, rest, q_target,
-        q_corr, ql, list(result.model.robot.joint_names),
-    )  # fmt: skip
+    own_status, _ = lim.judge(conv, res_mm, res_rad, excess, rest, q_target, q_corr, ql, names)
     target_refused = np.array([st == "refused" for st in own_status], dtype=bool)
     for r in np.flatnonzero(~applied):
         reasons[r].append("nominal joints kept")
