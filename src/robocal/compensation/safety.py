@@ -24,8 +24,8 @@ wrong near a singularity (or with a model that does not fit the pose) is the *re
 correction that the Newton iteration finds from Cartesian errors. So the bound is on
 ``|dq - dq_own|``, where ``dq_own = -(zero offsets) - (joint-space effects at the corrected joints)`` is the
 calibration's own correction at that pose (exact for a model that has only joint offsets), and the error
-bound on the error left after ``dq_own``. With 0.5 deg / 5 mm a real calibration passes (IRB 120: at most
-0.1 deg beyond its offsets) and a target that needs degrees of extra correction is still refused.
+bound on the error left after ``dq_own``. With 0.5 deg / 5 mm a real calibration passes (IRB 120: 0.10-0.11
+deg beyond its offsets) and a target that needs degrees of extra correction is still refused.
 """
 
 from __future__ import annotations
