@@ -153,7 +153,8 @@ def judge_compensation(
     """Status and reasons of every target of ``comp`` under the one safety policy
     (:class:`robocal.compensation.safety.SafetyPolicy`, default its defaults): the correction beyond the
     calibration's own joint-space correction (minus the zero offsets of ``actual.eta``, minus the joint offset at
-    the corrected joints) and the error ``actual`` makes after that own correction against ``p_desired`` (m, 3)."""
+    the corrected joints) and the error ``actual`` makes after that own correction against ``p_desired`` (m, 3),
+    each the smaller of it and the whole correction / error."""
     from robocal.compensation.correct import zero_offsets
     from robocal.compensation.safety import SafetyPolicy
 
@@ -165,9 +166,11 @@ def judge_compensation(
         o = np.broadcast_to(-zero, qq.shape)
         return o if actual.joint_offset is None else o - np.asarray(actual.joint_offset(qq), dtype=float)
 
-    excess = np.rad2deg(np.abs(q - q_t - own(q)).max(axis=1)) if q.shape[1] else np.zeros(len(q))
+    whole = np.rad2deg(np.abs(q - q_t).max(axis=1))
+    excess = np.minimum(whole, np.rad2deg(np.abs(q - q_t - own(q)).max(axis=1)))
     p_own, _, _ = actual.pose(q_t + own(q_t))
-    rest = np.linalg.norm(p_own - np.asarray(p_desired, dtype=float), axis=1)
+    before = np.linalg.norm(comp.error_before_mm, axis=1)
+    rest = np.minimum(before, np.linalg.norm(p_own - np.asarray(p_desired, dtype=float), axis=1))
     n = q.shape[1]
     ql = np.asarray(q_limits, dtype=float) if q_limits is not None else np.tile([-np.inf, np.inf], (n, 1))
     names = list(joint_names) if joint_names is not None else [f"q{j + 1}" for j in range(n)]

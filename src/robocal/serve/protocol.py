@@ -342,21 +342,23 @@ class Service:
         cc, zero_off = self._compiled_and_offsets(bundle, temps)
         cc_nom = self._compiled(bundle, None, nominal=True)
         effects = bundle.joint_effects()
-        sig = Signals(np.full(m, payload), tg.tau_Nm, tg.current_A, tg.direction)
-        missing = sorted(needs(effects) - sig.given())
-        if missing:
-            raise RequestError(
-                "bad_request",
-                f"the bundle's discovered effects {[e['key'] for e in bundle.effects]} need "
-                f"{['dir' if k == 'direction' else k for k in missing]} with every target",
-            )
-        offsets = compose(effects, sig)
-        kw = cfg.solver.kwargs()
+        offsets = None
+        if effects:
+            sig = Signals(np.full(m, payload), tg.tau_Nm, tg.current_A, tg.direction)
+            missing = sorted(needs(effects) - sig.given())
+            if missing:
+                raise RequestError(
+                    "bad_request",
+                    f"the bundle's discovered effects {[e['key'] for e in bundle.effects]} need "
+                    f"{['dir' if k == 'direction' else k for k in missing]} with every target",
+                )
+            offsets = compose(effects, sig)
         q_in = np.deg2rad(tg.q_deg)
         q_target = q_in.copy()
         pose_rows = np.flatnonzero(tg.kind == 1)
         ik_ok = np.ones(m, dtype=bool)
         if len(pose_rows):  # the nominal controller's inverse kinematics from the seed
+            kw = cfg.solver.kwargs()
             R_p = quat_to_matrix(tg.quat[pose_rows])
             ik = solve(cc_nom, tool_T, q_in[pose_rows], tg.xyz_mm[pose_rows], R_p, None, **kw)
             q_target[pose_rows] = ik.q
@@ -367,11 +369,10 @@ class Service:
             request_reasons=reasons_all, unreachable=~ik_ok,
         )  # fmt: skip
         q_corr = c.q
-        dq_deg = np.rad2deg(q_corr - q_target)
-        err_before = np.linalg.norm(c.error_before_mm, axis=1)
+        dq_deg = c.correction_deg
+        err_before = c.error_before_norm_mm
         err_before_deg = np.rad2deg(np.linalg.norm(c.error_before_rad, axis=1))
-        resid = np.linalg.norm(c.residual_mm, axis=1)
-        resid_deg = np.rad2deg(np.linalg.norm(c.residual_rad, axis=1))
+        resid, resid_deg = c.residual_norm_mm, c.residual_norm_deg
         cmd_p, cmd_R, _, _ = forward(cc_nom, q_corr, tool_T)  # what the nominal controller must be sent
         cmd_quat = quaternions(cmd_R)
         results = []

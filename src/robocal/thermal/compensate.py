@@ -195,13 +195,13 @@ def compensate_targets(
     # the calibration's own joint-space correction is minus its zero offsets (reference + drift); the error left
     # after it, from the calibrated robot commanded there
     zero = zero_offsets(result.model.chain, result.kinematic_errors + deta)
-    excess = np.rad2deg(np.abs(q_corr - q_target + zero).max(axis=1)) if q.shape[1] else np.zeros(m)
+    excess = np.minimum(corr_max, np.rad2deg(np.abs(q_corr - q_target + zero).max(axis=1))) if m else corr_max
     rest = np.zeros(m)
     for t in out:
         sel = tnames == t
         p_d, _ = desired_poses(nominal_robot(result, t), q_target[sel])
         p_own, _, _ = calibrated_robot(result, t, deta).pose(q_target[sel] - zero)
-        rest[sel] = np.linalg.norm(p_own - p_d, axis=1)
+        rest[sel] = np.minimum(np.linalg.norm(before_mm[sel], axis=1), np.linalg.norm(p_own - p_d, axis=1))
     conv = np.zeros(m, dtype=bool)
     for t in out:
         conv[tnames == t] = out[t].converged
