@@ -148,9 +148,9 @@ class SafetyPolicy:
                 refuse |= self.on_joint_limits == "refuse"
             if too_big[k]:
                 r.append(
-                    f"correction {excess_deg[k]:.4g} deg beyond the calibration's joint offsets / predicted error "
-                    f"{rest_mm[k]:.4g} mm after them exceeds the bound ({self.max_correction_deg} deg / "
-                    f"{self.max_error_mm} mm)"
+                    f"correction {excess_deg[k]:.4g} deg / predicted error {rest_mm[k]:.4g} mm exceeds the bound "
+                    f"({self.max_correction_deg} deg / {self.max_error_mm} mm), also beyond the calibration's own "
+                    "joint offsets and effects"
                 )
                 refuse |= self.on_correction_bound == "refuse"
             status[k] = "refused" if refuse else ("flagged" if r else "ok")
