@@ -43,9 +43,9 @@ from robocal.cell.programs.filter import filter_program, nominal_ik, read_progra
 from robocal.cell.programs.make import krl_program, rapid_module
 from robocal.io import write_json
 from robocal.kinematics.chain import build_chain, fk
+from robocal.kinematics.ik import compile_chain, forward
 from robocal.kinematics.transforms import kabsch
 from robocal.serve.bundle import load_bundle, write_bundle
-from robocal.serve.engine import compile_chain, forward
 
 ROOT = Path(__file__).resolve().parents[1]
 

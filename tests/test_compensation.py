@@ -84,4 +84,4 @@ def test_position_only_and_joint_deflection(kr16, tmp_path):
         comp.residual_mm,
     )
     lines = path.read_text().splitlines()
-    assert lines[0].startswith("target_id,q1_deg") and len(lines) == 11
+    assert lines[0].startswith("target_id,status,applied,q1_deg") and len(lines) == 11  # the one layout

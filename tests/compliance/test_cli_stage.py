@@ -32,7 +32,9 @@ def test_cli_writes_compliance_json_and_compensation(twin_dirs, tmp_path, capsys
         )
     assert data["controller_parameters"]["L_nominal_mm"][0] == 312.0
     comp = pd.read_csv(out / "compensation.csv")
-    assert list(comp.columns[:7]) == ["target_id", *[f"q{j}_deg" for j in range(1, 7)]]
+    # the one controller CSV layout (robocal.compensation.controller_csv), every row judged by the safety policy
+    assert list(comp.columns[:9]) == ["target_id", "status", "applied", *[f"q{j}_deg" for j in range(1, 7)]]
+    assert set(comp["status"]) == {"ok"} and set(comp["applied"]) == {1}
     assert len(comp) == 20 and comp["pred_err_mm"].max() < 1e-4  # Newton converged on every validation row
     assert (out / "report.html").stat().st_size > 10_000
     assert "helps" in capsys.readouterr().out

@@ -223,26 +223,27 @@ def test_controller_csv_refuses_unreachable_and_singular_targets(done, tmp_path)
     comp = compensate_targets(fit.reference, fit.model_all, T, q, ["T1", "T1"], q_limits=fit.robot.q_limits)
     # near the wrist singularity the sub-mm error needs degrees on q4 / q6: the one Newton (the service's) stops
     # there unconverged instead of swinging the wrist; refused, the nominal joints are kept
-    assert list(comp.status) == ["ok", "not_converged"]
+    assert list(comp.status) == ["ok", "refused"] and "did not converge" in comp.reason[1]
     assert np.array_equal(comp.q[1], q[1]) and not comp.applied[1]
     assert comp.applied[0] and not np.array_equal(comp.q[0], q[0])
     # the unreachable target: the real arm is 5 mm shorter than nominal and fully stretched (position only)
     shrink = _shrinking_model(fit, 1.0)
     q_far = _stretched(fit)
     far = compensate_targets(fit.reference, shrink, shrink.T_ref_C + 5.0, q_far, ["T1"], orientation=False)
-    assert list(far.status) == ["not_converged"] and np.array_equal(far.q, q_far)
+    assert list(far.status) == ["refused"] and np.array_equal(far.q, q_far) and "converge" in far.reason[0]
     # the predicted error of the nominal command is what the controller gets: the 5 mm shortening, not zero
     assert np.linalg.norm(far.residual_mm[0]) > 1.0
     write_controller_csv(tmp_path / "c.csv", comp)
     rows = list(csv.DictReader((tmp_path / "c.csv").open()))
-    assert [r["status"] for r in rows] == ["ok", "not_converged"] and [r["applied"] for r in rows] == ["1", "0"]
+    assert [r["status"] for r in rows] == ["ok", "refused"] and [r["applied"] for r in rows] == ["1", "0"]
     assert rows[0]["reason"] == "" and rows[1]["reason"] != ""
     sent = np.array([[float(r[f"q{j}_deg"]) for j in range(1, 7)] for r in rows])
     assert np.allclose(sent[1], np.rad2deg(q_wrist[0]), atol=1e-6)  # CSV rounding 1e-6 deg
 
 
 def test_out_of_range_temperatures_are_flagged(done) -> None:
-    from robocal.thermal.compensate import CompensationLimits, compensate_targets, extrapolation_summary
+    from robocal.compensation.safety import SafetyPolicy
+    from robocal.thermal.compensate import compensate_targets, extrapolation_summary
 
     fit = done[0]
     m = fit.model_all
@@ -251,13 +252,15 @@ def test_out_of_range_temperatures_are_flagged(done) -> None:
     q = np.deg2rad([[10.0, -70.0, 100.0, 30.0, 45.0, 20.0]])
     hot = m.fitted_range_C[:, 1].copy()
     hot[j] += 3.0  # 3 degC above what the fit saw, margin 1 degC
-    comp = compensate_targets(fit.reference, m, hot, q, ["T1"])
-    assert list(comp.status) == ["out_of_range"] and not comp.applied[0] and used in comp.reason[0]
+    margin = SafetyPolicy(temperature_margin_C=1.0)  # the thermal stage's setting
+    comp = compensate_targets(fit.reference, m, hot, q, ["T1"], limits=margin)
+    assert list(comp.status) == ["refused"] and not comp.applied[0] and used in comp.reason[0]
     assert comp.extrapolation_C == pytest.approx(3.0)
-    applied = compensate_targets(fit.reference, m, hot, q, ["T1"], limits=CompensationLimits(out_of_range="apply"))
-    assert applied.applied[0] and applied.status[0] == "out_of_range" and not np.array_equal(applied.q, q)
+    flag = SafetyPolicy(temperature_margin_C=1.0, on_temperature_range="flag")
+    applied = compensate_targets(fit.reference, m, hot, q, ["T1"], limits=flag)
+    assert applied.applied[0] and applied.status[0] == "flagged" and not np.array_equal(applied.q, q)
     inside = m.fitted_range_C[:, 1] + 0.5  # within the margin
-    assert list(compensate_targets(fit.reference, m, inside, q, ["T1"]).status) == ["ok"]
+    assert list(compensate_targets(fit.reference, m, inside, q, ["T1"], limits=margin).status) == ["ok"]
     # the warm-up summary counts rows and states outside the range and names the sensor
     T = np.vstack([m.T_ref_C, hot, hot])
     ext = extrapolation_summary(m, T, np.array([0, 1, 1]), [0.0, 30.0], 1.0)
@@ -268,25 +271,25 @@ def test_out_of_range_temperatures_are_flagged(done) -> None:
 
 def test_cli_flags_extrapolation_and_large_corrections(twin, tmp_path) -> None:
     """margin 0: the validation day starts ~0.5 degC colder than the calibration day, so its cold state is an
-    extrapolation; a 1 deg bound refuses the twin's largest corrections (~2 deg near the stretched elbow)."""
+    extrapolation; a 0.1 deg bound refuses the twin's largest corrections (~2 deg near the stretched elbow)."""
     import csv
 
     from robocal.cli import main
 
     d, _truth, _robot, camp = twin
     args = ["thermal", str(d), "--robot", "kr16_2", "--out", str(tmp_path)]
-    assert main([*args, "compensation.range_margin_C=0.0", "compensation.max_correction_deg=1.0"]) == 0
+    assert main([*args, "compensation.temperature_margin_C=0.0", "compensation.max_correction_deg=0.1"]) == 0
     out = json.loads((tmp_path / "thermal.json").read_text())
     ext, comp = out["extrapolation"], out["compensation"]
     assert ext["n_rows_out_of_range"] > 0 and 0.0 in ext["states_out_of_range_t_min"] and ext["warning"]
     rows = list(csv.DictReader((tmp_path / "compensation.csv").open()))
-    refused = [r for r in rows if r["status"] == "too_large"]
-    assert comp["status_counts"]["too_large"] == len(refused) > 0 and len(out["warnings"]) == 2
+    refused = [r for r in rows if r["status"] == "refused" and "exceeds the bound" in r["reason"]]
+    assert comp["status_counts"]["refused"] >= len(refused) > 0 and len(out["warnings"]) == 2
     val = camp.validation()
     for r in refused:  # the nominal joints of that validation pose are sent unchanged
         k = list(val.pose_id).index(r["target_id"].split("/")[0])
         sent = [float(r[f"q{j}_deg"]) for j in range(1, 7)]
-        assert np.allclose(sent, np.rad2deg(val.q[k]), atol=1e-6) and float(r["correction_max_deg"]) > 1.0
+        assert np.allclose(sent, np.rad2deg(val.q[k]), atol=1e-6)
     html = (tmp_path / "report.html").read_text()
     assert "the thermal model extrapolates" in html and "columns of compensation.csv" in html
 

@@ -1,10 +1,14 @@
-"""``robocal filter PROGRAM --bundle DIR --out DIR [--temperature T ...] [--payload-kg KG]``: a robot program
-(KUKA KRL ``.src`` + ``.dat``, ABB RAPID ``.mod``) with every target corrected by a calibration bundle, written
-beside the original with a per-target table (see :mod:`robocal.cell.programs.filter`)."""
+"""``robocal filter PROGRAM --bundle DIR --out DIR [--temperature T ...] [--payload-kg KG] [--config FILE]
+[safety.KEY=VALUE solver.KEY=VALUE ...]``: a robot program (KUKA KRL ``.src`` + ``.dat``, ABB RAPID ``.mod``) with
+every target corrected by a calibration bundle, written beside the original with a per-target table (see
+:mod:`robocal.cell.programs.filter`). The refusals follow the one safety policy
+(:class:`robocal.compensation.safety.SafetyPolicy`), set as for ``robocal serve``: a settings YAML (a serve
+config works: its ``safety`` and ``solver`` sections are read) and ``key=value`` overrides."""
 
 from __future__ import annotations
 
 import argparse
+from typing import Any
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -24,6 +28,34 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="the program's TCP is this bundle tool (calibrated with the robot), not the program's tool data",
     )
     p.add_argument("--strict", action="store_true", help="fail (write nothing) when any target is refused")
+    p.add_argument(
+        "--config",
+        default=None,
+        help="settings YAML with 'safety' and 'solver' sections (a robocal serve config works); default: the "
+        "safety policy's defaults",
+    )
+    p.add_argument("overrides", nargs="*", help="settings key=value, e.g. safety.max_correction_deg=0.3")
+
+
+def load_settings(path: str | None, overrides: list[str] | None) -> tuple[Any, Any]:
+    """The safety policy and solver settings from ``--config`` and the overrides (errors name the key)."""
+    from robocal.commands.serve import load_config
+    from robocal.errors import ConfigError
+    from robocal.serve.protocol import SERVICE_KEYS, ServiceConfig
+    from robocal.serve.server import ServerConfig
+
+    if path is None:
+        from robocal.commands import parse_overrides
+
+        cfg: dict[str, Any] = parse_overrides(overrides)
+    else:
+        cfg = load_config(path, overrides)
+    transport = set(ServerConfig.__dataclass_fields__) | {"token_env"}
+    unknown = sorted(k for k in cfg if k not in SERVICE_KEYS and k not in transport)
+    if unknown:
+        raise ConfigError(f"unknown filter setting(s) {unknown}; known: safety.KEY, solver.KEY")
+    sc = ServiceConfig.from_mapping({k: cfg[k] for k in ("safety", "solver") if k in cfg})
+    return sc.safety, sc.solver
 
 
 def run(args: argparse.Namespace) -> int:
@@ -33,10 +65,11 @@ def run(args: argparse.Namespace) -> int:
 
     if args.payload_kg < 0:
         raise ProgramError(f"--payload-kg must be >= 0, got {args.payload_kg}")
+    safety, solver = load_settings(args.config, args.overrides)
     bundle = load_bundle(args.bundle)
     temps = parse_temperatures(args.temperature, bundle.sensors)
     prog = read_program(args.program)
-    res = filter_program(prog, bundle, temps, args.payload_kg, args.tcp_from_bundle)
+    res = filter_program(prog, bundle, temps, args.payload_kg, args.tcp_from_bundle, safety=safety, solver=solver)
     if args.strict and res.n_refused:
         k = res.status.index("refused")
         t = prog.targets[k]

@@ -3,11 +3,11 @@ controller expects it."""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from robocal.compensation import ActualRobot, compensate
+from robocal.compensation import ActualRobot, compensate, judge_compensation
 from robocal.compliance.fit import ComplianceFit, campaign_signal
 from robocal.kinematics.chain import fk
 
@@ -17,20 +17,25 @@ if TYPE_CHECKING:
 
 
 def compensation_rows(
-    campaign: Campaign, geo: CalibrationResult, cfit: ComplianceFit
-) -> tuple[list[str], np.ndarray, np.ndarray, np.ndarray]:
+    campaign: Campaign, geo: CalibrationResult, cfit: ComplianceFit, policy: Any = None
+) -> tuple[list[str], np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
     """Eq. 27 for every row of ``campaign``: joints that put the deflected robot where the controller expects.
 
     The controller expects the calibrated geometric model at the commanded joints; the deflection predicted by
     the compliance model (from the row's currents / torques / payload) is undone by Newton iterations
     (:func:`robocal.compensation.compensate`, first order ``q* = q_n - c s``). Returns ids, corrected joints,
-    the corrected Cartesian command (base frame) and the predicted residual (mm).
+    the corrected Cartesian command (base frame), the predicted residual (mm) and the one safety policy's
+    verdict (``status``, ``reason``, ``correction_max_deg`` per row; ``policy`` default its defaults): a refused
+    row carries the commanded joints and their predicted error instead.
     """
     gm = geo.model
     known = {t: k for k, t in enumerate(gm.target_names)}
     q_c = np.zeros_like(campaign.q)
     cmd = np.zeros((campaign.n_rows, 4, 4))
     res = np.zeros((campaign.n_rows, 3))
+    status = np.full(campaign.n_rows, "ok", dtype=object)
+    reason = np.full(campaign.n_rows, "", dtype=object)
+    corr_max = np.zeros(campaign.n_rows)
     eta = cfit.x[: gm.chain.n_params]
     T = gm.base_transform(cfit.x)
     tools = gm.tools(cfit.x)
@@ -52,14 +57,19 @@ def compensation_rows(
         desired = ActualRobot(gm.chain, geo.x[: gm.chain.n_params], gm.base_transform(geo.x), tools[k], np.eye(3))
         p_des, _, _ = desired.pose(sub.q)
         comp = compensate(actual, sub.q, p_des)
-        q_c[sel] = comp.q
-        Tf = fk(gm.chain, comp.q, eta)
+        st, why = judge_compensation(actual, comp, p_des, policy, gm.robot.q_limits, gm.robot.joint_names)
+        refused = np.array([x == "refused" for x in st], dtype=bool)
+        status[sel], reason[sel] = st, ["; ".join(r) for r in why]
+        corr_max[sel] = np.rad2deg(np.abs(comp.q - sub.q).max(axis=1))
+        q_send = np.where(refused[:, None], sub.q, comp.q)
+        q_c[sel] = q_send
+        Tf = fk(gm.chain, q_send, eta)
         Tt = np.eye(4)
         Tt[:3, 3] = tools[k]
         cmd[sel] = Tf @ Tt
-        res[sel] = comp.residual_mm
+        res[sel] = np.where(refused[:, None], comp.error_before_mm, comp.residual_mm)
     ids = [f"{p}@{w:g}kg/{t}" for p, w, t in zip(campaign.pose_id, campaign.payload_kg, campaign.target, strict=True)]
-    return ids, q_c, cmd, res
+    return ids, q_c, cmd, res, {"status": status, "reason": reason, "correction_max_deg": corr_max}
 
 
 __all__ = ["compensation_rows"]

@@ -21,7 +21,8 @@ Parameter drifts (thermal, drift) need the temperatures or the time of the momen
 
 from __future__ import annotations
 
-from typing import Any
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -29,6 +30,9 @@ from robocal.discovery.model import Accepted, Fit
 from robocal.identification.calibrate import CalibrationConfig, CalibrationResult
 from robocal.identification.identifiability import Eliminated, Identifiability
 from robocal.robot import RobotDescription
+
+if TYPE_CHECKING:
+    from robocal.compensation.effects import Signals
 
 SIGNALS = ("angle", "gravity", "torque", "current", "direction", "dictionary", "transmission", "weight", "layer")
 
@@ -193,6 +197,27 @@ def needs(effects: list[dict[str, Any]]) -> set[str]:
     return {names[e["signal"]] for e in effects if e["signal"] in names}
 
 
+@dataclass(frozen=True)
+class DiscoveredEffects:
+    """The joint-level effects a discovery wrote into a calibration (``effects`` records, evaluated by
+    :func:`joint_offsets`): a joint-space effect of :mod:`robocal.compensation.effects`."""
+
+    records: tuple[dict[str, Any], ...]
+    robot: Any
+    name: str = "discovered effects"
+
+    @property
+    def needs(self) -> frozenset[str]:
+        return frozenset("direction" if k == "dir" else k for k in needs(list(self.records)))
+
+    @property
+    def keys(self) -> list[str]:
+        return [str(e["key"]) for e in self.records]
+
+    def offsets(self, q: np.ndarray, s: Signals) -> np.ndarray:
+        return joint_offsets(list(self.records), self.robot, q, s.payload_kg, s.tau_Nm, s.current_A, s.direction)
+
+
 def extended_calibration(fit: Fit, robot: RobotDescription, summary_fit: dict[str, Any]) -> dict[str, Any]:
     """The discovered model written as a calibration (the geometric format of
     :meth:`CalibrationResult.to_dict`, so every reader of ``calibration.json`` takes it) with its joint-level
@@ -255,27 +280,35 @@ def compensate_targets(
     """Offline compensation with a calibration and its discovered joint-level effects (robot base frame): the
     joints that put the real tool where the nominal controller expects it at ``q_target (m, n)`` rad.
 
-    Returns the :class:`robocal.compensation.Compensation` and the nominal Cartesian command ``(m, 4, 4)``
+    Returns the :class:`robocal.compensation.Compensation` (with the one safety policy's status per target) and
+    the nominal Cartesian command ``(m, 4, 4)``
     (what the nominal controller must be sent so that its inverse kinematics yields the corrected joints).
     ``newton``: stopping rules of :func:`robocal.compensation.compensate` (``max_iter``, ``tol_mm``, ``tol_rad``)."""
-    from robocal.compensation import ActualRobot, compensate, desired_poses
+    from robocal.compensation import ActualRobot, compensate, desired_poses, judge_compensation
+    from robocal.compensation.effects import Signals, compose, joint_effects
     from robocal.kinematics.chain import fk
 
     model = cal.model
     k = 0 if target is None else model.target_names.index(target)
     tool = model.tools(cal.x)[k]
     tool_R = model.tool_rotations(cal.x)[k]
-    effects = list(cal.extra.get("effects") or [])
     m = len(q_target)
     pay = np.broadcast_to(np.asarray(payload_kg, dtype=float), (m,))
+    records = tuple(cal.extra.get("effects") or ())
+    effects = joint_effects(None, DiscoveredEffects(records, model.robot) if records else None)
+    try:
+        offset = compose(effects, Signals(pay, tau_Nm, current_A, direction))
+    except ValueError:  # a signal not given: the effect's own error names it when evaluated
+        from robocal.compensation.effects import JointOffsets
 
-    def offset(q: np.ndarray) -> np.ndarray:
-        return joint_offsets(effects, model.robot, q, pay, tau_Nm, current_A, direction)
-
-    actual = ActualRobot(model.chain, cal.kinematic_errors, np.eye(4), tool, tool_R, offset if effects else None)
+        offset = JointOffsets(tuple(effects), Signals(pay, tau_Nm, current_A, direction))
+    actual = ActualRobot(model.chain, cal.kinematic_errors, np.eye(4), tool, tool_R, offset)
     nominal = ActualRobot(model.chain, np.zeros(model.chain.n_params), np.eye(4), tool, tool_R)
     p_d, R_d = desired_poses(nominal, q_target)
     comp = compensate(actual, q_target, p_d, R_d, **newton)
+    comp.status, comp.reasons = judge_compensation(
+        actual, comp, p_d, None, model.robot.q_limits, model.robot.joint_names
+    )
     T_tool = np.eye(4)
     T_tool[:3, :3], T_tool[:3, 3] = tool_R, tool
     return comp, fk(model.chain, comp.q) @ T_tool

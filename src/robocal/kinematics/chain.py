@@ -194,7 +194,7 @@ def step(kind: int, v: Any, frame: Frame, Tf: np.ndarray | None = None, cos: Any
 
     The one place the element kinds are written down: :func:`propagate` (numpy, batched), the CasADi form of
     the identification (:mod:`robocal.optimizers.calibration`, with ``casadi.cos`` / ``sin``) and the service's
-    chain folding (:func:`robocal.serve.engine.compile_chain`) all step through it. ``v`` is the element's value
+    chain folding (:func:`robocal.kinematics.ik.compile_chain`) all step through it. ``v`` is the element's value
     (mm or rad; shaped to broadcast against the axes), ``Tf`` the transform of a ``FIXED`` element.
     """
     x, y, z, o = frame

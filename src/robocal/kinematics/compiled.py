@@ -12,7 +12,7 @@ more, on scalars, for numba, and builds every compiled kernel from it:
   backwards, over many poses) are the forward kinematics of a folded chain from ``cos q`` / ``sin q``;
 * the kernels: :func:`population_positions` (target positions of a population of parameter vectors, used by
   :class:`robocal.optimizers.fastfk.PopulationPositions`), :func:`newton` (the service's compensation,
-  :func:`robocal.serve.engine.solve`), :func:`fk_poses`, and the rotation conversions :func:`rotvec` /
+  :func:`robocal.kinematics.ik.solve`), :func:`fk_poses`, and the rotation conversions :func:`rotvec` /
   :func:`quat` (mirrors of :func:`robocal.kinematics.transforms.matrix_to_rotvec` / ``matrix_to_quat``).
 
 They live in one file on purpose: numba's on-disk cache (``cache=True``) checks only the source file of the
@@ -301,7 +301,7 @@ def population_positions(
 
 
 # --------------------------------------------------------------------------------------------------------
-# the service's Newton compensation (robocal.serve.engine.solve)
+# the service's Newton compensation (robocal.kinematics.ik.solve)
 # --------------------------------------------------------------------------------------------------------
 
 
@@ -321,7 +321,7 @@ def newton(
     max_step: float,
     wrot: float,
 ) -> Any:
-    """The Newton iteration of :func:`robocal.serve.engine.solve`, one target at a time.
+    """The Newton iteration of :func:`robocal.kinematics.ik.solve`, one target at a time.
 
     The same iteration as the numpy path there: forward kinematics of the folded chain, joint Jacobian from
     the joint axes (``dp = u x (p - o)``, ``dw = u``), damped normal equations (6x6 for the full pose, the

@@ -126,6 +126,19 @@ class Bundle:
     def default_tool(self) -> str:
         return next(iter(self.tools))
 
+    def joint_effects(self) -> list[Any]:
+        """The bundle's joint-space effects, summed in this order (:mod:`robocal.compensation.effects`): the
+        compliance model, the discovered joint-level effects. A new joint-space effect is listed here once and
+        reaches the service and the program filter."""
+        from robocal.compensation.effects import joint_effects
+
+        discovered = None
+        if self.effects:
+            from robocal.discovery.effects import DiscoveredEffects
+
+            discovered = DiscoveredEffects(tuple(self.effects), self.robot)
+        return joint_effects(self.compliance, discovered)
+
     def eta_at(self, temperatures: np.ndarray | None) -> np.ndarray:
         """The robot's kinematic errors at these temperatures: the calibration's, plus the thermal drift when the
         bundle has a thermal model (``temperatures`` (s,) degC in the order of :attr:`sensors`)."""

@@ -27,10 +27,10 @@ import numpy as np
 
 from robocal.errors import ConfigError
 from robocal.io import write_json
+from robocal.kinematics.ik import compile_chain, forward, solve
 from robocal.kinematics.transforms import homogeneous
 from robocal.serve.bundle import load_bundle, write_bundle
 from robocal.serve.client import Client
-from robocal.serve.engine import compile_chain, forward, solve
 from robocal.serve.server import Server, ServerConfig, ServerThread
 
 

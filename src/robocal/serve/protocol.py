@@ -21,16 +21,19 @@ from typing import Any
 
 import numpy as np
 
+from robocal.compensation.correct import SolverConfig, correct_targets, zero_offsets
+from robocal.compensation.effects import Signals, compose, needs
+from robocal.compensation.safety import POLICIES, SafetyPolicy
 from robocal.config import parse, setting
 from robocal.errors import ConfigError
+from robocal.kinematics.ik import CompiledChain, compile_chain, forward, quaternions, solve
 from robocal.kinematics.transforms import quat_to_matrix
 from robocal.serve.bundle import Bundle
-from robocal.serve.engine import CompiledChain, compile_chain, forward, quaternions, solve
 
 #: every error code a reply can carry
 ERROR_CODES = ("parse_error", "bad_request", "unauthorized", "too_large", "unknown_op", "unavailable", "internal")
 OPS = ("correct", "info", "ping", "auth", "reload", "stats")
-POLICIES = ("refuse", "flag")
+__all__ = ["ERROR_CODES", "OPS", "POLICIES", "SafetyConfig", "Service", "ServiceConfig", "SolverConfig"]
 
 
 class RequestError(Exception):
@@ -42,26 +45,8 @@ class RequestError(Exception):
         self.message = message
 
 
-@dataclass(frozen=True)
-class SafetyConfig:
-    """Limits on what the service answers (see conf/serve/default.yaml)."""
-
-    max_correction_deg: float = setting(0.5, ge=0)
-    max_error_mm: float = setting(5.0, ge=0)
-    joint_limit_margin_deg: float = setting(0.0, ge=0)
-    temperature_margin_C: float = setting(0.0, ge=0)
-    max_residual_mm: float = setting(0.001, ge=0)
-    on_correction_bound: str = setting("refuse", choices=POLICIES)
-    on_joint_limits: str = setting("refuse", choices=POLICIES)
-    on_temperature_range: str = setting("refuse", choices=POLICIES)
-
-
-@dataclass(frozen=True)
-class SolverConfig:
-    max_iter: int = 20
-    tol_mm: float = setting(1e-4, ge=0)
-    tol_deg: float = setting(1e-6, ge=0)
-    max_step_deg: float = setting(3.0, ge=0)
+#: the service's safety settings are the one safety policy (:class:`robocal.compensation.safety.SafetyPolicy`)
+SafetyConfig = SafetyPolicy
 
 
 @dataclass(frozen=True)
@@ -227,7 +212,7 @@ class Service:
         self.config = config or ServiceConfig()
         self.reloader: Any = None  # callable(path | None) -> Bundle, set by the server
         self.counters = {"requests": 0, "errors": 0, "targets": 0, "refused": 0, "flagged": 0, "internal": 0}
-        self._cache: OrderedDict[tuple[str, bytes], CompiledChain] = OrderedDict()
+        self._cache: OrderedDict[tuple[str, bytes], tuple[CompiledChain, np.ndarray]] = OrderedDict()
         self._lock = threading.Lock()
 
     # -- transport entry point
@@ -295,22 +280,28 @@ class Service:
         A bundle without a thermal model is served with its calibrated errors (``eta0``); ``temps`` is then
         None. (Before 2026-11 a missing ``temps`` meant "nominal", so a geometry-only bundle corrected nothing.)
         """
+        return self._compiled_and_offsets(bundle, temps, nominal)[0]
+
+    def _compiled_and_offsets(
+        self, bundle: Bundle, temps: np.ndarray | None, nominal: bool = False
+    ) -> tuple[CompiledChain, np.ndarray]:
+        """:meth:`_compiled` and the joint zero offsets ``(n,)`` rad of the same parameters (cached with it)."""
         if nominal:
             key = (bundle.bundle_id, b"nominal")
         else:
             key = (bundle.bundle_id, b"calibrated" if temps is None else b"T" + temps.tobytes())
         with self._lock:
-            cc = self._cache.get(key)
-            if cc is not None:
+            hit = self._cache.get(key)
+            if hit is not None:
                 self._cache.move_to_end(key)
-                return cc
+                return hit
         eta = np.zeros_like(bundle.eta0) if nominal else bundle.eta_at(temps)
-        cc = compile_chain(bundle.chain, eta)
+        entry = (compile_chain(bundle.chain, eta), zero_offsets(bundle.chain, eta))
         with self._lock:
-            self._cache[key] = cc
+            self._cache[key] = entry
             while len(self._cache) > 16:
                 self._cache.popitem(last=False)
-        return cc
+        return entry
 
     def correct(self, req: dict[str, Any]) -> dict[str, Any]:
         """The ``correct`` op: see :mod:`robocal.serve.server` for the schema."""
@@ -337,7 +328,6 @@ class Service:
         if payload < 0:
             raise RequestError("bad_request", "'payload_kg' must be >= 0")
         reasons_all: list[str] = []  # request-level reasons (apply to every target)
-        refuse_all = False
         temps = None
         if bundle.thermal is not None:
             if "temperatures" not in req:
@@ -346,119 +336,62 @@ class Service:
                     f"'temperatures' is required: the bundle has a thermal model of {list(bundle.sensors)}",
                 )
             temps = parse_temperatures(req["temperatures"], bundle.sensors)
-            hot = bundle.temperature_reasons(temps, sf.temperature_margin_C)
-            reasons_all.extend(hot)
-            if hot and sf.on_temperature_range == "refuse":
-                refuse_all = True
+            reasons_all.extend(bundle.temperature_reasons(temps, sf.temperature_margin_C))
         elif "temperatures" in req and not isinstance(req["temperatures"], dict | list):
             raise RequestError("bad_request", "'temperatures' must be an object or a list")
-        cc = self._compiled(bundle, temps)
+        cc, zero_off = self._compiled_and_offsets(bundle, temps)
         cc_nom = self._compiled(bundle, None, nominal=True)
-        joint_offset = None
-        effects = list(bundle.effects)
+        effects = bundle.joint_effects()
+        offsets = None
         if effects:
-            from robocal.discovery.effects import joint_offsets as effect_offsets
-            from robocal.discovery.effects import needs
-
-            given = {"tau_Nm": tg.tau_Nm, "current_A": tg.current_A, "dir": tg.direction}
-            missing = sorted(f for f in needs(effects) if given[f] is None)
+            sig = Signals(np.full(m, payload), tg.tau_Nm, tg.current_A, tg.direction)
+            missing = sorted(needs(effects) - sig.given())
             if missing:
                 raise RequestError(
                     "bad_request",
-                    f"the bundle's discovered effects {[e['key'] for e in effects]} need {missing} with every target",
+                    f"the bundle's discovered effects {[e['key'] for e in bundle.effects]} need "
+                    f"{['dir' if k == 'direction' else k for k in missing]} with every target",
                 )
-        if bundle.compliance is not None or effects:
-            pay = np.full(m, payload)
-            comp = bundle.compliance
-
-            def joint_offset(qc: np.ndarray, rows: np.ndarray) -> np.ndarray:
-                cur = None if tg.current_A is None else tg.current_A[rows]
-                tau = None if tg.tau_Nm is None else tg.tau_Nm[rows]
-                dq = np.zeros_like(qc)
-                if comp is not None:
-                    dq += np.asarray(comp.joint_offsets(qc, pay[rows], cur, tau), dtype=float)
-                if effects:
-                    di = None if tg.direction is None else tg.direction[rows]
-                    dq += effect_offsets(effects, robot, qc, pay[rows], tau, cur, di)
-                return dq
-
-        sv = cfg.solver
-        kw = dict(
-            max_iter=sv.max_iter,
-            tol_mm=sv.tol_mm,
-            tol_rad=np.deg2rad(sv.tol_deg),
-            max_step_rad=np.deg2rad(sv.max_step_deg),
-        )
+            offsets = compose(effects, sig)
         q_in = np.deg2rad(tg.q_deg)
         q_target = q_in.copy()
         pose_rows = np.flatnonzero(tg.kind == 1)
         ik_ok = np.ones(m, dtype=bool)
         if len(pose_rows):  # the nominal controller's inverse kinematics from the seed
+            kw = cfg.solver.kwargs()
             R_p = quat_to_matrix(tg.quat[pose_rows])
             ik = solve(cc_nom, tool_T, q_in[pose_rows], tg.xyz_mm[pose_rows], R_p, None, **kw)
             q_target[pose_rows] = ik.q
             ik_ok[pose_rows] = ik.converged
-        p_des, R_des, _, _ = forward(cc_nom, q_target, tool_T)
-        sol = solve(cc, tool_T, q_target, p_des, R_des if mode == "pose" else None, joint_offset, **kw)
-        q_corr = sol.q
-        dq_deg = np.rad2deg(q_corr - q_target)
-        err_before = np.linalg.norm(sol.error_before_mm, axis=1)
-        err_before_deg = np.rad2deg(np.linalg.norm(sol.error_before_rad, axis=1))
-        resid = np.linalg.norm(sol.residual_mm, axis=1)
-        resid_deg = np.rad2deg(np.linalg.norm(sol.residual_rad, axis=1))
+        c = correct_targets(
+            cc, cc_nom, tool_T, tool_T, q_target, zero_off, offsets, robot.q_limits,
+            robot.joint_names, orientation=mode == "pose", solver=cfg.solver, policy=sf,
+            request_reasons=reasons_all, unreachable=~ik_ok,
+        )  # fmt: skip
+        q_corr = c.q
+        dq_deg = c.correction_deg
+        err_before = c.error_before_norm_mm
+        err_before_deg = np.rad2deg(np.linalg.norm(c.error_before_rad, axis=1))
+        resid, resid_deg = c.residual_norm_mm, c.residual_norm_deg
         cmd_p, cmd_R, _, _ = forward(cc_nom, q_corr, tool_T)  # what the nominal controller must be sent
         cmd_quat = quaternions(cmd_R)
-        lim = robot.q_limits
-        mg = np.deg2rad(sf.joint_limit_margin_deg)
-        lo, hi = lim[:, 0] + mg, lim[:, 1] - mg
         results = []
         n_ref = n_flag = 0
-        qc_deg = np.rad2deg(q_corr).round(9)
-        qt_deg = np.rad2deg(q_target)
-        # everything per target computed for the whole batch at once; the loop only assembles the replies
-        out_lim_j = (q_target < lo) | (q_target > hi) | (q_corr < lo) | (q_corr > hi)  # (m, n)
-        out_lim = out_lim_j.any(axis=1)
-        big_deg = np.abs(dq_deg).max(axis=1)
-        too_big = (big_deg > sf.max_correction_deg) | (err_before > sf.max_error_mm)
-        bad_conv = ~sol.converged | (resid > sf.max_residual_mm)
+        qc_l = np.rad2deg(q_corr).round(9).tolist()
         eb_r = np.round(err_before, 7).tolist()
-        ebx_r = np.round(sol.error_before_mm, 7).tolist()
+        ebx_r = np.round(c.error_before_mm, 7).tolist()
         ebd_r = np.round(err_before_deg, 9).tolist()
-        qc_l = qc_deg.tolist()
         dq_l = dq_deg.round(9).tolist()
         cmd_p_l = cmd_p.round(7).tolist()
         cmd_q_l = cmd_quat.round(12).tolist()
         resid_l = resid.tolist()
         resid_deg_l = resid_deg.tolist()
-        qt_l = qt_deg.round(9).tolist()
+        qt_l = np.rad2deg(q_target).round(9).tolist()
         for k in range(m):
-            reasons = list(reasons_all)
-            refuse = refuse_all
-            if not ik_ok[k]:
-                reasons.append(
-                    "the pose target is unreachable from q_seed_deg (nominal inverse kinematics did not converge)"
-                )
-                refuse = True
-            elif bad_conv[k]:
-                reasons.append(f"compensation did not converge (residual {resid[k]:.4g} mm; near a singularity?)")
-                refuse = True
-            if out_lim[k]:
-                js = np.flatnonzero(out_lim_j[k])
-                reasons.append(
-                    "outside the joint limits: "
-                    + ", ".join(
-                        f"{robot.joint_names[j]}={qt_deg[k, j]:.4f} deg (corrected {qc_deg[k, j]:.4f})" for j in js
-                    )
-                )
-                refuse |= sf.on_joint_limits == "refuse"
-            if too_big[k]:
-                reasons.append(
-                    f"correction {big_deg[k]:.4g} deg / predicted error {err_before[k]:.4g} mm exceeds the bound "
-                    f"({sf.max_correction_deg} deg / {sf.max_error_mm} mm)"
-                )
-                refuse |= sf.on_correction_bound == "refuse"
+            reasons = c.reasons[k]
+            refuse = c.status[k] == "refused"
             r: dict[str, Any] = {
-                "status": "refused" if refuse else ("flagged" if reasons else "ok"),
+                "status": c.status[k],
                 "predicted_error_mm": eb_r[k],
                 "predicted_error_xyz_mm": ebx_r[k],
                 "predicted_error_deg": ebd_r[k],

@@ -60,8 +60,10 @@ Reply to ``correct``::
          "q_nominal_deg": [...]}                # pose targets: the nominal IK solution
      ]}
 
-A refused target never carries corrected values. Reasons: correction above ``max_correction_deg`` or
-predicted error above ``max_error_mm``; target or corrected joints outside the joint limits; temperature
+A refused target never carries corrected values. Reasons (the one safety policy,
+:mod:`robocal.compensation.safety`): correction beyond the calibration's own joint-space correction (its zero
+offsets and joint-level effects) above ``max_correction_deg``, or predicted error after that own correction
+above ``max_error_mm``; target or corrected joints outside the joint limits; temperature
 outside the thermal model's fitted range; no convergence (singularity) or unreachable pose. Each of the first
 three is refused or only flagged as configured (``safety.on_*``).
 

@@ -3,84 +3,36 @@
 now; differential error compensation (:func:`robocal.compensation.compensate`) turns every target into corrected
 joints and a corrected Cartesian command for the nominal controller, written as a CSV a cell controller reads.
 
-No correction is applied silently. Every target gets a status (:data:`STATUSES`, first that applies):
+No correction is applied silently. Every target gets a status of the one safety policy
+(:class:`robocal.compensation.safety.SafetyPolicy`, ``thermal.compensation`` in conf/thermal/default.yaml, the
+same defaults as the service and the program filter): ``refused`` (did not converge, correction beyond the
+calibration's own joint offsets above the bound, outside the joint range, or a temperature reading outside the
+model's fitted range with ``on_temperature_range: refuse``), ``flagged`` (a problem the policy lets through,
+e.g. an extrapolation with ``on_temperature_range: flag``) or ``ok``, with the reasons.
 
-- ``not_converged``: Newton's iteration did not bring the predicted pose to the target (residual above
-  ``residual_tol_mm`` / ``residual_tol_deg``), e.g. at a wrist or elbow singularity;
-- ``too_large``: a joint correction exceeds ``max_correction_deg`` (near a singularity the correction of a sub-mm
-  error becomes degrees: ill-conditioned, so model errors are amplified too) or would leave the joint range;
-- ``out_of_range``: the temperature reading lies outside the model's fitted range by more than ``range_margin_C``
-  on some sensor (the thermal model extrapolates);
-- ``ok``.
-
-Rows that are not ``ok`` keep the nominal (requested) joints and command, unless ``out_of_range: apply`` lets an
-extrapolated correction through (still flagged). The CSV columns are described in :data:`CSV_COLUMNS`.
+Refused rows keep the nominal (requested) joints and command; flagged rows carry the correction. The CSV is
+the one controller CSV (:func:`robocal.compensation.controller_csv.write_controller_csv`).
 """
 
 from __future__ import annotations
 
-import csv
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from robocal.compensation import ActualRobot, Compensation, compensate, desired_poses
-from robocal.config import parse, setting
+from robocal.compensation import ActualRobot, Compensation, compensate, controller_csv, desired_poses
+from robocal.compensation.controller_csv import CSV_COLUMNS
+from robocal.compensation.correct import zero_offsets
+from robocal.compensation.safety import STATUSES, SafetyPolicy
 from robocal.identification.calibrate import CalibrationResult
-from robocal.io import atomic_write
 from robocal.kinematics.chain import fk
-from robocal.kinematics.transforms import matrix_to_quat
 from robocal.thermal.model import ThermalModel
 
-#: Status of a target in the controller CSV, in order of precedence.
-STATUSES = ("not_converged", "too_large", "out_of_range", "ok")
-EXTRAPOLATION_POLICIES = ("nominal", "apply")
-
-#: Columns of ``compensation.csv`` (:func:`write_controller_csv`) and what they hold.
-CSV_COLUMNS = {
-    "target_id": "target id (pose id / target name)",
-    "status": "ok | not_converged | too_large | out_of_range (see robocal.thermal.compensate)",
-    "applied": "1 = the corrected joints below were computed by the compensation; 0 = nominal joints kept",
-    "q<j>_deg": "joint command to send, deg: corrected when applied = 1, else the requested (nominal) joints",
-    "x_mm, y_mm, z_mm": "Cartesian command for the nominal controller (robot base frame, tool point), mm",
-    "qw, qx, qy, qz": "orientation of that command (unit quaternion, tool frame in the robot base frame)",
-    "pred_err_mm": "predicted position error (mm) of the robot at the temperature reading when sent this row",
-    "pred_err_deg": "predicted orientation error (deg) likewise (when the compensation matched orientation)",
-    "correction_max_deg": "largest |corrected - requested| joint angle the compensation computed, deg (also "
-    "for rows that were not applied)",
-    "extrapolation_C": "how far the temperature reading lies outside the model's fitted range, worst sensor, "
-    "degC (0 = inside)",
-    "reason": "why the row is not ok (empty when ok)",
-}
-
-
-@dataclass(frozen=True)
-class CompensationLimits:
-    """When a compensated target is refused or flagged (``thermal.compensation`` in conf/thermal/default.yaml).
-
-    max_correction_deg : largest joint correction applied (deg). residual_tol_mm / residual_tol_deg : predicted
-    residual after Newton's iteration above which the target is ``not_converged``. range_margin_C : a sensor
-    reading outside the fitted range by more than this (degC) is an extrapolation (``out_of_range``).
-    out_of_range : ``nominal`` (keep the nominal joints) or ``apply`` (apply the extrapolated correction, flagged).
-    joint_limits : also refuse corrections that leave the robot's joint range.
-    """
-
-    max_correction_deg: float = setting(5.0, ge=0)
-    residual_tol_mm: float = setting(1e-3, ge=0)
-    residual_tol_deg: float = setting(1e-4, ge=0)
-    range_margin_C: float = setting(1.0, ge=0)
-    out_of_range: str = setting("nominal", choices=EXTRAPOLATION_POLICIES)
-    joint_limits: bool = True
-
-    @classmethod
-    def from_mapping(cls, cfg: Mapping[str, Any] | None) -> CompensationLimits:
-        return parse(cls, cfg, "thermal.compensation")
-
-    def to_dict(self) -> dict[str, Any]:
-        return {k: getattr(self, k) for k in self.__dataclass_fields__}
+#: the thermal controller CSV's limits are the one safety policy (``thermal.compensation``)
+CompensationLimits = SafetyPolicy
 
 
 def range_excess(model: ThermalModel, temperatures: np.ndarray) -> np.ndarray:
@@ -161,7 +113,9 @@ class ThermalCompensation:
     (else ``q = q_target``); q_corrected : (m, n) what the compensation computed (applied or not);
     correction_max_deg : (m,) largest joint correction computed; extrapolation_C : worst sensor's distance
     outside the fitted range (degC, one reading for the batch); residual_* : predicted error of what ``q`` holds;
-    orientation : whether the orientation was matched (else only the position); limits : the limits used.
+    orientation : whether the orientation was matched (else only the position); limits : the safety policy
+    used; target_refused : (m,) refused for a reason of the target itself (convergence, bound, joint range), not
+    only for the batch's temperature reading.
     """
 
     ids: np.ndarray
@@ -179,7 +133,8 @@ class ThermalCompensation:
     correction_max_deg: np.ndarray = field(default_factory=lambda: np.zeros(0))
     extrapolation_C: float = 0.0
     orientation: bool = True
-    limits: CompensationLimits = field(default_factory=CompensationLimits)
+    limits: SafetyPolicy = field(default_factory=SafetyPolicy)
+    target_refused: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
 
     def counts(self) -> dict[str, int]:
         """Number of targets per status (every status listed)."""
@@ -194,27 +149,26 @@ def compensate_targets(
     targets: Sequence[str] | np.ndarray,
     ids: Sequence[str] | None = None,
     orientation: bool = True,
-    limits: CompensationLimits | None = None,
+    limits: SafetyPolicy | None = None,
     q_limits: np.ndarray | None = None,
 ) -> ThermalCompensation:
     """Corrected joints for targets ``q_target (m, n)`` at one temperature reading ``(s,)`` (model sensor order).
 
-    Without a model (or temperatures) only the geometric errors are compensated. Every target gets a status
-    (module doc); targets that are not ``ok`` keep ``q_target`` in ``q`` (unless ``limits.out_of_range`` is
-    ``apply`` and extrapolation is their only problem). ``q_limits`` (n, 2) rad: the joint range checked when
-    ``limits.joint_limits``.
+    Without a model (or temperatures) only the geometric errors are compensated. Every target gets a status of
+    the safety policy ``limits`` (module doc); refused targets keep ``q_target`` in ``q``. ``q_limits`` (n, 2)
+    rad: the joint range (None: not checked).
     """
-    lim = limits if limits is not None else CompensationLimits()
+    lim = limits if limits is not None else SafetyPolicy()
     q_target = np.asarray(q_target, dtype=float)
     m = q_target.shape[0]
     P = result.model.chain.n_params
     deta = np.zeros(P)
-    excess, worst = 0.0, ""
+    excess_C, worst = 0.0, ""
     if model is not None and temperatures is not None:
         T = np.asarray(temperatures, dtype=float)[None, :]
         deta = model.deta(T)[0]
         ex = range_excess(model, T)[0]
-        excess = float(ex.max()) if ex.size else 0.0
+        excess_C = float(ex.max()) if ex.size else 0.0
         worst = model.sensors[int(np.argmax(ex))] if ex.size else ""
     q = q_target.copy()
     res_mm = np.zeros((m, 3))
@@ -234,47 +188,39 @@ def compensate_targets(
         before_mm[sel] = c.error_before_mm
         before_rad[sel] = c.error_before_rad
         out[t] = c
-    # -- status of every target (module doc): nothing is applied silently
+    # -- status of every target (the one safety policy): nothing is applied silently
     q_corr = q.copy()
     dq_deg = np.rad2deg(np.abs(q_corr - q_target))
     corr_max = dq_deg.max(axis=1) if q.shape[1] else np.zeros(m)
-    reasons: list[list[str]] = [[] for _ in range(m)]
-    status = np.full(m, "ok", dtype=object)
-    res_n = np.linalg.norm(res_mm, axis=1)
-    res_d = np.rad2deg(np.linalg.norm(res_rad, axis=1))
-    bad_conv = (res_n > lim.residual_tol_mm) | (res_d > lim.residual_tol_deg) | ~np.isfinite(corr_max)
-    big = corr_max > lim.max_correction_deg
-    outside: np.ndarray = np.zeros(m, dtype=bool)
-    if lim.joint_limits and q_limits is not None:
-        ql = np.asarray(q_limits, dtype=float)
-        outside = np.asarray(((q_corr < ql[:, 0]) | (q_corr > ql[:, 1])).any(axis=1), dtype=bool)
-    extrap = excess > lim.range_margin_C
-    for i in range(m):
-        if bad_conv[i]:
-            reasons[i].append(
-                f"compensation did not converge (predicted residual {res_n[i]:.3g} mm / {res_d[i]:.3g} deg; "
-                "near a singularity?)"
-            )
-        if big[i]:
-            j = int(np.argmax(dq_deg[i]))
-            reasons[i].append(
-                f"joint correction {dq_deg[i, j]:.3g} deg on q{j + 1} exceeds max_correction_deg "
-                f"{lim.max_correction_deg:g}"
-            )
-        if outside[i]:
-            reasons[i].append("corrected joints leave the joint range")
-        if extrap:
-            reasons[i].append(
-                f"temperature {worst} outside the fitted range by {excess:.2f} degC (> margin {lim.range_margin_C:g})"
-            )
-    status[bad_conv] = "not_converged"
-    status[~bad_conv & (big | outside)] = "too_large"
-    status[(status == "ok") & extrap] = "out_of_range"
-    applied = (status == "ok") | ((status == "out_of_range") & (lim.out_of_range == "apply"))
+    # the calibration's own joint-space correction is minus its zero offsets (reference + drift); the error left
+    # after it, from the calibrated robot commanded there
+    zero = zero_offsets(result.model.chain, result.kinematic_errors + deta)
+    excess = np.minimum(corr_max, np.rad2deg(np.abs(q_corr - q_target + zero).max(axis=1))) if m else corr_max
+    rest = np.zeros(m)
+    for t in out:
+        sel = tnames == t
+        p_d, _ = desired_poses(nominal_robot(result, t), q_target[sel])
+        p_own, _, _ = calibrated_robot(result, t, deta).pose(q_target[sel] - zero)
+        rest[sel] = np.minimum(np.linalg.norm(before_mm[sel], axis=1), np.linalg.norm(p_own - p_d, axis=1))
+    conv = np.zeros(m, dtype=bool)
+    for t in out:
+        conv[tnames == t] = out[t].converged
+    ql = np.asarray(q_limits, dtype=float) if q_limits is not None else np.tile([-np.inf, np.inf], (q.shape[1], 1))
+    request = []
+    if excess_C > lim.temperature_margin_C:
+        request.append(
+            f"temperature {worst} outside the fitted range by {excess_C:.2f} degC (> margin "
+            f"{lim.temperature_margin_C:g})"
+        )
+    names = list(result.model.robot.joint_names)
+    status_l, reasons = lim.judge(conv, res_mm, res_rad, excess, rest, q_target, q_corr, ql, names, request)
+    status = np.array(status_l, dtype=object)
+    applied = status != "refused"
+    # refused for a reason of the target itself (not the batch's temperature reading)
+    own_status, _ = lim.judge(conv, res_mm, res_rad, excess, rest, q_target, q_corr, ql, names)
+    target_refused = np.array([st == "refused" for st in own_status], dtype=bool)
     for r in np.flatnonzero(~applied):
         reasons[r].append("nominal joints kept")
-    for r in np.flatnonzero(applied & (status == "out_of_range")):
-        reasons[r].append("extrapolated correction applied (thermal.compensation.out_of_range: apply)")
     q = np.where(applied[:, None], q_corr, q_target)
     res_mm = np.where(applied[:, None], res_mm, before_mm)
     res_rad = np.where(applied[:, None], res_rad, before_rad)
@@ -303,43 +249,20 @@ def compensate_targets(
         applied=applied,
         q_corrected=q_corr,
         correction_max_deg=corr_max,
-        extrapolation_C=excess,
+        extrapolation_C=excess_C,
         orientation=bool(orientation),
         limits=lim,
+        target_refused=target_refused,
     )
 
 
 def write_controller_csv(path: str | Path, comp: ThermalCompensation) -> Path:
-    """The controller CSV of a compensation, one row per target, columns :data:`CSV_COLUMNS` (``q1_deg`` ..
-    ``qN_deg``; ``pred_err_deg`` only when the orientation was matched). Rows that are not ``ok`` carry the
-    nominal joints and command unless ``applied`` is 1, and say why in ``reason``."""
-    q = np.rad2deg(np.asarray(comp.q, dtype=float))
-    quat = matrix_to_quat(comp.command_T[:, :3, :3])
-    n = q.shape[1]
-    head = ["target_id", "status", "applied", *[f"q{j + 1}_deg" for j in range(n)]]
-    head += ["x_mm", "y_mm", "z_mm", "qw", "qx", "qy", "qz", "pred_err_mm"]
-    if comp.orientation:
-        head.append("pred_err_deg")
-    head += ["correction_max_deg", "extrapolation_C", "reason"]
-    err = np.linalg.norm(np.atleast_2d(comp.residual_mm), axis=1)
-    erd = np.rad2deg(np.linalg.norm(np.atleast_2d(comp.residual_rad), axis=1))
-    rows = []
-    for k, tid in enumerate(comp.ids):
-        vals = [str(tid), str(comp.status[k]), str(int(comp.applied[k]))]
-        vals += [f"{v:.6f}" for v in q[k]] + [f"{v:.6f}" for v in comp.command_T[k, :3, 3]]
-        vals += [f"{v:.9f}" for v in quat[k]] + [f"{err[k]:.6f}"]
-        if comp.orientation:
-            vals.append(f"{erd[k]:.6f}")
-        vals += [f"{comp.correction_max_deg[k]:.6f}", f"{comp.extrapolation_C:.3f}", str(comp.reason[k])]
-        rows.append(vals)
-
-    def _write(p: Path) -> None:
-        with p.open("w", newline="", encoding="utf-8") as f:
-            w = csv.writer(f, lineterminator="\n")
-            w.writerow(head)
-            w.writerows(rows)
-
-    return atomic_write(path, _write)
+    """The controller CSV of a compensation (the one layout, :data:`CSV_COLUMNS`; ``pred_err_deg`` only when
+    the orientation was matched). Refused rows carry the nominal joints and command and say why."""
+    return controller_csv.write_controller_csv(
+        path, comp.ids, comp.q, comp.command_T, comp.residual_mm, comp.residual_rad if comp.orientation else None,
+        comp.status, comp.applied, comp.correction_max_deg, comp.reason, comp.extrapolation_C,
+    )  # fmt: skip
 
 
 def true_robot(truth: dict[str, Any], chain: Any, target: str, deta: np.ndarray) -> ActualRobot:

@@ -31,8 +31,8 @@ from robocal.thermal.model import ThermalModel
 from robocal.thermal.regression import ParameterChoice, RegressionConfig, fit_drift
 
 if TYPE_CHECKING:
+    from robocal.compensation.safety import SafetyPolicy
     from robocal.data.contract import Campaign
-    from robocal.thermal.compensate import CompensationLimits
 
 PROPOSED_SOURCES = ("screen", "drifting", "all")
 
@@ -50,8 +50,8 @@ class ThermalConfig:
     or a list of names. validation_at_min : the validation state the paper samples (90 min). closed_loop :
     close the compensation loop on the twin when a truth file is present. screening_file : the screening
     result the validation stage reads. reference_calibration : extra :class:`CalibrationConfig` settings.
-    compensation : :class:`robocal.thermal.compensate.CompensationLimits` mapping (when a compensated target is
-    refused or flagged: correction bound, convergence tolerance, temperature range margin).
+    compensation : the one safety policy's settings (:class:`robocal.compensation.safety.SafetyPolicy`: when a
+    compensated target of the controller CSV is refused or flagged), over its defaults.
     """
 
     noise_mm: float = setting(0.015, gt=0)
@@ -73,10 +73,10 @@ class ThermalConfig:
         return parse(cls, cfg, "thermal")
 
     @property
-    def limits(self) -> CompensationLimits:
-        from robocal.thermal.compensate import CompensationLimits
+    def limits(self) -> SafetyPolicy:
+        from robocal.compensation.safety import SafetyPolicy
 
-        return CompensationLimits.from_mapping(self.compensation)
+        return SafetyPolicy.from_mapping(self.compensation, "thermal.compensation")
 
     @property
     def regression_config(self) -> RegressionConfig:
@@ -90,10 +90,10 @@ class ThermalConfig:
 
 
 def _check_limits(compensation: Mapping[str, Any]) -> None:
-    """``thermal.compensation`` parsed as :class:`CompensationLimits` (its errors name the key early)."""
-    from robocal.thermal.compensate import CompensationLimits
+    """``thermal.compensation`` parsed as the safety policy (its errors name the key early)."""
+    from robocal.compensation.safety import SafetyPolicy
 
-    sub_settings(CompensationLimits)(compensation)
+    sub_settings(SafetyPolicy)(compensation)
 
 
 @dataclass

@@ -435,7 +435,8 @@ def compensation_section(rep: Report, ev: Mapping[str, Any]) -> Report:
                 {"sensor": s, "fitted min (°C)": lo, "fitted max (°C)": hi}
                 for s, (lo, hi) in ext.get("fitted_range_C", {}).items()
             ],
-            caption="fitted temperature range of the proposed model (outside it by more than the margin: out_of_range)",
+            caption="fitted temperature range of the proposed model (outside it by more than the margin: refused or "
+            "flagged)",
             float_fmt="{:.2f}",
         )
     if comp is not None:
@@ -450,13 +451,13 @@ def compensation_section(rep: Report, ev: Mapping[str, Any]) -> Report:
                 **{f"status {k}": v for k, v in comp["status_counts"].items()},
                 "largest joint correction (deg)": comp["max_correction_deg"],
                 "max_correction_deg": lim.get("max_correction_deg"),
-                "range margin (°C)": lim.get("range_margin_C"),
-                "out_of_range policy": lim.get("out_of_range"),
+                "range margin (°C)": lim.get("temperature_margin_C"),
+                "outside the range": lim.get("on_temperature_range"),
             },
             caption="compensation.csv: the validation poses at the reported state, compensated for the controller",
         )
         if comp.get("flagged"):
-            rep.table(comp["flagged"], caption="targets not ok (nominal joints kept unless applied = 1)")
+            rep.table(comp["flagged"], caption="targets not ok (nominal joints kept when refused)")
         large = comp.get("large_corrections") or []
         if large:
             rep.note(

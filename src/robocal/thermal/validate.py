@@ -21,9 +21,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from robocal.compensation import desired_poses
+from robocal.compensation.safety import SafetyPolicy
 from robocal.identification.calibrate import CalibrationResult
 from robocal.kinematics.transforms import matrix_to_rotvec, quat_to_matrix
-from robocal.thermal.compensate import CompensationLimits, compensate_targets, nominal_robot, true_robot
+from robocal.thermal.compensate import compensate_targets, nominal_robot, true_robot
 from robocal.thermal.model import ThermalModel
 
 if TYPE_CHECKING:
@@ -93,7 +94,7 @@ def evaluate(
     models: Mapping[str, ThermalModel | None],
     truth: Mapping[str, Any] | None = None,
     at_min: float = 90.0,
-    limits: CompensationLimits | None = None,
+    limits: SafetyPolicy | None = None,
 ) -> dict[str, Any]:
     """Errors of every method on the validation warm-up ``val`` (rows with temperatures), see the module doc.
 
@@ -158,19 +159,20 @@ def closed_loop(
     truth: Mapping[str, Any],
     d_true: np.ndarray,
     use_rot: bool,
-    limits: CompensationLimits | None = None,
+    limits: SafetyPolicy | None = None,
 ) -> dict[str, dict[str, float]]:
     """Twin only: send each method's corrected joints (at each state's mean temperature reading) to the true
-    robot and measure the pose error against the target without tracker noise. Targets the compensation refuses
-    (status ``not_converged``, e.g. at a wrist singularity, or ``too_large``; see
-    :mod:`robocal.thermal.compensate`) are counted in ``n_not_converged`` / ``n_too_large`` and left out;
-    extrapolated ones (``out_of_range``) are scored with their correction and counted in ``n_out_of_range``."""
+    robot and measure the pose error against the target without tracker noise. Targets the safety policy refuses
+    for a reason of their own (not converged, e.g. at a wrist singularity, correction above the bound; see
+    :mod:`robocal.thermal.compensate`) are counted in ``n_refused`` and left out; targets refused or flagged only
+    because the temperature reading extrapolates are scored with their correction and counted in
+    ``n_extrapolated``."""
     assert val.temperatures is not None
     chain = result.model.chain
     out: dict[str, dict[str, float]] = {}
     for name, model in models.items():
         e_all, ed_all = [], []
-        counts = {"not_converged": 0, "too_large": 0, "out_of_range": 0}
+        counts = {"refused": 0, "extrapolated": 0}
         for s in range(int(state.max()) + 1):
             sel = np.flatnonzero(state == s)
             T = None
@@ -181,12 +183,12 @@ def closed_loop(
                 ts = val.target[sel].astype(str) == t
                 rows = sel[ts]
                 p_d, R_d = desired_poses(nominal_robot(result, t), val.q[rows])
-                st = comp.status[ts]
-                for k in counts:
-                    counts[k] += int(np.sum(st == k))
+                own = comp.target_refused[ts]
+                counts["refused"] += int(np.sum(own))
+                counts["extrapolated"] += int(np.sum(~own & (comp.status[ts] != "ok")))
                 assert comp.q_corrected is not None
                 for i, r in enumerate(rows):
-                    if st[i] in ("not_converged", "too_large"):  # refused (near a singularity): counted, not scored
+                    if own[i]:  # refused (near a singularity): counted, not scored
                         continue
                     act = true_robot(dict(truth), chain, t, d_true[r])
                     p, R, _ = act.pose(comp.q_corrected[ts][i : i + 1])

@@ -102,8 +102,11 @@ def run(
     atomic_write(out / "conditions.csv", lambda p: frame.to_csv(p, index=False, float_format="%.6f"))
     if cfg.compensation:
         val = camp.validation() if np.any(camp.split == "validation") else camp.subset(camp.payload_kg > 0)
-        ids, qc, cmd, res = compensation_rows(val, geo, cfit)
-        write_compensation_csv(out / "compensation.csv", ids, qc, cmd, res)
+        ids, qc, cmd, res, judged = compensation_rows(val, geo, cfit)
+        write_compensation_csv(
+            out / "compensation.csv", ids, qc, cmd, res, None, judged["status"], judged["reason"],
+            judged["correction_max_deg"],
+        )  # fmt: skip
         summary["compensation"] = {"rows": len(ids), "max_predicted_residual_mm": float(np.abs(res).max())}
     if report and cfg.report:
         from robocal.compliance.report import compliance_report

@@ -250,6 +250,14 @@ def write_report(res: DiscoveryResult, summ: dict[str, Any], path: Path) -> Path
     return rep.save(path)
 
 
+def _tool_T(cal: Any, target: str) -> np.ndarray:
+    """The calibrated flange-to-tool transform (4, 4) of ``target``."""
+    k = cal.model.target_names.index(target)
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = cal.model.tool_rotations(cal.x)[k], cal.model.tools(cal.x)[k]
+    return T
+
+
 def write_product(res: DiscoveryResult, summ: dict[str, Any], out: Path) -> str | None:
     """The discovered model as the product: ``calibration.json`` (geometry + joint-level effects, readable by
     ``robocal serve --make-bundle --calibration`` and every reader of a calibration) and ``compensation.csv``
@@ -260,6 +268,7 @@ def write_product(res: DiscoveryResult, summ: dict[str, Any], out: Path) -> str 
     from robocal.compensation import write_compensation_csv
     from robocal.discovery.effects import compensate_targets, extended_calibration
     from robocal.identification.calibrate import load_calibration
+    from robocal.kinematics.chain import fk
 
     fit_stats = {k: summ[k] for k in ("rms_before_mm", "rms_after_mm", "noise_floor_mm", "chi2", "dof", "outliers")}
     cal_dict = extended_calibration(res.final, res.robot, fit_stats)
@@ -285,6 +294,9 @@ def write_product(res: DiscoveryResult, summ: dict[str, Any], out: Path) -> str 
     qc = np.zeros((len(idx), sub.n_joints))
     cmd = np.zeros((len(idx), 4, 4))
     res_mm = np.zeros((len(idx), 3))
+    status = np.full(len(idx), "ok", dtype=object)
+    reason = np.full(len(idx), "", dtype=object)
+    corr_max = np.zeros(len(idx))
     for t in dict.fromkeys(tgt):
         rows = np.array([k for k, tt in enumerate(tgt) if tt == t])
         r = idx[rows]
@@ -297,9 +309,15 @@ def write_product(res: DiscoveryResult, summ: dict[str, Any], out: Path) -> str 
             None if sub.current_A is None else sub.current_A[r],
             None if sub.direction is None else sub.direction[r],
         )
-        qc[rows], cmd[rows], res_mm[rows] = comp.q, c, comp.error_before_mm
+        assert comp.status is not None and comp.reasons is not None
+        refused = np.array([x == "refused" for x in comp.status], dtype=bool)
+        qc[rows] = np.where(refused[:, None], comp.q_target, comp.q)
+        cmd[rows] = np.where(refused[:, None, None], fk(cal.model.chain, comp.q_target) @ _tool_T(cal, t), c)
+        res_mm[rows] = np.where(refused[:, None], comp.error_before_mm, comp.residual_mm)
+        status[rows], reason[rows] = comp.status, ["; ".join(x) for x in comp.reasons]
+        corr_max[rows] = np.rad2deg(np.abs(comp.correction_rad).max(axis=1))
     ids = [f"{p}/{t}" for p, t in zip(first, tgt, strict=True)]
-    write_compensation_csv(out / "compensation.csv", ids, qc, cmd, res_mm)
+    write_compensation_csv(out / "compensation.csv", ids, qc, cmd, res_mm, None, status, reason, corr_max)
     return None
 
 

@@ -198,7 +198,7 @@ def write_validation(
     assert val.temperatures is not None
     T_val = reorder(val.temperatures, val.sensor_names, proposed.sensors)
     limits = fit.cfg.limits
-    ev["extrapolation"] = extrapolation_summary(proposed, T_val, vstate, ev["t_min"], limits.range_margin_C)
+    ev["extrapolation"] = extrapolation_summary(proposed, T_val, vstate, ev["t_min"], limits.temperature_margin_C)
     k = int(np.argmin(np.abs(np.asarray(ev["t_min"]) - fit.cfg.validation_at_min)))
     sel = vstate == k
     comp = compensate_targets(

@@ -162,10 +162,46 @@ def rot_zyx_deg(a: float, b: float, c: float) -> np.ndarray:
     return np.asarray(matrix_from_rpy(np.deg2rad([c, b, a])))
 
 
-def abc_deg(R: np.ndarray) -> tuple[float, float, float]:
-    """KUKA A, B, C (deg) of a rotation, accurate near B = +-90 deg."""
+def abc_deg(R: np.ndarray, near: tuple[float, float, float] | None = None) -> tuple[float, float, float]:
+    """KUKA A, B, C (deg) of a rotation, accurate near B = +-90 deg.
+
+    A rotation has two ZYX representations, ``(A, B, C)`` and ``(A + 180, 180 - B, C + 180)`` (each angle
+    modulo 360), and a one-parameter family at B = +-90 (only A - C, resp. A + C, is defined). Without ``near``
+    the principal one (B in [-90, 90], A and C in (-180, 180]); with ``near`` (the A, B, C the program had) the
+    exact representation nearest to it (angles compared modulo 360, written in (-180, 180]): the nearer branch,
+    and at B = +-90 the split of A -+ C nearest to the original's. Near B = 90 a small tilt of the tool moves A
+    and C by the tilt's direction, whatever the representation; the nearer branch keeps that move within 90 deg
+    (a tool-down ``{A 0, B 90, C 0}`` tilted by 0.04 deg towards 10 deg is written ``{A 10, B 90.04, C 10}``,
+    not ``{A -170, B 89.96, C -170}``).
+    """
     roll, pitch, yaw = rpy_from_matrix(R)
-    return math.degrees(yaw), math.degrees(pitch), math.degrees(roll)
+    abc = (math.degrees(yaw), math.degrees(pitch), math.degrees(roll))
+    if near is None:
+        return abc
+    a0, b0, c0 = (float(v) for v in near)
+    a, b, c = abc
+    cands = [(a, b, c), (a + 180.0, 180.0 - b, c + 180.0)]
+    R = np.asarray(R, dtype=float)
+    if math.hypot(R[0, 0], R[1, 0]) <= 1e-10:  # gimbal lock: only A - C (B = 90) or A + C (B = -90) is defined
+        s = 1.0 if b > 0 else -1.0
+        d = a - s * c  # the defined combination
+        d0 = a0 - s * c0
+        d = d0 + _wrap180(d - d0)
+        da = 0.5 * (d - d0)  # the change of A - s C shared between A and C, nearest to the original
+        cands = [(a0 + da, b, c0 - s * da)]
+    best = min(cands, key=lambda v: _wrap180(v[0] - a0) ** 2 + _wrap180(v[1] - b0) ** 2 + _wrap180(v[2] - c0) ** 2)
+    return _norm180(best[0]), _norm180(best[1]), _norm180(best[2])
+
+
+def _wrap180(d: float) -> float:
+    """``d`` (deg) modulo 360 into [-180, 180)."""
+    return (d + 180.0) % 360.0 - 180.0
+
+
+def _norm180(d: float) -> float:
+    """``d`` (deg) modulo 360 into (-180, 180] (the range the controller shows)."""
+    w = _wrap180(d)
+    return 180.0 if w == -180.0 else w
 
 
 # --------------------------------------------------------------------------------------------- configuration
@@ -174,8 +210,8 @@ def abc_deg(R: np.ndarray) -> tuple[float, float, float]:
 def arm_configuration(cc: Any, q: np.ndarray) -> dict[str, np.ndarray]:
     """Shoulder (wrist centre behind axis 1), elbow (joint 3 bent positively) and wrist (axis 5 < 0) flags
     ``(m,)`` bool of joints ``q`` (m, n) rad on the compiled nominal chain ``cc`` (6-axis arms)."""
+    from robocal.kinematics.ik import forward
     from robocal.kinematics.transforms import rotvec_to_matrix
-    from robocal.serve.engine import forward
 
     q = np.atleast_2d(q)
     _, _, U, O = forward(cc, q, np.eye(4), record=True)
@@ -195,7 +231,7 @@ def elbow_angle(cc: Any, q: np.ndarray) -> np.ndarray:
     """Signed angle (m,) rad of the forearm (axis 3 -> wrist centre) from the stretched arm (axis 2 -> axis 3),
     about axis 3: its sign is the elbow flag of :func:`arm_configuration`; near 0 the arm is stretched (a
     singularity, where the configuration flips)."""
-    from robocal.serve.engine import forward
+    from robocal.kinematics.ik import forward
 
     q = np.atleast_2d(q)
     _, _, U, O = forward(cc, q, np.eye(4), record=True)
@@ -237,22 +273,80 @@ def abb_confdata(cc: Any, q: np.ndarray) -> np.ndarray:
     return np.column_stack([quad, cfx])
 
 
+#: an angle within this of a configuration boundary (a quadrant boundary of ABB cf1/cf4/cf6, the sign of a
+#: KUKA Turn bit or of axis 5) matches the configurations on both sides, as the controller accepts them: a
+#: target on the boundary (``[0,0,1,0]`` above the y = 0 plane: axis 4 at 0 or -0.0, or -1e-16 from the
+#: inverse kinematics) states either neighbour. 0.001 deg: far above the inverse kinematics' and the written
+#: text's rounding (1e-4 mm over 300 mm is 2e-5 deg), far below any difference between taught poses.
+BOUNDARY_TOL_DEG = 1e-3
+
+
+def _quadrant_ok(q: np.ndarray, quad: np.ndarray, tol: float) -> np.ndarray:
+    """``q`` (m, k) rad lies in quadrant ``quad`` (k,) (``[quad, quad + 1] * 90 deg``) within ``tol`` rad."""
+    lo = quad[None, :] * (np.pi / 2)
+    return (q >= lo - tol) & (q <= lo + np.pi / 2 + tol)
+
+
+def _sign_ok(q: np.ndarray, negative: np.ndarray, tol: float) -> np.ndarray:
+    """``q`` (m, k) rad has the stated sign (``negative`` (k,) bool) within ``tol`` rad (0 matches both)."""
+    return np.where(negative[None, :], q <= tol, q >= -tol)
+
+
 def config_matches(dialect: str, cc: Any, q: np.ndarray, config: dict[str, Any]) -> np.ndarray:
-    """Which joints ``q`` (m, n) rad have the target's configuration (all True when it states none)."""
+    """Which joints ``q`` (m, n) rad have the target's configuration (all True when it states none). Angles
+    within :data:`BOUNDARY_TOL_DEG` of a quadrant or sign boundary match both neighbours."""
     m = len(q)
+    tol = math.radians(BOUNDARY_TOL_DEG)
     if dialect == "krl":
         ok = np.ones(m, dtype=bool)
-        s, t = kuka_status_turn(cc, q)
+        c = arm_configuration(cc, q)
         if config.get("S") is not None:
-            ok &= (s & 7) == (int(config["S"]) & 7)
+            s = int(config["S"])
+            ok &= c["shoulder"] == bool(s & 1)
+            ok &= c["elbow"] == bool(s & 2)
+            ok &= _sign_ok(q[:, 4:5], np.array([bool(s & 4)]), tol)[:, 0]
         if config.get("T") is not None:
-            mask = (1 << q.shape[1]) - 1
-            ok &= (t & mask) == (int(config["T"]) & mask)
+            t = int(config["T"])
+            neg = np.array([bool((t >> j) & 1) for j in range(q.shape[1])])
+            ok &= _sign_ok(q, neg, tol).all(axis=1)
         return ok
     cf = config.get("cf")
     if cf is None:
         return np.ones(m, dtype=bool)
-    return np.all(abb_confdata(cc, q) == np.asarray(cf, dtype=int)[None, :], axis=1)
+    cfa = np.asarray(cf, dtype=int)
+    c = arm_configuration(cc, q)
+    ok_q = np.asarray(_quadrant_ok(q[:, [0, 3, 5]], cfa[:3], tol).all(axis=1), dtype=bool)
+    ok_q = ok_q & (c["shoulder"] == bool(cfa[3] & 4)) & (c["elbow"] == (not cfa[3] & 2))
+    return ok_q & _sign_ok(q[:, 4:5], np.array([bool(cfa[3] & 1)]), tol)[:, 0]
+
+
+def written_config(dialect: str, cc: Any, q: np.ndarray, config: dict[str, Any]) -> dict[str, Any]:
+    """The configuration data to write with the joints ``q`` (n,) rad: computed from ``q``
+    (:func:`kuka_status_turn`, :func:`abb_confdata`), except that a quadrant or sign the target stated and
+    that ``q`` still matches within :data:`BOUNDARY_TOL_DEG` is kept as written (a target on a boundary stays
+    as taught instead of flipping to the other neighbour)."""
+    tol = math.radians(BOUNDARY_TOL_DEG)
+    q2 = np.asarray(q, dtype=float)[None, :]
+    if dialect == "krl":
+        st, tt = kuka_status_turn(cc, q2, int(config.get("S") or 0))
+        s, t = int(st[0]), int(tt[0])
+        if config.get("S") is not None and _sign_ok(q2[:, 4:5], np.array([bool(config["S"] & 4)]), tol)[0, 0]:
+            s = (s & ~4) | (int(config["S"]) & 4)
+        if config.get("T") is not None:
+            t0 = int(config["T"])
+            for j in range(q2.shape[1]):
+                if _sign_ok(q2[:, j : j + 1], np.array([bool((t0 >> j) & 1)]), tol)[0, 0]:
+                    t = (t & ~(1 << j)) | (t0 & (1 << j))
+        return {"S": s, "T": t}
+    cf = [int(v) for v in abb_confdata(cc, q2)[0]]
+    if config.get("cf") is not None:
+        cf0 = [int(v) for v in config["cf"]]
+        for i, j in enumerate((0, 3, 5)):
+            if _quadrant_ok(q2[:, j : j + 1], np.array([cf0[i]]), tol)[0, 0]:
+                cf[i] = cf0[i]
+        if _sign_ok(q2[:, 4:5], np.array([bool(cf0[3] & 1)]), tol)[0, 0]:
+            cf[3] = (cf[3] & ~1) | (cf0[3] & 1)
+    return {"cf": cf}
 
 
 def config_seeds(

@@ -4,20 +4,21 @@ where the program meant, with the compensation service's refusals.
 For each target (in the order the program moves to them):
 
 1. the joints the nominal controller would use: an axis target as written; a Cartesian target through the
-   nominal inverse kinematics (:func:`robocal.serve.engine.solve` on the nominal compiled chain), started from the
+   nominal inverse kinematics (:func:`robocal.kinematics.ik.solve` on the nominal compiled chain), started from the
    previous target's joints, the nearest axis target before it and random starts that agree with the target's
    configuration data, keeping the solutions whose configuration (Status/Turn, confdata) matches the target's
    and that are within the joint limits, the one nearest to the previous target;
 2. the pose the program means: the nominal forward kinematics of those joints with the program's tool;
-3. the corrected joints: the same Newton iteration as the service on the calibrated chain (``eta0`` + the
-   thermal drift at the stated temperatures), with the compliance deflection at the stated payload and the
-   discovered joint-level effects (a backlash's approach direction is taken from the move from the previous
-   target), on the TCP of the calibrated model (the program's tool, or the bundle's calibrated tool with
-   ``tcp_from_bundle``);
-4. the same refusals as the service, with its defaults (:class:`robocal.serve.protocol.SafetyConfig`): joint
-   limits with the margin, correction or predicted error above the bound, not converged or residual above
-   ``max_residual_mm`` (near a singularity), temperatures outside the fitted range. A refused target keeps its
-   original text and is listed as refused in the table;
+3. the corrected joints: the service's correction (:func:`robocal.compensation.correct.correct_targets`) on the
+   calibrated chain (``eta0`` + the thermal drift at the stated temperatures), with the compliance deflection
+   at the stated payload and the discovered joint-level effects (a backlash's approach direction is taken from
+   the move from the previous target), on the TCP of the calibrated model (the program's tool, or the bundle's
+   calibrated tool with ``tcp_from_bundle``);
+4. the same refusals as the service, with its defaults (the one policy,
+   :class:`robocal.compensation.safety.SafetyPolicy`): joint limits with the margin, correction beyond the
+   calibration's own joint-space correction or predicted error after it above the bound, not converged or
+   residual above ``max_residual_mm`` (near a singularity), temperatures outside the fitted range. A refused
+   target keeps its original text and is listed as refused in the table;
 5. the command written back: corrected axis values, or the nominal forward kinematics of the corrected joints
    in the target's base frame with the configuration data of the corrected joints.
 
@@ -26,10 +27,12 @@ error naming the file and line, and nothing is written.
 
 Limits of the inverse kinematics: it is numerical (a damped least-squares phase from up to 3 x 48 starts, then
 the service's Newton), not the controller's closed form, so it finds the solution with the stated configuration
-with high probability, not certainty; a target within a fraction of a degree of a configuration boundary (the
-stretched elbow, the wrist centre on axis 1, axis 5 at 0) may be reported unreachable or solved on the wrong
-side. A target without configuration data (a KRL POS without S/T) takes the solution nearest to the previous
-target, as the controller's PTP does. The configuration rules are those of
+with high probability, not certainty; a target within a fraction of a degree of a singular configuration
+boundary (the stretched elbow, the wrist centre on axis 1) may be reported unreachable or solved on the wrong
+side. A joint on a quadrant or sign boundary (within :data:`~robocal.cell.programs.common.BOUNDARY_TOL_DEG`)
+matches both neighbours and keeps the configuration the target stated when written back. A target without
+configuration data (a KRL POS without S/T) takes the solution nearest to the previous target, as the
+controller's PTP does. The configuration rules are those of
 :mod:`robocal.cell.programs.common`.
 """
 
@@ -47,11 +50,10 @@ from robocal.cell.programs.common import (
     Program,
     ProgramError,
     Target,
-    abb_confdata,
     apply_edits,
     config_matches,
     config_seeds,
-    kuka_status_turn,
+    written_config,
 )
 from robocal.errors import ConfigError
 from robocal.kinematics.transforms import inv_transform
@@ -102,7 +104,7 @@ def read_program(path: str | Path) -> Program:
 
 def nominal_ik(prog: Program, cc_nom: Any, limits: np.ndarray, seed: int = 0, n_seeds: int = N_SEEDS) -> np.ndarray:
     """Joints (m, n) rad the nominal controller uses for each target (see the module docstring, step 1)."""
-    from robocal.serve.engine import forward, solve
+    from robocal.kinematics.ik import forward, solve
 
     rng = np.random.default_rng(seed)
     m, n = len(prog.targets), len(limits)
@@ -163,7 +165,7 @@ def nominal_ik(prog: Program, cc_nom: Any, limits: np.ndarray, seed: int = 0, n_
 def _damped_ik(cc: Any, tool: np.ndarray, q0: np.ndarray, T_goal: np.ndarray, iters: int = 80) -> np.ndarray:
     """Global phase of the nominal inverse kinematics: damped least squares from far starts (steps clipped to
     0.3 rad, damping adapted per start); the service's Newton then polishes the result."""
-    from robocal.serve.engine import forward
+    from robocal.kinematics.ik import forward
 
     q = np.array(q0, dtype=float)
     m, n = q.shape
@@ -247,28 +249,27 @@ def filter_program(
     temperatures : (s,) degC of the bundle's thermal sensors (required when it has a thermal model);
     payload_kg : payload for the compliance model and gravity-driven effects; tcp_from_bundle : name of a bundle
     tool whose calibrated pose is the program's TCP on the real robot (otherwise the program's tool is taken
-    as exact on the calibrated flange); safety / solver : the service's settings (defaults: the service's).
+    as exact on the calibrated flange); safety / solver : :class:`robocal.compensation.safety.SafetyPolicy` and
+    :class:`robocal.compensation.correct.SolverConfig` (defaults: the service's). The correction and the refusals
+    are the service's own code (:func:`robocal.compensation.correct.correct_targets`).
     """
-    from robocal.discovery.effects import joint_offsets as effect_offsets
-    from robocal.discovery.effects import needs
-    from robocal.serve.engine import compile_chain, forward, solve
-    from robocal.serve.protocol import SafetyConfig, SolverConfig
+    from robocal.compensation.correct import correct_targets, zero_offsets
+    from robocal.compensation.effects import Signals, compose, needs
+    from robocal.compensation.safety import SafetyPolicy
+    from robocal.kinematics.ik import compile_chain, forward
 
-    sf = safety or SafetyConfig()
-    sv = solver or SolverConfig()
+    sf = safety or SafetyPolicy()
     robot = bundle.robot
     n = robot.n_joints
     limits = robot.q_limits
     m = len(prog.targets)
     eta = bundle.eta0
     reasons_all: list[str] = []
-    refuse_all = False
     if bundle.thermal is not None:
         if temperatures is None:
             raise ConfigError(f"the bundle has a thermal model: state the temperatures of {list(bundle.sensors)}")
         eta = bundle.eta_at(temperatures)
         reasons_all.extend(bundle.temperature_reasons(temperatures, sf.temperature_margin_C))
-        refuse_all = bool(reasons_all) and sf.on_temperature_range == "refuse"
     cc = compile_chain(bundle.chain, eta)
     cc_nom = compile_chain(bundle.chain, np.zeros_like(bundle.eta0))
     q_t = nominal_ik(prog, cc_nom, limits, seed)
@@ -281,91 +282,25 @@ def filter_program(
     else:
         tools_true = tools_prog
 
-    effects = list(bundle.effects)
-    miss = needs(effects) - {"dir"}
+    effects = bundle.joint_effects()
+    miss = needs(effects) - {"direction"}
     if miss:
         raise ConfigError(
-            f"the bundle's discovered effects {[e['key'] for e in effects]} need {sorted(miss)} per target, "
+            f"the bundle's discovered effects {[e['key'] for e in bundle.effects]} need {sorted(miss)} per target, "
             "which a program does not give"
         )
+    # a backlash's approach direction: the move from the previous target
     direction = np.sign(np.diff(np.vstack([q_t[:1], q_t]), axis=0))
     direction[direction == 0] = 1.0
-    pay = np.full(m, float(payload_kg))
-    comp = bundle.compliance
-    joint_offset = None
-    if comp is not None or effects:
-
-        def joint_offset(qc: np.ndarray, rows: np.ndarray) -> np.ndarray:
-            dq = np.zeros_like(qc)
-            if comp is not None:
-                dq += np.asarray(comp.joint_offsets(qc, pay[rows], None, None), dtype=float)
-            if effects:
-                dq += effect_offsets(effects, robot, qc, pay[rows], None, None, direction[rows])
-            return dq
-
-    kw = dict(
-        max_iter=sv.max_iter,
-        tol_mm=sv.tol_mm,
-        tol_rad=np.deg2rad(sv.tol_deg),
-        max_step_rad=np.deg2rad(sv.max_step_deg),
-    )
-    # targets grouped by tool (the engine takes one tool per call)
-    q_c = np.empty_like(q_t)
-    err_b = np.empty(m)
-    resid = np.empty(m)
-    conv = np.empty(m, dtype=bool)
-    keys = [tools_prog[k].tobytes() + tools_true[k].tobytes() for k in range(m)]
-    for key in dict.fromkeys(keys):
-        rows = np.array([k for k in range(m) if keys[k] == key])
-        tp, tt = tools_prog[rows[0]], tools_true[rows[0]]
-        p_des, R_des, _, _ = forward(cc_nom, q_t[rows], tp)
-
-        jo = None
-        if joint_offset is not None:
-            f = joint_offset
-
-            def jo(qc: np.ndarray, r: np.ndarray, rows: np.ndarray = rows, f: Any = f) -> np.ndarray:
-                return f(qc, rows[r])
-
-        sol = solve(cc, tt, q_t[rows], p_des, R_des, jo, **kw)
-        q_c[rows] = sol.q
-        err_b[rows] = np.linalg.norm(sol.error_before_mm, axis=1)
-        resid[rows] = np.linalg.norm(sol.residual_mm, axis=1)
-        conv[rows] = sol.converged
-
-    mg = np.deg2rad(sf.joint_limit_margin_deg)
-    lo, hi = limits[:, 0] + mg, limits[:, 1] - mg
-    out_j = (q_t < lo) | (q_t > hi) | (q_c < lo) | (q_c > hi)
-    dq_deg = np.rad2deg(q_c - q_t)
-    big = np.abs(dq_deg).max(axis=1)
-    too_big = (big > sf.max_correction_deg) | (err_b > sf.max_error_mm)
-    bad_conv = ~conv | (resid > sf.max_residual_mm)
-    status: list[str] = []
-    reasons: list[list[str]] = []
-    for k in range(m):
-        r = list(reasons_all)
-        refuse = refuse_all
-        if bad_conv[k]:
-            r.append(f"compensation did not converge (residual {resid[k]:.4g} mm; near a singularity?)")
-            refuse = True
-        if out_j[k].any():
-            js = np.flatnonzero(out_j[k])
-            r.append(
-                "outside the joint limits: "
-                + ", ".join(
-                    f"{robot.joint_names[j]}={np.rad2deg(q_t[k, j]):.4f} deg (corrected {np.rad2deg(q_c[k, j]):.4f})"
-                    for j in js
-                )
-            )
-            refuse |= sf.on_joint_limits == "refuse"
-        if too_big[k]:
-            r.append(
-                f"correction {big[k]:.4g} deg / predicted error {err_b[k]:.4g} mm exceeds the bound "
-                f"({sf.max_correction_deg} deg / {sf.max_error_mm} mm)"
-            )
-            refuse |= sf.on_correction_bound == "refuse"
-        status.append("refused" if refuse else ("flagged" if r else "ok"))
-        reasons.append(r)
+    offsets = compose(effects, Signals(np.full(m, float(payload_kg)), direction=direction))
+    c = correct_targets(
+        cc, cc_nom, tools_true, tools_prog, q_t, zero_offsets(bundle.chain, eta), offsets, limits,
+        robot.joint_names, solver=solver, policy=sf, request_reasons=reasons_all,
+    )  # fmt: skip
+    q_c = c.q
+    err_b = np.linalg.norm(c.error_before_mm, axis=1)
+    resid = np.linalg.norm(c.residual_mm, axis=1)
+    status, reasons = c.status, c.reasons
 
     # the commands, written back
     from robocal.cell.programs import krl, rapid
@@ -387,11 +322,7 @@ def filter_program(
             T = np.eye(4)
             T[:3, :3], T[:3, 3] = R[0], p[0]
             new["T_base_tcp"] = inv_transform(t.base) @ T
-            if prog.dialect == "krl":
-                s, tt = kuka_status_turn(cc_nom, q_c[k][None], int(t.config.get("S", 0)))
-                new["S"], new["T"] = int(s[0]), int(tt[0])
-            else:
-                new["cf"] = abb_confdata(cc_nom, q_c[k][None])[0].tolist()
+            new.update(written_config(prog.dialect, cc_nom, q_c[k], t.config))
         edits.setdefault(t.file, []).append((t.span[0], t.span[1], render(t, new)))
     texts = {p: apply_edits(txt, edits.get(p, [])) for p, txt in prog.texts.items()}
     table = _table(prog.targets, robot, status, reasons, q_t, q_c, err_b, resid)

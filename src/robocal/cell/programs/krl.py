@@ -405,7 +405,8 @@ def render(t: Target, new: dict[str, Any]) -> str:
     vals: dict[str, str] = dict(t.data["vals"])
     if t.kind == "pose":
         T = new["T_base_tcp"]
-        a, b, c = abc_deg(T[:3, :3])
+        # the representation nearest to the target's own A, B, C (a tool-down B = 90 keeps its A and C)
+        a, b, c = abc_deg(T[:3, :3], near=(float(vals["a"]), float(vals["b"]), float(vals["c"])))
         for k, v in zip(_POSE_KEYS, [*T[:3, 3], a, b, c], strict=True):
             vals[k] = format_number(float(v), 4 if k in "xyz" else 5)
         for k in ("S", "T"):

@@ -16,7 +16,7 @@ from robocal.kinematics.transforms import inv_transform, matrix_to_quat
 
 
 def _pose_targets(cc_nom: Any, q: np.ndarray, tool: np.ndarray, base: np.ndarray) -> np.ndarray:
-    from robocal.serve.engine import forward
+    from robocal.kinematics.ik import forward
 
     p, R, _, _ = forward(cc_nom, q, tool)
     T = np.tile(np.eye(4), (len(q), 1, 1))

@@ -1,5 +1,12 @@
 """Differential error compensation: joint corrections that make the real robot reach the nominal pose.
 
+The one compensation path of robocal: the Newton solver (:mod:`robocal.kinematics.ik`), the joint-space effects
+composed once (:mod:`robocal.compensation.effects`), the one safety policy and its per-target statuses
+(:mod:`robocal.compensation.safety`), the correction the service and the program filter share
+(:mod:`robocal.compensation.correct`) and the one controller CSV (:mod:`robocal.compensation.controller_csv`).
+This module keeps the reference API over an :class:`ActualRobot` that the thermal, compliance and discovery
+workflows use.
+
 The controller plans with its nominal kinematics: for a target ``q_target`` it expects the tool frame
 at ``desired = tracker_T_base · FK_nominal(q_target) · flange_T_tool``. The real robot (calibrated
 kinematic errors, plus thermal drift or joint deflection predicted for the moment) reaches
@@ -13,15 +20,14 @@ All arrays are batched over targets: ``q`` is ``(m, n)`` rad, positions ``(m, 3)
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from robocal.io import atomic_write
 from robocal.kinematics.chain import Chain, ChainState, propagate
-from robocal.kinematics.transforms import matrix_to_quat
 
 
 @dataclass(frozen=True)
@@ -57,7 +63,8 @@ class Compensation:
     q_target : (m, n) the requested joints; q : (m, n) corrected joint targets, rad;
     converged : (m,) bool; residual_mm : (m, 3) predicted position error after compensation;
     residual_rad : (m, 3) predicted orientation error (rotation vector);
-    error_before_mm / error_before_rad : the same without compensation; iterations : int.
+    error_before_mm / error_before_rad : the same without compensation; iterations : int; status / reasons :
+    the safety policy's verdict per target when judged (:func:`judge_compensation`).
     """
 
     q_target: np.ndarray
@@ -68,6 +75,8 @@ class Compensation:
     error_before_mm: np.ndarray
     error_before_rad: np.ndarray
     iterations: int
+    status: list[str] | None = None
+    reasons: list[list[str]] | None = None
 
     @property
     def correction_rad(self) -> np.ndarray:
@@ -96,15 +105,15 @@ def compensate(
 
     With ``R_desired`` the full 6-D tool pose is matched (6 equations, a square system for a 6-axis
     arm); without it only the tool position (minimum-norm joint correction). ``max_step_rad`` and ``stall``
-    as :func:`robocal.serve.engine.solve` (inverse kinematics over a large move: a larger step, no stall rule).
+    as :func:`robocal.kinematics.ik.solve` (inverse kinematics over a large move: a larger step, no stall rule).
 
-    One Newton for everything: this is the online service's solver (:func:`robocal.serve.engine.solve`, the
+    One Newton for everything: this is the online service's solver (:func:`robocal.kinematics.ik.solve`, the
     chain folded at ``actual.eta`` and the tracker frame; damped normal equations, steps clipped, a target that
     stops converging near a singularity reported unconverged), so the controller CSV, the thermal and compliance
     compensation, program filtering and the service give the same corrections.
     """
+    from robocal.kinematics.ik import compile_chain, solve
     from robocal.kinematics.transforms import homogeneous
-    from robocal.serve.engine import compile_chain, solve
 
     q0 = np.asarray(q_target, dtype=float)
     cc = compile_chain(actual.chain, np.asarray(actual.eta, dtype=float), actual.tracker_T_base)
@@ -133,42 +142,82 @@ def compensate(
     )
 
 
+def judge_compensation(
+    actual: ActualRobot,
+    comp: Compensation,
+    p_desired: np.ndarray,
+    policy: Any = None,
+    q_limits: np.ndarray | None = None,
+    joint_names: Sequence[str] | None = None,
+) -> tuple[list[str], list[list[str]]]:
+    """Status and reasons of every target of ``comp`` under the one safety policy
+    (:class:`robocal.compensation.safety.SafetyPolicy`, default its defaults): the correction beyond the
+    calibration's own joint-space correction (minus the zero offsets of ``actual.eta``, minus the joint offset at
+    the corrected joints) and the error ``actual`` makes after that own correction against ``p_desired`` (m, 3),
+    each the smaller of it and the whole correction / error."""
+    from robocal.compensation.correct import zero_offsets
+    from robocal.compensation.safety import SafetyPolicy
+
+    pol = policy if policy is not None else SafetyPolicy()
+    q_t, q = comp.q_target, comp.q
+    zero = zero_offsets(actual.chain, actual.eta)
+
+    def own(qq: np.ndarray) -> np.ndarray:
+        o = np.broadcast_to(-zero, qq.shape)
+        return o if actual.joint_offset is None else o - np.asarray(actual.joint_offset(qq), dtype=float)
+
+    whole = np.rad2deg(np.abs(q - q_t).max(axis=1))
+    excess = np.minimum(whole, np.rad2deg(np.abs(q - q_t - own(q)).max(axis=1)))
+    p_own, _, _ = actual.pose(q_t + own(q_t))
+    before = np.linalg.norm(comp.error_before_mm, axis=1)
+    rest = np.minimum(before, np.linalg.norm(p_own - np.asarray(p_desired, dtype=float), axis=1))
+    n = q.shape[1]
+    ql = np.asarray(q_limits, dtype=float) if q_limits is not None else np.tile([-np.inf, np.inf], (n, 1))
+    names = list(joint_names) if joint_names is not None else [f"q{j + 1}" for j in range(n)]
+    return pol.judge(
+        comp.converged,
+        comp.residual_mm,
+        comp.residual_rad,
+        excess,
+        rest,
+        q_t,
+        q,
+        ql,
+        names,
+    )
+
+
 def write_compensation_csv(
     path: str | Path,
-    target_ids: list[str] | np.ndarray,
+    target_ids: Sequence[str] | np.ndarray,
     q_corrected: np.ndarray,
     command_T: np.ndarray,
     predicted_error_mm: np.ndarray,
     predicted_error_deg: np.ndarray | None = None,
+    status: Sequence[str] | np.ndarray | None = None,
+    reason: Sequence[str] | np.ndarray | None = None,
+    correction_max_deg: np.ndarray | None = None,
 ) -> Path:
-    """A CSV a cell controller can consume: one row per target.
+    """The one controller CSV (:func:`robocal.compensation.controller_csv.write_controller_csv`, columns
+    :data:`~robocal.compensation.controller_csv.CSV_COLUMNS`) of joints ``q_corrected`` (m, n) rad to send,
+    their Cartesian command ``command_T`` (m, 4, 4) and the predicted error when sent (``predicted_error_mm``
+    (m, 3), ``predicted_error_deg`` (m, 3) rad rotation vectors or None). ``status`` / ``reason`` (default ok,
+    empty): a refused row must carry the nominal joints; ``correction_max_deg`` (m,) the largest joint
+    correction computed (default 0)."""
+    from robocal.compensation.controller_csv import write_controller_csv
 
-    Columns: ``target_id``, ``q1_deg..qN_deg`` (corrected joints), ``x_mm, y_mm, z_mm, qw, qx, qy, qz``
-    (corrected Cartesian command, robot base frame), ``pred_err_mm`` (and ``pred_err_deg``).
-    """
-    q = np.rad2deg(np.asarray(q_corrected, dtype=float))
-    quat = matrix_to_quat(command_T[:, :3, :3])
-    head = [
-        "target_id",
-        *[f"q{j + 1}_deg" for j in range(q.shape[1])],
-        "x_mm",
-        "y_mm",
-        "z_mm",
-        "qw",
-        "qx",
-        "qy",
-        "qz",
-        "pred_err_mm",
-    ]
-    if predicted_error_deg is not None:
-        head.append("pred_err_deg")
-    lines = [",".join(head)]
-    err = np.linalg.norm(np.atleast_2d(predicted_error_mm), axis=1)
-    erd = None if predicted_error_deg is None else np.linalg.norm(np.atleast_2d(predicted_error_deg), axis=1)
-    for k, tid in enumerate(target_ids):
-        vals = [str(tid)] + [f"{v:.6f}" for v in q[k]] + [f"{v:.6f}" for v in command_T[k, :3, 3]]
-        vals += [f"{v:.9f}" for v in quat[k]] + [f"{err[k]:.6f}"]
-        if erd is not None:
-            vals.append(f"{erd[k]:.6f}")
-        lines.append(",".join(vals))
-    return atomic_write(path, lambda p: p.write_text("\n".join(lines) + "\n"))
+    m = len(target_ids)
+    st = list(status) if status is not None else ["ok"] * m
+    applied = np.array([s != "refused" for s in st], dtype=bool)
+    return write_controller_csv(
+        path,
+        target_ids,
+        q_corrected,
+        command_T,
+        predicted_error_mm,
+        predicted_error_deg,
+        st,
+        applied,
+        np.zeros(m) if correction_max_deg is None else correction_max_deg,
+        list(reason) if reason is not None else [""] * m,
+    )

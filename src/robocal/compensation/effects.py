@@ -1,0 +1,118 @@
+"""Joint-space effects: the one place where what deflects the joints is composed for a correction.
+
+A joint-space effect predicts ``dq (m, n)`` rad added to the commanded joints (``q_real = q_cmd + dq``) from the
+commanded joints and the per-target :class:`Signals` (payload, reported torques or currents, approach
+direction). The calibration's own joint-space corrections are the sum of the effects of a bundle or a
+calibration (:func:`joint_effects`: compliance model, discovered joint-level effects, ...), composed by
+:func:`compose` into one :class:`JointOffsets` that the Newton solver (:func:`robocal.kinematics.ik.solve`)
+calls.
+
+A new effect (a per-joint periodic gear error, a residual layer on the joint angles) is a class with a
+``name``, the ``needs`` it has among :data:`SIGNALS` and ``offsets(q, signals) -> dq`` (the protocol
+:class:`JointEffect`); listed once in :meth:`robocal.serve.bundle.Bundle.joint_effects` it reaches the service
+and the program filter (both through :func:`robocal.compensation.correct.correct_targets`), and the safety
+policy counts it as the calibration's own correction (:mod:`robocal.compensation.safety`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import numpy as np
+
+#: the per-target signals an effect may need besides the joints and the payload
+SIGNALS = ("tau_Nm", "current_A", "direction")
+
+
+@dataclass(frozen=True)
+class Signals:
+    """Per-target signals: ``payload_kg`` (m,); ``tau_Nm`` / ``current_A`` (m, n) as the controller reports
+    them; ``direction`` (m, n) the approach direction (+-1) of each joint. None = not given."""
+
+    payload_kg: np.ndarray
+    tau_Nm: np.ndarray | None = None
+    current_A: np.ndarray | None = None
+    direction: np.ndarray | None = None
+
+    def rows(self, rows: np.ndarray) -> Signals:
+        """The signals of the targets ``rows``."""
+        return Signals(
+            self.payload_kg[rows],
+            None if self.tau_Nm is None else self.tau_Nm[rows],
+            None if self.current_A is None else self.current_A[rows],
+            None if self.direction is None else self.direction[rows],
+        )
+
+    def given(self) -> set[str]:
+        return {k for k in SIGNALS if getattr(self, k) is not None}
+
+
+class JointEffect(Protocol):
+    """A joint-space effect: ``offsets(q (k, n), signals of those k targets) -> dq (k, n)`` rad."""
+
+    @property
+    def name(self) -> str: ...
+
+    @property
+    def needs(self) -> frozenset[str]: ...
+
+    def offsets(self, q: np.ndarray, s: Signals) -> np.ndarray: ...
+
+
+@dataclass(frozen=True)
+class ComplianceEffect:
+    """A compliance model (:class:`robocal.compliance.model.ComplianceModel`, or anything with its
+    ``joint_offsets(q, payload_kg, current_A, tau_Nm)``): joint deflection under load."""
+
+    model: Any
+    name: str = "compliance"
+    needs: frozenset[str] = frozenset()
+
+    def offsets(self, q: np.ndarray, s: Signals) -> np.ndarray:
+        return np.asarray(self.model.joint_offsets(q, s.payload_kg, s.current_A, s.tau_Nm), dtype=float)
+
+
+def joint_effects(compliance: Any = None, *effects: JointEffect | None) -> list[JointEffect]:
+    """The joint-space effects in the order they are summed: the compliance model (a model with
+    ``joint_offsets``, wrapped in :class:`ComplianceEffect`), then ``effects`` (None entries skipped): the
+    discovered joint-level effects (:class:`robocal.discovery.effects.DiscoveredEffects`) and any new one.
+    :meth:`robocal.serve.bundle.Bundle.joint_effects` is where a bundle's effects are listed."""
+    out: list[JointEffect] = []
+    if compliance is not None:
+        out.append(ComplianceEffect(compliance))
+    out.extend(e for e in effects if e is not None)
+    return out
+
+
+def needs(effects: Sequence[JointEffect]) -> set[str]:
+    """The signals (of :data:`SIGNALS`) the effects need."""
+    return set().union(*(set(e.needs) for e in effects)) if effects else set()
+
+
+@dataclass(frozen=True)
+class JointOffsets:
+    """The sum of the effects at commanded joints, for the targets the Newton solver asks about:
+    ``self(q (k, n), rows (k,)) -> dq (k, n)`` (the :data:`robocal.kinematics.ik.JointOffset` hook)."""
+
+    effects: tuple[JointEffect, ...]
+    signals: Signals
+
+    def __call__(self, q: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
+        s = self.signals if rows is None else self.signals.rows(rows)
+        dq = np.zeros_like(q)
+        for e in self.effects:
+            dq += e.offsets(q, s)
+        return dq
+
+
+def compose(effects: Sequence[JointEffect], signals: Signals) -> JointOffsets | None:
+    """One :class:`JointOffsets` for ``effects`` with the targets' ``signals``; None without effects. A signal an
+    effect needs and that is not given is an error naming the effects and the signals (ValueError)."""
+    if not effects:
+        return None
+    missing = sorted(needs(effects) - signals.given())
+    if missing:
+        raise ValueError(f"the joint-space effects {[e.name for e in effects]} need {missing} with every target")
+    return JointOffsets(tuple(effects), signals)
