@@ -123,3 +123,18 @@ def test_grow_off_keeps_the_library_search(tmp_path):
     cfg = DiscoveryConfig.from_mapping({"grow_max_steps": 0, "layer": False})
     res = discover(camp, robot, cfg)
     assert not any(st.label and "cross-validated" in st.label for st in res.steps)
+
+
+def test_layer_coverage_says_where_the_layer_applies():
+    from robocal.discovery.effects import joint_offsets, layer_coverage
+
+    robot = load_robot("kr16_2")
+    centres = np.zeros((1, 6))
+    rec = {"key": "layer:j2", "effect": "layer", "joint": 2, "signal": "layer", "coefficients": [1e-3],
+           "centres_rad": centres.tolist(), "length_rad": 0.2, "inside_rad": 0.1}  # fmt: skip
+    q = np.array([[0.0] * 6, [0.15, 0, 0, 0, 0, 0], [1.0, 0, 0, 0, 0, 0]])
+    cover = layer_coverage([rec], q)
+    assert cover is not None and cover == pytest.approx([1.0, 0.5 * (1 + np.cos(np.pi * 0.25)), 0.0])
+    dq = joint_offsets([rec], robot, q)
+    assert dq[2, 1] == 0.0 and dq[0, 1] == pytest.approx(1e-3)  # outside: the parametric correction only
+    assert layer_coverage([], q) is None

@@ -191,6 +191,20 @@ def joint_offsets(
     return dq
 
 
+def layer_coverage(effects: list[dict[str, Any]], q: np.ndarray) -> np.ndarray | None:
+    """``(m,)`` in [0, 1]: how much of the residual layer applies at joints ``q (m, n)`` rad (1 inside the
+    calibrated region, 0 outside: the parametric correction alone), or None when the effects have no layer."""
+    from robocal.discovery.physics import layer_signal
+
+    layer = [e for e in effects if e.get("signal") == "layer"]
+    if not layer:
+        return None
+    return layer_signal(np.atleast_2d(np.asarray(q, dtype=float)), layer[0])[1]
+
+
+LAYER_NOTE = "outside the calibrated region: the residual layer is not applied (parametric correction only)"
+
+
 def needs(effects: list[dict[str, Any]]) -> set[str]:
     """The per-target signals the effects need besides the joints: ``tau_Nm``, ``current_A``, ``dir``."""
     names = {"torque": "tau_Nm", "current": "current_A", "direction": "dir"}

@@ -49,6 +49,8 @@ Reply to ``correct``::
      "results": [
         {"status": "ok" | "flagged" | "refused",
          "reasons": ["..."],                    # only when flagged or refused
+         "notes": ["..."],                      # only where the bundle's residual layer does not apply
+                                                # (outside the calibrated region: parametric correction only)
          "predicted_error_mm": 0.83,            # |tool position error| uncompensated, mm
          "predicted_error_xyz_mm": [dx, dy, dz],
          "predicted_error_deg": 0.004,          # uncompensated orientation error, deg
