@@ -33,6 +33,13 @@ def run(args: argparse.Namespace) -> int:
         f"discover: named [{named or 'nothing'}]; RMS {s['rms_before_mm']:.4f} -> {s['rms_after_mm']:.4f} mm "
         f"(noise floor {s['noise_floor_mm']:.4f}); unexplained: {s['unexplained']}"
     )
+    g = s.get("geometric_calibration")
+    if g:
+        print(
+            f"geometric model (as robocal calibrate): RMS {g['rms_position_mm']:.4f} mm on {g['n_rows']} rows, "
+            f"gross-error rows {g['outlier_rows'] or 'none'}; the search weights by the noise the data show "
+            f"({g['noise_used_mm']:.4f} mm)"
+        )
     from robocal.identification.robust import outlier_line
 
     print(outlier_line(s.get("outliers", []), s.get("n_rows_total")))

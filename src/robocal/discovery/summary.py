@@ -355,6 +355,17 @@ def summary(res: DiscoveryResult, validation: dict[str, Any] | None = None) -> d
     }
     if res.unexplained:
         out["unexplained_where"] = locate(res)
+    geo = res.extra.get("geometric_calibration")
+    if geo is not None:
+        # robocal calibrate's own figures on the same campaign (its rows, noise and gross errors), to read the
+        # discovery against: the search's first step refits that geometry with the discovery's weights
+        out["geometric_calibration"] = {
+            "rms_position_mm": geo.fit.get("rms_position_mm"),
+            "noise_floor_rms_mm": geo.fit.get("noise_floor_rms_mm"),
+            "noise_used_mm": (geo.fit.get("noise") or {}).get("used_mm"),
+            "n_rows": int(np.sum(geo.extra["kept"])),
+            "outlier_rows": [o["row"] for o in geo.fit.get("outliers", [])],
+        }
     cv = res.extra.get("cv") or {}
     if cv:
         out["cross_validation"] = {k: v for k, v in cv.items() if k != "effects"}
