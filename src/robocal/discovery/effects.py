@@ -129,6 +129,7 @@ def joint_offsets(
     m, n = q.shape
     dq = np.zeros((m, n))
     grav = None
+    Yg: np.ndarray | None = None
     for e in effects:
         j = int(e["joint"]) - 1
         c = np.asarray(e["coefficients"], dtype=float)
@@ -146,9 +147,11 @@ def joint_offsets(
 
             S = transmission_signal(q[:, j], e)
         elif kind == "weight":
-            from robocal.discovery.physics import weight_signal
+            from robocal.discovery.physics import gravity_regressor
 
-            S = weight_signal(robot, q, e)
+            if Yg is None:  # one regressor for every joint's weight effect
+                Yg = gravity_regressor(robot, q)
+            S = Yg[:, j, :] @ np.asarray(e["basis"], dtype=float) / np.asarray(e["scale"], dtype=float)
         elif kind == "layer":
             from robocal.discovery.physics import layer_signal
 

@@ -90,9 +90,19 @@ def coverage_weight(q_rad: np.ndarray, intervals: list[list[float]], taper_deg: 
 
 def fourier_signal(q_rad: np.ndarray, harmonics: np.ndarray, weight: np.ndarray | None = None) -> np.ndarray:
     """``S (m, 2H)``: ``[sin(h q) ..., cos(h q) ...]`` for the harmonics ``h`` (times ``weight`` when given)."""
-    q = np.asarray(q_rad, dtype=float)[:, None]
-    h = np.asarray(harmonics, dtype=float)[None, :]
-    S = np.concatenate([np.sin(h * q), np.cos(h * q)], axis=1)
+    q = np.asarray(q_rad, dtype=float)
+    h = np.asarray(harmonics, dtype=int)
+    if len(h) and np.array_equal(h, np.arange(h[0], h[0] + len(h))):
+        # consecutive harmonics: e^{i h q} by repeated multiplication (one sin/cos per pose; the service and
+        # compensation.csv evaluate tens of harmonics per Newton step), exact to ~len(h) ulp
+        z = np.exp(1j * q)
+        Z = np.empty((len(q), len(h)), dtype=complex)
+        Z[:, 0] = np.exp(1j * h[0] * q)
+        for k in range(1, len(h)):
+            Z[:, k] = Z[:, k - 1] * z
+        S = np.concatenate([Z.imag, Z.real], axis=1)
+    else:
+        S = np.concatenate([np.sin(h[None, :] * q[:, None]), np.cos(h[None, :] * q[:, None])], axis=1)
     return S if weight is None else S * np.asarray(weight, dtype=float)[:, None]
 
 
