@@ -13,8 +13,6 @@ import ast
 from collections import defaultdict
 from pathlib import Path
 
-import pytest
-
 SRC = Path(__file__).resolve().parents[1] / "src" / "robocal"
 
 #: lowest first; a package may import its own layer and the layers below it
@@ -113,12 +111,15 @@ def _imports(path: Path, api: dict[str, str]) -> set[str]:
                 base = SRC.parent.joinpath(*node.module.split("."))
                 for a in node.names:  # from robocal.pkg import submodule
                     sub = base / a.name
-                    mods.add(f"{node.module}.{a.name}" if sub.with_suffix(".py").is_file() or sub.is_dir() else node.module)
+                    mods.add(
+                        f"{node.module}.{a.name}" if sub.with_suffix(".py").is_file() or sub.is_dir() else node.module
+                    )
     if bare_robocal:  # robocal.<name> attribute uses through the facade
         for node in ast.walk(tree):
-            if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id == "robocal":
-                if node.attr in api:
-                    mods.add(api[node.attr])
+            if not (isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name)):
+                continue
+            if node.value.id == "robocal" and node.attr in api:
+                mods.add(api[node.attr])
     return mods
 
 
@@ -230,5 +231,7 @@ def test_the_module_exceptions_are_still_needed():
 def test_the_checker_sees_an_upward_import(tmp_path):
     """The parser finds imports inside functions and through the facade (so a clean run means something)."""
     f = tmp_path / "m.py"
-    f.write_text("import robocal\n\ndef g():\n    from robocal.workflows.geometric import x\n    return robocal.simulate\n")
+    f.write_text(
+        "import robocal\n\ndef g():\n    from robocal.workflows.geometric import x\n    return robocal.simulate\n"
+    )
     assert _imports(f, _api()) == {"robocal.workflows.geometric", "robocal.sim.twin"}

@@ -566,7 +566,7 @@ def _rigid_fit(
     return robust.least_squares_on(fun, x, rigid, weights, rows, kept, max_iter=100, ftol=1e-14, xtol=1e-12, lam0=0.0).x
 
 
-def calibrate(
+def calibrate(  # noqa: C901, PLR0915
     campaign: Campaign,
     robot: RobotDescription,
     config: CalibrationConfig | None = None,
