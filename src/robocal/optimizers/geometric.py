@@ -239,8 +239,9 @@ def fit_with_optimizer(
     t2 = time.perf_counter()
     x_raw = search.full(res.x)
     at = fit_from(start, solve_at(x_raw))  # the statistics at the optimizer's point ...
-    raw = replace(  # ... with the optimizer's own figures
+    raw = replace(  # ... with the optimizer's own figures; its config says the least-squares core made no step
         at,
+        config=replace(at.config, max_iter=0),
         fit={
             **at.fit,
             "nit": res.nit,
@@ -265,7 +266,11 @@ def fit_with_optimizer(
         "polish_s": time.perf_counter() - t3 if polished is not None else 0.0,
     }
     if polished is not None:  # the final result's time is the whole fit: method + polish
-        polished = replace(polished, fit={**polished.fit, "wall_time_s": raw.fit["wall_time_s"] + times["polish_s"]})
+        polished = replace(
+            polished,
+            config=replace(polished.config, **POLISH),  # the settings of the polish (its stopping rules)
+            fit={**polished.fit, "wall_time_s": raw.fit["wall_time_s"] + times["polish_s"]},
+        )
     return FitOutcome(name, polished or raw, raw, polished, res, options, times)
 
 
