@@ -39,7 +39,7 @@ def rss_kb(pid: int) -> int:
 def make_bundle(d: Path) -> Path:
     from robocal.data import read_campaign
     from robocal.robot import load_robot
-    from robocal.serve.closed_loop import build_bundle
+    from robocal.sim.closed_loop import build_bundle
     from robocal.sim.twin import load_scenario, simulate
 
     robot = load_robot("kr16_2")

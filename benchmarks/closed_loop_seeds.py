@@ -16,7 +16,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
 
-from robocal.serve.closed_loop import run_closed_loop
+from robocal.sim.closed_loop import run_closed_loop
 
 
 def main() -> None:

@@ -3,7 +3,7 @@
     python benchmarks/compare_paper.py [--runs 10] [--populations 500 1000 1500] [--max-iter 200]
                                        [--stop auto|<mm>|none] [--objective nonlinear|linearized] [--out DIR]
 
-Same code as ``stages/compare_optimizers.py`` (robocal.workflows.optimizers.compare_optimizers) on a fresh
+Same code as ``stages/compare_optimizers.py`` (experiments/optimizer_comparison.py) on a fresh
 twin campaign (KR16-2 geometric scenario, 100 poses by default), without MLflow; writes the HTML report and
 CSV tables to ``--out`` (default reports/benchmarks/compare_paper).
 """
@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 import tempfile
 from pathlib import Path
 
@@ -23,14 +24,16 @@ from robocal.data.contract import read_campaign
 from robocal.identification.calibrate import CalibrationConfig
 from robocal.robot import load_robot
 from robocal.sim.twin import load_scenario, simulate
-from robocal.workflows.optimizers import (
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "experiments"))  # the experiment's code (experiments/optimizer_comparison.py)
+
+from optimizer_comparison import (  # noqa: E402
     CompareSettings,
     compare_optimizers,
     comparison_report,
     write_comparison,
 )
-
-ROOT = Path(__file__).resolve().parents[1]
 
 
 def main() -> None:

@@ -1,6 +1,6 @@
 """compare_optimizers: the thermal paper's optimizer comparison (section 3.2, fig. 4) on the interim campaign.
 
-Improved GOA vs GOA vs WOA on the geometric calibration (robocal.workflows.optimizers.compare_optimizers): every
+Improved GOA vs GOA vs WOA on the geometric calibration (experiments/optimizer_comparison.py): every
 algorithm x population x run, each run a nested MLflow run (time, iterations, error, convergence curve); writes
 ``reports/compare_optimizers/`` (runs.csv, table.csv, summary.json, report.html with fig.-4-like plots).
 
@@ -10,6 +10,8 @@ algorithm x population x run, each run a nested MLflow run (time, iterations, er
 
 from __future__ import annotations
 
+import sys
+from pathlib import Path
 from typing import Any
 
 from common import Context, Metrics, Stage, run
@@ -23,6 +25,8 @@ STAGE = Stage(
     inline_tracking=True,  # one nested MLflow run per optimizer run, under this stage's run
 )
 INPUT = "data/interim"
+#: The experiment's code (settings, runs, table, paper deltas, report): experiments/optimizer_comparison.py.
+EXPERIMENT_DIR = Path(__file__).resolve().parents[1] / "experiments"
 #: The algorithms' coefficients (their Hydra group files, read as files: a dependency of the stage).
 COEFFICIENTS = "conf/optimizer/{name}.yaml"
 
@@ -40,7 +44,9 @@ def compute(ctx: Context) -> Any:
     from robocal.report.plots import save_figure
     from robocal.robot import robot_from_dict
     from robocal.tracking import StageRun
-    from robocal.workflows.optimizers import (
+
+    sys.path.insert(0, str(EXPERIMENT_DIR))  # the experiment's code lives with the experiment
+    from optimizer_comparison import (
         CompareSettings,
         compare_optimizers,
         comparison_figures,

@@ -1,7 +1,7 @@
 """geometric_fit: geometric calibration of the interim campaign (robocal.workflows.geometric.run).
 
-Reads ``robot``, ``optimizer`` (gn / lm: calibrate() with the optimizer's stopping rules; ipopt / igoa / goa / woa:
-robocal.workflows.optimizers.fit_with_optimizer, raw and polished results both in summary.json and the metrics)
+Reads ``robot``, ``optimizer`` (any registered optimizer, robocal.optimizers.geometric.fit_with_optimizer; for
+ipopt / igoa / goa / woa the raw and polished results both in summary.json and the metrics)
 and ``calibration``; writes ``reports/geometric/``
 (calibration.json, summary.json, residuals.csv, report.html), metrics (errors in mm, and degrees when the
 campaign has orientations; times) and two plots for ``dvc plots show``.
@@ -31,26 +31,16 @@ INPUT = "data/interim"
 
 
 def calibration_settings(cfg: dict[str, Any]) -> tuple[dict[str, Any], bool]:
-    """The CalibrationConfig mapping from the ``calibration`` and ``optimizer`` sections, and ``report``."""
+    """The CalibrationConfig mapping from the ``calibration`` section, and ``report``; the optimizer's name
+    checked (its stopping rules and ``polish`` are read by robocal.optimizers.geometric.fit_with_optimizer)."""
     from robocal.errors import ConfigError
     from robocal.optimizers.registry import registered  # the one list of optimizer names
 
-    opt = cfg["optimizer"]
-    name = opt.get("name")
+    name = cfg["optimizer"].get("name")
     if name not in registered():
         raise ConfigError(f"The config key 'optimizer.name' must be one of {list(registered())}. Got {name!r} instead.")
     settings = dict(cfg["calibration"])
     report = bool(settings.pop("report", True))
-    # the gradient family runs calibrate() itself (robocal.identification.solver); the others (Ipopt, the
-    # population methods) go through robocal.workflows.optimizers.fit_with_optimizer (positions, optional polish)
-    if name not in registered("gradient"):
-        return settings, report
-    if opt.get("polish", False):
-        raise ConfigError("The config key 'optimizer.polish' must be false for a gradient optimizer.")
-    for key in ("max_iter", "ftol", "xtol"):
-        if key not in opt:
-            raise ConfigError(f"The config key 'optimizer.{key}' is missing (optimizer {name!r}).")
-        settings[key] = opt[key]
     return settings, report
 
 

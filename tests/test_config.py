@@ -6,8 +6,10 @@ Each error is a ConfigError in one format: ``<section>.<key>: <what is expected>
 from __future__ import annotations
 
 import re
+import sys
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Literal
 
 import pytest
@@ -204,7 +206,9 @@ def _section_cases() -> list[tuple[Any, dict[str, Any], str]]:
     from robocal.thermal.fit import ThermalConfig
     from robocal.thermal.regression import RegressionConfig
     from robocal.thermal.screening.config import ScreeningConfig, SelectionConfig
-    from robocal.workflows.optimizers import CompareSettings
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments"))  # the experiment's settings
+    from optimizer_comparison import CompareSettings
 
     return [
         (CalibrationConfig, {"outlier_alpha": 2.0}, "calibration.outlier_alpha"),

@@ -7,6 +7,7 @@ The public API (imported lazily: ``import robocal`` itself reads and loads nothi
     robot = robocal.load_robot("kr16_2")                       # or a YAML path
     campaign = robocal.read_campaign("path/to/campaign", robot)  # the data contract, checked
     result = robocal.calibrate(campaign, robot)                # geometric calibration (gross errors handled)
+    other = robocal.calibrate(campaign, robot, optimizer="igoa")  # any registered optimizer (gn lm ipopt goa woa)
     print(result.fit["rms_position_mm"], result.fit["outliers"])
     print(result.solver.redchi, result.solver.bic)              # the fit itself: a FitResult (immutable)
     print(robocal.validate(result, campaign))                  # errors on the validation rows
@@ -31,7 +32,7 @@ _API = {
     "Campaign": "robocal.data.contract:Campaign",
     "load_robot": "robocal.robot:load_robot",
     "RobotDescription": "robocal.robot:RobotDescription",
-    "calibrate": "robocal.identification.calibrate:calibrate",
+    "calibrate": "robocal.optimizers.geometric:calibrate",
     "validate": "robocal.identification.calibrate:validate",
     "CalibrationConfig": "robocal.identification.calibrate:CalibrationConfig",
     "CalibrationResult": "robocal.identification.calibrate:CalibrationResult",

@@ -279,7 +279,7 @@ def _is_union(tp: Any) -> bool:
     return typing.get_origin(tp) in (Union, types.UnionType)
 
 
-def _coerce(tp: Any, v: Any, path: str, meta: Mapping[str, Any]) -> Any:
+def _coerce(tp: Any, v: Any, path: str, meta: Mapping[str, Any]) -> Any:  # noqa: C901
     """``v`` as type ``tp`` with the constraints ``meta`` on its numbers and strings, or a SettingError."""
     v = _plain(v)
     origin = typing.get_origin(tp)

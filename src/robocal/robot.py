@@ -162,7 +162,7 @@ def _vec(value: Any, n: int, where: str) -> np.ndarray:
     return arr
 
 
-def robot_from_dict(data: dict[str, Any], source: str = "<dict>") -> RobotDescription:
+def robot_from_dict(data: dict[str, Any], source: str = "<dict>") -> RobotDescription:  # noqa: C901, PLR0915
     """Build a :class:`RobotDescription` from a parsed YAML mapping; errors name ``source`` and the key."""
     if not isinstance(data, dict):
         raise ConfigError(f"{source}: a robot description must be a mapping")

@@ -72,7 +72,7 @@ def test_service_equals_offline_with_discovered_effects(product):
 
 
 def test_closed_loop_compensates_the_discovered_effects(tmp_path):
-    from robocal.serve.closed_loop_effects import run_discovered_closed_loop
+    from robocal.sim.closed_loop_effects import run_discovered_closed_loop
 
     r = run_discovered_closed_loop(tmp_path, seed=0, n_targets=30)
     e = r["mean_error_mm"]

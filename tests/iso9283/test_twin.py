@@ -131,7 +131,7 @@ def test_thermal_bundle_compensates_the_drift(tmp_path: Path) -> None:
     """A bundle with the thermal model (fitted on the thermal scenario's warm-up campaign) corrects every target at
     the temperatures of its cycle, full pose (the 6-DoF calibration): the drift and the orientation error go."""
     from robocal.robot import load_robot
-    from robocal.serve.closed_loop import build_bundle
+    from robocal.sim.closed_loop import build_bundle
     from robocal.sim.twin import simulate
 
     simulate(load_scenario("thermal"), tmp_path / "warm_up")

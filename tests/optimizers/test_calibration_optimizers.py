@@ -21,10 +21,10 @@ from robocal.identification.model import CalibrationModel, FitData
 from robocal.optimizers import GaussNewton, Ipopt, make_optimizer, pipeline_options
 from robocal.optimizers.calibration import calibration_problem
 from robocal.optimizers.fastfk import HAVE_NUMBA, PopulationPositions
+from robocal.optimizers.geometric import fit_with_optimizer, noise_floor
 from robocal.optimizers.ipopt import cache_info
 from robocal.optimizers.protocol import evaluate_batch
 from robocal.sim.twin import load_scenario, simulate
-from robocal.workflows.optimizers import fit_with_optimizer, noise_floor
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -94,7 +94,7 @@ def _origin_mm(T: np.ndarray | None) -> np.ndarray:
     return out
 
 
-def chain_path(urdf: Any, base: str | None, tip: str | None, source: str) -> tuple[str, str, list[UrdfJoint]]:
+def chain_path(urdf: Any, base: str | None, tip: str | None, source: str) -> tuple[str, str, list[UrdfJoint]]:  # noqa: C901
     """The joints from ``base`` to ``tip`` (defaults: the root link; the end of the only actuated path)."""
     links = set(urdf.link_map)
     by_child = {j.child: j for j in urdf.joint_map.values()}
@@ -281,7 +281,7 @@ def _tool_elements(tools: dict[str, np.ndarray]) -> list[tuple[str, np.ndarray]]
     return [(f"robocal_tool_{name}", T) for name, T in tools.items()]
 
 
-def write_calibrated_urdf(
+def write_calibrated_urdf(  # noqa: C901, PLR0915
     robot: RobotDescription,
     eta: np.ndarray,
     out_path: str | Path,

@@ -65,11 +65,11 @@ def run(args: argparse.Namespace) -> int:
     if keys is not None and not isinstance(keys, dict):
         raise ConfigError(f"The setting 'optimizer' must be a name or optimizer.<key>=<value>. Got {keys!r} instead.")
     optimizer = optimizer_config({**(keys or {}), "name": named[-1]} if named else keys)
-    from robocal.optimizers.registry import registered
+    from robocal.optimizers.geometric import GRADIENT_KEYS, is_gradient
 
-    if optimizer is not None and optimizer.get("name") in registered("gradient"):
-        for key in ("max_iter", "ftol", "xtol"):  # calibrate()'s stopping rules, as in the pipeline
-            ov.setdefault(key, optimizer[key])
+    if optimizer is not None and is_gradient(optimizer):
+        # calibrate()'s stopping rules come from the optimizer config; calibration overrides of them win
+        optimizer.update({key: ov[key] for key in GRADIENT_KEYS if key in ov})
     summary = geometric.run(
         args.data_dir, args.robot, args.out, ov, split=split, report=not args.no_report, optimizer=optimizer
     )

@@ -25,10 +25,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from robocal.serve.closed_loop import main_summary_line, run_closed_loop, write_report
+    from robocal.sim.closed_loop import main_summary_line, run_closed_loop, write_report
 
     if args.scenario == "discovered":
-        from robocal.serve.closed_loop_effects import run_discovered_closed_loop
+        from robocal.sim.closed_loop_effects import run_discovered_closed_loop
 
         r = run_discovered_closed_loop(args.out, seed=args.seed, n_targets=args.targets)
         e = r["mean_error_mm"]

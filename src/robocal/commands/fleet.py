@@ -31,7 +31,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("overrides", nargs="*", help="settings key=value, e.g. drift.alpha=0.05 twin.n_poses=60")
 
 
-def run(args: argparse.Namespace) -> int:
+def run(args: argparse.Namespace) -> int:  # noqa: C901
     from pathlib import Path
 
     from robocal.commands import parse_overrides

@@ -337,7 +337,7 @@ def _optional_block(df: pd.DataFrame, fmt: str, n: int, path: Path) -> np.ndarra
     return np.column_stack([_numeric(df, c, path) for c in names])
 
 
-def read_campaign(
+def read_campaign(  # noqa: C901, PLR0915
     data_dir: str | Path,
     robot: RobotDescription,
     split: SplitConfig | Mapping[str, Any] | None = None,

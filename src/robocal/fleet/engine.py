@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import Any
 
 from robocal.errors import ConfigError, RobocalError
-from robocal.fleet.layout import Fleet, RobotFolder
+from robocal.fleet.layout import Fleet, RobotFolder, campaign_dir
 
 #: keys of the calibration's ``fit`` that are timings (never written: outputs must not depend on the machine)
 TIMING_KEYS = ("wall_time_s", "solver_time_s", "elapsed_s", "time_s")
@@ -76,10 +76,6 @@ def campaign_key(robot: RobotFolder, campaign_sha256: str, calibration: Mapping[
         sort_keys=True,
     )
     return hashlib.sha256(blob.encode()).hexdigest()
-
-
-def campaign_dir(out_dir: str | Path, serial: str, campaign: str) -> Path:
-    return Path(out_dir) / "robots" / serial / campaign
 
 
 def cached_summary(out_dir: str | Path, serial: str, campaign: str, key: str) -> dict[str, Any] | None:

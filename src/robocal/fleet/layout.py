@@ -82,6 +82,11 @@ class Fleet:
         return sum(len(r.campaigns) for r in self.robots)
 
 
+def campaign_dir(out_dir: str | Path, serial: str, campaign: str) -> Path:
+    """Where the fleet engine writes one campaign's results: ``OUT/robots/<serial>/<campaign>/``."""
+    return Path(out_dir) / "robots" / serial / campaign
+
+
 def check_serial(serial: str, where: str | Path) -> str:
     """``serial`` if it is a valid serial number, else a ConfigError naming ``where``."""
     if not isinstance(serial, str) or not SERIAL_RE.match(serial):

@@ -94,7 +94,7 @@ class FleetTracker:
     def _track(self, serial: str, summaries: Sequence[Mapping[str, Any]], out: Path) -> dict[str, Any]:
         from mlflow.entities import Metric, Param, RunTag
 
-        from robocal.fleet.engine import campaign_dir
+        from robocal.fleet.layout import campaign_dir
         from robocal.tracking import default_tags, numeric_metrics
 
         existing = self._existing(serial)

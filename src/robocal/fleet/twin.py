@@ -117,7 +117,7 @@ def _settings(cfg: Mapping[str, Any] | None) -> dict[str, Any]:
     return asdict(TwinSettings.from_mapping(cfg))
 
 
-def simulate_fleet(
+def simulate_fleet(  # noqa: PLR0915
     out_dir: str | Path, n_robots: int, n_campaigns: int = 3, seed: int = 0, config: Mapping[str, Any] | None = None
 ) -> dict[str, Any]:
     """Write a twin fleet into ``out_dir`` (see :mod:`robocal.fleet.layout`); returns the truth (also written to

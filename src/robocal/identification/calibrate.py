@@ -5,6 +5,7 @@ from __future__ import annotations
 import fnmatch
 import re
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
 
@@ -15,7 +16,7 @@ from robocal.config import parse, setting
 from robocal.errors import ConfigError
 from robocal.identification.identifiability import Eliminated, Identifiability, analyse
 from robocal.identification.model import CalibrationModel, FitData
-from robocal.identification.solver import FitResult, levenberg_marquardt
+from robocal.identification.solver import FitResult
 from robocal.kinematics.chain import fk
 from robocal.kinematics.transforms import (
     inv_transform,
@@ -573,27 +574,63 @@ def _rigid_fit(
     return robust.least_squares_on(fun, x, rigid, weights, rows, kept, max_iter=100, ftol=1e-14, xtol=1e-12, lam0=0.0).x
 
 
-def calibrate(
+#: The solve step of a calibration: from a start point and the kept rows, a fit (the least-squares core's
+#: :class:`FitResult`: point, whitened residuals and Jacobian of every row, covariance of the kept rows).
+Solve = Callable[["CalibrationStart", np.ndarray, np.ndarray], FitResult]
+
+
+@dataclass(frozen=True, eq=False)
+class CalibrationStart:
+    """Where every geometric fit starts (:func:`calibration_start`): the calibration rows as fit data, the
+    model with its reference frames, the noise weights, the nominal model's best rigid fit ``x_init`` (its
+    residuals ``r0`` and Jacobian ``J0``) and the identifiable (free) parameters analysed there."""
+
+    campaign: Campaign  # the calibration rows
+    config: CalibrationConfig
+    model: CalibrationModel
+    data: FitData
+    targets: tuple[str, ...]  # present in the rows, the model's target order
+    stations: tuple[str, ...]
+    use_rot: bool
+    sigma_mm: np.ndarray  # (m,) per point (point_sigma)
+    weights: np.ndarray  # (M,) 1 / sigma per residual
+    rows: np.ndarray  # (M,) row of every residual
+    fixed: frozenset[str]
+    held: frozenset[str]  # of ``fixed``: held because the data do not determine them (poorly determined)
+    kept: np.ndarray  # (m,) rows not listed in the 'outliers' setting
+    rigid: np.ndarray  # indices fitted by the rigid fit (empty when started from a given x0)
+    x_init: np.ndarray
+    r0: np.ndarray
+    J0: np.ndarray
+    identifiability: Identifiability
+    free: np.ndarray  # sorted identifiable indices
+    t0: float  # perf_counter at the start (the fit's wall time counts from here)
+
+    @property
+    def m(self) -> int:
+        return self.data.m
+
+    def fun(self, xx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Residuals and Jacobian of the model at ``xx``; at ``x_init`` the ones the start evaluated already
+        (neither the solvers nor the tests modify them in place: one evaluation of the model saved)."""
+        if np.array_equal(xx, self.x_init):
+            return self.r0, self.J0
+        return self.model.residuals_and_jacobian(xx, self.data)
+
+
+def calibration_start(
     campaign: Campaign,
     robot: RobotDescription,
-    config: CalibrationConfig | None = None,
+    config: CalibrationConfig,
     x0: np.ndarray | None = None,
-    *,
     held: tuple[str, ...] = (),
-) -> CalibrationResult:
-    """Geometric calibration from the campaign's calibration rows.
-
-    Steps: closed-form frames (registration + tool offsets, one frame per tracker station) -> the nominal
-    model's best rigid fit (frames and tools fitted to convergence with the nominal kinematics: the "before"
-    figures) -> identifiable parameter set on the unit-column-scaled Jacobian -> Levenberg-Marquardt on the
-    nonlinear model -> gross errors found and left out by the rule of :mod:`robocal.identification.robust`
-    -> covariance ``s² (JᵀJ)⁻¹`` on the kept rows with ``s²`` the residual variance, correlations and chi²
-    against the tracker noise.
-    """
+) -> CalibrationStart:
+    """Closed-form frames (registration + tool offsets, one frame per tracker station) -> the nominal model's
+    best rigid fit (frames and tools fitted to convergence with the nominal kinematics: the "before" figures;
+    skipped when ``x0`` is given) -> the identifiable parameter set on the unit-column-scaled Jacobian there."""
     from robocal.identification import robust
-    from robocal.identification.noise import noise_report
 
-    cfg = config or CalibrationConfig()
+    cfg = config
     t0 = time.perf_counter()
     cal = campaign.calibration() if np.any(campaign.split == "validation") else campaign
     if cal.n_rows == 0:
@@ -627,11 +664,7 @@ def calibrate(
         weights = np.concatenate([weights, np.full(3 * m, 1.0 / np.deg2rad(cfg.noise_deg))])
     rows = robust.row_index(m, 3, use_rot)
     fixed = _resolve_fixed(model.names, tuple(cfg.fixed)) | set(held)
-
-    if isinstance(cfg.outliers, tuple):
-        kept = _outlier_rows(cal, cfg.outliers)
-    else:
-        kept = np.ones(m, dtype=bool)
+    kept = _outlier_rows(cal, cfg.outliers) if isinstance(cfg.outliers, tuple) else np.ones(m, dtype=bool)
 
     # the nominal model's best rigid fit: frames and tools to convergence (the true "before")
     if x0 is None:
@@ -643,55 +676,111 @@ def calibrate(
     else:
         rigid = np.zeros(0, dtype=int)
         x = np.asarray(x0, dtype=float).copy()
-
     r0, J0 = model.residuals_and_jacobian(x, data)
-    x_init = x.copy()
-
-    def fun(xx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        # the solver starts where the identifiability analysis has evaluated the model already (neither
-        # modifies r0 or J0 in place): one evaluation of the model saved
-        if np.array_equal(xx, x_init):
-            return r0, J0
-        return model.residuals_and_jacobian(xx, data)
-
     ident = analyse(J0 * weights[:, None], model.names, _candidate_order(model, fixed), rtol=cfg.rank_tol)
-    free = np.sort(ident.kept)
+    return CalibrationStart(
+        campaign=cal,
+        config=cfg,
+        model=model,
+        data=data,
+        targets=targets,
+        stations=stations,
+        use_rot=use_rot,
+        sigma_mm=sig,
+        weights=weights,
+        rows=rows,
+        fixed=frozenset(fixed),
+        held=frozenset(held),
+        kept=kept,
+        rigid=rigid,
+        x_init=x,
+        r0=r0,
+        J0=J0,
+        identifiability=ident,
+        free=np.sort(ident.kept),
+        t0=t0,
+    )
+
+
+def least_squares(start: CalibrationStart, x: np.ndarray, kept: np.ndarray) -> FitResult:
+    """The gradient solve (``method`` ``lm`` or ``gn`` of :mod:`robocal.identification.solver`) with the
+    configured stopping rules, on the kept rows."""
+    from robocal.identification import robust
+
+    cfg = start.config
     lm_kw: dict[str, Any] = {"max_iter": cfg.max_iter, "ftol": cfg.ftol, "xtol": cfg.xtol, "method": cfg.method}
-    lm = robust.least_squares_on(fun, x, free, weights, rows, kept, **lm_kw)
+    return robust.least_squares_on(start.fun, x, start.free, start.weights, start.rows, kept, **lm_kw)
+
+
+@dataclass(frozen=True, eq=False)
+class Screened:
+    """The fit after the gross-error rule: the final solve, the kept rows, the row test and what it reported."""
+
+    fit: FitResult
+    kept: np.ndarray
+    test: Any  # robust.RowTest | None
+    suspects: list[dict[str, Any]]
+    rounds: int
+
+
+def screen_outliers(start: CalibrationStart, lm: FitResult, solve: Solve) -> Screened:
+    """Gross errors found and left out by the rule of :mod:`robocal.identification.robust` (``outliers:
+    auto``): a row test at the fit; when a row stands out, a robust start (Cauchy IRLS), then ``solve`` on the
+    kept rows and the exact test until the flagged set is stable; more flagged rows than gross errors can be
+    (``outlier_max_share``) are a model error: every row kept, the rows reported as suspects."""
+    from robocal.identification import robust
+
+    cfg, m, kept = start.config, start.m, start.kept
     test = None
-    outlier_rounds = 0
+    rounds = 0
     suspects: list[dict[str, Any]] = []
-    if cfg.outliers == "auto":
-        test = robust.row_test(lm.residual, lm.jacobian, rows, m, kept, cfg.outlier_alpha)
-        screen = robust.robust_screen(lm.residual, rows, m, cfg.outlier_alpha, len(free))
-        if test.flagged.any() or screen.any():
-            # masking and swamping: restart from an M-estimate, flag from there, then iterate the exact test
-            x_rob = robust.irls_cauchy(fun, x_init, free, weights, rows, m)
-            r_rob, _ = fun(x_rob)
-            kept = ~robust.robust_screen(weights * r_rob, rows, m, cfg.outlier_alpha, len(free))
-            for outlier_rounds in range(1, 8):  # noqa: B007 (reported)
-                lm = robust.least_squares_on(fun, x_rob, free, weights, rows, kept, **lm_kw)
-                test = robust.row_test(lm.residual, lm.jacobian, rows, m, kept, cfg.outlier_alpha)
-                if np.array_equal(~test.flagged, kept):
-                    break
-                kept = ~test.flagged
-            else:  # no fixed point in 7 rounds: the last flagged set, fitted and tested once more
-                lm = robust.least_squares_on(fun, x_rob, free, weights, rows, kept, **lm_kw)
-                test = robust.row_test(lm.residual, lm.jacobian, rows, m, kept, cfg.outlier_alpha)
-            if (~kept).sum() > cfg.outlier_max_share * m:
-                # too many to be blunders: a systematic model error; keep every row and say so
-                suspects = describe_outliers(cal, ~kept, *_split_resid(lm.residual / weights, m, use_rot), test)
-                kept = np.ones(m, dtype=bool)
-                lm = levenberg_marquardt(fun, x, free, weights, **lm_kw)
-                test = robust.row_test(lm.residual, lm.jacobian, rows, m, kept, cfg.outlier_alpha)
-                test = robust.RowTest(
-                    test.F, test.p_value, np.zeros(m, dtype=bool), test.threshold_F, test.alpha, test.d
-                )
+    if cfg.outliers != "auto":
+        return Screened(lm, kept, test, suspects, rounds)
+    free, weights, rows, fun = start.free, start.weights, start.rows, start.fun
+    test = robust.row_test(lm.residual, lm.jacobian, rows, m, kept, cfg.outlier_alpha)
+    screen = robust.robust_screen(lm.residual, rows, m, cfg.outlier_alpha, len(free))
+    if test.flagged.any() or screen.any():
+        # masking and swamping: restart from an M-estimate, flag from there, then iterate the exact test
+        x_rob = robust.irls_cauchy(fun, start.x_init, free, weights, rows, m)
+        r_rob, _ = fun(x_rob)
+        kept = ~robust.robust_screen(weights * r_rob, rows, m, cfg.outlier_alpha, len(free))
+        for rounds in range(1, 8):  # noqa: B007 (reported)
+            lm = solve(start, x_rob, kept)
+            test = robust.row_test(lm.residual, lm.jacobian, rows, m, kept, cfg.outlier_alpha)
+            if np.array_equal(~test.flagged, kept):
+                break
+            kept = ~test.flagged
+        else:  # no fixed point in 7 rounds: the last flagged set, fitted and tested once more
+            lm = solve(start, x_rob, kept)
+            test = robust.row_test(lm.residual, lm.jacobian, rows, m, kept, cfg.outlier_alpha)
+        if (~kept).sum() > cfg.outlier_max_share * m:
+            # too many to be blunders: a systematic model error; keep every row and say so
+            suspects = describe_outliers(
+                start.campaign, ~kept, *_split_resid(lm.residual / weights, m, start.use_rot), test
+            )
+            kept = np.ones(m, dtype=bool)
+            lm = solve(start, start.x_init, kept)
+            test = robust.row_test(lm.residual, lm.jacobian, rows, m, kept, cfg.outlier_alpha)
+            test = robust.RowTest(test.F, test.p_value, np.zeros(m, dtype=bool), test.threshold_F, test.alpha, test.d)
+    return Screened(lm, kept, test, suspects, rounds)
+
+
+def calibration_result(start: CalibrationStart, screened: Screened) -> CalibrationResult:
+    """The statistics of a screened fit: covariance ``s² (JᵀJ)⁻¹`` on the kept rows with ``s²`` the residual
+    variance, correlations, chi² against the tracker noise, the outliers, the noise estimates and the "before"
+    figures (the nominal model's best rigid fit on the kept rows)."""
+    from robocal.identification.noise import noise_report
+
+    cfg, model, data, m = start.config, start.model, start.data, start.m
+    cal, use_rot, sig, weights, rows = start.campaign, start.use_rot, start.sigma_mm, start.weights, start.rows
+    lm, kept, test, suspects = screened.fit, screened.kept, screened.test, screened.suspects
+    free, ident = start.free, start.identifiability
     x = np.array(lm.x)  # the calibration's own copy (the fit result is read-only)
+    x_init, r0 = start.x_init, start.r0
     x_analysis = x_init  # where the identifiability analysis ran
-    if len(rigid) and not kept.all():
+    if len(start.rigid) and not kept.all():
         # the "before" figures: the nominal model's best rigid fit on the kept rows
-        x_init = _rigid_fit(model, data, x_init, rigid, weights, rows, kept)
+        x_init = _rigid_fit(model, data, x_init, start.rigid, weights, rows, kept)
         r0, _ = model.residuals_and_jacobian(x_init, data)
     k = len(free)
     Mk = int(kept[rows].sum())
@@ -735,17 +824,17 @@ def calibrate(
             "status": lm.status,
             "message": lm.message,
             "success": lm.success,
-            "wall_time_s": time.perf_counter() - t0,
+            "wall_time_s": time.perf_counter() - start.t0,
             "solver_time_s": lm.wall_time_s,
-            "targets": list(targets),
-            "stations": list(stations),
+            "targets": list(start.targets),
+            "stations": list(start.stations),
             "uses_orientation": use_rot,
             "stderr_scale": "residual variance" if Mk > k else "configured noise (no degree of freedom left)",
             "outliers": outliers,
             "outlier_rule": rule,
             "outlier_suspects": suspects,
             "n_rows_total": int(m),
-            "outlier_rounds": int(outlier_rounds),
+            "outlier_rounds": int(screened.rounds),
             "noise": noise_report(cal, kept, chi2_pos, dof_pos, cfg.noise_mm),
         }
     )
@@ -758,19 +847,8 @@ def calibrate(
         "definition": "nominal kinematics with frames and tools fitted to convergence (best rigid fit), kept rows",
     }
     poor = poorly_determined(model, stderr, cfg)
-    # holding every parameter would leave nothing to fit (a campaign that cannot start): then only report
-    if poor and cfg.poorly_determined == "fix" and len(poor) < int(identified.sum()):
-        # held at their start and the rest fitted again; the list says why (and with which standard error)
-        res = calibrate(campaign, robot, config, x0, held=(*held, *(p["name"] for p in poor)))
-        res.fit["poorly_determined"] = [*res.fit.get("poorly_determined", []), *poor]
-        return res
-    if poor:
-        why = (
-            "reported (poorly_determined: report)"
-            if cfg.poorly_determined == "report"
-            else ("reported: holding every poorly determined parameter would leave nothing to fit")
-        )
-        fit["poorly_determined"] = [{**p, "action": why} for p in poor]
+    if poor:  # calibrate() holds them and fits again (poorly_determined: fix) or keeps this list (report)
+        fit["poorly_determined"] = [{**p, "action": "reported (poorly_determined: report)"} for p in poor]
     return CalibrationResult(
         model=model,
         x=x,
@@ -778,7 +856,7 @@ def calibrate(
         stderr=stderr,
         covariance=cov,
         identifiability=ident,
-        fixed_by_user=tuple(sorted(fixed - set(held))),
+        fixed_by_user=tuple(sorted(start.fixed - start.held)),
         fit=fit,
         residuals_mm=r_pos,
         residuals_deg=None if r_rot is None else np.rad2deg(r_rot),
@@ -792,6 +870,44 @@ def calibrate(
             "row_test": test,
         },
     )
+
+
+def fit_from(start: CalibrationStart, solve: Solve = least_squares) -> CalibrationResult:
+    """solve (from ``x_init`` on the rows not listed as outliers) -> outliers -> statistics."""
+    lm = solve(start, start.x_init, start.kept)
+    return calibration_result(start, screen_outliers(start, lm, solve))
+
+
+def calibrate(
+    campaign: Campaign,
+    robot: RobotDescription,
+    config: CalibrationConfig | None = None,
+    x0: np.ndarray | None = None,
+) -> CalibrationResult:
+    """Geometric calibration from the campaign's calibration rows by the least-squares core.
+
+    Steps: start (:func:`calibration_start`: registration, the nominal model's best rigid fit, identifiable
+    parameter set) -> solve (Levenberg-Marquardt or Gauss-Newton on the nonlinear model, :func:`least_squares`)
+    -> gross errors found and left out (:func:`screen_outliers`) -> statistics (:func:`calibration_result`).
+    Any other registered optimizer: :func:`robocal.optimizers.geometric.calibrate` (``robocal.calibrate``).
+    """
+    cfg = config or CalibrationConfig()
+    res = fit_from(calibration_start(campaign, robot, cfg, x0))
+    poor = res.fit.get("poorly_determined") or []
+    if cfg.poorly_determined == "report" or not poor:
+        return res
+    if len(poor) >= int(res.identified.sum()):  # holding them all would leave nothing to fit: report only
+        why = "reported: holding every poorly determined parameter would leave nothing to fit"
+        res.fit["poorly_determined"] = [{**p, "action": why} for p in poor]
+        return res
+    # held at their start (nominal, or the registration's frame and tool) and the rest fitted again
+    held = tuple(p["name"] for p in poor)
+    res2 = fit_from(calibration_start(campaign, robot, cfg, x0, held=held))
+    action = "held at its start value (nominal, or the registration's frame and tool); the rest fitted again"
+    res2.fit["poorly_determined"] = [{**p, "action": action} for p in poor] + list(
+        res2.fit.get("poorly_determined") or []
+    )
+    return res2
 
 
 def poorly_determined(model: CalibrationModel, stderr: np.ndarray, cfg: CalibrationConfig) -> list[dict[str, Any]]:
@@ -811,7 +927,6 @@ def poorly_determined(model: CalibrationModel, stderr: np.ndarray, cfg: Calibrat
                     "stderr": se if mm else float(np.rad2deg(se)),
                     "bound": cfg.max_stderr_mm if mm else cfg.max_stderr_deg,
                     "unit": "mm" if mm else "deg",
-                    "action": "held at its start value (nominal, or the registration's frame and tool)",
                 }
             )
     return out

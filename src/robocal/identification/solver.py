@@ -22,7 +22,7 @@ from robocal.identification.result import FitResult, fit_covariance, normal_inve
 __all__ = ["FitResult", "levenberg_marquardt", "normal_inverse"]
 
 
-def levenberg_marquardt(
+def levenberg_marquardt(  # noqa: C901, PLR0915
     fun: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
     x0: np.ndarray,
     free: np.ndarray,

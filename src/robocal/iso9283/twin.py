@@ -69,7 +69,7 @@ def simulate_iso(
     return truth
 
 
-def _run(st: IsoSettings, sc: dict[str, Any], out: Path, seed: int | None, bundle: Path | None) -> dict[str, Any]:
+def _run(st: IsoSettings, sc: dict[str, Any], out: Path, seed: int | None, bundle: Path | None) -> dict[str, Any]:  # noqa: PLR0915
     seed = int(sc.get("seed", 0) if seed is None else seed)
     robot = load_robot(sc.get("robot", "kr16_2"))
     chain = build_chain(robot)

@@ -306,7 +306,7 @@ def population_positions(
 
 
 @_jit
-def newton(
+def newton(  # noqa: C901, PLR0915
     B: np.ndarray,
     axis: np.ndarray,
     joint: np.ndarray,

@@ -130,7 +130,7 @@ class Solution:
     residual_rad: np.ndarray
 
 
-def solve(
+def solve(  # noqa: PLR0915 (known: the Newton loop, to be split)
     cc: CompiledChain,
     tool_T: np.ndarray,
     q_start: np.ndarray,

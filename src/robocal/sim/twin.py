@@ -298,7 +298,7 @@ def _fmt(v: np.ndarray, nd: int) -> list[str]:
     return [f"{x:.{nd}f}" for x in np.asarray(v, dtype=float)]
 
 
-def simulate(
+def simulate(  # noqa: C901, PLR0915
     scenario: Mapping[str, Any],
     out_dir: str | Path,
     seed: int | None = None,

@@ -127,7 +127,7 @@ def reference_jacobian(
     return J[:, :P], w, data.m
 
 
-def identify_states(
+def identify_states(  # noqa: PLR0915
     campaign: Campaign,
     state: np.ndarray,
     result: CalibrationResult,

@@ -130,7 +130,7 @@ class ParameterChoice:
     p_value: float = float("nan")
 
 
-def fit_parameter(
+def fit_parameter(  # noqa: C901
     name: str,
     kind: str,
     x: np.ndarray,

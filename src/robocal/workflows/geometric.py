@@ -13,6 +13,7 @@ import pandas as pd
 from robocal.data.contract import Campaign
 from robocal.identification.calibrate import CalibrationConfig, CalibrationResult, calibrate, validate
 from robocal.io import atomic_write, write_json
+from robocal.optimizers.geometric import fit_with_optimizer, is_gradient
 from robocal.robot import RobotDescription
 from robocal.workflows import campaign_of, robot_of
 
@@ -139,29 +140,19 @@ def run(
     ``calibration.json``, ``summary.json``, ``residuals.csv`` and (optionally) ``report.html`` into ``out_dir``.
     Returns the summary.
 
-    ``optimizer``: an optimizer config (``conf/optimizer/*.yaml``); None or the gradient family (``gn``, ``lm``)
-    run ``calibrate`` (stopping rules from ``settings``); the others (``ipopt``, ``igoa``, ``goa``, ``woa``) go through
-    :func:`robocal.workflows.optimizers.fit_with_optimizer`, and the summary gets an ``optimizer`` section
-    with the raw and (with ``polish``) the polished result."""
+    ``optimizer``: an optimizer config (``conf/optimizer/*.yaml``), run by
+    :func:`robocal.optimizers.geometric.fit_with_optimizer` (None: Levenberg-Marquardt with ``settings``'
+    stopping rules); for the non-gradient ones (``ipopt``, ``igoa``, ``goa``, ``woa``) the summary gets an
+    ``optimizer`` section with the raw and (with ``polish``) the polished result."""
     rob = robot_of(robot)
     cfg = CalibrationConfig.from_mapping(settings)
     camp = campaign_of(data_dir, rob, split, campaign)
-    outcome = None
-    from robocal.optimizers.registry import registered
-
-    if optimizer is None or optimizer.get("name") in registered("gradient"):
-        if optimizer is not None:  # gn and lm are two methods of the same least-squares core
-            cfg = replace(cfg, method=str(optimizer["name"]))
-        result = calibrate(camp, rob, cfg)
-    else:
-        from robocal.workflows.optimizers import fit_with_optimizer
-
-        outcome = fit_with_optimizer(camp, rob, cfg, optimizer)
-        result = outcome.result
+    outcome = fit_with_optimizer(camp, rob, cfg, optimizer)
+    result = outcome.result
     val = validate(result, camp) if np.any(camp.split == "validation") else None
     val_before = validate(result, camp, x=result.extra["x_init"]) if val else None
     summary = summarise(result, val)
-    if outcome is not None:
+    if not is_gradient(optimizer):  # the raw and (with polish) the polished result of the method
         summary["optimizer"] = outcome.summary()
         if outcome.polished is not None and val:
             raw_val = validate(outcome.raw, camp)

@@ -109,7 +109,7 @@ def _select(names: Sequence[str], score: np.ndarray, sel: SelectionConfig, z: np
     return mask
 
 
-def _what_if(
+def _what_if(  # noqa: C901, PLR0915
     names: Sequence[str],
     score: np.ndarray,
     score_name: str,
@@ -215,7 +215,7 @@ def _what_if(
     return sorted(out, key=lambda w: w["rank"])
 
 
-def screen(
+def screen(  # noqa: C901, PLR0915
     robot: RobotDescription,
     cfg: Mapping[str, Any] | None = None,
     params: Sequence[str] | None = None,

@@ -81,7 +81,7 @@ def well_conditioned_targets(
     raise ConfigError(f"could not find {n} well-conditioned targets in the scenario's joint ranges")
 
 
-def run_closed_loop(
+def run_closed_loop(  # noqa: PLR0915
     scenario: str | dict[str, Any] = "thermal",
     out_dir: str | Path = "reports/closed_loop",
     seed: int = 0,

@@ -6,7 +6,7 @@ import numpy as np
 
 
 def test_warm_up_compensated_within_1_3_of_the_oracle(tmp_path):
-    from robocal.serve.closed_loop import run_closed_loop, write_report
+    from robocal.sim.closed_loop import run_closed_loop, write_report
 
     # the setting: every 30 min over the 180-min warm-up; 60 targets per epoch so that the per-epoch
     # ratio of mean errors is not dominated by which 20 noise draws happened (benchmarks/closed_loop_seeds.py)

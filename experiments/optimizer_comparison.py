@@ -1,260 +1,33 @@
-"""Any registered optimizer on the geometric calibration, and the thermal paper's optimizer comparison.
+"""The thermal paper's optimizer comparison (Guo et al. 2026, section 3.2, fig. 4): an experiment, not library code.
 
-:func:`fit_with_optimizer` runs one optimizer config (``conf/optimizer/*.yaml``) on a campaign:
-
-* ``gn`` / ``lm``: exactly :func:`robocal.identification.calibrate.calibrate` (its behaviour is unchanged).
-* ``ipopt``, ``igoa``, ``goa``, ``woa``: the same start as ``calibrate`` (frames from the registration,
-  nominal kinematics, the identifiable parameter set from the identifiability analysis), obtained by calling
-  ``calibrate`` with a zero iteration budget; then the optimizer on the free parameters
-  (:func:`robocal.optimizers.calibration.calibration_problem`): Ipopt without bounds (the same least squares
-  as Gauss-Newton), the population methods within ``x_init ± bound_mm / bound_deg``. The statistics of the
-  optimizer's point come from ``calibrate(..., x0=x, max_iter=0)`` (same fit statistics as a normal run).
-  With ``polish: true`` a Gauss-Newton run (``conf/optimizer/gn.yaml`` defaults) starts from the optimizer's
-  point; both the raw and the polished result are returned and reported.
-
-These methods fit positions only (the calibration is run with ``use_orientation=False``).
-
-:func:`compare_optimizers` is the paper's comparison (section 3.2, fig. 4): several independent runs per
-algorithm and population, stopped at an error threshold or an iteration budget.
+Improved GOA vs GOA vs WOA on the geometric calibration: every algorithm x population x run from the same start
+(:func:`robocal.identification.calibrate.calibration_start`), on the calibration as an optimizer Problem
+(:func:`robocal.optimizers.geometric.build_problem`), stopped at an error threshold or an iteration budget.
+Run by ``stages/compare_optimizers.py`` (``dvc exp run experiments/dvc.yaml:compare_optimizers``) and by
+``benchmarks/compare_paper.py``.
 """
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from robocal.config import parse, setting
-from robocal.errors import ConfigError
-from robocal.identification.calibrate import (
-    CalibrationConfig,
-    CalibrationResult,
-    calibrate,
-    fit_data,
-    present_targets,
-)
-from robocal.optimizers import FitResult, make_optimizer, pipeline_options
-from robocal.optimizers.calibration import CalibrationSearch, calibration_problem
-from robocal.optimizers.protocol import Problem
+from robocal.identification.calibrate import CalibrationConfig, calibration_start, fit_from
+from robocal.identification.calibrate import calibrate as least_squares_calibrate
+from robocal.optimizers import make_optimizer, pipeline_options
+from robocal.optimizers.geometric import POLISH, build_problem, position_config, solve_at, solve_polish, warm_up
 from robocal.optimizers.registry import registered
 from robocal.robot import RobotDescription
 
 if TYPE_CHECKING:
     from robocal.data.contract import Campaign
 
-__all__ = [
-    "GRADIENT",
-    "POPULATION",
-    "FitOutcome",
-    "compare_optimizers",
-    "fit_with_optimizer",
-    "noise_floor",
-    "search_setup",
-]
-
-#: the optimizer families, from the registry (each class says its family): no second list of names
-GRADIENT = registered("gradient")
 POPULATION = registered("population")
-#: Gauss-Newton settings of the polish (conf/optimizer/gn.yaml).
-POLISH: dict[str, Any] = {"max_iter": 30, "ftol": 1e-12, "xtol": 1e-10}
-
-
-@dataclass
-class FitOutcome:
-    """One optimizer on one campaign: the optimizer's own result and the calibrations it leads to."""
-
-    method: str
-    result: CalibrationResult  # the final calibration (polished when polish is on)
-    raw: CalibrationResult  # at the optimizer's point
-    polished: CalibrationResult | None
-    optimize: FitResult | None  # the optimizer's own result; None for gn / lm (calibrate's is result.solver)
-    options: dict[str, Any] = field(default_factory=dict)
-    times: dict[str, float] = field(default_factory=dict)
-
-    def summary(self) -> dict[str, Any]:
-        """The honest comparison: what the method reached alone, and after the polish."""
-        out: dict[str, Any] = {
-            "method": self.method,
-            "raw": {
-                "rms_position_mm": self.raw.fit["rms_position_mm"],
-                "mean_position_mm": self.raw.fit["mean_position_mm"],
-                "max_position_mm": self.raw.fit["max_position_mm"],
-                "chi2": self.raw.fit["chi2"],
-            },
-            "options": {k: v for k, v in self.options.items() if isinstance(v, str | int | float | bool) or v is None},
-            "times_s": dict(self.times),
-        }
-        if self.optimize is not None:
-            o = self.optimize
-            out["raw"].update(
-                {
-                    "fitness": o.cost,
-                    "nit": o.nit,
-                    "nfev": o.nfev,
-                    "status": o.status,
-                    "message": o.message,
-                    "wall_time_s": o.wall_time_s,
-                }
-            )
-        if self.polished is not None:
-            p = self.polished
-            out["polished"] = {
-                "rms_position_mm": p.fit["rms_position_mm"],
-                "mean_position_mm": p.fit["mean_position_mm"],
-                "max_position_mm": p.fit["max_position_mm"],
-                "chi2": p.fit["chi2"],
-                "nit": p.fit["nit"],
-                "solver_time_s": p.fit["solver_time_s"],
-            }
-        return out
-
-
-def noise_floor(noise_mm: float, m: int, k: int, objective: str = "nonlinear") -> float:
-    """Expected best fitness (mm) with ``m`` poses, ``k`` fitted parameters, noise ``noise_mm`` per coordinate.
-
-    RMS 3-D: ``sigma sqrt(3 (m - k/3) / m)`` (``3m - k`` residual degrees of freedom over ``m`` points);
-    mean 3-D (linearised objective): the mean of a 3-D normal's norm, ``sigma sqrt(8 / pi)``, with the
-    same dof correction.
-    """
-    dof_share = max(3 * m - k, 1) / (3 * m)
-    if objective == "linearized":
-        return float(noise_mm * math.sqrt(8.0 / math.pi) * math.sqrt(dof_share))
-    return float(noise_mm * math.sqrt(3.0 * dof_share))
-
-
-def _position_config(cfg: CalibrationConfig) -> CalibrationConfig:
-    return replace(cfg, use_orientation=False)
-
-
-def search_setup(
-    campaign: Campaign, robot: RobotDescription, cfg: CalibrationConfig
-) -> tuple[CalibrationResult, Campaign]:
-    """``calibrate``'s start (frames, identifiable set, ``x_init``), positions only, and the calibration rows."""
-    cal = campaign.calibration() if np.any(campaign.split == "validation") else campaign
-    base = calibrate(campaign, robot, replace(_position_config(cfg), max_iter=0))
-    return base, cal
-
-
-def build_problem(
-    base: CalibrationResult,
-    cal: Campaign,
-    options: Mapping[str, Any],
-    *,
-    bounded: bool,
-    max_iter: int,
-    seed: int,
-) -> tuple[Problem, CalibrationSearch, float]:
-    """The Problem of a started calibration; also the noise floor of its fitness (mm)."""
-    data = fit_data(cal, False, present_targets(cal))
-    free = np.flatnonzero(base.identified)
-    floor = noise_floor(base.config.noise_mm, data.m, int(free.size), options["objective"])
-    stop = options.get("stop_error")
-    target = 1.1 * floor if stop == "auto" else (None if stop is None else float(stop))
-    problem, search = calibration_problem(
-        base.model,
-        data,
-        base.extra["x_init"],
-        free,
-        objective=options["objective"],
-        bound_mm=options["bound_mm"],
-        bound_deg=options["bound_deg"],
-        target=target,
-        max_iter=max_iter,
-        seed=seed,
-        bounded=bounded,
-    )
-    return problem, search, floor
-
-
-def _at(campaign: Campaign, robot: RobotDescription, cfg: CalibrationConfig, x: np.ndarray) -> CalibrationResult:
-    """Statistics of the calibration at ``x`` (no iteration)."""
-    return calibrate(campaign, robot, replace(_position_config(cfg), max_iter=0), x0=x)
-
-
-def warm_up(problem: Problem) -> float:
-    """Evaluate the population kernel once on two points so that its just-in-time compilation (numba) is not
-    counted in the timed runs; returns the seconds it took."""
-    from robocal.optimizers.protocol import evaluate_batch
-
-    t0 = time.perf_counter()
-    x = np.asarray(problem.x0 if problem.x0 is not None else problem.lower, dtype=float)
-    evaluate_batch(problem, np.tile(x, (2, 1)))
-    return time.perf_counter() - t0
-
-
-def fit_with_optimizer(
-    campaign: Campaign,
-    robot: RobotDescription,
-    cfg: CalibrationConfig,
-    optimizer: Mapping[str, Any],
-    *,
-    seed: int = 0,
-) -> FitOutcome:
-    """Calibrate with the optimizer config ``optimizer`` (see the module docstring)."""
-    name = optimizer.get("name")
-    options = pipeline_options(optimizer)
-    if name in GRADIENT:
-        if options["polish"]:
-            raise ConfigError(f"The config key 'optimizer.polish' must be false for a gradient optimizer ({name!r}).")
-        settings = {k: optimizer[k] for k in ("max_iter", "ftol", "xtol") if k in optimizer}
-        cres = calibrate(campaign, robot, replace(cfg, method=str(name), **settings))
-        return FitOutcome(str(name), cres, cres, None, None, options, {"optimizer_s": cres.fit["solver_time_s"]})
-    opt = make_optimizer(optimizer)  # validates name and keys
-    if name == "ipopt" and options["objective"] != "nonlinear":
-        raise ConfigError("The config key 'optimizer.objective' must be 'nonlinear' for ipopt (least squares).")
-    t0 = time.perf_counter()
-    base, cal = search_setup(campaign, robot, cfg)
-    max_iter = int(optimizer.get("max_iter") or 200)
-    problem, search, floor = build_problem(base, cal, options, bounded=name in POPULATION, max_iter=max_iter, seed=seed)
-    warmup_s = warm_up(problem) if name in POPULATION else 0.0
-    t1 = time.perf_counter()
-    res = opt.minimize(problem)
-    t2 = time.perf_counter()
-    x_raw = search.full(res.x)
-    base_info = {"x_init": base.extra["x_init"], "residuals_before_mm": base.extra["residuals_before_mm"]}
-    at = _at(campaign, robot, cfg, x_raw)  # the statistics at the optimizer's point ...
-    raw = replace(  # ... with the optimizer's own figures; "before" = calibrate()'s start, not the optimizer's point
-        at,
-        fit={
-            **at.fit,
-            "nit": res.nit,
-            "nfev": res.nfev,
-            "status": res.status,
-            "message": res.message,
-            "success": res.success,
-            "solver_time_s": res.wall_time_s,
-            "wall_time_s": t2 - t0 - warmup_s,  # the method's own time, not the zero-iteration statistics call
-        },
-        extra={**at.extra, **base_info},
-    )
-    options["noise_floor_fitness_mm"] = floor
-    options["stop_fitness_mm"] = problem.target
-    polished = None
-    t3 = time.perf_counter()
-    if options["polish"]:
-        polished = calibrate(campaign, robot, replace(_position_config(cfg), **POLISH), x0=x_raw)
-    times = {
-        "setup_s": t1 - t0 - warmup_s,
-        "jit_warmup_s": warmup_s,
-        "optimizer_s": t2 - t1,
-        "polish_s": time.perf_counter() - t3 if polished is not None else 0.0,
-    }
-    if polished is not None:  # the final result's time is the whole fit: method + polish
-        polished = replace(
-            polished,
-            fit={**polished.fit, "wall_time_s": raw.fit["wall_time_s"] + times["polish_s"]},
-            extra={**polished.extra, **base_info},
-        )
-    return FitOutcome(str(name), polished or raw, raw, polished, res, options, times)
-
-
-# --------------------------------------------------------------------------------------------------------
-# the paper's comparison
-# --------------------------------------------------------------------------------------------------------
 
 
 def _some(values: tuple[Any, ...]) -> str | None:
@@ -315,12 +88,13 @@ def compare_optimizers(
     is called after each run (MLflow logging). The "error" of a run is the RMS 3-D position error (mm) of
     the nonlinear model at its best point, whatever the objective; the fitness is reported too.
     """
-    base, cal = search_setup(campaign, robot, cfg)
-    gn = calibrate(campaign, robot, replace(_position_config(cfg), **POLISH))
+    start = calibration_start(campaign, robot, position_config(cfg))
+    initial = fit_from(start, solve_at(start.x_init))  # the statistics at the start (no iteration)
+    gn = least_squares_calibrate(campaign, robot, replace(position_config(cfg), **POLISH))
     rows: list[dict[str, Any]] = []
     histories: dict[str, list[list[float]]] = {}
     options = pipeline_options(settings.optimizer_cfg(settings.algorithms[0], settings.populations[0], {}))
-    problem, search, floor = build_problem(base, cal, options, bounded=True, max_iter=settings.max_iter, seed=0)
+    problem, search, floor = build_problem(start, options, bounded=True, max_iter=settings.max_iter, seed=0)
     # JIT warm-up, excluded from the timings: compile the kernel, then one iteration of each algorithm
     warmup_s = warm_up(problem)
     for name in settings.algorithms:
@@ -354,7 +128,7 @@ def compare_optimizers(
                     "reached_stop": res.status == 5,
                 }
                 if settings.polish:
-                    pol = calibrate(campaign, robot, replace(_position_config(cfg), **POLISH), x0=search.full(res.x))
+                    pol = fit_from(start, solve_polish(search.full(res.x)))
                     row["polished_error_mm"] = pol.fit["rms_position_mm"]
                 rows.append(row)
                 histories.setdefault(f"{name}/{pop}", []).append(list(res.history))
@@ -367,11 +141,11 @@ def compare_optimizers(
         "gn_rms_mm": gn.fit["rms_position_mm"],
         "gn_time_s": gn.fit["solver_time_s"],
         "jit_warmup_time_s": warmup_s,
-        "initial_rms_mm": base.fit["rms_position_mm"],
+        "initial_rms_mm": initial.fit["rms_position_mm"],
         "noise_floor_mm": floor,
         "stop_fitness_mm": problem.target,
-        "n_free": int(base.identified.sum()),
-        "n_rows": int(cal.n_rows),
+        "n_free": int(start.free.size),
+        "n_rows": int(start.campaign.n_rows),
     }
 
 

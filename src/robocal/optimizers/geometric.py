@@ -1,0 +1,323 @@
+"""The one geometric fit with any registered optimizer: start -> solve -> outliers -> statistics.
+
+:func:`calibrate` (``robocal.calibrate``) and :func:`fit_with_optimizer` (the pipeline's ``optimizer`` config)
+share one path, from :mod:`robocal.identification.calibrate`:
+
+* **start** (:func:`~robocal.identification.calibrate.calibration_start`): registration, the nominal model's
+  best rigid fit (``x_init``, the "before" figures), the identifiable (free) parameters;
+* **solve**: the gradient family (``gn``, ``lm``) is the least-squares core itself
+  (:func:`~robocal.identification.calibrate.least_squares`, the solver :class:`LevenbergMarquardt` and
+  :class:`GaussNewton` wrap); every other optimizer runs on the calibration as a
+  :class:`~robocal.optimizers.protocol.Problem` over the free parameters
+  (:func:`robocal.optimizers.calibration.calibration_problem`): Ipopt without bounds (the same least squares
+  as Gauss-Newton), the population methods within ``x_init ± bound_mm / bound_deg``. With ``polish: true`` a
+  Gauss-Newton run (``conf/optimizer/gn.yaml`` defaults) continues from the optimizer's point;
+* **outliers** (:func:`~robocal.identification.calibrate.screen_outliers`) with the same solve;
+* **statistics** (:func:`~robocal.identification.calibrate.calibration_result`) at the solve's point.
+
+The non-gradient optimizers fit positions only (the start is taken with ``use_orientation=False``). The
+gradient-versus-other fork is written here once (:func:`is_gradient`).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from robocal.errors import ConfigError
+from robocal.identification.calibrate import (
+    CalibrationConfig,
+    CalibrationResult,
+    CalibrationStart,
+    Solve,
+    calibration_start,
+    fit_from,
+)
+from robocal.identification.result import FitResult
+from robocal.optimizers.calibration import CalibrationSearch, calibration_problem
+from robocal.optimizers.protocol import Problem, evaluate_batch
+from robocal.optimizers.registry import make_optimizer, pipeline_options, registered
+
+if TYPE_CHECKING:
+    from robocal.data.contract import Campaign
+    from robocal.robot import RobotDescription
+
+__all__ = [
+    "POLISH",
+    "FitOutcome",
+    "build_problem",
+    "calibrate",
+    "fit_with_optimizer",
+    "is_gradient",
+    "noise_floor",
+    "position_config",
+    "solve_at",
+    "solve_polish",
+    "warm_up",
+]
+
+#: Gauss-Newton settings of the polish (conf/optimizer/gn.yaml).
+POLISH: dict[str, Any] = {"max_iter": 30, "ftol": 1e-12, "xtol": 1e-10}
+#: the stopping rules of the gradient family, read from its optimizer config into the CalibrationConfig
+GRADIENT_KEYS = ("max_iter", "ftol", "xtol")
+
+
+def is_gradient(optimizer: Mapping[str, Any] | None) -> bool:
+    """True for no optimizer config (``calibrate``'s default, Levenberg-Marquardt) and the gradient family
+    (each optimizer class says its family in the registry: no second list of names)."""
+    return optimizer is None or optimizer.get("name") in registered("gradient")
+
+
+@dataclass
+class FitOutcome:
+    """One optimizer on one campaign: the optimizer's own result and the calibrations it leads to."""
+
+    method: str
+    result: CalibrationResult  # the final calibration (polished when polish is on)
+    raw: CalibrationResult  # at the optimizer's point
+    polished: CalibrationResult | None
+    optimize: FitResult | None  # the optimizer's own result; None for gn / lm (calibrate's is result.solver)
+    options: dict[str, Any] = field(default_factory=dict)
+    times: dict[str, float] = field(default_factory=dict)
+
+    def summary(self) -> dict[str, Any]:
+        """The honest comparison: what the method reached alone, and after the polish."""
+        out: dict[str, Any] = {
+            "method": self.method,
+            "raw": {
+                "rms_position_mm": self.raw.fit["rms_position_mm"],
+                "mean_position_mm": self.raw.fit["mean_position_mm"],
+                "max_position_mm": self.raw.fit["max_position_mm"],
+                "chi2": self.raw.fit["chi2"],
+            },
+            "options": {k: v for k, v in self.options.items() if isinstance(v, str | int | float | bool) or v is None},
+            "times_s": dict(self.times),
+        }
+        if self.optimize is not None:
+            o = self.optimize
+            out["raw"].update(
+                {
+                    "fitness": o.cost,
+                    "nit": o.nit,
+                    "nfev": o.nfev,
+                    "status": o.status,
+                    "message": o.message,
+                    "wall_time_s": o.wall_time_s,
+                }
+            )
+        if self.polished is not None:
+            p = self.polished
+            out["polished"] = {
+                "rms_position_mm": p.fit["rms_position_mm"],
+                "mean_position_mm": p.fit["mean_position_mm"],
+                "max_position_mm": p.fit["max_position_mm"],
+                "chi2": p.fit["chi2"],
+                "nit": p.fit["nit"],
+                "solver_time_s": p.fit["solver_time_s"],
+            }
+        return out
+
+
+def noise_floor(noise_mm: float, m: int, k: int, objective: str = "nonlinear") -> float:
+    """Expected best fitness (mm) with ``m`` poses, ``k`` fitted parameters, noise ``noise_mm`` per coordinate.
+
+    RMS 3-D: ``sigma sqrt(3 (m - k/3) / m)`` (``3m - k`` residual degrees of freedom over ``m`` points);
+    mean 3-D (linearised objective): the mean of a 3-D normal's norm, ``sigma sqrt(8 / pi)``, with the
+    same dof correction.
+    """
+    dof_share = max(3 * m - k, 1) / (3 * m)
+    if objective == "linearized":
+        return float(noise_mm * math.sqrt(8.0 / math.pi) * math.sqrt(dof_share))
+    return float(noise_mm * math.sqrt(3.0 * dof_share))
+
+
+def position_config(cfg: CalibrationConfig) -> CalibrationConfig:
+    """The settings of a positions-only fit (the non-gradient optimizers' objectives)."""
+    return replace(cfg, use_orientation=False)
+
+
+def build_problem(
+    start: CalibrationStart,
+    options: Mapping[str, Any],
+    *,
+    bounded: bool,
+    max_iter: int,
+    seed: int,
+) -> tuple[Problem, CalibrationSearch, float]:
+    """The Problem of a started calibration (positions only); also the noise floor of its fitness (mm)."""
+    floor = noise_floor(start.config.noise_mm, start.m, int(start.free.size), options["objective"])
+    stop = options.get("stop_error")
+    target = 1.1 * floor if stop == "auto" else (None if stop is None else float(stop))
+    problem, search = calibration_problem(
+        start.model,
+        start.data,
+        start.x_init,
+        start.free,
+        objective=options["objective"],
+        bound_mm=options["bound_mm"],
+        bound_deg=options["bound_deg"],
+        target=target,
+        max_iter=max_iter,
+        seed=seed,
+        bounded=bounded,
+    )
+    return problem, search, floor
+
+
+def warm_up(problem: Problem) -> float:
+    """Evaluate the population kernel once on two points so that its just-in-time compilation (numba) is not
+    counted in the timed runs; returns the seconds it took."""
+    t0 = time.perf_counter()
+    x = np.asarray(problem.x0 if problem.x0 is not None else problem.lower, dtype=float)
+    evaluate_batch(problem, np.tile(x, (2, 1)))
+    return time.perf_counter() - t0
+
+
+def solve_at(x: np.ndarray) -> Solve:
+    """A solve that stays at ``x`` (the optimizer's point): the least-squares core's statistics there, no
+    iteration; for the outlier rule's refits, the statistics at the point it starts from."""
+    from robocal.identification import robust
+
+    def solve(start: CalibrationStart, x_from: np.ndarray, kept: np.ndarray) -> FitResult:
+        at = x if np.array_equal(x_from, start.x_init) else x_from
+        return robust.least_squares_on(start.fun, at, start.free, start.weights, start.rows, kept, max_iter=0)
+
+    return solve
+
+
+def solve_polish(x: np.ndarray) -> Solve:
+    """A solve that continues with Gauss-Newton (:data:`POLISH`) from the optimizer's point ``x``."""
+    from robocal.identification import robust
+
+    def solve(start: CalibrationStart, x_from: np.ndarray, kept: np.ndarray) -> FitResult:
+        at = x if np.array_equal(x_from, start.x_init) else x_from
+        cfg = start.config  # the polish keeps the calibration's method, with Gauss-Newton's stopping rules
+        return robust.least_squares_on(
+            start.fun, at, start.free, start.weights, start.rows, kept, method=cfg.method, **POLISH
+        )
+
+    return solve
+
+
+def fit_with_optimizer(
+    campaign: Campaign,
+    robot: RobotDescription,
+    cfg: CalibrationConfig,
+    optimizer: Mapping[str, Any] | None,
+    *,
+    seed: int = 0,
+) -> FitOutcome:
+    """Calibrate with the optimizer config ``optimizer`` (``conf/optimizer/*.yaml``; None: ``calibrate``'s
+    Levenberg-Marquardt with ``cfg``'s stopping rules). See the module docstring."""
+    options = pipeline_options(optimizer or {"name": "lm"})
+    if is_gradient(optimizer):
+        name = str((optimizer or {}).get("name", cfg.method))
+        if options["polish"]:
+            raise ConfigError(f"The config key 'optimizer.polish' must be false for a gradient optimizer ({name!r}).")
+        settings = {k: optimizer[k] for k in GRADIENT_KEYS if optimizer is not None and k in optimizer}
+        gcfg = replace(cfg, method=name, **settings)
+        cres = fit_from(calibration_start(campaign, robot, gcfg))
+        return FitOutcome(name, cres, cres, None, None, options, {"optimizer_s": cres.fit["solver_time_s"]})
+    assert optimizer is not None
+    name = str(optimizer.get("name"))
+    opt = make_optimizer(optimizer)  # validates name and keys
+    if name == "ipopt" and options["objective"] != "nonlinear":
+        raise ConfigError("The config key 'optimizer.objective' must be 'nonlinear' for ipopt (least squares).")
+    population = name in registered("population")
+    t0 = time.perf_counter()
+    start = calibration_start(campaign, robot, position_config(cfg))
+    max_iter = int(optimizer.get("max_iter") or 200)
+    problem, search, floor = build_problem(start, options, bounded=population, max_iter=max_iter, seed=seed)
+    warmup_s = warm_up(problem) if population else 0.0
+    t1 = time.perf_counter()
+    res = opt.minimize(problem)
+    t2 = time.perf_counter()
+    x_raw = search.full(res.x)
+    at = fit_from(start, solve_at(x_raw))  # the statistics at the optimizer's point ...
+    raw = replace(  # ... with the optimizer's own figures; its config says the least-squares core made no step
+        at,
+        config=replace(at.config, max_iter=0),
+        fit={
+            **at.fit,
+            "nit": res.nit,
+            "nfev": res.nfev,
+            "status": res.status,
+            "message": res.message,
+            "success": res.success,
+            "solver_time_s": res.wall_time_s,
+            "wall_time_s": t2 - t0 - warmup_s,  # the method's own time, not the statistics
+        },
+    )
+    options["noise_floor_fitness_mm"] = floor
+    options["stop_fitness_mm"] = problem.target
+    polished = None
+    t3 = time.perf_counter()
+    if options["polish"]:
+        polished = fit_from(start, solve_polish(x_raw))
+    times = {
+        "setup_s": t1 - t0 - warmup_s,
+        "jit_warmup_s": warmup_s,
+        "optimizer_s": t2 - t1,
+        "polish_s": time.perf_counter() - t3 if polished is not None else 0.0,
+    }
+    if polished is not None:  # the final result's time is the whole fit: method + polish
+        polished = replace(
+            polished,
+            config=replace(polished.config, **POLISH),  # the settings of the polish (its stopping rules)
+            fit={**polished.fit, "wall_time_s": raw.fit["wall_time_s"] + times["polish_s"]},
+        )
+    return FitOutcome(name, polished or raw, raw, polished, res, options, times)
+
+
+def optimizer_config(optimizer: str | Mapping[str, Any] | None) -> dict[str, Any] | None:
+    """An optimizer config from a registered name (the class defaults) or a mapping (a Hydra/YAML node)."""
+    if optimizer is None:
+        return None
+    if isinstance(optimizer, str):
+        if optimizer not in registered():
+            raise ConfigError(
+                f"The 'optimizer' parameter must be one of {sorted(registered())}. Got {optimizer!r} instead."
+            )
+        return {"name": optimizer}
+    if not isinstance(optimizer, Mapping):
+        raise ConfigError(
+            f"The 'optimizer' parameter must be a registered name or a config mapping. Got "
+            f"{type(optimizer).__name__} instead."
+        )
+    return dict(optimizer)
+
+
+def calibrate(
+    campaign: Campaign,
+    robot: RobotDescription,
+    config: CalibrationConfig | None = None,
+    x0: np.ndarray | None = None,
+    *,
+    optimizer: str | Mapping[str, Any] | None = None,
+    seed: int = 0,
+) -> CalibrationResult:
+    """Geometric calibration (``robocal.calibrate``): start -> solve -> outliers -> statistics.
+
+    ``optimizer``: None (Levenberg-Marquardt, ``config``'s stopping rules), a registered name (``"gn"``,
+    ``"lm"``, ``"ipopt"``, ``"igoa"``, ``"goa"``, ``"woa"``, with the class defaults) or an optimizer config
+    mapping (``conf/optimizer/*.yaml``: coefficients, ``polish``, ``objective``, bounds). ``seed`` seeds the
+    population methods. ``x0`` starts the least-squares core from a given point (gradient family only).
+    Returns the final calibration (the polished one when ``polish`` is on).
+    """
+    from robocal.identification.calibrate import calibrate as least_squares_calibrate
+
+    cfg = config or CalibrationConfig()
+    ocfg = optimizer_config(optimizer)
+    if ocfg is None:
+        return least_squares_calibrate(campaign, robot, cfg, x0)
+    if x0 is not None:
+        if not is_gradient(ocfg):
+            raise ConfigError(f"The 'x0' parameter is for the gradient optimizers; {ocfg.get('name')!r} is not one.")
+        settings = {k: ocfg[k] for k in GRADIENT_KEYS if k in ocfg}
+        return least_squares_calibrate(campaign, robot, replace(cfg, method=str(ocfg["name"]), **settings), x0)
+    return fit_with_optimizer(campaign, robot, cfg, ocfg, seed=seed).result
