@@ -68,7 +68,7 @@ def _runs(uri: str, filter_string: str = "") -> list[Any]:
 def copy(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
     root = tmp_path_factory.mktemp("repo")
     ignore = shutil.ignore_patterns("__pycache__", "*.pyc", "*.egg-info")
-    for d in ("conf", "stages", "src"):
+    for d in ("conf", "stages", "src", "experiments"):
         shutil.copytree(REPO / d, root / d, ignore=ignore)
     # every dvc.yaml of the repository: `dvc status` / `checkout` / `exp run` look at them all
     dvcfiles = [p.relative_to(REPO) for p in REPO.glob("*/dvc.yaml") if p.parts[-2] not in (".venv", "reports")]

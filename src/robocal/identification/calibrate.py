@@ -846,7 +846,10 @@ def calibration_result(start: CalibrationStart, screened: Screened) -> Calibrati
         "max_position_mm": float(np.max(e0)),
         "definition": "nominal kinematics with frames and tools fitted to convergence (best rigid fit), kept rows",
     }
-    poor = poorly_determined(model, stderr, cfg)
+    # judged on the design (the standard errors the configured noise would give): a fit that stopped early or a
+    # model error inflates the residual variance, not how well the poses determine a parameter
+    s_fit = float(np.sqrt(max(float(lm.redchi), 1.0))) if Mk > k and np.isfinite(lm.redchi) else 1.0
+    poor = poorly_determined(model, stderr / s_fit, cfg)
     if poor:  # calibrate() holds them and fits again (poorly_determined: fix) or keeps this list (report)
         fit["poorly_determined"] = [{**p, "action": "reported (poorly_determined: report)"} for p in poor]
     return CalibrationResult(
@@ -900,19 +903,31 @@ def calibrate(
         why = "reported: holding every poorly determined parameter would leave nothing to fit"
         res.fit["poorly_determined"] = [{**p, "action": why} for p in poor]
         return res
-    # held at their start (nominal, or the registration's frame and tool) and the rest fitted again
-    held = tuple(p["name"] for p in poor)
-    res2 = fit_from(calibration_start(campaign, robot, cfg, x0, held=held))
+    # held one at a time, the worst determined first (holding one of a correlated pair usually determines the
+    # other), at its start (nominal, or the registration's frame and tool), and the rest fitted again
+    held: list[str] = []
+    records: list[dict[str, Any]] = []
     action = "held at its start value (nominal, or the registration's frame and tool); the rest fitted again"
-    res2.fit["poorly_determined"] = [{**p, "action": action} for p in poor] + list(
-        res2.fit.get("poorly_determined") or []
-    )
-    return res2
+    while poor and len(held) < len(res.model.names):
+        worst = max(poor, key=lambda p: p["stderr"] / p["bound"])
+        held.append(worst["name"])
+        records.append({**worst, "action": action})
+        nxt = fit_from(calibration_start(campaign, robot, cfg, x0, held=tuple(held)))
+        poor = nxt.fit.get("poorly_determined") or []
+        if len(poor) >= int(nxt.identified.sum()):
+            break
+        res = nxt
+    res.fit["poorly_determined"] = records + [
+        {**p, "action": "reported: holding it would leave nothing to fit"}
+        for p in (res.fit.get("poorly_determined") or [])
+    ]
+    return res
 
 
 def poorly_determined(model: CalibrationModel, stderr: np.ndarray, cfg: CalibrationConfig) -> list[dict[str, Any]]:
-    """Identified parameters whose standard error exceeds the configured bound (``max_stderr_mm`` for lengths,
-    ``max_stderr_deg`` for angles): the data do not determine them, whatever the rank test said."""
+    """Identified parameters whose standard error (``stderr``: at the configured noise, see
+    :func:`calibration_result`) exceeds the configured bound (``max_stderr_mm`` for lengths, ``max_stderr_deg`` for
+    angles): the data do not determine them, whatever the rank test said."""
     out = []
     for i, name in enumerate(model.names):
         se = float(stderr[i])
