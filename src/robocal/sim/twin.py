@@ -126,9 +126,14 @@ class GearEffect:
         return rows
 
     def apply(self, rows: Rows, ctx: TwinContext) -> None:
+        self.add_harmonics(rows, ctx, self.cfg.get("harmonics", []))
+
+    def add_harmonics(self, rows: Rows, ctx: TwinContext, harmonics: list[Mapping[str, Any]]) -> None:
+        """``dq_j += A_h sin(h q_j + phi_h)`` for each ``{harmonic, amplitude_deg, phase_deg}``; the truth under
+        this effect's name."""
         j = _joint(self.cfg, ctx.robot.n_joints)
         truth = []
-        for h in self.cfg.get("harmonics", []):
+        for h in harmonics:
             k = int(h["harmonic"])
             amp = np.deg2rad(float(h["amplitude_deg"]))
             ph = np.deg2rad(float(h.get("phase_deg", 0.0)))
@@ -143,11 +148,11 @@ class GearEffect:
                     "cos_deg": float(np.rad2deg(amp * np.sin(ph))),
                 }
             )
-        ctx.truth.setdefault("effects", {})["gear"] = {"joint": j + 1, "harmonics": truth}
+        ctx.truth.setdefault("effects", {})[self.name] = {"joint": j + 1, "harmonics": truth}
 
 
 @register_effect("transmission")
-class TransmissionEffect:
+class TransmissionEffect(GearEffect):
     """Gear transmission error of a real reducer: many harmonics per output revolution (tooth mesh, bearing
     races), ``dq_j = sum_h A_h sin(h q_j + phi_h)`` for every ``h`` in ``cycles``.
 
@@ -158,14 +163,7 @@ class TransmissionEffect:
 
     name = "transmission"
 
-    def __init__(self, cfg: Mapping[str, Any]) -> None:
-        self.cfg = dict(cfg)
-
-    def plan(self, rows: Rows, ctx: TwinContext) -> Rows:
-        return rows
-
     def apply(self, rows: Rows, ctx: TwinContext) -> None:
-        j = _joint(self.cfg, ctx.robot.n_joints)
         cycles = [int(c) for c in self.cfg.get("cycles", [])]
         if not cycles or min(cycles) < 1:
             raise ConfigError(f"The 'cycles' setting of the transmission effect must list harmonics >= 1. Got {cycles}")
@@ -174,14 +172,11 @@ class TransmissionEffect:
             phases = np.broadcast_to(np.asarray(self.cfg["phase_deg"], dtype=float), (len(cycles),))
         else:
             phases = ctx.rng_factory("transmission").uniform(0.0, 360.0, len(cycles))
-        truth = []
-        for k, a_deg, ph_deg in zip(cycles, amps, phases, strict=True):
-            amp, ph = np.deg2rad(float(a_deg)), np.deg2rad(float(ph_deg))
-            rows.dq[:, j] += amp * np.sin(k * rows.q_cmd[:, j] + ph)
-            truth.append({"harmonic": k, "amplitude_deg": float(a_deg), "phase_deg": float(ph_deg),
-                          "sin_deg": float(np.rad2deg(amp * np.cos(ph))),
-                          "cos_deg": float(np.rad2deg(amp * np.sin(ph)))})  # fmt: skip
-        ctx.truth.setdefault("effects", {})["transmission"] = {"joint": j + 1, "harmonics": truth}
+        harmonics = [
+            {"harmonic": k, "amplitude_deg": float(a), "phase_deg": float(ph)}
+            for k, a, ph in zip(cycles, amps, phases, strict=True)
+        ]
+        self.add_harmonics(rows, ctx, harmonics)
 
 
 @register_effect("backlash")
