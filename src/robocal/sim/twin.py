@@ -14,7 +14,7 @@ Effects are registered in :data:`EFFECTS` (name -> class); each implements :clas
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
@@ -128,7 +128,7 @@ class GearEffect:
     def apply(self, rows: Rows, ctx: TwinContext) -> None:
         self.add_harmonics(rows, ctx, self.cfg.get("harmonics", []))
 
-    def add_harmonics(self, rows: Rows, ctx: TwinContext, harmonics: list[Mapping[str, Any]]) -> None:
+    def add_harmonics(self, rows: Rows, ctx: TwinContext, harmonics: Sequence[Mapping[str, Any]]) -> None:
         """``dq_j += A_h sin(h q_j + phi_h)`` for each ``{harmonic, amplitude_deg, phase_deg}``; the truth under
         this effect's name."""
         j = _joint(self.cfg, ctx.robot.n_joints)
