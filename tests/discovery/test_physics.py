@@ -138,3 +138,31 @@ def test_layer_coverage_says_where_the_layer_applies():
     dq = joint_offsets([rec], robot, q)
     assert dq[2, 1] == 0.0 and dq[0, 1] == pytest.approx(1e-3)  # outside: the parametric correction only
     assert layer_coverage([], q) is None
+
+
+def test_a_fresh_registration_after_a_pause_is_found_and_kept_on_the_measurement_side(tmp_path):
+    """The tracker is set up again during a 2 h pause: the frame after it differs by 0.2 mm / 0.005 deg."""
+    import pandas as pd
+
+    from robocal.data.contract import read_campaign
+
+    camp, robot, _ = make_campaign(tmp_path, "geometric", 7, {}, n_poses=120, n_validation_poses=20)
+    src = tmp_path / "moved"
+    src.mkdir()
+    df = pd.read_csv(f"{camp.source}/poses.csv", dtype=str, keep_default_na=False)
+    t = pd.to_datetime(df["timestamp"])
+    late = np.arange(len(df)) >= len(df) // 2
+    t[late] = t[late] + pd.Timedelta(hours=2)
+    df["timestamp"] = t.dt.strftime("%Y-%m-%dT%H:%M:%SZ")
+    for a, d in zip(("x_mm", "y_mm", "z_mm"), (0.2, -0.15, 0.1), strict=True):
+        df.loc[late, a] = (df.loc[late, a].astype(float) + d).map(lambda v: f"{v:.6f}")
+    df.to_csv(src / "poses.csv", index=False)
+    moved = read_campaign(src, robot)
+    res = discover(moved, robot)
+    s = summary(res)
+    regap = [n for n in s["named"] if n["effect"] == "regap"]
+    assert regap and regap[0]["side"] == "measurement", [n["key"] for n in s["named"]]
+    est = regap[0]["estimates"]
+    assert "base_tx_after_gap1" in est
+    cal = extended_calibration(res.final, robot, {})
+    assert any(e["effect"] == "regap" for e in cal["effects_not_compensated"])  # never sent to the controller

@@ -233,6 +233,33 @@ def build_library(
                     params=("base_tx", "base_ty", "base_tz", "base_rx", "base_ry", "base_rz"), signal_names=("t_h",),
                 )
             )  # fmt: skip
+        elif effect == "regap":
+            key = "regap"
+            t = np.asarray(campaign.timestamp_s, dtype=float)
+            cal_rows = campaign.split == "calibration" if np.any(campaign.split == "validation") else slice(None)
+            tc = np.sort(t[cal_rows])
+            gaps = np.diff(tc)
+            big = np.flatnonzero(gaps > cfg.registration_gap_h * HOUR_S)
+            if len(big) == 0:
+                skipped.append(SkippedCandidate(key, effect, None, f"no gap of more than {cfg.registration_gap_h} h "
+                                                "between measurements"))  # fmt: skip
+                continue
+            big = np.sort(big[np.argsort(-gaps[big])][:3])  # the three longest gaps at most
+            cuts = [(tc[k] + tc[k + 1]) / 2.0 for k in big]
+            S = np.column_stack([(t > c).astype(float) for c in cuts])
+            S = S - S[cal_rows].mean(axis=0)
+            names = tuple(f"after_gap{i + 1}" for i in range(len(cuts)))
+            cands.append(
+                Candidate(
+                    key, effect, None, None,
+                    cause="the tracker was set up again (or bumped) during a pause: after each gap of more than "
+                    f"{cfg.registration_gap_h} h the tracker-to-base frame is a fresh registration (a measurement-"
+                    "side effect, never sent to the controller)",
+                    signal="measured after the gap(s) at " + ", ".join(f"{c / HOUR_S:.1f} h" for c in cuts),
+                    shape="param", S=S,
+                    params=("base_tx", "base_ty", "base_tz", "base_rx", "base_ry", "base_rz"), signal_names=names,
+                )
+            )  # fmt: skip
         elif effect == "air":
             key = "air"
             ambient = [x.name for x in robot.sensors if x.location == "ambient"]

@@ -10,7 +10,7 @@ from robocal.config import parse, setting
 from robocal.identification.calibrate import data_rows, outlier_rule
 
 #: Every effect the library knows, in the order candidates are built.
-EFFECT_NAMES = ("compliance", "gear", "backlash", "thermal", "drift", "air", "beta", "transmission", "weight")
+EFFECT_NAMES = ("compliance", "gear", "backlash", "thermal", "drift", "regap", "air", "beta", "transmission", "weight")
 
 
 @dataclass(frozen=True)
@@ -40,6 +40,8 @@ class DiscoveryConfig:
         each joint (:mod:`robocal.discovery.physics`); transmission_prior_deg : prior standard deviations per
         coefficient tried (ridge); transmission_gap_deg / transmission_taper_deg : visits closer than the gap make
         one covered interval, and the effect falls to zero over the taper outside the covered angles.
+    registration_gap_h : a pause in the measurements longer than this offers a fresh tracker registration after it
+        (``regap``, measurement side).
     compliance_prior_deg : the physical prior on the deflection under the arm's own weight (RMS over the poses,
         deg) when the link masses are unknown (the ``weight`` effect).
     cv_alpha : false-discovery control of the cross-validated selection (:mod:`robocal.discovery.grow`): a
@@ -81,6 +83,7 @@ class DiscoveryConfig:
     transmission_gap_deg: float = setting(2.0, gt=0)
     transmission_taper_deg: float = setting(2.0, ge=0)
     compliance_prior_deg: float = setting(0.05, gt=0)
+    registration_gap_h: float = setting(1.0, gt=0)
     cv_alpha: float = setting(0.01, gt=0, lt=1)
     grow_max_steps: int = setting(12, ge=0)
     grow_geometry: str = setting("joint", choices=("joint", "frozen"))

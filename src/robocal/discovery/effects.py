@@ -74,7 +74,7 @@ def effect_records(fit: Fit) -> tuple[list[dict[str, Any]], list[dict[str, Any]]
                 continue  # lives in the geometry (beta), already in the calibration
             if c.effect == "proposed":
                 why = "a proposed equation with a term the commanded joints do not give (temperature, time, torque)"
-            elif c.effect in ("drift", "air"):
+            elif c.effect in ("drift", "air", "regap"):
                 why = "a measurement-side effect (the tracker's frame moving): it corrects the figures, never the robot"
             else:
                 why = (

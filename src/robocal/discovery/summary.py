@@ -13,7 +13,7 @@ from robocal.kinematics.chain import fk
 
 _DEG = float(np.rad2deg(1.0))
 #: Effects of the measurement, not of the robot: reported, used in the fit, never sent to the controller.
-MEASUREMENT_SIDE = ("drift", "air")
+MEASUREMENT_SIDE = ("drift", "air", "regap")
 
 
 def _est(value: float, se: float, unit: str) -> dict[str, Any]:
@@ -62,14 +62,18 @@ def estimates(fit: Fit, acc: Accepted) -> dict[str, Any]:
     elif c.effect == "beta":
         nm = f"beta{c.joint}"
         out[f"{nm}_deg"] = _est(fit.theta[model.index(nm)] * _DEG, fit.stderr(nm) * _DEG, "deg")
-    elif c.effect in ("thermal", "drift", "air"):
+    elif c.effect in ("thermal", "drift", "air", "regap"):
         for k, n in enumerate(names):
             p = n.split(":", 1)[1]
             pname, sig = p.split("*")
             unit_p = model.base.units[model.base.index(pname)]
             f = _DEG if unit_p == "rad" else 1.0
+            unit = "deg" if unit_p == "rad" else "mm"
+            if sig.startswith("after_gap"):  # a step: the frame's change at the gap
+                out[f"{pname}_{sig}"] = _est(val[k] * f, se[k] * f, unit)
+                continue
             per = "h" if sig == "t_h" else f"°C ({sig})"
-            out[f"{pname}_per_{sig}"] = _est(val[k] * f, se[k] * f, f"{'deg' if unit_p == 'rad' else 'mm'}/{per}")
+            out[f"{pname}_per_{sig}"] = _est(val[k] * f, se[k] * f, f"{unit}/{per}")
         if c.effect == "drift":
             R = model.base.T_ref[:3, :3]
             tn = [f"drift:base_t{a}*t_h" for a in "xyz"]
@@ -303,7 +307,7 @@ def summary(res: DiscoveryResult, validation: dict[str, Any] | None = None) -> d
                 "held_out": (res.extra.get("cv") or {}).get("effects", {}).get(c.key),
             }
         )
-        if c.effect in ("thermal", "drift", "air"):
+        if c.effect in ("thermal", "drift", "air", "regap"):
             # the effect at the tool, per measurement state, relative to each pose's first measurement: the
             # quantity with a physical meaning (and a truth on the twin), unlike the per-component coefficients
             est = named[-1]["estimates"]
