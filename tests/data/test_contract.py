@@ -567,3 +567,12 @@ def test_to_frame_round_trip(tmp_path, kr16, fmt):
     np.testing.assert_allclose(c.q, v.q, rtol=0, atol=1e-14)
     np.testing.assert_array_equal(c.pose_id, v.pose_id)
     np.testing.assert_array_equal(c.split, "validation")
+
+
+def test_an_id_in_an_error_is_the_id_not_a_numpy_repr(tmp_path, kr16):
+    """Issue 23 item 12: a pose id measured twice with other joints is named as 'p03', not np.str_('p03')."""
+    df = as_text(good_poses(kr16, n_poses=6, targets=("T1", "T2")))
+    df.loc[7, "q2_deg"] = str(float(df.loc[7, "q2_deg"]) + 1.0)  # pose p03, second target: other joint angle
+    f = write(tmp_path, df)
+    err = expect_error(tmp_path, kr16, file=f, row=9, column="q2_deg", match="pose_id 'p03' was measured before")
+    assert "np.str_" not in str(err)

@@ -590,8 +590,9 @@ def _check_same_joints(camp: Campaign, path: Path, qcols: list[str]) -> None:
     if bad.any():
         k, j = (int(v[0]) for v in np.nonzero(bad))
         i = int(order[k + 1])
+        pk = str(pid[k])  # the id itself, not numpy's repr of it
         raise DataError(
-            f"pose_id {pid[k]!r} was measured before (row {int(camp.row_number[order[k]])}) with a different joint "
+            f"pose_id {pk!r} was measured before (row {int(camp.row_number[order[k]])}) with a different joint "
             f"angle ({np.degrees(q[k, j]):.6g} vs {np.degrees(q[k + 1, j]):.6g} deg); the same id must be the same "
             "configuration",
             file=path,

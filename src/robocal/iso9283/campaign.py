@@ -138,7 +138,7 @@ def read_iso(camp: Campaign, calibration: CalibrationResult, target: str | None 
     first: dict[str, int] = {}
     seen: dict[tuple[str, str, int], int] = {}
     for k in range(len(rows)):
-        lab = pose[k]
+        lab = str(pose[k])  # labels as text in messages, not numpy's repr
         j = first.setdefault(lab, k)
         dif = np.abs(cmd[k] - cmd[j])
         if dif.max() > 1e-4:
@@ -161,7 +161,7 @@ def read_iso(camp: Campaign, calibration: CalibrationResult, target: str | None 
         key = (lab, approach[k], int(cycle[k]))
         if key in seen:
             raise DataError(
-                f"iso_pose {lab!r}, approach {approach[k]!r}, cycle {cycle[k]} of target {tname!r} is also in row "
+                f"iso_pose {lab!r}, approach {str(approach[k])!r}, cycle {cycle[k]} of target {tname!s} is also in row "
                 f"{int(rn[rows[seen[key]]])}: one row per pose, approach and cycle",
                 file=f,
                 row=int(rn[rows[k]]),
