@@ -25,6 +25,7 @@ from robocal.iso9283.analysis import IsoResult, evaluate
 from robocal.iso9283.campaign import IsoCampaign, predicted_after, read_iso
 from robocal.iso9283.settings import IsoSettings
 from robocal.kinematics.transforms import rpy_from_matrix
+from robocal.robot import RobotDescription
 
 
 @dataclass(frozen=True)
@@ -39,7 +40,7 @@ class IsoRun:
 
 def run_iso9283(
     campaign: str | Path,
-    robot: str | Path,
+    robot: str | Path | RobotDescription,
     calibration: str | Path,
     out: str | Path,
     after: str | Path | None = None,
@@ -51,7 +52,7 @@ def run_iso9283(
     from robocal.robot import load_robot
 
     st = settings or IsoSettings()
-    rob = load_robot(robot)
+    rob = robot if isinstance(robot, RobotDescription) else load_robot(robot)
     cal_path = Path(calibration)
     if not cal_path.is_file():
         raise ConfigError(f"calibration file {cal_path} does not exist (robocal calibrate writes calibration.json)")
