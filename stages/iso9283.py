@@ -1,12 +1,12 @@
 """iso9283: the ISO 9283 pose characteristics of the campaign when it is an ISO test (robocal.iso9283).
 
-Reads ``robot`` and ``iso9283``; the interim campaign and the geometric stage's ``calibration.json`` (the
-tracker registered to the robot base by it; "after" is that calibration's predicted error removed, labelled as
-predicted). A campaign without the ISO columns (``iso_pose``, ``cycle``, ``cmd_x_mm`` .. ``cmd_z_mm``) skips,
+Reads ``robot`` and ``iso9283``; the interim campaign and a calibration (``iso9283.calibration``, default the
+geometric stage's ``calibration.json``: the tracker registered to the robot base by it; "after" is that
+calibration's predicted error removed, labelled as predicted). A campaign without the ISO columns (``iso_pose``, ``cycle``, ``cmd_x_mm`` .. ``cmd_z_mm``) skips,
 saying so: the default campaign is a calibration campaign, not an ISO test. Writes ``reports/iso9283/``
 (iso9283.json, iso9283_after.json, report.html: the certificate) and metrics (AP_p and RP_l before / after).
 
-    dvc exp run -S data.campaign=/path/to/iso_test
+    dvc exp run iso9283 -S data.campaign=/path/to/iso_test -S iso9283.calibration=/path/to/calibration.json
 """
 
 from __future__ import annotations
@@ -51,7 +51,8 @@ def compute(ctx: Context) -> Metrics | Skipped:
 
     robot = robot_from_dict(ctx.cfg["robot"], source="params: robot")
     settings = IsoSettings.from_mapping(ctx.cfg["iso9283"])
-    res = run_iso9283(ctx.path(INPUT), robot, ctx.path(CALIBRATION), ctx.out, settings=settings)
+    cal = ctx.path(settings.calibration or CALIBRATION)
+    res = run_iso9283(ctx.path(INPUT), robot, cal, ctx.out, settings=settings)
     for name in ("report.html", "iso9283.json", "iso9283_after.json"):
         ctx.artifact(ctx.out / name)
     before, after = res.before.to_dict(), res.after.to_dict()

@@ -97,6 +97,9 @@ class IsoSettings:
     twin: TwinConfig = field(default_factory=TwinConfig)
     analysis: AnalysisConfig = field(default_factory=AnalysisConfig)
     certificate: CertificateConfig = field(default_factory=CertificateConfig)
+    #: the pipeline's ``iso9283`` stage: the calibration.json that registers the tracker to the base and predicts
+    #: the "after" (default: the geometric stage's reports/geometric/calibration.json)
+    calibration: str | None = None
 
     @classmethod
     def from_mapping(cls, cfg: Mapping[str, Any] | None) -> IsoSettings:
