@@ -2,8 +2,9 @@
 
 Reads ``robot`` and ``iso9283``; the interim campaign and a calibration (``iso9283.calibration``, default the
 geometric stage's ``calibration.json``: the tracker registered to the robot base by it; "after" is that
-calibration's predicted error removed, labelled as predicted). A campaign without the ISO columns (``iso_pose``, ``cycle``, ``cmd_x_mm`` .. ``cmd_z_mm``) skips,
-saying so: the default campaign is a calibration campaign, not an ISO test. Writes ``reports/iso9283/``
+calibration's predicted error removed, labelled as predicted). A campaign without the ISO columns
+(``iso_pose``, ``cycle``, ``cmd_x_mm`` .. ``cmd_z_mm``) skips, saying so: the default campaign is a calibration
+campaign, not an ISO test. Writes ``reports/iso9283/``
 (iso9283.json, iso9283_after.json, report.html: the certificate) and metrics (AP_p and RP_l before / after).
 
     dvc exp run iso9283 -S data.campaign=/path/to/iso_test -S iso9283.calibration=/path/to/calibration.json
