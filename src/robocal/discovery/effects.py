@@ -89,8 +89,6 @@ def effect_records(fit: Fit) -> tuple[list[dict[str, Any]], list[dict[str, Any]]
         rec_terms: dict[str, Any] = {"terms": c.extra["terms"]} if kind == "dictionary" else {}
         if kind == "transmission":
             rec_terms = {k: c.extra[k] for k in ("harmonics", "visited_deg", "taper_deg", "centre")}
-        elif kind == "angle" and "visited_deg" in c.extra:
-            rec_terms = {k: c.extra[k] for k in ("visited_deg", "taper_deg", "centre")}
         elif kind == "weight":
             rec_terms = {k: c.extra[k] for k in ("basis", "scale", "prior_deg")}
         elif kind == "layer":
@@ -137,21 +135,16 @@ def joint_offsets(
         if kind == "angle":
             h = int(e["harmonic"])
             S = np.column_stack([np.sin(h * q[:, j]), np.cos(h * q[:, j])])
-            if "visited_deg" in e:  # zero outside the angles the calibration visited
-                from robocal.discovery.physics import coverage_weight
-
-                S = S * coverage_weight(q[:, j], e["visited_deg"], float(e["taper_deg"]))[:, None]
-                S = S - np.asarray(e.get("centre", 0.0), dtype=float)
         elif kind == "transmission":
             from robocal.discovery.physics import transmission_signal
 
             S = transmission_signal(q[:, j], e)
         elif kind == "weight":
-            from robocal.discovery.physics import gravity_regressor
+            from robocal.discovery.physics import gravity_regressor, weight_signal
 
             if Yg is None:  # one regressor for every joint's weight effect
                 Yg = gravity_regressor(robot, q)
-            S = Yg[:, j, :] @ np.asarray(e["basis"], dtype=float) / np.asarray(e["scale"], dtype=float)
+            S = weight_signal(robot, q, e, Yg)
         elif kind == "layer":
             from robocal.discovery.physics import layer_signal
 

@@ -208,15 +208,10 @@ class FoldCV:
             Hi = np.linalg.pinv(H, rcond=1e-12, hermitian=True)
             self.Hinv[k] = Hi
             self.base_err[t] = r[t] - At @ (Hi @ g)
-        self.G_z: dict[int, Any] = {}
         self._g = {k: (b - A[self.fold == k].T @ r[self.fold == k] + prec * th) for k in self.folds}
 
     def group_sse(self, err: np.ndarray) -> np.ndarray:
         return np.bincount(self.gidx, weights=err**2, minlength=self.n_groups)
-
-    def with_candidate(self, Z: np.ndarray, prior_rad: float | np.ndarray | None) -> np.ndarray:
-        """Held-out errors (M,) when the whitened regressor ``Z (M, q)`` joins the model (coefficients from 0)."""
-        return self.with_variants(Z, [Variant(np.arange(Z.shape[1]), prior_rad, "")])[0]
 
     def with_variants(self, Z: np.ndarray, variants: list[Variant]) -> list[np.ndarray]:
         """Held-out errors (M,) of each variant (columns of ``Z (M, q)`` and a prior). The products with the

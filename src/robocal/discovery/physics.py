@@ -75,12 +75,8 @@ def coverage_weight(q_rad: np.ndarray, intervals: list[list[float]], taper_deg: 
         return np.zeros(a.shape)
     dist = np.full(a.shape, np.inf)
     for lo, hi in intervals:
-        if lo <= hi:
-            inside = (a >= lo) & (a <= hi)
-            d = np.minimum(np.mod(lo - a, REV_DEG), np.mod(a - hi, REV_DEG))
-        else:  # wraps through 0
-            inside = (a >= lo) | (a <= hi)
-            d = np.minimum(np.mod(lo - a, REV_DEG), np.mod(a - hi, REV_DEG))
+        inside = ((a >= lo) & (a <= hi)) if lo <= hi else ((a >= lo) | (a <= hi))  # else: wraps through 0
+        d = np.minimum(np.mod(lo - a, REV_DEG), np.mod(a - hi, REV_DEG))
         dist = np.minimum(dist, np.where(inside, 0.0, d))
     if taper_deg <= 0:
         return (dist == 0).astype(float)
@@ -184,11 +180,14 @@ def weight_basis(Y_j: np.ndarray, rtol: float = 1e-6) -> tuple[np.ndarray, np.nd
     return Vt[keep].T, s[keep] / np.sqrt(m)
 
 
-def weight_signal(robot: RobotDescription, q: np.ndarray, record: dict[str, Any]) -> np.ndarray:
-    """The compliance-under-own-weight signal of a stored effect (``basis``, ``scale``)."""
+def weight_signal(
+    robot: RobotDescription, q: np.ndarray, record: dict[str, Any], Y: np.ndarray | None = None
+) -> np.ndarray:
+    """The compliance-under-own-weight signal of a stored effect (``basis``, ``scale``); ``Y``: the
+    :func:`gravity_regressor` at ``q`` when already computed (one for every joint's effect)."""
     j = int(record["joint"]) - 1
-    Y = gravity_regressor(robot, q)[:, j, :]
-    return Y @ np.asarray(record["basis"], dtype=float) / np.asarray(record["scale"], dtype=float)
+    Yj = (gravity_regressor(robot, q) if Y is None else Y)[:, j, :]
+    return Yj @ np.asarray(record["basis"], dtype=float) / np.asarray(record["scale"], dtype=float)
 
 
 __all__ = [
