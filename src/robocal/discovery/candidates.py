@@ -9,6 +9,15 @@ Every candidate adds a few coefficients ``c`` to the calibration model. Three sh
   identifiable parameter follows the temperature signals; drift: the tracker/base frame moves with time).
   Regressor ``J_x[:, :, i] · S_i``. The drift is small, so the extended model adds it to first order.
 - ``structure``: a kinematic parameter the model leaves out (Hayati ``beta`` on a parallel joint pair).
+- ``tracker``: the tracker's length scale ``p_meas = (1 + s(row)) p_true`` about the tracker head, ``s(row) =
+  S(row) · c`` (ppm): regressor ``S(row) p_mm(row)`` on the position residuals (measurement side). A constant
+  scale is a uniform scale of the robot's lengths and base, which no calibration without a reference length can
+  tell apart: only a scale changing with time or air temperature is a candidate (the constant is listed as
+  skipped, with that reason).
+  A scale changing with time is also a proxy for a robot effect whose signal follows time (a payload put on
+  halfway, a warm-up): when its signal correlates with the payload or a temperature, the F-test search scores it
+  but leaves it to the cross-validated selection (``extra["selection"] == "cv"``), which offers it after the
+  robot's own effects were found.
 
 All signals are built for every row of the campaign (calibration and validation), so the extended model
 can predict held-out rows. A candidate whose signal is missing or does not vary is returned in the skipped list
@@ -27,6 +36,8 @@ from robocal.discovery.config import DiscoveryConfig
 from robocal.robot import RobotDescription
 
 HOUR_S = 3600.0
+#: A tracker's length scale is reported in parts per million (the S column of a ``tracker`` candidate is per ppm).
+PPM = 1e-6
 
 
 @dataclass(frozen=True)
@@ -34,10 +45,12 @@ class Candidate:
     """One candidate effect.
 
     key : unique id (``gear:j4:h1``); effect : family name; joint / harmonic : 1-based or None;
-    cause : the physical cause; signal : what drives it; shape : ``joint`` | ``param`` | ``structure``;
+    cause : the physical cause; signal : what drives it; shape : ``joint`` | ``param`` | ``structure`` |
+    ``tracker``;
     S : (m_all, k) signal matrix for ``joint`` shape, (m_all, s) for ``param`` (one coefficient per
-    parameter and signal column); coef_names : names of the coefficients (for ``param`` shape filled when the
-    model's parameters are known); coef_units : their units; scale : display factor per coefficient.
+    parameter and signal column), (m_all, k) for ``tracker`` (the scale per unit of each coefficient);
+    coef_names : names of the coefficients (for ``param`` shape filled when the model's parameters are known);
+    coef_units : their units; scale : display factor per coefficient.
     """
 
     key: str
@@ -111,6 +124,44 @@ def _temperature_signals(campaign: Campaign, n_comp: int) -> tuple[np.ndarray, t
         for k in keep
     )
     return S, names, load
+
+
+#: A measurement-side signal correlating more than this with a robot-side one is left to the cross-validated
+#: selection (see the module docstring).
+CONFOUND_CORR = 0.5
+
+
+def _confounded(S: np.ndarray, campaign: Campaign) -> dict[str, Any]:
+    """``{"selection": "cv", "confounded_with": name}`` when a column of ``S`` correlates (|r| > CONFOUND_CORR)
+    with the payload or a logged temperature, else ``{}``."""
+    robot_side = {"payload_kg": np.asarray(campaign.payload_kg, dtype=float)}
+    if campaign.temperatures is not None:
+        T = np.asarray(campaign.temperatures, dtype=float)
+        robot_side.update({n: T[:, k] for k, n in enumerate(campaign.sensor_names)})
+    for name, x in robot_side.items():
+        if not _varies(x, 1e-9):
+            continue
+        for col in S.T:
+            if _varies(col, 1e-12) and abs(float(np.corrcoef(col, x)[0, 1])) > CONFOUND_CORR:
+                return {"selection": "cv", "confounded_with": name}
+    return {}
+
+
+#: The signals a tracker's scale may follow: coefficient name -> (description, unit).
+_SCALE_SIGNALS = {
+    "ppm_per_h": ("time (h from the campaign's mean time)", "ppm/h"),
+    "ppm_per_degC_air": ("air temperature (degC from its mean)", "ppm/degC"),
+}
+
+
+def _air_temperature(campaign: Campaign, robot: RobotDescription) -> np.ndarray | None:
+    """The mean of the logged sensors with ``location: ambient`` (degC per row), or None without one."""
+    ambient = [x.name for x in robot.sensors if x.location == "ambient"]
+    logged = list(campaign.sensor_names) if campaign.temperatures is not None else []
+    cols = [logged.index(a) for a in ambient if a in logged]
+    if not cols or campaign.temperatures is None:
+        return None
+    return np.asarray(campaign.temperatures, dtype=float)[:, cols].mean(axis=1)
 
 
 def _parallel_joints(robot: RobotDescription) -> list[int]:
@@ -263,14 +314,11 @@ def build_library(
         elif effect == "air":
             key = "air"
             ambient = [x.name for x in robot.sensors if x.location == "ambient"]
-            logged = list(campaign.sensor_names) if campaign.temperatures is not None else []
-            cols = [logged.index(a) for a in ambient if a in logged]
-            if not cols:
+            Ta = _air_temperature(campaign, robot)
+            if Ta is None:
                 why = "no air temperature (a sensor with location: ambient in the robot description) in the log"
                 skipped.append(SkippedCandidate(key, effect, None, why))
                 continue
-            assert campaign.temperatures is not None
-            Ta = np.asarray(campaign.temperatures, dtype=float)[:, cols].mean(axis=1)
             if not np.all(np.isfinite(Ta)) or float(np.std(Ta)) < max(tol, 0.05):
                 skipped.append(SkippedCandidate(key, effect, None, "the air temperature does not vary"))
                 continue
@@ -282,6 +330,37 @@ def build_library(
                     signal=f"air temperature ({', '.join(ambient)}) from its mean, degC", shape="param",
                     S=(Ta - Ta.mean())[:, None],
                     params=("base_tx", "base_ty", "base_tz", "base_rx", "base_ry", "base_rz"), signal_names=("T_air",),
+                )
+            )  # fmt: skip
+        elif effect == "scale":
+            t = np.asarray(campaign.timestamp_s, dtype=float)
+            skipped.append(SkippedCandidate("scale", effect, None, "a constant tracker scale is a uniform scale of the "
+                                            "robot's lengths and base: absorbed by the geometric calibration, not "
+                                            "separable without a reference length (only a scale that changes "
+                                            "during the campaign is tested)"))  # fmt: skip
+            cols: list[np.ndarray] = []
+            sig_names: list[str] = []
+            if _varies(t, 1.0):
+                cols.append((t - t.mean()) / HOUR_S)
+                sig_names.append("ppm_per_h")
+            Ta = _air_temperature(campaign, robot)
+            if Ta is not None and _varies(Ta, max(tol, 0.05)):
+                cols.append(Ta - Ta.mean())
+                sig_names.append("ppm_per_degC_air")
+            if not cols:
+                why = "neither the timestamps nor an air temperature vary"
+                skipped.append(SkippedCandidate("scale:drift", effect, None, why))
+                continue
+            cands.append(
+                Candidate(
+                    "scale:drift", effect, None, None,
+                    cause="the tracker's length scale changes during the campaign (the air's refractive index as "
+                    "the weather changes, a stale weather station): a measurement-side effect, never sent to the "
+                    "controller",
+                    signal=" and ".join(_SCALE_SIGNALS[n][0] for n in sig_names),
+                    shape="tracker", S=np.column_stack(cols) * PPM,
+                    coef_names=tuple(sig_names), coef_units=tuple(_SCALE_SIGNALS[n][1] for n in sig_names),
+                    extra={"p_mm": campaign.p_mm, **_confounded(np.column_stack(cols), campaign)},
                 )
             )  # fmt: skip
         elif effect == "beta":

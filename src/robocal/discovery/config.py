@@ -10,7 +10,19 @@ from robocal.config import parse, setting
 from robocal.identification.calibrate import data_rows, outlier_rule
 
 #: Every effect the library knows, in the order candidates are built.
-EFFECT_NAMES = ("compliance", "gear", "backlash", "thermal", "drift", "regap", "air", "beta", "transmission", "weight")
+EFFECT_NAMES = (
+    "compliance",
+    "gear",
+    "backlash",
+    "thermal",
+    "drift",
+    "regap",
+    "air",
+    "scale",
+    "beta",
+    "transmission",
+    "weight",
+)
 
 
 @dataclass(frozen=True)

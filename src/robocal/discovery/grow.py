@@ -285,7 +285,7 @@ def grow(
     single: list[tuple[Candidate, list[Variant]]] = [
         (c, [Variant(np.arange(c.S.shape[1]) if c.shape == "joint" else None, None, "")])
         for c in leftovers
-        if c.shape in ("joint", "param")
+        if c.shape in ("joint", "param", "tracker")
     ]
     pool = pooled(single + physics_candidates(campaign, robot, cfg, rows))
     n_var = sum(len(v) for _, v in pool)

@@ -147,7 +147,25 @@ class ExtendedModel:
                 cols = cols.reshape(m, dd, -1)
                 Jv[:, :, sl] = cols
                 rv += np.einsum("mij,j->mi", cols, theta[sl])
+            elif c.shape == "tracker":
+                cols = tracker_columns(c, rows, dd)
+                Jv[:, :, sl] = cols
+                rv += np.einsum("mij,j->mi", cols, theta[sl])
         return rv.ravel(), J, Jx, Jq
+
+
+def tracker_columns(cand: Candidate, rows: np.ndarray, d: int = 3) -> np.ndarray:
+    """``(m, d, k)`` displacement columns of a tracker-scale effect on campaign rows ``rows``: the measured point
+    (``cand.extra["p_mm"]``, tracker or station frame, about the tracker head) times each scale signal
+    ``cand.S``; a scale turns no orientation.
+
+    (First order: the scale ``s`` is ~1e-5, so ``s p_meas`` and ``s p_true`` differ by ``s`` times the
+    residual, far below the noise.)"""
+    p = np.asarray(cand.extra["p_mm"], dtype=float)[rows]
+    S = cand.S[rows]
+    out = np.zeros((len(p), d, S.shape[1]))
+    out[:, :3, :] = p[:, :, None] * S[:, None, :]
+    return out
 
 
 def by_row(a: np.ndarray, m: int, d: int) -> np.ndarray:

@@ -24,7 +24,7 @@ from scipy import stats
 from robocal.data.contract import Campaign
 from robocal.discovery.candidates import Candidate, SkippedCandidate, build_library, with_beta
 from robocal.discovery.config import DiscoveryConfig
-from robocal.discovery.model import Accepted, ExtendedModel, Fit, by_row, fit_model
+from robocal.discovery.model import Accepted, ExtendedModel, Fit, by_row, fit_model, tracker_columns
 from robocal.errors import ConfigError
 from robocal.identification.calibrate import CalibrationConfig, calibrate, fit_data, present_targets
 from robocal.identification.model import CalibrationModel, FitData
@@ -124,6 +124,8 @@ def regressor(cand: Candidate, fit: Fit, rows: np.ndarray, data: FitData) -> tup
         idx = [model.base.index(p) for p in params]
         Z = fit.Jx[:, :, idx][:, :, :, None] * cand.S[rows][:, None, None, :]
         return Z.reshape(dd * m, -1) * w, params
+    if cand.shape == "tracker":
+        return tracker_columns(cand, rows, dd).reshape(dd * m, -1) * w, ()
     # structure: the beta column of the robot with that beta free, at the current parameters
     assert cand.joint is not None
     rob = with_beta(fit.model.robot, cand.joint)
@@ -211,6 +213,16 @@ def cross_validation_gain(fit: Fit, Uk: np.ndarray, groups: np.ndarray, folds: i
             else:
                 sse1 += e
     return float((sse0 - sse1) / sse0) if sse0 > 0 else 0.0
+
+
+def _leave_to_cv(scored: list[tuple[Score, Candidate, np.ndarray, tuple[str, ...]]]) -> None:
+    """Candidates the F-test may not accept (``extra["selection"] == "cv"``: a measurement-side signal that follows
+    a robot-side one, see :mod:`robocal.discovery.candidates`) are marked so; the cross-validated selection offers
+    them after the robot's own effects."""
+    for sc, cand, _, _ in scored:
+        if sc.passes and cand.extra.get("selection") == "cv":
+            sc.passes = False
+            sc.status = "left to the cross-validated selection"
 
 
 def _wald_log10_p(fit: Fit, acc: Accepted) -> float:
@@ -358,6 +370,7 @@ def _search(
             if sc.status == "unidentifiable":
                 unident.setdefault(cand.key, sc.absorbed_share)
             scored.append((sc, cand, Uk, params))
+        _leave_to_cv(scored)
         passing = sorted((s for s in scored if s[0].passes), key=lambda s: s[0].log10_p)
         chosen = None
         for sc, cand, Uk, params in passing:

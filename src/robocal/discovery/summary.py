@@ -7,13 +7,13 @@ from typing import Any
 
 import numpy as np
 
-from robocal.discovery.model import Accepted, Fit
+from robocal.discovery.model import Accepted, Fit, tracker_columns
 from robocal.discovery.search import DiscoveryResult, Step
 from robocal.kinematics.chain import fk
 
 _DEG = float(np.rad2deg(1.0))
 #: Effects of the measurement, not of the robot: reported, used in the fit, never sent to the controller.
-MEASUREMENT_SIDE = ("drift", "air", "regap")
+MEASUREMENT_SIDE = ("drift", "air", "regap", "scale")
 
 
 def _est(value: float, se: float, unit: str) -> dict[str, Any]:
@@ -59,32 +59,46 @@ def estimates(fit: Fit, acc: Accepted) -> dict[str, Any]:
         unit = c.coef_units[0]
         key = "c_rad_per_A" if unit == "rad/A" else "c_rad_per_Nm"
         out[key] = _est(val[0], se[0], unit)
+    elif c.effect == "scale":
+        for k, (n, u) in enumerate(zip(c.coef_names, c.coef_units, strict=True)):
+            out[n] = _est(val[k], se[k], u)
     elif c.effect == "beta":
         nm = f"beta{c.joint}"
         out[f"{nm}_deg"] = _est(fit.theta[model.index(nm)] * _DEG, fit.stderr(nm) * _DEG, "deg")
     elif c.effect in ("thermal", "drift", "air", "regap"):
-        for k, n in enumerate(names):
-            p = n.split(":", 1)[1]
-            pname, sig = p.split("*")
-            unit_p = model.base.units[model.base.index(pname)]
-            f = _DEG if unit_p == "rad" else 1.0
-            unit = "deg" if unit_p == "rad" else "mm"
-            if sig.startswith("after_gap"):  # a step: the frame's change at the gap
-                out[f"{pname}_{sig}"] = _est(val[k] * f, se[k] * f, unit)
-                continue
-            per = "h" if sig == "t_h" else f"°C ({sig})"
-            out[f"{pname}_per_{sig}"] = _est(val[k] * f, se[k] * f, f"{unit}/{per}")
-        if c.effect == "drift":
-            R = model.base.T_ref[:3, :3]
-            tn = [f"drift:base_t{a}*t_h" for a in "xyz"]
-            if all(n in names for n in tn):
-                v = np.array([fit.theta[model.index(n)] for n in tn])
-                Ct = fit.cov_of(tn)
-                Ct = np.where(np.isfinite(Ct), Ct, 0.0)
-                vt = R @ v
-                st = np.sqrt(np.diag(R @ Ct @ R.T))
-                for a, axis in enumerate("xyz"):
-                    out[f"tracker_{axis}_mm_per_h"] = _est(vt[a], st[a], "mm/h")
+        out.update(_drift_estimates(fit, acc, val, se))
+    return out
+
+
+def _drift_estimates(fit: Fit, acc: Accepted, val: np.ndarray, se: np.ndarray) -> dict[str, Any]:
+    """Estimates of a parameter drift (thermal, drift, air, regap): per parameter and signal, and for the
+    tracker's drift its velocity in the tracker frame."""
+    c = acc.cand
+    model = fit.model
+    names = list(acc.coef_names)
+    out: dict[str, Any] = {}
+    for k, n in enumerate(names):
+        p = n.split(":", 1)[1]
+        pname, sig = p.split("*")
+        unit_p = model.base.units[model.base.index(pname)]
+        f = _DEG if unit_p == "rad" else 1.0
+        unit = "deg" if unit_p == "rad" else "mm"
+        if sig.startswith("after_gap"):  # a step: the frame's change at the gap
+            out[f"{pname}_{sig}"] = _est(val[k] * f, se[k] * f, unit)
+            continue
+        per = "h" if sig == "t_h" else f"°C ({sig})"
+        out[f"{pname}_per_{sig}"] = _est(val[k] * f, se[k] * f, f"{unit}/{per}")
+    if c.effect == "drift":
+        R = model.base.T_ref[:3, :3]
+        tn = [f"drift:base_t{a}*t_h" for a in "xyz"]
+        if all(n in names for n in tn):
+            v = np.array([fit.theta[model.index(n)] for n in tn])
+            Ct = fit.cov_of(tn)
+            Ct = np.where(np.isfinite(Ct), Ct, 0.0)
+            vt = R @ v
+            st = np.sqrt(np.diag(R @ Ct @ R.T))
+            for a, axis in enumerate("xyz"):
+                out[f"tracker_{axis}_mm_per_h"] = _est(vt[a], st[a], "mm/h")
     return out
 
 
@@ -121,6 +135,8 @@ def effect_displacement(fit: Fit, acc: Accepted) -> np.ndarray:
     if c.shape == "joint":
         assert c.joint is not None
         return fit.Jq[:, :3, c.joint - 1] * (c.S[_rows(fit)] @ th)[:, None]
+    if c.shape == "tracker":
+        return np.einsum("mij,j->mi", tracker_columns(c, _rows(fit)), th)
     idx = [model.base.index(p) for p in acc.params]
     cols = fit.Jx[:, :3, idx][:, :, :, None] * c.S[_rows(fit)][:, None, None, :]
     return np.einsum("mij,j->mi", cols.reshape(m, 3, -1), th)

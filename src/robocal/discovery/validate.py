@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from robocal.discovery.model import Fit
+from robocal.discovery.model import Fit, tracker_columns
 from robocal.discovery.search import DiscoveryResult
 from robocal.identification.calibrate import validate_rows
 from robocal.identification.model import FitData
@@ -79,6 +79,10 @@ def _validate_fit(res: DiscoveryResult, fit: Fit) -> dict[str, Any]:
             idx = [base.index(p) for p in a.params]
             cols = (Jx[:, :, idx][:, :, :, None] * a.cand.S[vrows][:, None, None, :]).reshape(val.n_rows, 3, -1)
             dp += np.einsum("mij,j->mi", cols, fit.theta[sl])
+    for a, sl in zip(model.accepted, model.slices, strict=True):
+        if a.cand.shape == "tracker":  # the tracker's scale of the measured points (measurement side)
+            dpt = np.einsum("mij,j->mi", tracker_columns(a.cand, vrows), fit.theta[sl])
+            dp = dpt if dp is None else dp + dpt
     v = validate_rows(val, base_T_flange, stations, tools, tool_R, dp_mm=dp)
     return v
 

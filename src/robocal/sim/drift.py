@@ -1,4 +1,5 @@
-"""Twin effect ``drift``: the tracker (or the robot base) moves slowly during the campaign.
+"""Twin effects ``drift`` (the tracker or the robot base moves slowly during the campaign) and ``scale`` (the
+tracker's length scale is off, and may change with time).
 
 A tracker on a tripod settles, a floor creeps as it warms: the measured points shift in the tracker frame by
 ``dp(t) = v · h + a · h²`` with ``h`` hours since the campaign start (``rate_mm_per_h`` = v,
@@ -52,4 +53,36 @@ class DriftEffect:
         }
 
 
-__all__ = ["DriftEffect"]
+@register_effect("scale")
+class ScaleEffect:
+    """The tracker's length scale is off: every measured point is scaled about the tracker head by ``1 + s(t)``,
+    ``s = (ppm + ppm_per_h · h) · 1e-6`` with ``h`` hours since the campaign start (a wrong or stale weather
+    station: the air's refractive index sets the laser's wavelength). Config: ``ppm``, ``ppm_per_h``.
+
+    Truth: ``truth["effects"]["scale"] = {"ppm": ..., "ppm_per_h": ..., "max_abs_ppm": ...}``. A constant
+    scale is a uniform scale of the robot's lengths (no calibration can tell them apart without a reference
+    length); a scale that changes with time is a measurement-side effect discovery can find.
+    """
+
+    name = "scale"
+
+    def __init__(self, cfg: Mapping[str, Any]) -> None:
+        self.cfg = dict(cfg)
+
+    def plan(self, rows: Rows, ctx: TwinContext) -> Rows:
+        return rows
+
+    def apply(self, rows: Rows, ctx: TwinContext) -> None:
+        vals = {}
+        for key in ("ppm", "ppm_per_h"):
+            v = self.cfg.get(key, 0.0)
+            if isinstance(v, bool) or not isinstance(v, int | float) or not np.isfinite(v):
+                raise ConfigError(f"The '{key}' setting of the scale effect must be a number. Got {v!r}.")
+            vals[key] = float(v)
+        h = (np.asarray(rows.t_s, dtype=float) - float(np.min(rows.t_s))) / 3600.0
+        s = (vals["ppm"] + vals["ppm_per_h"] * h) * 1e-6
+        rows.tracker_scale = s if rows.tracker_scale is None else rows.tracker_scale + s
+        ctx.truth.setdefault("effects", {})["scale"] = {**vals, "max_abs_ppm": float(np.max(np.abs(s))) * 1e6}
+
+
+__all__ = ["DriftEffect", "ScaleEffect"]

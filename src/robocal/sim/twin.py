@@ -52,6 +52,7 @@ class Rows:
     deta: np.ndarray
     columns: dict[str, np.ndarray] = field(default_factory=dict)
     dp_tracker_mm: np.ndarray | None = None  # (m, 3) tracker-frame displacement of the measured points (drift)
+    tracker_scale: np.ndarray | None = None  # (m,) the tracker's length-scale error of each row (scale), 1e-6 = 1 ppm
 
 
 @dataclass
@@ -414,6 +415,8 @@ def simulate(  # noqa: C901, PLR0915
         R[sel] = st.R @ tool_R[rows.target_index[sel]]
     # tracker stations: the tracker moved (leap-frog): pose k is measured from station k mod S
     station_of = _stations(sc, truth, rows, p, R, T_base)
+    if rows.tracker_scale is not None:  # about the tracker head: the point in its station's frame
+        p = p * (1.0 + rows.tracker_scale)[:, None]
     if rows.dp_tracker_mm is not None:
         p = p + rows.dp_tracker_mm
     noise = rng("noise")
