@@ -37,9 +37,9 @@ LAYERS: list[set[str]] = [
 
 #: (importer package, imported package) -> why it is allowed for now. Each one is known and to be removed.
 EXCEPTIONS: dict[tuple[str, str], str] = {
-    # serve/protocol.py asks discovery.effects where the bundle's residual layer applies and the bundle builds the
-    # discovered effects (lazy imports); the effect should register itself with the compensation package instead
-    ("serve", "discovery"): "serve.protocol / bundle import discovery.effects (lazily); to register instead",
+    # the bundle builds its discovered effects (a lazy import); the effect should register itself with the
+    # compensation package instead
+    ("serve", "discovery"): "serve.bundle imports discovery.effects (lazily); to register instead",
 }
 
 

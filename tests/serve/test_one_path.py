@@ -83,3 +83,40 @@ def test_one_policy_with_one_set_of_defaults():
     th = ThermalConfig.from_mapping({"compensation": {"temperature_margin_C": 1.0}}).limits
     assert th.max_correction_deg == SafetyPolicy().max_correction_deg == 0.5
     assert ThermalCompensation.__dataclass_fields__["limits"].type in ("SafetyPolicy", SafetyPolicy)
+
+
+def test_outside_the_residual_layer_the_service_and_the_filter_say_so(geo, tmp_path):
+    """A bundle whose discovered effects include a residual layer calibrated around one configuration: a target
+    there gets the layer; a target far from it the parametric correction only, and the service's reply, the
+    filter's result and its table say so (a note, not a flag)."""
+    import csv
+    import dataclasses
+
+    from robocal.cell.programs.filter import filter_program, read_program
+    from robocal.cell.programs.make import rapid_module
+    from robocal.discovery.effects import LAYER_NOTE
+    from robocal.kinematics.ik import compile_chain
+    from robocal.serve.protocol import Service
+
+    inside = np.array([10.0, -80.0, 70.0, 20.0, 45.0, 30.0])
+    outside = np.array([-100.0, -30.0, 20.0, -120.0, 90.0, -150.0])
+    layer = {"key": "layer:j2", "effect": "layer", "joint": 2, "signal": "layer", "coefficients": [1e-4],
+             "centres_rad": [np.deg2rad(inside).tolist()], "length_rad": 0.3, "inside_rad": 0.2}  # fmt: skip
+    bundle = dataclasses.replace(geo, effects=(layer,))
+    req = {"targets": [{"q_deg": q.tolist()} for q in (inside, outside)]}
+    res = json.loads(Service(bundle).handle_line(json.dumps(req).encode()))["results"]
+    assert "notes" not in res[0], res[0]
+    assert res[1]["notes"] and res[1]["notes"][0].startswith(LAYER_NOTE), res[1]
+    assert [r["status"] for r in res] == ["ok", "ok"]  # a note is not a flag
+    cc = compile_chain(geo.chain)
+    (tmp_path / "M.mod").write_text(
+        rapid_module("M", cc, np.deg2rad(np.vstack([inside, outside])), np.eye(4), np.eye(4))
+    )
+    prog = read_program(tmp_path / "M.mod")
+    f = filter_program(prog, bundle)
+    far = np.abs(f.q_nominal_deg - outside).max(axis=1) < 0.01  # the module's targets at the outside joints
+    assert far.any() and not far.all()
+    assert all(bool(n) == bool(o) for n, o in zip(f.notes, far, strict=True)), f.notes
+    assert all(n[0].startswith(LAYER_NOTE) for n in f.notes if n)
+    rows = list(csv.DictReader(f.table.splitlines()))
+    assert [bool(r["notes"]) for r in rows] == far.tolist()

@@ -85,5 +85,9 @@ def run(args: argparse.Namespace) -> int:
         if s != "ok":
             t = prog.targets[k]
             print(f"  {s}: {t.name} ({t.file.name}:{t.line}): {'; '.join(res.reasons[k])}")
+    noted = [k for k, ns in enumerate(res.notes) if ns]
+    if noted:  # not a flag: the correction there is the parametric one (the residual layer stops at its region)
+        names = ", ".join(prog.targets[k].name for k in noted[:10]) + (" ..." if len(noted) > 10 else "")
+        print(f"  note: {len(noted)} target(s) {res.notes[noted[0]][0].split(' (')[0]}: {names}")
     print("wrote " + ", ".join(str(p) for p in written))
     return 0

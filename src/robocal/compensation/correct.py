@@ -11,7 +11,7 @@ joint-space correction at that pose.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -59,7 +59,8 @@ class Corrected:
     deg); excess_deg (m,) the largest joint correction, or where it exceeds the bound the smaller of it and
     what is beyond the calibration's own correction; rest_mm (m,) the same for the predicted error and the
     error left after the calibration's own correction; status (m,) and reasons per target
-    (:class:`SafetyPolicy`)."""
+    (:class:`SafetyPolicy`); notes per target: where an effect does not apply (:meth:`JointOffsets.notes`), not a
+    flag."""
 
     q_target: np.ndarray
     q: np.ndarray
@@ -76,6 +77,7 @@ class Corrected:
     rest_mm: np.ndarray
     status: list[str]
     reasons: list[list[str]]
+    notes: list[list[str]] = field(default_factory=list)
 
     @property
     def refused(self) -> np.ndarray:
@@ -201,6 +203,22 @@ def correct_targets(
     status, reasons = sf.judge(
         conv, res_n, res_deg, excess, rest, q_target, q, q_limits, joint_names, request_reasons, unreachable
     )
+    notes = offsets.notes(q_target) if offsets is not None else [[] for _ in range(m)]
     return Corrected(
-        q_target, q, dq_deg, conv, eb_mm, eb_rad, eb_n, res_mm, res_rad, res_n, res_deg, excess, rest, status, reasons
+        q_target,
+        q,
+        dq_deg,
+        conv,
+        eb_mm,
+        eb_rad,
+        eb_n,
+        res_mm,
+        res_rad,
+        res_n,
+        res_deg,
+        excess,
+        rest,
+        status,
+        reasons,
+        notes,
     )

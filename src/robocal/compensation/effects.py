@@ -9,9 +9,10 @@ calls.
 
 A new effect (a per-joint periodic gear error, a residual layer on the joint angles) is a class with a
 ``name``, the ``needs`` it has among :data:`SIGNALS` and ``offsets(q, signals) -> dq`` (the protocol
-:class:`JointEffect`); listed once in :meth:`robocal.serve.bundle.Bundle.joint_effects` it reaches the service
-and the program filter (both through :func:`robocal.compensation.correct.correct_targets`), and the safety
-policy counts it as the calibration's own correction (:mod:`robocal.compensation.safety`).
+:class:`JointEffect`; optionally ``notes(q)``, per target, where it does not apply); listed once in
+:meth:`robocal.serve.bundle.Bundle.joint_effects` it reaches the service and the program filter (both through
+:func:`robocal.compensation.correct.correct_targets`, its notes with them), and the safety policy counts it as
+the calibration's own correction (:mod:`robocal.compensation.safety`).
 """
 
 from __future__ import annotations
@@ -105,6 +106,18 @@ class JointOffsets:
         for e in self.effects:
             dq += e.offsets(q, s)
         return dq
+
+    def notes(self, q: np.ndarray) -> list[list[str]]:
+        """Per target, what the effects say about their own reach at the commanded joints ``q (m, n)``: an effect
+        with a ``notes(q) -> list[list[str]]`` method (e.g. a residual layer outside its calibrated region) adds
+        its notes; the others say nothing."""
+        out: list[list[str]] = [[] for _ in range(len(q))]
+        for e in self.effects:
+            fn = getattr(e, "notes", None)
+            if fn is not None:
+                for k, ns in enumerate(fn(q)):
+                    out[k].extend(ns)
+        return out
 
 
 def compose(effects: Sequence[JointEffect], signals: Signals) -> JointOffsets | None:

@@ -229,6 +229,14 @@ class DiscoveredEffects:
     def offsets(self, q: np.ndarray, s: Signals) -> np.ndarray:
         return joint_offsets(list(self.records), self.robot, q, s.payload_kg, s.tau_Nm, s.current_A, s.direction)
 
+    def notes(self, q: np.ndarray) -> list[list[str]]:
+        """Per target: :data:`LAYER_NOTE` (with the layer's weight) where the residual layer is not fully
+        applied (outside the calibrated region), else nothing."""
+        cover = layer_coverage(list(self.records), q)
+        if cover is None:
+            return [[] for _ in range(len(q))]
+        return [[f"{LAYER_NOTE} (layer weight {c:.2f})"] if c < 1.0 else [] for c in cover]
+
 
 def extended_calibration(fit: Fit, robot: RobotDescription, summary_fit: dict[str, Any]) -> dict[str, Any]:
     """The discovered model written as a calibration (the geometric format of

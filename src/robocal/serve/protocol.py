@@ -368,11 +368,6 @@ class Service:
             robot.joint_names, orientation=mode == "pose", solver=cfg.solver, policy=sf,
             request_reasons=reasons_all, unreachable=~ik_ok,
         )  # fmt: skip
-        cover = None
-        if bundle.effects:
-            from robocal.discovery.effects import layer_coverage
-
-            cover = layer_coverage(list(bundle.effects), q_target)
         q_corr = c.q
         dq_deg = c.correction_deg
         err_before = c.error_before_norm_mm
@@ -403,10 +398,8 @@ class Service:
             }
             if reasons:
                 r["reasons"] = reasons
-            if cover is not None and cover[k] < 1.0:
-                from robocal.discovery.effects import LAYER_NOTE
-
-                r["notes"] = [f"{LAYER_NOTE} (layer weight {cover[k]:.2f})"]
+            if c.notes[k]:
+                r["notes"] = c.notes[k]
             if refuse:
                 n_ref += 1
             else:

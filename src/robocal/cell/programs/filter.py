@@ -40,7 +40,7 @@ from __future__ import annotations
 
 import csv
 import io
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -65,7 +65,8 @@ N_SEEDS = 48
 @dataclass
 class FilterResult:
     """Per target: status, reasons, joints (deg), correction (deg), predicted error and residual (mm); the new
-    texts of the program files; the table as CSV text."""
+    texts of the program files; the table as CSV text; notes (e.g. the residual layer not applied outside the
+    calibrated region)."""
 
     program: Program
     status: list[str]
@@ -76,6 +77,7 @@ class FilterResult:
     residual_mm: np.ndarray
     texts: dict[Path, str]
     table: str
+    notes: list[list[str]] = field(default_factory=list)  # per target: where an effect does not apply (not a flag)
 
     @property
     def n_refused(self) -> int:
@@ -300,7 +302,7 @@ def filter_program(
     q_c = c.q
     err_b = np.linalg.norm(c.error_before_mm, axis=1)
     resid = np.linalg.norm(c.residual_mm, axis=1)
-    status, reasons = c.status, c.reasons
+    status, reasons, notes = c.status, c.reasons, c.notes
 
     # the commands, written back
     from robocal.cell.programs import krl, rapid
@@ -325,8 +327,8 @@ def filter_program(
             new.update(written_config(prog.dialect, cc_nom, q_c[k], t.config))
         edits.setdefault(t.file, []).append((t.span[0], t.span[1], render(t, new)))
     texts = {p: apply_edits(txt, edits.get(p, [])) for p, txt in prog.texts.items()}
-    table = _table(prog.targets, robot, status, reasons, q_t, q_c, err_b, resid)
-    return FilterResult(prog, status, reasons, np.rad2deg(q_t), np.rad2deg(q_c), err_b, resid, texts, table)
+    table = _table(prog.targets, robot, status, reasons, q_t, q_c, err_b, resid, notes)
+    return FilterResult(prog, status, reasons, np.rad2deg(q_t), np.rad2deg(q_c), err_b, resid, texts, table, notes)
 
 
 def _table(
@@ -338,6 +340,7 @@ def _table(
     q_c: np.ndarray,
     err_b: np.ndarray,
     resid: np.ndarray,
+    notes: list[list[str]],
 ) -> str:
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
@@ -359,6 +362,7 @@ def _table(
             *[f"q{j + 1}_nominal_deg" for j in range(n)],
             *[f"q{j + 1}_corrected_deg" for j in range(n)],
             "reasons",
+            "notes",
         ]
     )
     dq = np.rad2deg(q_c - q_t)
@@ -380,6 +384,7 @@ def _table(
                 *[f"{v:.6f}" for v in np.rad2deg(q_t[k])],
                 *[f"{v:.6f}" for v in np.rad2deg(q_c[k])],
                 "; ".join(reasons[k]),
+                "; ".join(notes[k]),
             ]
         )
     return buf.getvalue()
