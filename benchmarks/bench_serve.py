@@ -1,9 +1,11 @@
 """Compensation service benchmarks (issue 8): latency, batch throughput, 100k requests, memory.
 
-    python benchmarks/bench_serve.py [--requests 100000] [--batch 1000]
+    python benchmarks/bench_serve.py [--requests 100000] [--batch 1000] [--bundle DIR]
 
 Builds a bundle from a twin campaign (geometric calibration + the stand-in-free thermal model when
-robocal.thermal is available, else geometric only), starts the server in a subprocess on loopback and prints:
+robocal.thermal is available, else geometric only), or takes ``--bundle DIR`` (e.g. a real robot's discovered
+calibration: ``robocal discover ../shared/data/ur10-ipa --robot ../shared/data/ur10-ipa/robot.yaml --out D``,
+then ``robocal serve --make-bundle B --robot ../shared/data/ur10-ipa/robot.yaml --calibration D/calibration.json``), starts the server in a subprocess on loopback and prints:
 p50/p99 round-trip latency of single-target requests, batch throughput (corrections/s), and the server's
 RSS before/after ``--requests`` mixed requests (valid, malformed, refused) with the count of crashes.
 """
@@ -53,9 +55,10 @@ def main() -> None:
     ap.add_argument("--requests", type=int, default=100_000)
     ap.add_argument("--latency", type=int, default=5000)
     ap.add_argument("--batch", type=int, default=1000)
+    ap.add_argument("--bundle", type=Path, help="an existing bundle (default: build one from the thermal twin)")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
-        bdir = make_bundle(Path(tmp))
+        bdir = args.bundle if args.bundle is not None else make_bundle(Path(tmp))
         s = socket.socket()
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]

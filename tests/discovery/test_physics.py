@@ -194,3 +194,17 @@ def test_a_tracker_scale_changing_with_time_is_found_on_the_measurement_side_and
     assert v is not None
     # the held-out rows are measured by the same tracker: the model of its scale must improve them
     assert v["discovered"]["mean_position_mm"] < 0.5 * v["geometric"]["mean_position_mm"]
+
+
+def test_the_weight_basis_leaves_out_mass_moments_the_calibration_poses_barely_load():
+    """A combination whose torque over the calibration poses is 1e-3 of the strongest would be scaled by 1000 at
+    a configuration that loads it (the UR10's joint 6 reached 24 deg that way): it is left out."""
+    from robocal.discovery.physics import WEIGHT_MIN_EXCITATION, weight_basis
+
+    rng = np.random.default_rng(3)
+    A = rng.normal(size=(60, 3))
+    Y = np.column_stack([A, 1e-3 * rng.normal(size=60), np.zeros(60)])  # a weak column and an unloaded one
+    V, scale = weight_basis(Y)
+    assert V.shape == (5, 3)  # the three loaded combinations only
+    assert np.all(scale >= WEIGHT_MIN_EXCITATION * scale.max())
+    assert np.abs(V[3:]).max() < 1e-2  # (the kept directions barely touch the weak and unloaded columns)
