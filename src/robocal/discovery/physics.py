@@ -73,11 +73,12 @@ def coverage_weight(q_rad: np.ndarray, intervals: list[list[float]], taper_deg: 
     a = np.mod(np.rad2deg(np.asarray(q_rad, dtype=float)), REV_DEG)
     if not intervals:
         return np.zeros(a.shape)
-    dist = np.full(a.shape, np.inf)
-    for lo, hi in intervals:
-        inside = ((a >= lo) & (a <= hi)) if lo <= hi else ((a >= lo) | (a <= hi))  # else: wraps through 0
-        d = np.minimum(np.mod(lo - a, REV_DEG), np.mod(a - hi, REV_DEG))
-        dist = np.minimum(dist, np.where(inside, 0.0, d))
+    iv = np.asarray(intervals, dtype=float)
+    lo, hi = iv[:, 0], iv[:, 1]  # (K,) every interval at once: the service evaluates this per Newton step
+    A = a[..., None]
+    inside = np.where(lo <= hi, (A >= lo) & (A <= hi), (A >= lo) | (A <= hi))  # lo > hi: wraps through 0
+    d = np.minimum(np.mod(lo - A, REV_DEG), np.mod(A - hi, REV_DEG))
+    dist = np.where(inside, 0.0, d).min(axis=-1)
     if taper_deg <= 0:
         return (dist == 0).astype(float)
     t = np.clip(dist / taper_deg, 0.0, 1.0)
