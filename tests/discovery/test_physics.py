@@ -72,6 +72,26 @@ def test_gravity_regressor_reproduces_the_torques_of_known_masses():
     assert np.sqrt(np.mean(S**2, axis=0)) == pytest.approx(1.0)  # unit RMS columns over the poses
 
 
+def test_the_compiled_regressor_and_harmonics_are_the_numpy_ones():
+    """The service evaluates the weight and transmission effects per Newton step through numba kernels: the same
+    quantities as the numpy reference (the regressor to the bit on these robots, the harmonics to 1e-14)."""
+    from robocal.discovery.physics import fourier_signal
+    from robocal.kinematics import compiled
+
+    if not compiled.AVAILABLE:
+        pytest.skip("numba is not installed: the numpy path is the only one")
+    rng = np.random.default_rng(5)
+    for name in ("kr16_2", "sr210", "abb_irb120"):
+        robot = load_robot(name)
+        q = rng.uniform(-3.0, 3.0, (40, robot.n_joints))
+        ref = gravity_regressor(robot, q, compiled_ok=False)
+        assert np.abs(gravity_regressor(robot, q) - ref).max() <= 1e-12 * np.abs(ref).max(), name
+    q1 = rng.uniform(-7.0, 7.0, 200)
+    h = np.arange(5, 49)
+    S = fourier_signal(q1, h)
+    assert np.abs(S - np.concatenate([np.sin(h * q1[:, None]), np.cos(h * q1[:, None])], axis=1)).max() < 1e-13
+
+
 @pytest.fixture(scope="module")
 def transmission_run(tmp_path_factory):
     """A twin with a joint-2 transmission error at 17 and 19 cycles per revolution, 0.006 deg each."""

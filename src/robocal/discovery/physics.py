@@ -92,11 +92,17 @@ def fourier_signal(q_rad: np.ndarray, harmonics: np.ndarray, weight: np.ndarray 
     if len(h) and np.array_equal(h, np.arange(h[0], h[0] + len(h))):
         # consecutive harmonics: e^{i h q} by repeated multiplication (one sin/cos per pose; the service and
         # compensation.csv evaluate tens of harmonics per Newton step), exact to ~len(h) ulp
+        from robocal.kinematics import compiled
+
         z = np.exp(1j * q)
-        Z = np.empty((len(q), len(h)), dtype=complex)
-        Z[:, 0] = np.exp(1j * h[0] * q)
-        for k in range(1, len(h)):
-            Z[:, k] = Z[:, k - 1] * z
+        z0 = np.exp(1j * h[0] * q)
+        if compiled.AVAILABLE:  # the same recurrence, compiled (a Python loop over tens of harmonics otherwise)
+            Z = compiled.harmonics(z, z0, len(h))
+        else:
+            Z = np.empty((len(q), len(h)), dtype=complex)
+            Z[:, 0] = z0
+            for k in range(1, len(h)):
+                Z[:, k] = Z[:, k - 1] * z
         S = np.concatenate([Z.imag, Z.real], axis=1)
     else:
         S = np.concatenate([np.sin(h[None, :] * q[:, None]), np.cos(h[None, :] * q[:, None])], axis=1)
@@ -112,7 +118,7 @@ def transmission_signal(q_rad: np.ndarray, record: dict[str, Any]) -> np.ndarray
     return S - np.asarray(record.get("centre", 0.0), dtype=float)
 
 
-def gravity_regressor(robot: RobotDescription, q: np.ndarray) -> np.ndarray:
+def gravity_regressor(robot: RobotDescription, q: np.ndarray, compiled_ok: bool = True) -> np.ndarray:
     """``Y (m, n, 4 n)``: the gravity load torque of every joint (N·m) per unit mass moment of every body:
     column ``4 i`` is body ``i``'s mass (1 kg at its frame origin), columns ``4 i + 1..3`` its first mass moment
     (1 kg·m along its frame's x, y, z). ``tau = Y @ pi`` for any masses (nominal kinematics, the robot's
@@ -120,11 +126,22 @@ def gravity_regressor(robot: RobotDescription, q: np.ndarray) -> np.ndarray:
 
     One pass over the chain: ``tau_j = u_j · sum_{i >= j} ((o_i - o_j) m_i + R_i (m c)_i) x g`` with ``u_j, o_j``
     joint ``j``'s world axis and a point on it, ``o_i, R_i`` body ``i``'s frame (same body frames as
-    ``gravity_torques``)."""
+    ``gravity_torques``). Compiled (:func:`robocal.kinematics.compiled.gravity_regressor`: the service evaluates
+    it per Newton step) unless numba is missing or ``compiled_ok`` is False (the numpy reference)."""
+    from robocal.kinematics import compiled
+
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    if compiled.AVAILABLE and compiled_ok:
+        args = _regressor_arrays(robot)
+        return compiled.gravity_regressor(*args[:5], np.ascontiguousarray(q), *args[5:])
+    return _gravity_regressor_numpy(robot, q)
+
+
+def _gravity_regressor_numpy(robot: RobotDescription, q: np.ndarray) -> np.ndarray:
+    """The reference (numpy) pass of :func:`gravity_regressor`, through ``chain.step``."""
     from robocal.kinematics.chain import FIXED, step
     from robocal.kinematics.gravity import MM, body_frame_boundaries
 
-    q = np.atleast_2d(np.asarray(q, dtype=float))
     m, n = q.shape
     chain = _chain(robot)
     bounds = body_frame_boundaries(chain, robot.is_mdh)
@@ -156,6 +173,33 @@ def gravity_regressor(robot: RobotDescription, q: np.ndarray) -> np.ndarray:
 
 
 _CHAINS: dict[int, tuple[RobotDescription, Any]] = {}
+_REGRESSOR_ARRAYS: dict[int, tuple[RobotDescription, tuple[Any, ...]]] = {}
+
+
+def _regressor_arrays(robot: RobotDescription) -> tuple[Any, ...]:
+    """The compiled regressor's chain arrays for this description (built once per description object):
+    ``(kinds, nominal, joint, fR, ft, slot, joint_slot, joint_axis, body_slot, g, MM)``."""
+    from robocal.kinematics.compiled import chain_arrays
+    from robocal.kinematics.gravity import MM, body_frame_boundaries
+
+    hit = _REGRESSOR_ARRAYS.get(id(robot))
+    if hit is not None and hit[0] is robot:
+        return hit[1]
+    chain = _chain(robot)
+    n = robot.n_joints
+    kinds, nominal, _param, _is_joint, fR, ft = chain_arrays(chain)
+    bounds = body_frame_boundaries(chain, robot.is_mdh)
+    joint_el = [int(np.flatnonzero(chain.joint == j)[0]) for j in range(n)]
+    slot = np.full(len(kinds) + 1, -1, dtype=np.int64)
+    for k, e in enumerate(sorted(set(bounds) | set(joint_el))):
+        slot[e] = k
+    out = (
+        kinds, np.ascontiguousarray(nominal), np.asarray(chain.joint, dtype=np.int64), fR, ft, slot,
+        slot[joint_el], np.array([kinds[e] % 3 for e in joint_el], dtype=np.int64), slot[bounds],
+        np.asarray(robot.gravity, dtype=float), float(MM),
+    )  # fmt: skip
+    _REGRESSOR_ARRAYS[id(robot)] = (robot, out)
+    return out
 
 
 def _chain(robot: RobotDescription) -> Any:

@@ -10,6 +10,8 @@ more, on scalars, for numba, and builds every compiled kernel from it:
   with the constant part (nominal + parameter error) of the next joint's rotation;
 * :func:`forward` (one pose, joint axes and origins recorded) and :func:`points_to_base` (a point carried
   backwards, over many poses) are the forward kinematics of a folded chain from ``cos q`` / ``sin q``;
+* :func:`gravity_regressor`: the gravity load torque of every joint per unit mass moment of every body (the
+  numpy reference is :func:`robocal.discovery.physics.gravity_regressor`'s own pass over ``chain.step``);
 * the kernels: :func:`population_positions` (target positions of a population of parameter vectors, used by
   :class:`robocal.optimizers.fastfk.PopulationPositions`), :func:`newton` (the service's compensation,
   :func:`robocal.kinematics.ik.solve`), :func:`fk_poses`, and the rotation conversions :func:`rotvec` /
@@ -37,6 +39,8 @@ __all__ = [
     "fk_poses",
     "fold",
     "forward",
+    "gravity_regressor",
+    "harmonics",
     "newton",
     "points_to_base",
     "population_positions",
@@ -490,3 +494,101 @@ def quat(R: np.ndarray) -> np.ndarray:
         for r in range(3):
             out[i, r + 1] = sign * rv[r] * inv * sn
     return out
+
+
+# --------------------------------------------------------------------------------------------------------
+# gravity regressor (robocal.discovery.physics.gravity_regressor)
+# --------------------------------------------------------------------------------------------------------
+
+
+@_jit
+def gravity_regressor(
+    kinds: np.ndarray,
+    nominal: np.ndarray,
+    joint: np.ndarray,
+    fR: np.ndarray,
+    ft: np.ndarray,
+    q: np.ndarray,
+    slot: np.ndarray,
+    joint_slot: np.ndarray,
+    joint_axis: np.ndarray,
+    body_slot: np.ndarray,
+    g: np.ndarray,
+    mm: float,
+) -> np.ndarray:
+    """``Y (m, n, 4 n)``: ``Y[r, j, 4 i]`` = the torque about joint ``j`` of 1 kg at body ``i``'s frame origin,
+    ``Y[r, j, 4 i + 1 + a]`` of 1 kg·m along its frame axis ``a`` (zero for ``i < j``), at joints ``q[r]``.
+
+    ``slot (E + 1,)``: where the frame before element ``e`` (``E``: the chain's end) is recorded, or -1;
+    ``joint_slot`` / ``joint_axis`` (n,): joint ``j``'s recorded frame and the axis (0, 1, 2) it turns about;
+    ``body_slot (n,)``: body ``i``'s frame; ``g (3,)`` gravity (m/s²); ``mm``: m per mm (origins are in mm).
+    Frames as :func:`apply_element` composes them (the rotation's columns are the frame axes)."""
+    m, n = q.shape
+    E = len(kinds)
+    n_slots = 0
+    for e in range(E + 1):
+        n_slots = max(n_slots, slot[e] + 1)
+    Y = np.zeros((m, n, 4 * n))
+    FR = np.zeros((n_slots, 3, 3))
+    Fo = np.zeros((n_slots, 3))
+    R = np.zeros((3, 3))
+    t = np.zeros(3)
+    for r in range(m):
+        R[:, :] = 0.0
+        R[0, 0] = R[1, 1] = R[2, 2] = 1.0
+        t[:] = 0.0
+        for e in range(E):
+            if slot[e] >= 0:
+                FR[slot[e]] = R
+                Fo[slot[e]] = t
+            v = nominal[e]
+            if joint[e] >= 0:
+                v += q[r, joint[e]]
+            apply_element(R, t, kinds[e], v, fR[e], ft[e])
+        if slot[E] >= 0:
+            FR[slot[E]] = R
+            Fo[slot[E]] = t
+        for j in range(n):
+            sj = joint_slot[j]
+            u = FR[sj, :, joint_axis[j]]
+            # u · (o_j x g), subtracted from every body's mass column
+            oj = Fo[sj] * mm
+            uoj = (
+                u[0] * (oj[1] * g[2] - oj[2] * g[1])
+                + u[1] * (oj[2] * g[0] - oj[0] * g[2])
+                + u[2] * (oj[0] * g[1] - oj[1] * g[0])
+            )
+            for i in range(j, n):
+                sb = body_slot[i]
+                ob = Fo[sb] * mm
+                Y[r, j, 4 * i] = (
+                    u[0] * (ob[1] * g[2] - ob[2] * g[1])
+                    + u[1] * (ob[2] * g[0] - ob[0] * g[2])
+                    + u[2] * (ob[0] * g[1] - ob[1] * g[0])
+                ) - uoj
+                for a in range(3):
+                    x = FR[sb, :, a]
+                    Y[r, j, 4 * i + 1 + a] = (
+                        u[0] * (x[1] * g[2] - x[2] * g[1])
+                        + u[1] * (x[2] * g[0] - x[0] * g[2])
+                        + u[2] * (x[0] * g[1] - x[1] * g[0])
+                    )
+    return Y
+
+
+@_jit
+def harmonics(z: np.ndarray, z0: np.ndarray, H: int) -> np.ndarray:
+    """``Z (m, H)`` complex: ``Z[:, 0] = z0``, ``Z[:, k] = Z[:, k - 1] z`` (``z = e^{i q}``, ``z0 = e^{i h0 q}``):
+    the consecutive harmonics of :func:`robocal.discovery.physics.fourier_signal`, the same operations."""
+    m = len(z)
+    re = np.empty((m, H))
+    im = np.empty((m, H))
+    for r in range(m):
+        a, b = z[r].real, z[r].imag
+        re[r, 0] = z0[r].real
+        im[r, 0] = z0[r].imag
+        for k in range(1, H):
+            c, d = re[r, k - 1], im[r, k - 1]
+            re[r, k] = c * a - d * b
+            im[r, k] = c * b + d * a
+    return re + 1j * im
