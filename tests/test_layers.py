@@ -47,8 +47,6 @@ EXCEPTIONS: dict[tuple[str, str], str] = {
 MODULE_EXCEPTIONS: dict[tuple[str, str], str] = {
     # the certificate writer imports its run type for annotations only; run imports the writer lazily
     ("robocal.iso9283.report", "robocal.iso9283.run"): "type annotation (TYPE_CHECKING) only",
-    # the greedy growth and the F-test search share Score/Step/regressor both ways (lazy imports)
-    ("robocal.discovery.grow", "robocal.discovery.search"): "Score, Step, regressor: to move to one module",
 }
 
 

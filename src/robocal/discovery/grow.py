@@ -30,6 +30,7 @@ from robocal.data.contract import Campaign
 from robocal.discovery.candidates import Candidate
 from robocal.discovery.config import DiscoveryConfig
 from robocal.discovery.model import Accepted, Fit
+from robocal.discovery.scoring import Score, Step, regressor
 from robocal.identification.model import FitData
 from robocal.robot import RobotDescription
 
@@ -279,7 +280,7 @@ def grow(
     leftovers: list[Candidate],
 ) -> tuple[Fit, list[Accepted], dict[str, Any]]:
     """The cross-validated selection (module docstring). ``leftovers``: library candidates not accepted by the
-    F-test search. Appends one :class:`~robocal.discovery.search.Step` per accepted candidate (and a final one
+    F-test search. Appends one :class:`~robocal.discovery.scoring.Step` per accepted candidate (and a final one
     saying why it stopped); returns the fit, the accepted effects and the cross-validation record."""
 
     single: list[tuple[Candidate, list[Variant]]] = [
@@ -370,7 +371,6 @@ def _step(
 ) -> tuple[Fit, list[Accepted], Pool, FoldCV]:
     """One step of the selection: score every pool entry, accept the best significant one (refit jointly) or
     record why nothing was accepted (then the same ``fit`` object comes back)."""
-    from robocal.discovery.search import Score, Step, regressor
 
     sse0 = cv.group_sse(cv.base_err)
     scores: list[tuple[float, float, Score, list[Candidate], Variant, dict[str, tuple[str, ...]]]] = []

@@ -8,7 +8,8 @@ from typing import Any
 import numpy as np
 
 from robocal.discovery.model import Accepted, Fit, tracker_columns
-from robocal.discovery.search import DiscoveryResult, Step
+from robocal.discovery.scoring import Step
+from robocal.discovery.search import DiscoveryResult
 from robocal.kinematics.chain import fk
 
 _DEG = float(np.rad2deg(1.0))
