@@ -44,10 +44,7 @@ EXCEPTIONS: dict[tuple[str, str], str] = {
 
 
 #: (importer module, imported module) -> why; module-level circles known and to be removed
-MODULE_EXCEPTIONS: dict[tuple[str, str], str] = {
-    # the certificate writer imports its run type for annotations only; run imports the writer lazily
-    ("robocal.iso9283.report", "robocal.iso9283.run"): "type annotation (TYPE_CHECKING) only",
-}
+MODULE_EXCEPTIONS: dict[tuple[str, str], str] = {}
 
 
 def _layer_of() -> dict[str, int]:

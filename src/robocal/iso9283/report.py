@@ -19,7 +19,7 @@ if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
     from robocal.iso9283.analysis import IsoResult
-    from robocal.iso9283.run import IsoRun
+    from robocal.iso9283.outcome import IsoRun
 
 DEFINITIONS = (
     ("barycentre", "x̄ = (1/n) Σ x_j (and ȳ, z̄, ā, b̄, c̄): the mean of the n attained poses of a test pose (7.2.1)"),

@@ -13,7 +13,6 @@ Writes ``iso9283.json`` (before), ``iso9283_after.json`` (the same keys) and ``r
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -22,20 +21,11 @@ import numpy as np
 from robocal.errors import ConfigError
 from robocal.io import display_path, write_json
 from robocal.iso9283.analysis import IsoResult, evaluate
-from robocal.iso9283.campaign import IsoCampaign, predicted_after, read_iso
+from robocal.iso9283.campaign import predicted_after, read_iso
+from robocal.iso9283.outcome import IsoRun
 from robocal.iso9283.settings import IsoSettings
 from robocal.kinematics.transforms import rpy_from_matrix
 from robocal.robot import RobotDescription
-
-
-@dataclass(frozen=True)
-class IsoRun:
-    before: IsoResult
-    after: IsoResult
-    after_kind: str  # "measured" | "predicted"
-    iso: IsoCampaign
-    settings: IsoSettings
-    info: dict[str, Any]
 
 
 def run_iso9283(
