@@ -109,7 +109,7 @@ def _select(names: Sequence[str], score: np.ndarray, sel: SelectionConfig, z: np
     return mask
 
 
-def _what_if(  # noqa: C901, PLR0915
+def _what_if(
     names: Sequence[str],
     score: np.ndarray,
     score_name: str,
@@ -152,11 +152,6 @@ def _what_if(  # noqa: C901, PLR0915
             return {"setting": "top_k", "op": ">=" if add else "<", "value": int(rank[i])}
         return {"setting": "share", "op": ">" if add else "<=", "value": cum_above[i]}
 
-    def say(c: dict[str, Any]) -> str:
-        op = {"<=": "≤", ">=": "≥"}.get(c["op"], c["op"])
-        val = c["value"] if isinstance(c["value"], int) else f"{c['value']:.4g}"
-        return f"{c['setting']} were {op} {val}"
-
     out: list[dict[str, Any]] = []
     for i, n in enumerate(names):
         if not finite[i]:
@@ -175,28 +170,24 @@ def _what_if(  # noqa: C901, PLR0915
             else "drift z unknown (no standard errors)"
         )
         head = f"{score_name} = {v:.4g}, rank {int(rank[i])}"
-        changes: list[dict[str, Any]] = []
         if forced:
-            action = "add" if not selected[i] else "drop"
-            why = f"{'selected' if selected[i] else 'left out'} by selection.{'include' if selected[i] else 'exclude'}"
+            action, why, changes = _forced(bool(selected[i]))
             text = f"{n}: {why} ({head}; {ztxt})"
         elif z_dropped:
             action = "add"
             why = f"passes the rule but its drift is not significant (min_z = {sel.min_z:g})"
             changes = [{"setting": "min_z", "op": "<=", "value": zz}]
-            text = f"would add {n} if {say(changes[0])} ({head}, passes the rule; {ztxt})"
+            text = f"would add {n} if {_say(changes[0])} ({head}, passes the rule; {ztxt})"
         elif selected[i]:
             action = "drop"
             changes = [condition(i, add=False)] if near else []
             if has_z and not significant:
                 changes.append({"setting": "min_z", "op": ">", "value": zz})
             why = "near the cut" if near else "selected on its influence, but the drift is not significant"
-            text = f"would drop {n} if {' or '.join(say(c) for c in changes)} ({head}; {ztxt})"
+            text = f"would drop {n} if {' or '.join(_say(c) for c in changes)} ({head}; {ztxt})"
         else:
-            action = "add"
-            why = "near the cut"
-            changes = [condition(i, add=True)]
-            text = f"would add {n} if {say(changes[0])} ({head}; {ztxt})"
+            action, why, changes = "add", "near the cut", [condition(i, add=True)]
+            text = f"would add {n} if {_say(changes[0])} ({head}; {ztxt})"
         out.append(
             {
                 "parameter": n,
@@ -213,6 +204,21 @@ def _what_if(  # noqa: C901, PLR0915
             }
         )
     return sorted(out, key=lambda w: w["rank"])
+
+
+def _forced(selected: bool) -> tuple[str, str, list[dict[str, Any]]]:
+    """A parameter include / exclude forced against the rule: the action that undoes it and why (no setting of
+    the rule flips it)."""
+    action = "add" if not selected else "drop"
+    why = f"{'selected' if selected else 'left out'} by selection.{'include' if selected else 'exclude'}"
+    return action, why, []
+
+
+def _say(c: Mapping[str, Any]) -> str:
+    """A change of a setting in words: ``h_min were ≤ 0.01``."""
+    op = {"<=": "≤", ">=": "≥"}.get(c["op"], c["op"])
+    val = c["value"] if isinstance(c["value"], int) else f"{c['value']:.4g}"
+    return f"{c['setting']} were {op} {val}"
 
 
 def screen(
