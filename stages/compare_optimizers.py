@@ -36,15 +36,6 @@ OFF = "the optimizer comparison takes minutes and is off by default (compare.run
 
 
 def compute(ctx: Context) -> Any:
-    import numpy as np
-    import yaml
-
-    from robocal.data.contract import read_campaign
-    from robocal.identification.calibrate import CalibrationConfig
-    from robocal.report.plots import save_figure
-    from robocal.robot import robot_from_dict
-    from robocal.tracking import StageRun
-
     sys.path.insert(0, str(EXPERIMENT_DIR))  # the experiment's code lives with the experiment
     from optimizer_comparison import (
         CompareSettings,
@@ -55,8 +46,18 @@ def compute(ctx: Context) -> Any:
     )
 
     settings = CompareSettings.from_mapping(ctx.cfg["compare"])
-    if not settings.run:
+    if not settings.run:  # before the data door and the plots are imported: the default run skips at once
         return ctx.skip(OFF)
+
+    import numpy as np
+    import yaml
+
+    from robocal.data.contract import read_campaign
+    from robocal.identification.calibrate import CalibrationConfig
+    from robocal.report.plots import save_figure
+    from robocal.robot import robot_from_dict
+    from robocal.tracking import StageRun
+
     cal_settings = dict(ctx.cfg["calibration"])
     cal_settings.pop("report", None)
     cfg = CalibrationConfig.from_mapping(cal_settings)

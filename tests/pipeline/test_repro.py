@@ -1,9 +1,12 @@
 """End to end: a tiny `dvc repro` in a temporary copy of the repository.
 
 The copy holds what DVC needs (dvc.yaml, params.yaml, conf/, stages/, src/ as deps, .dvc/config,
-.dvcignore) in a fresh git repository; robocal itself is imported from the virtual environment. The scenario
-is made tiny in the copy's conf/ (30 + 10 poses) and params.yaml regenerated from it, so `dvc exp run` (which
-recomposes params.yaml from conf/) keeps it tiny too. MLflow records into a SQLite file inside the copy.
+.dvcignore) in a fresh git repository; robocal itself is imported from the virtual environment. The scenarios
+are made tiny in the copy's conf/ (12 + 6 poses) and the plan cheap (2000 candidates), and params.yaml is
+regenerated from it, so `dvc exp run` (which recomposes params.yaml from conf/) keeps them so. These tests check
+the pipeline's wiring, not its figures: the figures are the library's tests'. MLflow records into a SQLite file
+inside the copy. One `dvc repro` of the default pipeline (the module's fixture) is shared by every test; a test
+that changes a setting reruns only the stages that setting concerns.
 """
 
 from __future__ import annotations
@@ -76,16 +79,23 @@ def copy(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
         (root / f).parent.mkdir(parents=True, exist_ok=True)
         shutil.copy2(REPO / f, root / f)
     (root / ".gitignore").write_text("/mlflow.db\n/mlartifacts/\n/mlflow-pending/\n/reports/sweeps/\n/reports/runs/\n")
-    # a tiny default scenario, in conf/ so that `dvc exp run` keeps it (12 + 6 poses at each of the 7 states)
+    # a tiny default scenario, in conf/ so that `dvc exp run` keeps it (12 + 6 poses at each of the 7 states),
+    # and a tiny geometric one (12 + 6 poses) for the campaign without temperatures
     default = yaml.safe_load((REPO / "conf" / "config.yaml").read_text())["defaults"]
     assert {"scenario": "thermal"} in default
-    sc = root / "conf" / "scenario" / "thermal.yaml"
-    text = sc.read_text()
-    for key, value in (("n_poses", 12), ("n_validation_poses", 6)):
-        lines = [ln for ln in text.splitlines() if ln.startswith(f"{key}:")]
-        assert len(lines) == 1, key
-        text = text.replace(lines[0], f"{key}: {value}")
-    sc.write_text(text)
+    for name in ("thermal", "geometric"):
+        sc = root / "conf" / "scenario" / f"{name}.yaml"
+        text = sc.read_text()
+        for key, value in (("n_poses", 12), ("n_validation_poses", 6)):
+            lines = [ln for ln in text.splitlines() if ln.startswith(f"{key}:")]
+            assert len(lines) == 1, key
+            text = text.replace(lines[0], f"{key}: {value}")
+        sc.write_text(text)
+    # the plan draws 2000 candidate poses instead of 20000 (the design of 12 poses stays well conditioned)
+    plan = root / "conf" / "plan" / "default.yaml"
+    lines = [ln for ln in plan.read_text().splitlines() if ln.startswith("n_candidates:")]
+    assert len(lines) == 1
+    plan.write_text(plan.read_text().replace(lines[0], "n_candidates: 2000"))
     write_params(root)
     _git(root, "init", "-q")
 
@@ -288,8 +298,10 @@ def test_dvc_exp_run_set_param_switches_the_optimizer(copy: dict[str, Any]) -> N
     root = copy["root"]
     _git(root, "add", "-A")
     _git(root, "commit", "-q", "-m", "baseline")
+    # the stage the parameter feeds as the target: DVC still checks (and would rerun) everything upstream of it;
+    # its downstream (discover) is test_one_optimizer_parameter_reruns_only_downstream's
     res = subprocess.run(
-        ["dvc", "exp", "run", "-S", "optimizer=gn", "-n", "gn-test"],
+        ["dvc", "exp", "run", "-S", "optimizer=gn", "-n", "gn-test", "geometric_fit"],
         cwd=root,
         capture_output=True,
         text=True,
@@ -305,18 +317,23 @@ def test_dvc_exp_run_set_param_switches_the_optimizer(copy: dict[str, Any]) -> N
     assert len(runs) == 1 and runs[0].data.params["optimizer.name"] == "gn"
 
 
+#: the stages a campaign without temperatures concerns, as targets: with what they depend on (plan, simulate,
+#: prepare, thermal_fit, screen) they are the twin's chain up to the geometric fit and the thermal chain
+NO_TEMPERATURE_TARGETS = ["geometric_fit", "validate"]
+
+
 def test_a_campaign_without_temperatures_skips_the_thermal_stages(copy: dict[str, Any]) -> None:
     """The purely geometric twin has no temperature log: thermal_fit, screen and validate say so, and complete."""
     root = copy["root"]
     write_params(root, ["scenario=geometric"])
-    ran = _reproduce(root)
-    assert "simulate" in ran and "thermal_fit" in ran
+    ran = _reproduce(root, targets=NO_TEMPERATURE_TARGETS)
+    assert {"simulate", "prepare", "geometric_fit", "thermal_fit", "screen", "validate"} <= set(ran), ran
     for stage in ("thermal_fit", "screen", "validate"):
         assert json.loads((root / f"reports/metrics/{stage}.json").read_text()) == {stage: "skipped"}
         m = json.loads((root / OUT[stage] / "result.json").read_text())
         assert m["status"] == "skipped" and "temperature" in m["reason"], (stage, m)
     assert json.loads((root / "reports/metrics/geometric_fit.json").read_text())["geometric_fit"] == "ok"
-    assert _reproduce(root) == []
+    assert _reproduce(root, targets=NO_TEMPERATURE_TARGETS) == []
 
 
 SHARED = REPO.parent / "shared"

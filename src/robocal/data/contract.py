@@ -24,6 +24,7 @@ import numpy as np
 import pandas as pd
 
 from robocal.config import check_fields, parse, setting
+from robocal.data.columns import JOINT_SIGNALS, POSE_COLUMNS, column_name, columns, known_columns, required_columns
 from robocal.errors import DataError
 from robocal.io import display_path
 from robocal.robot import RobotDescription
@@ -198,31 +199,32 @@ class Campaign:
 
     def to_frame(self) -> pd.DataFrame:
         """The campaign back in contract columns (degrees, ISO timestamps), e.g. for the interim Parquet copy."""
-        n = self.n_joints
-        cols: dict[str, Any] = {
-            "pose_id": self.pose_id,
-            "timestamp": pd.to_datetime(self.t0) + pd.to_timedelta(self.timestamp_s, unit="s"),
-            "target": self.target,
+
+        def per_column(a: np.ndarray | None) -> list[np.ndarray] | None:
+            return None if a is None else [a[:, k] for k in range(a.shape[1])]
+
+        # each contract group's values, one array per column (None: the campaign has no such columns)
+        values: dict[str, list[Any] | None] = {
+            "pose_id": [self.pose_id],
+            "timestamp": [pd.to_datetime(self.t0) + pd.to_timedelta(self.timestamp_s, unit="s")],
+            "target": [self.target],
+            "q": per_column(np.degrees(self.q)),
+            "p": per_column(self.p_mm),
+            "quat": per_column(self.quat),
+            "payload": [self.payload_kg],
+            "tau": per_column(self.tau_Nm),
+            "current": per_column(self.current_A),
+            "direction": per_column(self.direction),
+            "split": [self.split],
+            "station": [self.station] if self.has_stations else None,
+            "u_mm": None if self.u_mm is None else [self.u_mm],
         }
-        for j in range(n):
-            cols[f"q{j + 1}_deg"] = np.degrees(self.q[:, j])
-        for k, c in enumerate("xyz"):
-            cols[f"{c}_mm"] = self.p_mm[:, k]
-        if self.quat is not None:
-            for k, c in enumerate("wxyz"):
-                cols[f"q{c}"] = self.quat[:, k]
-        cols["payload_kg"] = self.payload_kg
-        for arr, fmt in ((self.tau_Nm, "tau{}_Nm"), (self.current_A, "i{}_A"), (self.direction, "dir{}")):
-            if arr is not None:
-                for j in range(n):
-                    cols[fmt.format(j + 1)] = arr[:, j]
-        cols["split"] = self.split
-        if self.has_stations:
-            cols["station"] = self.station
-        if self.u_mm is not None:
-            cols["u_mm"] = self.u_mm
-        for name, v in self.extra.items():
-            cols[name] = v
+        cols: dict[str, Any] = {}
+        for group in POSE_COLUMNS:
+            v = values[group.key]
+            if v is not None:
+                cols.update(zip(group.columns(self.n_joints), v, strict=True))
+        cols.update(self.extra)
         return pd.DataFrame(cols)
 
 
@@ -324,8 +326,9 @@ def _require(df: pd.DataFrame, cols: list[str], path: Path) -> None:
         )
 
 
-def _optional_block(df: pd.DataFrame, fmt: str, n: int, path: Path) -> np.ndarray | None:
-    names = [fmt.format(j + 1) for j in range(n)]
+def _optional_block(df: pd.DataFrame, key: str, n: int, path: Path) -> np.ndarray | None:
+    """The per-joint group ``key`` (:data:`robocal.data.columns.COLUMN`), all ``n`` columns or None."""
+    names = columns(key, n)
     present = [c for c in names if c in df.columns]
     if not present:
         return None
@@ -337,7 +340,21 @@ def _optional_block(df: pd.DataFrame, fmt: str, n: int, path: Path) -> np.ndarra
     return np.column_stack([_numeric(df, c, path) for c in names])
 
 
-def read_campaign(  # noqa: C901, PLR0915
+def _names(df: pd.DataFrame, col: str, path: Path, what: str) -> np.ndarray:
+    """A text column with a value in every row (``what`` is the error's word for a missing one)."""
+    txt = df[col].astype(str).str.strip().to_numpy()
+    empty = (txt == "") | (txt == "nan") | df[col].isna().to_numpy()
+    if empty.any():
+        i = int(np.flatnonzero(empty)[0])
+        raise DataError(f"missing {what}", file=path, row=_row(i), column=col)
+    return txt
+
+
+def _first(bad: np.ndarray) -> int:
+    return int(np.flatnonzero(bad)[0])
+
+
+def read_campaign(
     data_dir: str | Path,
     robot: RobotDescription,
     split: SplitConfig | Mapping[str, Any] | None = None,
@@ -363,162 +380,18 @@ def read_campaign(  # noqa: C901, PLR0915
     assert path is not None
     df = _read_table(path)
     n = robot.n_joints
-    qcols = [f"q{j + 1}_deg" for j in range(n)]
-    _require(df, ["pose_id", "timestamp", *qcols, "x_mm", "y_mm", "z_mm"], path)
-    extra_q = [c for c in df.columns if re.fullmatch(r"q(\d+)_deg", c) and int(c[1:-4]) > n]
-    if extra_q:
-        raise DataError(
-            f"has joint column(s) {extra_q} but robot {robot.name!r} has {n} joints",
-            file=path,
-            row=1,
-            column=extra_q[0],
-        )
+    _check_columns(df, robot, path)
     m = len(df)
 
-    # identifiers
-    pid = df["pose_id"].astype(str).str.strip().to_numpy()
-    empty = (pid == "") | (pid == "nan") | df["pose_id"].isna().to_numpy()
-    if empty.any():
-        i = int(np.flatnonzero(empty)[0])
-        raise DataError("missing pose_id", file=path, row=_row(i), column="pose_id")
-    ts = _timestamps(df, "timestamp", path)
-    if "target" in df.columns:
-        target = df["target"].astype(str).str.strip().to_numpy()
-        bad = (target == "") | (target == "nan") | df["target"].isna().to_numpy()
-        if bad.any():
-            i = int(np.flatnonzero(bad)[0])
-            raise DataError("missing target name", file=path, row=_row(i), column="target")
-    else:
-        target = np.full(m, "T1", dtype=object)
-    target = target.astype(str)
-
-    # joints (deg -> rad) and limits
-    q_deg = np.column_stack([_numeric(df, c, path) for c in qcols])
-    lim = np.degrees(robot.q_limits)
-    for j, c in enumerate(qcols):
-        out = (q_deg[:, j] < lim[j, 0] - limit_tol_deg) | (q_deg[:, j] > lim[j, 1] + limit_tol_deg)
-        if out.any():
-            i = int(np.flatnonzero(out)[0])
-            raise DataError(
-                f"joint angle {q_deg[i, j]:g} deg outside the limits [{lim[j, 0]:g}, {lim[j, 1]:g}] of "
-                f"{robot.name!r} ({int(out.sum())} row(s))",
-                file=path,
-                row=_row(i),
-                column=c,
-            )
-
-    _check_not_radians(q_deg, qcols, lim, robot.name, path)
-
-    # positions (mm; reject metres, row by row, so that a file mixing units is caught too)
-    pcols = ("x_mm", "y_mm", "z_mm")
-    p = np.column_stack([_numeric(df, c, path) for c in pcols])
-    dist = np.linalg.norm(p, axis=1)
-    near = dist < METRES_SUSPECT_MM
-    if near.any():
-        i = int(np.flatnonzero(near)[0])
-        raise DataError(
-            f"target {dist[i]:.4g} from the tracker ({int(near.sum())} of {m} row(s) closer than "
-            f"{METRES_SUSPECT_MM:g}); positions look like metres, the contract wants millimetres",
-            file=path,
-            row=_row(i),
-            column=pcols[int(np.argmax(np.abs(p[i])))],
-        )
-
-    # orientation
-    qcols_o = ["qw", "qx", "qy", "qz"]
-    present = [c for c in qcols_o if c in df.columns]
-    quat = None
-    if present:
-        if len(present) != 4:
-            missing_o = [c for c in qcols_o if c not in present]
-            raise DataError(f"has {present} but not all of {qcols_o}", file=path, row=1, column=missing_o[0])
-        quat = np.column_stack([_numeric(df, c, path) for c in qcols_o])
-        norm = np.linalg.norm(quat, axis=1)
-        bad = np.abs(norm - 1.0) > quat_norm_tol
-        if bad.any():
-            i = int(np.flatnonzero(bad)[0])
-            raise DataError(
-                f"quaternion norm {norm[i]:.6g} differs from 1 by more than {quat_norm_tol:g}",
-                file=path,
-                row=_row(i),
-                column="qw",
-            )
-        quat = quat / norm[:, None]
-
-    payload = _numeric(df, "payload_kg", path) if "payload_kg" in df.columns else np.zeros(m)
-    if np.any(payload < 0):
-        i = int(np.flatnonzero(payload < 0)[0])
-        raise DataError(f"negative payload {payload[i]:g} kg", file=path, row=_row(i), column="payload_kg")
-    tau = _optional_block(df, "tau{}_Nm", n, path)
-    cur = _optional_block(df, "i{}_A", n, path)
-    direction = _optional_block(df, "dir{}", n, path)
-    if direction is not None:
-        bad = ~np.isin(direction, (-1.0, 1.0))
-        if bad.any():
-            i, j = (int(v[0]) for v in np.nonzero(bad))
-            raise DataError(
-                f"approach direction must be -1 or +1, got {direction[i, j]:g}",
-                file=path,
-                row=_row(i),
-                column=f"dir{j + 1}",
-            )
-
-    # duplicates of (pose_id, target, timestamp)
-    key = pd.DataFrame({"p": pid, "t": target, "s": ts.to_numpy()})
-    dup = key.duplicated(keep="first").to_numpy()
-    if dup.any():
-        i = int(np.flatnonzero(dup)[0])
-        first = int(np.flatnonzero((key == key.iloc[i]).all(axis=1).to_numpy())[0])
-        raise DataError(
-            f"duplicated (pose_id, target, timestamp) = ({pid[i]}, {target[i]}, {ts.iloc[i].isoformat()}); "
-            f"first seen at row {_row(first)}",
-            file=path,
-            row=_row(i),
-            column="pose_id",
-        )
-
-    # split
-    if "split" in df.columns:
-        sp = df["split"].astype(str).str.strip().str.lower().to_numpy()
-        bad = ~np.isin(sp, SPLIT_VALUES)
-        if bad.any():
-            i = int(np.flatnonzero(bad)[0])
-            raise DataError(
-                f"split must be one of {SPLIT_VALUES}, got {df['split'].iloc[i]!r}",
-                file=path,
-                row=_row(i),
-                column="split",
-            )
-        split_arr = sp.astype(str)
-        from_file = True
-    else:
-        split_arr = _make_split(pid, split_cfg)
-        from_file = False
-
-    # tracker stations and the tracker's own point uncertainty
-    if "station" in df.columns:
-        station = df["station"].astype(str).str.strip().to_numpy()
-        bad = (station == "") | (station == "nan") | df["station"].isna().to_numpy()
-        if bad.any():
-            i = int(np.flatnonzero(bad)[0])
-            raise DataError("missing station name", file=path, row=_row(i), column="station")
-        station = station.astype(str)
-    else:
-        station = np.full(m, DEFAULT_STATION, dtype=object).astype(str)
-    u_mm = None
-    if "u_mm" in df.columns:
-        u_mm = _numeric(df, "u_mm", path)
-        bad = ~(u_mm > 0)
-        if bad.any():
-            i = int(np.flatnonzero(bad)[0])
-            raise DataError(f"point uncertainty must be > 0 mm, got {u_mm[i]:g}", file=path, row=_row(i), column="u_mm")
-
-    known = {"pose_id", "timestamp", "target", *qcols, "x_mm", "y_mm", "z_mm", "payload_kg", "split", *qcols_o}
-    known |= {"station", "u_mm"}
-    known |= (
-        {f"tau{j + 1}_Nm" for j in range(n)} | {f"i{j + 1}_A" for j in range(n)} | {f"dir{j + 1}" for j in range(n)}
-    )
-    extra = {c: df[c].to_numpy() for c in df.columns if c not in known}
+    pid, ts, target = _read_identity(df, path)
+    q_deg = _read_joints(df, robot, path, limit_tol_deg)
+    p = _read_positions(df, path)
+    quat = _read_orientation(df, path, quat_norm_tol)
+    payload, tau, cur, direction = _read_loads(df, n, path)
+    _check_unique(pid, target, ts, path)
+    split_arr, from_file = _read_split(df, pid, split_cfg, path)
+    station, u_mm = _read_tracker(df, path)
+    extra = {c: df[c].to_numpy() for c in df.columns if c not in known_columns(n)}
 
     t0 = ts.min()
     t_s = (ts - t0).dt.total_seconds().to_numpy(dtype=float)
@@ -548,11 +421,170 @@ def read_campaign(  # noqa: C901, PLR0915
         station=station,
         u_mm=u_mm,
     )
-    _check_same_joints(camp, path, qcols)
+    _check_same_joints(camp, path, columns("q", n))
     tpath = _find(folder, "temperatures", required=False)
     if tpath is not None:
         camp = _join_temperatures(camp, tpath, ts, robot, temperature_tolerance_s)
     return camp
+
+
+def _check_columns(df: pd.DataFrame, robot: RobotDescription, path: Path) -> None:
+    """The required columns are there, and no joint column beyond the robot's joints."""
+    n = robot.n_joints
+    _require(df, required_columns(n), path)
+    extra_q = [c for c in df.columns if re.fullmatch(r"q(\d+)_deg", c) and int(c[1:-4]) > n]
+    if extra_q:
+        raise DataError(
+            f"has joint column(s) {extra_q} but robot {robot.name!r} has {n} joints",
+            file=path,
+            row=1,
+            column=extra_q[0],
+        )
+
+
+def _read_identity(df: pd.DataFrame, path: Path) -> tuple[np.ndarray, pd.Series, np.ndarray]:
+    """Pose ids, timestamps and target names (every row on target ``T1`` without a ``target`` column)."""
+    pid = _names(df, column_name("pose_id"), path, "pose_id")
+    ts = _timestamps(df, column_name("timestamp"), path)
+    col = column_name("target")
+    target = _names(df, col, path, "target name") if col in df.columns else np.full(len(df), "T1", dtype=object)
+    return pid, ts, target.astype(str)
+
+
+def _read_joints(df: pd.DataFrame, robot: RobotDescription, path: Path, limit_tol_deg: float) -> np.ndarray:
+    """Joint angles (m, n) in degrees, inside the robot's limits and not radians."""
+    qcols = columns("q", robot.n_joints)
+    q_deg = np.column_stack([_numeric(df, c, path) for c in qcols])
+    lim = np.degrees(robot.q_limits)
+    for j, c in enumerate(qcols):
+        out = (q_deg[:, j] < lim[j, 0] - limit_tol_deg) | (q_deg[:, j] > lim[j, 1] + limit_tol_deg)
+        if out.any():
+            i = _first(out)
+            raise DataError(
+                f"joint angle {q_deg[i, j]:g} deg outside the limits [{lim[j, 0]:g}, {lim[j, 1]:g}] of "
+                f"{robot.name!r} ({int(out.sum())} row(s))",
+                file=path,
+                row=_row(i),
+                column=c,
+            )
+    _check_not_radians(q_deg, qcols, lim, robot.name, path)
+    return q_deg
+
+
+def _read_positions(df: pd.DataFrame, path: Path) -> np.ndarray:
+    """Measured points (m, 3) mm; metres are rejected row by row, so that a file mixing units is caught too."""
+    pcols = columns("p")
+    p = np.column_stack([_numeric(df, c, path) for c in pcols])
+    dist = np.linalg.norm(p, axis=1)
+    near = dist < METRES_SUSPECT_MM
+    if near.any():
+        i = _first(near)
+        raise DataError(
+            f"target {dist[i]:.4g} from the tracker ({int(near.sum())} of {len(p)} row(s) closer than "
+            f"{METRES_SUSPECT_MM:g}); positions look like metres, the contract wants millimetres",
+            file=path,
+            row=_row(i),
+            column=pcols[int(np.argmax(np.abs(p[i])))],
+        )
+    return p
+
+
+def _read_orientation(df: pd.DataFrame, path: Path, quat_norm_tol: float) -> np.ndarray | None:
+    """Measured unit quaternions (m, 4) (w, x, y, z), normalised, or None without orientation columns."""
+    qcols_o = columns("quat")
+    present = [c for c in qcols_o if c in df.columns]
+    if not present:
+        return None
+    if len(present) != len(qcols_o):
+        missing_o = [c for c in qcols_o if c not in present]
+        raise DataError(f"has {present} but not all of {qcols_o}", file=path, row=1, column=missing_o[0])
+    quat = np.column_stack([_numeric(df, c, path) for c in qcols_o])
+    norm = np.linalg.norm(quat, axis=1)
+    bad = np.abs(norm - 1.0) > quat_norm_tol
+    if bad.any():
+        i = _first(bad)
+        raise DataError(
+            f"quaternion norm {norm[i]:.6g} differs from 1 by more than {quat_norm_tol:g}",
+            file=path,
+            row=_row(i),
+            column=qcols_o[0],
+        )
+    return quat / norm[:, None]
+
+
+def _read_loads(
+    df: pd.DataFrame, n: int, path: Path
+) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None, np.ndarray | None]:
+    """Payload (m,) kg (0 without the column), torques, currents and approach directions (m, n) or None."""
+    col = column_name("payload")
+    payload = _numeric(df, col, path) if col in df.columns else np.zeros(len(df))
+    if np.any(payload < 0):
+        i = _first(payload < 0)
+        raise DataError(f"negative payload {payload[i]:g} kg", file=path, row=_row(i), column=col)
+    tau, cur, direction = (_optional_block(df, key, n, path) for key in JOINT_SIGNALS)
+    if direction is not None:
+        bad = ~np.isin(direction, (-1.0, 1.0))
+        if bad.any():
+            i, j = (int(v[0]) for v in np.nonzero(bad))
+            raise DataError(
+                f"approach direction must be -1 or +1, got {direction[i, j]:g}",
+                file=path,
+                row=_row(i),
+                column=columns("direction", n)[j],
+            )
+    return payload, tau, cur, direction
+
+
+def _check_unique(pid: np.ndarray, target: np.ndarray, ts: pd.Series, path: Path) -> None:
+    """No (pose_id, target, timestamp) twice."""
+    key = pd.DataFrame({"p": pid, "t": target, "s": ts.to_numpy()})
+    dup = key.duplicated(keep="first").to_numpy()
+    if dup.any():
+        i = _first(dup)
+        first = _first((key == key.iloc[i]).all(axis=1).to_numpy())
+        raise DataError(
+            f"duplicated (pose_id, target, timestamp) = ({pid[i]}, {target[i]}, {ts.iloc[i].isoformat()}); "
+            f"first seen at row {_row(first)}",
+            file=path,
+            row=_row(i),
+            column=column_name("pose_id"),
+        )
+
+
+def _read_split(df: pd.DataFrame, pid: np.ndarray, cfg: SplitConfig, path: Path) -> tuple[np.ndarray, bool]:
+    """Each row's split and whether the file gave it (otherwise drawn by ``cfg`` over the pose ids)."""
+    col = column_name("split")
+    if col not in df.columns:
+        return _make_split(pid, cfg), False
+    sp = df[col].astype(str).str.strip().str.lower().to_numpy()
+    bad = ~np.isin(sp, SPLIT_VALUES)
+    if bad.any():
+        i = _first(bad)
+        raise DataError(
+            f"split must be one of {SPLIT_VALUES}, got {df[col].iloc[i]!r}",
+            file=path,
+            row=_row(i),
+            column=col,
+        )
+    return sp.astype(str), True
+
+
+def _read_tracker(df: pd.DataFrame, path: Path) -> tuple[np.ndarray, np.ndarray | None]:
+    """Tracker stations (:data:`DEFAULT_STATION` without the column) and the tracker's own point uncertainty."""
+    col = column_name("station")
+    if col in df.columns:
+        station = _names(df, col, path, "station name").astype(str)
+    else:
+        station = np.full(len(df), DEFAULT_STATION, dtype=object).astype(str)
+    col = column_name("u_mm")
+    if col not in df.columns:
+        return station, None
+    u_mm = _numeric(df, col, path)
+    bad = ~(u_mm > 0)
+    if bad.any():
+        i = _first(bad)
+        raise DataError(f"point uncertainty must be > 0 mm, got {u_mm[i]:g}", file=path, row=_row(i), column=col)
+    return station, u_mm
 
 
 def _check_not_radians(q_deg: np.ndarray, qcols: list[str], lim_deg: np.ndarray, robot: str, path: Path) -> None:

@@ -130,6 +130,10 @@ class Targets:
     direction: np.ndarray | None = None
 
 
+#: a target's optional per-joint signals, in the order they are checked
+TARGET_SIGNALS = ("current_A", "tau_Nm", "dir")
+
+
 def parse_targets(raw: Any, n: int, max_targets: int) -> Targets:
     """``targets``: a non-empty list of ``{"q_deg": [n]}`` or ``{"xyz_mm": [3], "quat_wxyz": [4],
     "q_seed_deg": [n]}``, each optionally with ``current_A`` / ``tau_Nm`` ([n]) and ``dir`` ([n] of -1 / +1, the
@@ -143,45 +147,44 @@ def parse_targets(raw: Any, n: int, max_targets: int) -> Targets:
     q = np.zeros((m, n))
     xyz = np.zeros((m, 3))
     quat = np.tile([1.0, 0.0, 0.0, 0.0], (m, 1))
-    cur = tau = direc = None
+    signals: dict[str, np.ndarray] = {}
     for k, t in enumerate(raw):
         if not isinstance(t, dict):
             raise RequestError("bad_request", f"targets[{k}] must be an object")
-        if "q_deg" in t:
-            extra = set(t) - {"q_deg", "current_A", "tau_Nm", "dir"}
-            q[k] = _vector(t["q_deg"], n, f"targets[{k}].q_deg")
-        elif "xyz_mm" in t:
-            extra = set(t) - {"xyz_mm", "quat_wxyz", "q_seed_deg", "current_A", "tau_Nm", "dir"}
-            kind[k] = 1
-            xyz[k] = _vector(t["xyz_mm"], 3, f"targets[{k}].xyz_mm")
-            qu = _vector(t.get("quat_wxyz"), 4, f"targets[{k}].quat_wxyz")
-            norm = float(np.linalg.norm(qu))
-            if not 0.9 < norm < 1.1:
-                raise RequestError("bad_request", f"targets[{k}].quat_wxyz must be a unit quaternion (norm {norm:.3g})")
-            quat[k] = qu / norm
-            q[k] = _vector(t.get("q_seed_deg"), n, f"targets[{k}].q_seed_deg")
-        else:
-            raise RequestError("bad_request", f"targets[{k}] needs 'q_deg' (joint target) or 'xyz_mm' (pose target)")
-        if extra:
-            raise RequestError("bad_request", f"targets[{k}] has unknown field(s) {sorted(extra)}")
-        if "current_A" in t:
-            if cur is None:
-                cur = np.full((m, n), np.nan)
-            cur[k] = _vector(t["current_A"], n, f"targets[{k}].current_A")
-        if "tau_Nm" in t:
-            if tau is None:
-                tau = np.full((m, n), np.nan)
-            tau[k] = _vector(t["tau_Nm"], n, f"targets[{k}].tau_Nm")
-        if "dir" in t:
-            if direc is None:
-                direc = np.full((m, n), np.nan)
-            direc[k] = _vector(t["dir"], n, f"targets[{k}].dir")
-            if not np.isin(direc[k], (-1.0, 1.0)).all():
-                raise RequestError("bad_request", f"targets[{k}].dir must hold -1 or +1 per joint")
-    for arr, name in ((cur, "current_A"), (tau, "tau_Nm"), (direc, "dir")):
-        if arr is not None and np.isnan(arr).any():
-            raise RequestError("bad_request", f"'{name}' must be given for every target or for none")
-    return Targets(kind, q, xyz, quat, cur, tau, direc)
+        kind[k] = _parse_target(t, k, n, q, xyz, quat)
+        for key in TARGET_SIGNALS:
+            if key in t:
+                arr = signals.setdefault(key, np.full((m, n), np.nan))
+                arr[k] = _vector(t[key], n, f"targets[{k}].{key}")
+                if key == "dir" and not np.isin(arr[k], (-1.0, 1.0)).all():
+                    raise RequestError("bad_request", f"targets[{k}].dir must hold -1 or +1 per joint")
+    for key in TARGET_SIGNALS:
+        if key in signals and np.isnan(signals[key]).any():
+            raise RequestError("bad_request", f"'{key}' must be given for every target or for none")
+    return Targets(kind, q, xyz, quat, signals.get("current_A"), signals.get("tau_Nm"), signals.get("dir"))
+
+
+def _parse_target(t: dict[str, Any], k: int, n: int, q: np.ndarray, xyz: np.ndarray, quat: np.ndarray) -> int:
+    """Target ``k`` into row ``k`` of ``q`` / ``xyz`` / ``quat``; its kind (0 joints, 1 pose)."""
+    if "q_deg" in t:
+        extra = set(t) - {"q_deg", *TARGET_SIGNALS}
+        q[k] = _vector(t["q_deg"], n, f"targets[{k}].q_deg")
+        kind = 0
+    elif "xyz_mm" in t:
+        extra = set(t) - {"xyz_mm", "quat_wxyz", "q_seed_deg", *TARGET_SIGNALS}
+        kind = 1
+        xyz[k] = _vector(t["xyz_mm"], 3, f"targets[{k}].xyz_mm")
+        qu = _vector(t.get("quat_wxyz"), 4, f"targets[{k}].quat_wxyz")
+        norm = float(np.linalg.norm(qu))
+        if not 0.9 < norm < 1.1:
+            raise RequestError("bad_request", f"targets[{k}].quat_wxyz must be a unit quaternion (norm {norm:.3g})")
+        quat[k] = qu / norm
+        q[k] = _vector(t.get("q_seed_deg"), n, f"targets[{k}].q_seed_deg")
+    else:
+        raise RequestError("bad_request", f"targets[{k}] needs 'q_deg' (joint target) or 'xyz_mm' (pose target)")
+    if extra:
+        raise RequestError("bad_request", f"targets[{k}] has unknown field(s) {sorted(extra)}")
+    return kind
 
 
 def parse_temperatures(raw: Any, sensors: tuple[str, ...]) -> np.ndarray:
@@ -308,110 +311,20 @@ class Service:
         t_start = time.perf_counter()
         bundle = self.bundle  # one bundle for the whole request, even if a reload swaps it meanwhile
         cfg = self.config
-        sf = cfg.safety
-        robot = bundle.robot
-        n = robot.n_joints
-        allowed = {"op", "id", "token", "targets", "temperatures", "payload_kg", "tool", "mode"}
-        unknown = sorted(set(req) - allowed)
-        if unknown:
-            raise RequestError("bad_request", f"unknown field(s) {unknown}; known: {sorted(allowed)}")
-        tg = parse_targets(req.get("targets"), n, cfg.max_targets)
-        m = len(tg.kind)
-        mode = req.get("mode", "pose")
-        if mode not in ("pose", "position"):
-            raise RequestError("bad_request", f"'mode' must be 'pose' or 'position', got {mode!r}")
-        tool_name = req.get("tool", bundle.default_tool)
-        if not isinstance(tool_name, str) or tool_name not in bundle.tools:
-            raise RequestError("bad_request", f"unknown 'tool' {tool_name!r}; the bundle has {list(bundle.tools)}")
-        tool_T = bundle.tools[tool_name]
-        payload = _number(req.get("payload_kg", 0.0), "payload_kg")
-        if payload < 0:
-            raise RequestError("bad_request", "'payload_kg' must be >= 0")
-        reasons_all: list[str] = []  # request-level reasons (apply to every target)
-        temps = None
-        if bundle.thermal is not None:
-            if "temperatures" not in req:
-                raise RequestError(
-                    "bad_request",
-                    f"'temperatures' is required: the bundle has a thermal model of {list(bundle.sensors)}",
-                )
-            temps = parse_temperatures(req["temperatures"], bundle.sensors)
-            reasons_all.extend(bundle.temperature_reasons(temps, sf.temperature_margin_C))
-        elif "temperatures" in req and not isinstance(req["temperatures"], dict | list):
-            raise RequestError("bad_request", "'temperatures' must be an object or a list")
-        cc, zero_off = self._compiled_and_offsets(bundle, temps)
+        r = _parse_request(req, bundle, cfg)
+        m = len(r.targets.kind)
+        cc, zero_off = self._compiled_and_offsets(bundle, r.temps)
         cc_nom = self._compiled(bundle, None, nominal=True)
-        effects = bundle.joint_effects()
-        offsets = None
-        if effects:
-            sig = Signals(np.full(m, payload), tg.tau_Nm, tg.current_A, tg.direction)
-            missing = sorted(needs(effects) - sig.given())
-            if missing:
-                raise RequestError(
-                    "bad_request",
-                    f"the bundle's discovered effects {[e['key'] for e in bundle.effects]} need "
-                    f"{['dir' if k == 'direction' else k for k in missing]} with every target",
-                )
-            offsets = compose(effects, sig)
-        q_in = np.deg2rad(tg.q_deg)
-        q_target = q_in.copy()
-        pose_rows = np.flatnonzero(tg.kind == 1)
-        ik_ok = np.ones(m, dtype=bool)
-        if len(pose_rows):  # the nominal controller's inverse kinematics from the seed
-            kw = cfg.solver.kwargs()
-            R_p = quat_to_matrix(tg.quat[pose_rows])
-            ik = solve(cc_nom, tool_T, q_in[pose_rows], tg.xyz_mm[pose_rows], R_p, None, **kw)
-            q_target[pose_rows] = ik.q
-            ik_ok[pose_rows] = ik.converged
+        offsets = _joint_offsets(bundle, r.targets, r.payload_kg)
+        q_target, ik_ok = _nominal_joints(cc_nom, r.tool_T, r.targets, cfg.solver)
         c = correct_targets(
-            cc, cc_nom, tool_T, tool_T, q_target, zero_off, offsets, robot.q_limits,
-            robot.joint_names, orientation=mode == "pose", solver=cfg.solver, policy=sf,
-            request_reasons=reasons_all, unreachable=~ik_ok,
+            cc, cc_nom, r.tool_T, r.tool_T, q_target, zero_off, offsets, bundle.robot.q_limits,
+            bundle.robot.joint_names, orientation=r.mode == "pose", solver=cfg.solver, policy=cfg.safety,
+            request_reasons=r.reasons, unreachable=~ik_ok,
         )  # fmt: skip
-        q_corr = c.q
-        dq_deg = c.correction_deg
-        err_before = c.error_before_norm_mm
-        err_before_deg = np.rad2deg(np.linalg.norm(c.error_before_rad, axis=1))
-        resid, resid_deg = c.residual_norm_mm, c.residual_norm_deg
-        cmd_p, cmd_R, _, _ = forward(cc_nom, q_corr, tool_T)  # what the nominal controller must be sent
-        cmd_quat = quaternions(cmd_R)
-        results = []
-        n_ref = n_flag = 0
-        qc_l = np.rad2deg(q_corr).round(9).tolist()
-        eb_r = np.round(err_before, 7).tolist()
-        ebx_r = np.round(c.error_before_mm, 7).tolist()
-        ebd_r = np.round(err_before_deg, 9).tolist()
-        dq_l = dq_deg.round(9).tolist()
-        cmd_p_l = cmd_p.round(7).tolist()
-        cmd_q_l = cmd_quat.round(12).tolist()
-        resid_l = resid.tolist()
-        resid_deg_l = resid_deg.tolist()
-        qt_l = np.rad2deg(q_target).round(9).tolist()
-        for k in range(m):
-            reasons = c.reasons[k]
-            refuse = c.status[k] == "refused"
-            r: dict[str, Any] = {
-                "status": c.status[k],
-                "predicted_error_mm": eb_r[k],
-                "predicted_error_xyz_mm": ebx_r[k],
-                "predicted_error_deg": ebd_r[k],
-            }
-            if reasons:
-                r["reasons"] = reasons
-            if c.notes[k]:
-                r["notes"] = c.notes[k]
-            if refuse:
-                n_ref += 1
-            else:
-                n_flag += bool(reasons)
-                r["q_deg"] = qc_l[k]
-                r["correction_deg"] = dq_l[k]
-                r["command"] = {"xyz_mm": cmd_p_l[k], "quat_wxyz": cmd_q_l[k]}
-                r["residual_mm"] = resid_l[k]
-                r["residual_deg"] = resid_deg_l[k]
-            if tg.kind[k] == 1:
-                r["q_nominal_deg"] = qt_l[k]
-            results.append(r)
+        results = _target_replies(c, cc_nom, r.tool_T, q_target, r.targets.kind)
+        n_ref = sum(res["status"] == "refused" for res in results)
+        n_flag = sum(res["status"] != "refused" and "reasons" in res for res in results)
         self.counters["targets"] += m
         self.counters["refused"] += n_ref
         self.counters["flagged"] += n_flag
@@ -419,14 +332,137 @@ class Service:
             "ok": True,
             "op": "correct",
             "bundle": bundle.bundle_id,
-            "tool": tool_name,
-            "mode": mode,
+            "tool": r.tool_name,
+            "mode": r.mode,
             "n": m,
             "n_refused": n_ref,
             "n_flagged": n_flag,
             "results": results,
         }
-        if temps is not None:
-            out["temperatures_C"] = temps.tolist()
+        if r.temps is not None:
+            out["temperatures_C"] = r.temps.tolist()
         out["elapsed_ms"] = round((time.perf_counter() - t_start) * 1e3, 4)
         return out
+
+
+#: the fields a ``correct`` request may carry
+CORRECT_FIELDS = ("op", "id", "token", "targets", "temperatures", "payload_kg", "tool", "mode")
+
+
+@dataclass(frozen=True)
+class CorrectRequest:
+    """A checked ``correct`` request: the targets, the mode (``pose`` / ``position``), the tool, the payload, the
+    temperatures (None without a thermal model) and the reasons that apply to every target."""
+
+    targets: Targets
+    mode: str
+    tool_name: str
+    tool_T: np.ndarray
+    payload_kg: float
+    temps: np.ndarray | None
+    reasons: list[str]
+
+
+def _parse_request(req: dict[str, Any], bundle: Bundle, cfg: ServiceConfig) -> CorrectRequest:
+    """The request's fields, checked against the bundle (each bad field is a ``bad_request`` naming it)."""
+    unknown = sorted(set(req) - set(CORRECT_FIELDS))
+    if unknown:
+        raise RequestError("bad_request", f"unknown field(s) {unknown}; known: {sorted(CORRECT_FIELDS)}")
+    tg = parse_targets(req.get("targets"), bundle.robot.n_joints, cfg.max_targets)
+    mode = req.get("mode", "pose")
+    if mode not in ("pose", "position"):
+        raise RequestError("bad_request", f"'mode' must be 'pose' or 'position', got {mode!r}")
+    tool_name = req.get("tool", bundle.default_tool)
+    if not isinstance(tool_name, str) or tool_name not in bundle.tools:
+        raise RequestError("bad_request", f"unknown 'tool' {tool_name!r}; the bundle has {list(bundle.tools)}")
+    payload = _number(req.get("payload_kg", 0.0), "payload_kg")
+    if payload < 0:
+        raise RequestError("bad_request", "'payload_kg' must be >= 0")
+    reasons: list[str] = []  # request-level reasons (apply to every target)
+    temps = None
+    if bundle.thermal is not None:
+        if "temperatures" not in req:
+            raise RequestError(
+                "bad_request",
+                f"'temperatures' is required: the bundle has a thermal model of {list(bundle.sensors)}",
+            )
+        temps = parse_temperatures(req["temperatures"], bundle.sensors)
+        reasons.extend(bundle.temperature_reasons(temps, cfg.safety.temperature_margin_C))
+    elif "temperatures" in req and not isinstance(req["temperatures"], dict | list):
+        raise RequestError("bad_request", "'temperatures' must be an object or a list")
+    return CorrectRequest(tg, mode, tool_name, bundle.tools[tool_name], payload, temps, reasons)
+
+
+def _joint_offsets(bundle: Bundle, tg: Targets, payload_kg: float) -> Any:
+    """The bundle's joint-space effects at the targets' signals (None without effects); an effect needing a
+    signal the request does not give is a ``bad_request``."""
+    effects = bundle.joint_effects()
+    if not effects:
+        return None
+    sig = Signals(np.full(len(tg.kind), payload_kg), tg.tau_Nm, tg.current_A, tg.direction)
+    missing = sorted(needs(effects) - sig.given())
+    if missing:
+        raise RequestError(
+            "bad_request",
+            f"the bundle's discovered effects {[e['key'] for e in bundle.effects]} need "
+            f"{['dir' if k == 'direction' else k for k in missing]} with every target",
+        )
+    return compose(effects, sig)
+
+
+def _nominal_joints(
+    cc_nom: CompiledChain, tool_T: np.ndarray, tg: Targets, solver: SolverConfig
+) -> tuple[np.ndarray, np.ndarray]:
+    """The joints (m, n) rad the nominal controller uses: a joint target as given, a pose target through the
+    nominal inverse kinematics from its seed; and whether each was reached."""
+    q_target = np.deg2rad(tg.q_deg)
+    ik_ok = np.ones(len(tg.kind), dtype=bool)
+    pose_rows = np.flatnonzero(tg.kind == 1)
+    if len(pose_rows):
+        R_p = quat_to_matrix(tg.quat[pose_rows])
+        ik = solve(cc_nom, tool_T, q_target[pose_rows], tg.xyz_mm[pose_rows], R_p, None, **solver.kwargs())
+        q_target[pose_rows] = ik.q
+        ik_ok[pose_rows] = ik.converged
+    return q_target, ik_ok
+
+
+def _target_replies(
+    c: Any, cc_nom: CompiledChain, tool_T: np.ndarray, q_target: np.ndarray, kind: np.ndarray
+) -> list[dict[str, Any]]:
+    """One reply object per target: status, predicted error, reasons and notes; the corrected joints and the
+    command for the nominal controller unless refused; the nominal joints of a pose target."""
+    cmd_p, cmd_R, _, _ = forward(cc_nom, c.q, tool_T)  # what the nominal controller must be sent
+    # rounded once for the whole batch (the wire's digits)
+    eb_r = np.round(c.error_before_norm_mm, 7).tolist()
+    ebx_r = np.round(c.error_before_mm, 7).tolist()
+    ebd_r = np.round(np.rad2deg(np.linalg.norm(c.error_before_rad, axis=1)), 9).tolist()
+    qc_l = np.rad2deg(c.q).round(9).tolist()
+    dq_l = c.correction_deg.round(9).tolist()
+    cmd_p_l = cmd_p.round(7).tolist()
+    cmd_q_l = quaternions(cmd_R).round(12).tolist()
+    resid_l = c.residual_norm_mm.tolist()
+    resid_deg_l = c.residual_norm_deg.tolist()
+    qt_l = np.rad2deg(q_target).round(9).tolist()
+    results = []
+    for k in range(len(q_target)):
+        reasons = c.reasons[k]
+        r: dict[str, Any] = {
+            "status": c.status[k],
+            "predicted_error_mm": eb_r[k],
+            "predicted_error_xyz_mm": ebx_r[k],
+            "predicted_error_deg": ebd_r[k],
+        }
+        if reasons:
+            r["reasons"] = reasons
+        if c.notes[k]:  # where an effect does not apply (robocal.compensation.effects.JointOffsets.notes)
+            r["notes"] = c.notes[k]
+        if c.status[k] != "refused":
+            r["q_deg"] = qc_l[k]
+            r["correction_deg"] = dq_l[k]
+            r["command"] = {"xyz_mm": cmd_p_l[k], "quat_wxyz": cmd_q_l[k]}
+            r["residual_mm"] = resid_l[k]
+            r["residual_deg"] = resid_deg_l[k]
+        if kind[k] == 1:
+            r["q_nominal_deg"] = qt_l[k]
+        results.append(r)
+    return results

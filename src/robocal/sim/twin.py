@@ -15,7 +15,7 @@ Effects are registered in :data:`EFFECTS` (name -> class); each implements :clas
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import Any, Protocol
@@ -23,6 +23,7 @@ from typing import Any, Protocol
 import numpy as np
 import yaml
 
+from robocal.data.columns import EXTRA_DECIMALS, POSE_COLUMNS, ColumnGroup, known_columns
 from robocal.errors import ConfigError
 from robocal.io import atomic_write, write_json, write_text
 from robocal.kinematics.chain import Chain, build_chain, propagate
@@ -294,102 +295,212 @@ def _fmt(v: np.ndarray, nd: int) -> list[str]:
     return [f"{x:.{nd}f}" for x in np.asarray(v, dtype=float)]
 
 
-def simulate(  # noqa: C901, PLR0915
-    scenario: Mapping[str, Any],
+@dataclass(frozen=True)
+class GrossErrors:
+    """``gross_errors: {n, min_mm, max_mm}``: ``n`` calibration rows displaced by ``[min_mm, max_mm]``."""
+
+    n: int = 0
+    min_mm: float = 0.5
+    max_mm: float = 3.0
+
+
+def _transform(c: Mapping[str, Any], xyz_mm: Any, rpy_deg: Any) -> np.ndarray:
+    """``{xyz_mm, rpy_deg}`` (with defaults) as a 4x4 transform."""
+    return homogeneous(
+        matrix_from_rpy(np.deg2rad(np.asarray(c.get("rpy_deg", rpy_deg), dtype=float))),
+        np.asarray(c.get("xyz_mm", xyz_mm), dtype=float),
+    )
+
+
+@dataclass(frozen=True, eq=False)
+class ScenarioConfig:
+    """A twin scenario (``conf/scenario/<name>.yaml``, the pipeline's ``scenario`` section), typed.
+
+    The keys are the YAML's (see ``conf/scenario/geometric.yaml``); :meth:`from_mapping` reads them with their
+    defaults and keeps the mapping itself (``mapping``, written back as ``scenario.yaml``); keys the twin does
+    not use are kept there and ignored. ``errors``, ``tracker``, ``targets``, ``stations`` and ``start`` are held
+    in the twin's units: 1-sigma error sizes (mm, rad), the tracker's and the stations' ``tracker_T_base``
+    transforms, the reflector offsets (K, 3) mm and the UTC start time. ``effects`` stays a mapping: each effect
+    reads its own settings (:data:`EFFECTS`).
+    """
+
+    mapping: dict[str, Any]
+    name: Any = "custom"
+    robot: str = "kr16_2"
+    seed: int = 0
+    n_poses: int = 80
+    n_validation_poses: int = 20
+    joint_range_fraction: float = 0.9
+    joint_ranges_deg: Any = None
+    poses_deg: Any = None
+    validation_poses_deg: Any = None
+    target_names: tuple[str, ...] = ("T1",)
+    tools_mm: np.ndarray = field(default_factory=lambda: np.array([[0.0, 0.0, 120.0]]))
+    orientation: bool = False
+    noise_mm: float = 0.015
+    noise_deg: float = 0.005
+    length_error_mm: float = 0.3
+    angle_error_rad: float = float(np.deg2rad(0.02))
+    tracker_T_base: np.ndarray = field(default_factory=lambda: np.eye(4))
+    stations: dict[str, np.ndarray] = field(default_factory=dict)
+    gross_errors: GrossErrors = field(default_factory=GrossErrors)
+    start: datetime = datetime(2026, 1, 5, 7, tzinfo=UTC)
+    interval_s: float = 10.0
+    payload_kg: float = 0.0
+    effects: dict[str, Any] = field(default_factory=dict)
+
+    @classmethod
+    def from_mapping(cls, scenario: Mapping[str, Any], seed: int | None = None) -> ScenarioConfig:
+        """The scenario mapping, read with the twin's defaults; ``seed`` (when given) replaces the scenario's."""
+        sc = dict(scenario)
+        err = dict(sc.get("errors", {}))
+        targets = dict(sc.get("targets", {"T1": [0.0, 0.0, 120.0]}))
+        tools = np.array([np.asarray(targets[t], dtype=float) for t in targets])
+        if tools.shape != (len(targets), 3):
+            raise ConfigError("The 'targets' scenario setting must map target names to [x, y, z] in mm")
+        stations = {}
+        for nm, c in dict(sc.get("stations") or {}).items():
+            c = dict(c or {})
+            if "xyz_mm" not in c or "rpy_deg" not in c:
+                raise ConfigError(f"The 'stations.{nm}' scenario setting needs xyz_mm and rpy_deg")
+            stations[str(nm)] = _transform(c, None, None)
+        gross = dict(sc.get("gross_errors") or {})
+        start = datetime.fromisoformat(str(sc.get("start", "2026-01-05T07:00:00+00:00")).replace("Z", "+00:00"))
+        return cls(
+            mapping=sc,
+            name=sc.get("name", "custom"),
+            robot=sc.get("robot", "kr16_2"),
+            seed=int(sc.get("seed", 0) if seed is None else seed),
+            n_poses=int(sc.get("n_poses", 80)),
+            n_validation_poses=int(sc.get("n_validation_poses", 20)),
+            joint_range_fraction=float(sc.get("joint_range_fraction", 0.9)),
+            joint_ranges_deg=sc.get("joint_ranges_deg"),
+            poses_deg=sc.get("poses_deg"),
+            validation_poses_deg=sc.get("validation_poses_deg"),
+            target_names=tuple(targets),
+            tools_mm=tools,
+            orientation=bool(sc.get("orientation", False)),
+            noise_mm=float(sc.get("noise_mm", 0.015)),
+            noise_deg=float(sc.get("noise_deg", 0.005)),
+            length_error_mm=float(err.get("length_mm", 0.3)),
+            angle_error_rad=np.deg2rad(float(err.get("angle_deg", 0.02))),
+            tracker_T_base=_transform(dict(sc.get("tracker", {})), [2500.0, 1200.0, -350.0], [0.3, -0.5, 135.0]),
+            stations=stations,
+            gross_errors=GrossErrors(
+                int(gross.get("n", 0)), float(gross.get("min_mm", 0.5)), float(gross.get("max_mm", 3.0))
+            ),
+            start=start if start.tzinfo is not None else start.replace(tzinfo=UTC),
+            interval_s=float(sc.get("interval_s", 10.0)),
+            payload_kg=float(sc.get("payload_kg", 0.0)),
+            effects=dict(sc.get("effects") or {}),
+        )
+
+    def iso(self, t_s: float) -> str:
+        """The ISO 8601 UTC timestamp (ms) ``t_s`` seconds after :attr:`start`."""
+        return (self.start + timedelta(seconds=float(t_s))).astimezone(UTC).strftime("%Y-%m-%dT%H:%M:%S.%f")[:-3] + "Z"
+
+
+def simulate(
+    scenario: Mapping[str, Any] | ScenarioConfig,
     out_dir: str | Path,
     seed: int | None = None,
     robot: RobotDescription | None = None,
 ) -> dict[str, Any]:
     """Write ``poses.csv`` (+ ``temperatures.csv``), ``truth.json`` and ``scenario.yaml`` into ``out_dir``.
 
-    Returns the truth mapping.
+    ``scenario`` : a scenario mapping (:func:`load_scenario`) or its :class:`ScenarioConfig`; ``seed`` replaces
+    the scenario's; ``robot`` replaces the one it names. Returns the truth mapping.
     """
-    sc = dict(scenario)
-    seed = int(sc.get("seed", 0) if seed is None else seed)
-    robot = robot or load_robot(sc.get("robot", "kr16_2"))
+    if isinstance(scenario, ScenarioConfig):
+        cfg = scenario if seed is None else replace(scenario, seed=int(seed))
+    else:
+        cfg = ScenarioConfig.from_mapping(scenario, seed)
+    robot = robot or load_robot(cfg.robot)
     chain = build_chain(robot)
-    rng = _rng_factory(seed)
-    n = robot.n_joints
-    P = chain.n_params
-
-    # true geometric errors
-    err = dict(sc.get("errors", {}))
-    length_sd = float(err.get("length_mm", 0.3))
-    angle_sd = np.deg2rad(float(err.get("angle_deg", 0.02)))
-    g = rng("geometry")
-    kinds = chain.param_kind
-    eta = np.array([g.normal(0, length_sd if k == "length" else angle_sd) for k in kinds])
-
-    # tracker frame and tools
-    tr = dict(sc.get("tracker", {}))
-    T_base = homogeneous(
-        matrix_from_rpy(np.deg2rad(np.asarray(tr.get("rpy_deg", [0.3, -0.5, 135.0]), dtype=float))),
-        np.asarray(tr.get("xyz_mm", [2500.0, 1200.0, -350.0]), dtype=float),
+    rng = _rng_factory(cfg.seed)
+    g = rng("geometry")  # the true geometric errors
+    eta = np.array(
+        [g.normal(0, cfg.length_error_mm if k == "length" else cfg.angle_error_rad) for k in chain.param_kind]
     )
-    targets = dict(sc.get("targets", {"T1": [0.0, 0.0, 120.0]}))
-    tnames = list(targets)
-    tools = np.array([np.asarray(targets[t], dtype=float) for t in tnames])
-    if tools.shape != (len(tnames), 3):
-        raise ConfigError("The 'targets' scenario setting must map target names to [x, y, z] in mm")
-    orientation = bool(sc.get("orientation", False))
-    tool_R = rotvec_to_matrix(rng("tool_rot").normal(0, 0.3, (len(tnames), 3)))
+    tool_R = rotvec_to_matrix(rng("tool_rot").normal(0, 0.3, (len(cfg.target_names), 3)))
+    rows = _plan(cfg, robot, chain.n_params, rng("poses"))
+    truth = _truth(cfg, robot, chain, eta, tool_R)
+    ctx = TwinContext(robot=robot, chain=chain, eta_true=eta, rng_factory=rng, truth=truth)
+    rows = _apply_effects(cfg, rows, ctx)
 
-    # plan: calibration and validation poses, each measured on every target
-    n_cal = int(sc.get("n_poses", 80))
-    n_val = int(sc.get("n_validation_poses", 20))
-    frac = float(sc.get("joint_range_fraction", 0.9))
-    q_cal = given_poses(sc.get("poses_deg"), robot, "poses_deg")
-    q_val = given_poses(sc.get("validation_poses_deg"), robot, "validation_poses_deg")
+    p, R = _true_points(cfg, chain, rows, eta, tool_R)
+    station_of = _stations(cfg, truth, rows, p, R)
+    if rows.tracker_scale is not None:  # about the tracker head: the point in its station's frame
+        p = p * (1.0 + rows.tracker_scale)[:, None]
+    if rows.dp_tracker_mm is not None:
+        p = p + rows.dp_tracker_mm
+    noise = rng("noise")
+    p_meas = p + noise.normal(0, cfg.noise_mm, p.shape)
+    m = len(rows.pose_id)
+    sigma_o = np.deg2rad(cfg.noise_deg)
+    quat = matrix_to_quat(rotvec_to_matrix(noise.normal(0, sigma_o, (m, 3))) @ R) if cfg.orientation else None
+    _gross_errors(cfg.gross_errors, truth, rows, p_meas, rng("gross"), list(cfg.target_names))
+    _write_campaign(Path(out_dir), cfg, rows, p_meas, quat, station_of, ctx.temperature_log, truth)
+    return truth
+
+
+def _plan(cfg: ScenarioConfig, robot: RobotDescription, n_params: int, rng: np.random.Generator) -> Rows:
+    """The measurement plan: the calibration and validation poses, each measured on every target in turn."""
+    n_cal, n_val = cfg.n_poses, cfg.n_validation_poses
+    frac = cfg.joint_range_fraction
+    q_cal = given_poses(cfg.poses_deg, robot, "poses_deg")
+    q_val = given_poses(cfg.validation_poses_deg, robot, "validation_poses_deg")
     if q_cal is None and q_val is None:
-        q_all = sample_poses(robot, n_cal + n_val, rng("poses"), frac, sc.get("joint_ranges_deg"))
+        q_all = sample_poses(robot, n_cal + n_val, rng, frac, cfg.joint_ranges_deg)
     else:
         # a given pose list (e.g. robocal plan's plan.csv) replaces that split's part of the random draw; the
         # draw itself is the random design's, so the other split keeps the same poses (planned vs random
         # calibrations are validated on the same poses)
-        drawn = sample_poses(robot, n_cal + n_val, rng("poses"), frac, sc.get("joint_ranges_deg"))
+        drawn = sample_poses(robot, n_cal + n_val, rng, frac, cfg.joint_ranges_deg)
         q_cal = drawn[:n_cal] if q_cal is None else q_cal
         q_val = drawn[n_cal:] if q_val is None else q_val
         n_cal, n_val = len(q_cal), len(q_val)
         q_all = np.concatenate([q_cal, q_val])
     q_all = np.deg2rad(np.round(np.rad2deg(q_all), 6))  # what the controller reports, 1e-6 deg
-    pose_ids = [f"p{k:04d}" for k in range(n_cal + n_val)]
-    K = len(tnames)
-    pid = np.repeat(np.array(pose_ids, dtype=object), K)
-    split = np.repeat(np.array(["calibration"] * n_cal + ["validation"] * n_val, dtype=object), K)
-    tidx = np.tile(np.arange(K), n_cal + n_val)
-    qrow = np.repeat(q_all, K, axis=0)
-    interval = float(sc.get("interval_s", 10.0))
+    K = len(cfg.target_names)
+    pid = np.repeat(np.array([f"p{k:04d}" for k in range(n_cal + n_val)], dtype=object), K)
     m = len(pid)
-    rows = Rows(
+    return Rows(
         pose_id=pid,
-        split=split,
-        target_index=tidx,
-        q_cmd=qrow,
-        t_s=np.arange(m) * interval,
-        payload_kg=np.full(m, float(sc.get("payload_kg", 0.0))),
-        dq=np.zeros((m, n)),
-        deta=np.zeros((m, P)),
+        split=np.repeat(np.array(["calibration"] * n_cal + ["validation"] * n_val, dtype=object), K),
+        target_index=np.tile(np.arange(K), n_cal + n_val),
+        q_cmd=np.repeat(q_all, K, axis=0),
+        t_s=np.arange(m) * cfg.interval_s,
+        payload_kg=np.full(m, cfg.payload_kg),
+        dq=np.zeros((m, robot.n_joints)),
+        deta=np.zeros((m, n_params)),
     )
 
-    truth: dict[str, Any] = {
-        "scenario": sc.get("name", "custom"),
-        "seed": seed,
+
+def _truth(
+    cfg: ScenarioConfig, robot: RobotDescription, chain: Chain, eta: np.ndarray, tool_R: np.ndarray
+) -> dict[str, Any]:
+    """The truth file's start: the true errors, tracker frame and tools (effects add theirs)."""
+    names, kinds = chain.param_names, chain.param_kind
+    return {
+        "scenario": cfg.name,
+        "seed": cfg.seed,
         "robot": robot.name,
-        "kinematic_errors": {name: float(v) for name, v in zip(chain.param_names, eta, strict=True)},
-        "kinematic_units": {
-            name: ("mm" if k == "length" else "rad") for name, k in zip(chain.param_names, kinds, strict=True)
-        },
-        "tracker_T_base": T_base.tolist(),
-        "tools_mm": {t: tools[k].tolist() for k, t in enumerate(tnames)},
-        "tool_rotations": {t: tool_R[k].tolist() for k, t in enumerate(tnames)},
-        "noise_mm": float(sc.get("noise_mm", 0.015)),
+        "kinematic_errors": {name: float(v) for name, v in zip(names, eta, strict=True)},
+        "kinematic_units": {name: ("mm" if k == "length" else "rad") for name, k in zip(names, kinds, strict=True)},
+        "tracker_T_base": cfg.tracker_T_base.tolist(),
+        "tools_mm": {t: cfg.tools_mm[k].tolist() for k, t in enumerate(cfg.target_names)},
+        "tool_rotations": {t: tool_R[k].tolist() for k, t in enumerate(cfg.target_names)},
+        "noise_mm": cfg.noise_mm,
     }
-    ctx = TwinContext(robot=robot, chain=chain, eta_true=eta, rng_factory=rng, truth=truth)
-    effects_cfg = dict(sc.get("effects") or {})
+
+
+def _apply_effects(cfg: ScenarioConfig, rows: Rows, ctx: TwinContext) -> Rows:
+    """The scenario's effects (:data:`EFFECTS`): each may change the plan, then each acts on the rows."""
     effects: list[Effect] = []
-    if effects_cfg:
+    if cfg.effects:
         load_effect_modules()
-    for name, ecfg in effects_cfg.items():
+    for name, ecfg in cfg.effects.items():
         if ecfg in (None, False):
             continue
         if name not in EFFECTS:
@@ -397,11 +508,16 @@ def simulate(  # noqa: C901, PLR0915
         effects.append(EFFECTS[name](ecfg if isinstance(ecfg, Mapping) else {}))
     for eff in effects:
         rows = eff.plan(rows, ctx)
-    m = len(rows.pose_id)
     for eff in effects:
         eff.apply(rows, ctx)
+    return rows
 
-    # true measurements, grouped by identical parameter drift
+
+def _true_points(
+    cfg: ScenarioConfig, chain: Chain, rows: Rows, eta: np.ndarray, tool_R: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """True target points (m, 3) and orientations (m, 3, 3) in the tracker frame, grouped by identical drift."""
+    m = len(rows.pose_id)
     q_true = rows.q_cmd + rows.dq
     p = np.zeros((m, 3))
     R = np.zeros((m, 3, 3))
@@ -409,95 +525,103 @@ def simulate(  # noqa: C901, PLR0915
     inv = inv.ravel()
     for g_i in range(len(keys)):
         sel = inv == g_i
-        st = propagate(chain, q_true[sel], eta + rows.deta[np.flatnonzero(sel)[0]], T_base)
-        t = tools[rows.target_index[sel]]
+        st = propagate(chain, q_true[sel], eta + rows.deta[np.flatnonzero(sel)[0]], cfg.tracker_T_base)
+        t = cfg.tools_mm[rows.target_index[sel]]
         p[sel] = st.o + st.x * t[:, 0:1] + st.y * t[:, 1:2] + st.z * t[:, 2:3]
         R[sel] = st.R @ tool_R[rows.target_index[sel]]
-    # tracker stations: the tracker moved (leap-frog): pose k is measured from station k mod S
-    station_of = _stations(sc, truth, rows, p, R, T_base)
-    if rows.tracker_scale is not None:  # about the tracker head: the point in its station's frame
-        p = p * (1.0 + rows.tracker_scale)[:, None]
-    if rows.dp_tracker_mm is not None:
-        p = p + rows.dp_tracker_mm
-    noise = rng("noise")
-    sigma = truth["noise_mm"]
-    p_meas = p + noise.normal(0, sigma, p.shape)
-    sigma_o = np.deg2rad(float(sc.get("noise_deg", 0.005)))
-    quat = matrix_to_quat(rotvec_to_matrix(noise.normal(0, sigma_o, (m, 3))) @ R) if orientation else None
-    _gross_errors(sc, truth, rows, p_meas, rng("gross"), tnames)
+    return p, R
 
-    # write files
-    out = Path(out_dir)
+
+def _write_campaign(
+    out: Path,
+    cfg: ScenarioConfig,
+    rows: Rows,
+    p_meas: np.ndarray,
+    quat: np.ndarray | None,
+    station_of: np.ndarray | None,
+    temperature_log: dict[str, np.ndarray] | None,
+    truth: dict[str, Any],
+) -> None:
+    """``poses.csv`` (+ ``temperatures.csv``), ``truth.json`` and ``scenario.yaml``, with fixed formats."""
     out.mkdir(parents=True, exist_ok=True)
-    start = datetime.fromisoformat(str(sc.get("start", "2026-01-05T07:00:00+00:00")).replace("Z", "+00:00"))
-    if start.tzinfo is None:
-        start = start.replace(tzinfo=UTC)
-
-    def iso(ts: float) -> str:
-        return (start + timedelta(seconds=float(ts))).astimezone(UTC).strftime("%Y-%m-%dT%H:%M:%S.%f")[:-3] + "Z"
-
-    header = ["pose_id", "timestamp", "target"] + [f"q{j + 1}_deg" for j in range(n)] + ["x_mm", "y_mm", "z_mm"]
-    cols: list[list[str]] = [
-        list(map(str, rows.pose_id)),
-        [iso(t) for t in rows.t_s],
-        [tnames[i] for i in rows.target_index],
-    ]
-    cols += [_fmt(np.rad2deg(rows.q_cmd[:, j]), 6) for j in range(n)]
-    cols += [_fmt(p_meas[:, c], 6) for c in range(3)]
-    if quat is not None:
-        header += ["qw", "qx", "qy", "qz"]
-        cols += [_fmt(quat[:, c], 9) for c in range(4)]
-    header.append("payload_kg")
-    cols.append(_fmt(rows.payload_kg, 3))
-    for name in sorted(rows.columns, key=_column_order):
-        header.append(name)
-        v = rows.columns[name]
-        cols.append([str(int(x)) for x in v] if name.startswith("dir") else _fmt(v, 6))
-    header.append("split")
-    cols.append(list(map(str, rows.split)))
-    if station_of is not None:
-        header.append("station")
-        cols.append(list(station_of))
-    lines = [",".join(header)] + [",".join(r) for r in zip(*cols, strict=True)]
-    write_text(out / "poses.csv", "\n".join(lines) + "\n")
-    if ctx.temperature_log is not None:
-        log = ctx.temperature_log
+    write_text(out / "poses.csv", _poses_csv(cfg, rows, p_meas, quat, station_of))
+    if temperature_log is not None:
+        log = temperature_log
         names = [k for k in log if k != "t_s"]
         tl = [",".join(["timestamp", *names])]
         for k, ts in enumerate(log["t_s"]):
-            tl.append(",".join([iso(ts)] + [f"{log[c][k]:.4f}" for c in names]))
+            tl.append(",".join([cfg.iso(ts)] + [f"{log[c][k]:.4f}" for c in names]))
         write_text(out / "temperatures.csv", "\n".join(tl) + "\n")
     else:
         (out / "temperatures.csv").unlink(missing_ok=True)
     write_json(out / "truth.json", truth)
     atomic_write(
         out / "scenario.yaml",
-        lambda pth: pth.write_text(yaml.safe_dump({**sc, "seed": seed}, sort_keys=True)),
+        lambda pth: pth.write_text(yaml.safe_dump({**cfg.mapping, "seed": cfg.seed}, sort_keys=True)),
     )
-    return truth
+
+
+def _poses_csv(
+    cfg: ScenarioConfig, rows: Rows, p_meas: np.ndarray, quat: np.ndarray | None, station_of: np.ndarray | None
+) -> str:
+    """The poses file, its columns in the contract's order (:data:`robocal.data.columns.POSE_COLUMNS`) in their
+    fixed formats; the effects' reported columns (``rows.columns``) at their group's place, columns the
+    contract does not name last."""
+    n = rows.q_cmd.shape[1]
+    text: dict[str, list[list[str]] | None] = {
+        "pose_id": [list(map(str, rows.pose_id))],
+        "timestamp": [[cfg.iso(t) for t in rows.t_s]],
+        "target": [[cfg.target_names[i] for i in rows.target_index]],
+        "split": [list(map(str, rows.split))],
+        "station": None if station_of is None else [list(station_of)],
+    }
+    numbers: dict[str, np.ndarray | None] = {
+        "q": np.rad2deg(rows.q_cmd).T,
+        "p": p_meas.T,
+        "quat": None if quat is None else quat.T,
+        "payload": rows.payload_kg[None],
+    }
+    header: list[str] = []
+    cols: list[list[str]] = []
+    for group in POSE_COLUMNS:
+        names = group.columns(n)
+        if group.key in text:
+            given = text[group.key]
+        elif group.key in numbers:
+            v = numbers[group.key]
+            given = None if v is None else [_cells(group, x) for x in v]
+        else:  # reported by an effect, column by column
+            names = [c for c in names if c in rows.columns]
+            given = [_cells(group, rows.columns[c]) for c in names]
+        if given:
+            header += names
+            cols += given
+    extra = [c for c in rows.columns if c not in known_columns(n)]
+    header += extra
+    cols += [_fmt(rows.columns[c], EXTRA_DECIMALS) for c in extra]
+    lines = [",".join(header)] + [",".join(r) for r in zip(*cols, strict=True)]
+    return "\n".join(lines) + "\n"
+
+
+def _cells(group: ColumnGroup, v: np.ndarray) -> list[str]:
+    """One column's cells in the group's format: a sign as an integer, a number with its fixed decimals."""
+    if group.kind == "sign":
+        return [str(int(x)) for x in v]
+    assert group.decimals is not None, group.key
+    return _fmt(v, group.decimals)
 
 
 def _stations(
-    sc: Mapping[str, Any], truth: dict[str, Any], rows: Rows, p: np.ndarray, R: np.ndarray, T_base: np.ndarray
+    cfg: ScenarioConfig, truth: dict[str, Any], rows: Rows, p: np.ndarray, R: np.ndarray
 ) -> np.ndarray | None:
     """``stations: {S2: {xyz_mm, rpy_deg}, ...}``: more tracker placements besides ``tracker`` (station S1).
     Pose number k (in plan order) is measured from station ``k mod S``; ``p`` and ``R`` are moved into that
     station's frame in place. Returns the station of every row, or None without extra stations."""
-    extra = dict(sc.get("stations") or {})
-    if not extra:
+    if not cfg.stations:
         return None
-    names = ["S1", *map(str, extra)]
-    Ts = [T_base]
-    for nm, c in extra.items():
-        c = dict(c or {})
-        if "xyz_mm" not in c or "rpy_deg" not in c:
-            raise ConfigError(f"The 'stations.{nm}' scenario setting needs xyz_mm and rpy_deg")
-        Ts.append(
-            homogeneous(
-                matrix_from_rpy(np.deg2rad(np.asarray(c["rpy_deg"], dtype=float))),
-                np.asarray(c["xyz_mm"], dtype=float),
-            )
-        )
+    T_base = cfg.tracker_T_base
+    names = ["S1", *cfg.stations]
+    Ts = [T_base, *cfg.stations.values()]
     poses = list(dict.fromkeys(map(str, rows.pose_id)))
     k_of = {pid: k for k, pid in enumerate(poses)}
     st = np.array([k_of[str(pid)] % len(names) for pid in rows.pose_id])
@@ -512,15 +636,14 @@ def _stations(
 
 
 def _gross_errors(
-    sc: Mapping[str, Any], truth: dict[str, Any], rows: Rows, p_meas: np.ndarray, rng: np.random.Generator, tnames: list
+    cfg: GrossErrors, truth: dict[str, Any], rows: Rows, p_meas: np.ndarray, rng: np.random.Generator, tnames: list
 ) -> None:
-    """``gross_errors: {n, min_mm, max_mm}``: ``n`` calibration rows displaced in a random direction by a
-    magnitude uniform in ``[min_mm, max_mm]`` (a beam break, a bumped reflector). Listed in the truth."""
-    cfg = dict(sc.get("gross_errors") or {})
-    n = int(cfg.get("n", 0))
+    """``n`` calibration rows displaced in a random direction by a magnitude uniform in ``[min_mm, max_mm]`` (a
+    beam break, a bumped reflector). Listed in the truth."""
+    n = cfg.n
     if n <= 0:
         return
-    lo, hi = float(cfg.get("min_mm", 0.5)), float(cfg.get("max_mm", 3.0))
+    lo, hi = cfg.min_mm, cfg.max_mm
     cal = np.flatnonzero(np.asarray(rows.split) == "calibration")
     if n > len(cal):
         raise ConfigError(f"The 'gross_errors.n' scenario setting asks for {n} rows; the campaign has {len(cal)}")
@@ -540,10 +663,3 @@ def _gross_errors(
             }
         )
     truth["gross_errors"] = out
-
-
-def _column_order(name: str) -> tuple[int, int]:
-    for rank, prefix in enumerate(("tau", "i", "dir")):
-        if name.startswith(prefix) and name[len(prefix) :].split("_")[0].isdigit():
-            return rank, int(name[len(prefix) :].split("_")[0])
-    return 9, 0

@@ -210,23 +210,87 @@ def read_krl(src: str | Path) -> Any:
     if dat is not None:
         texts[dat] = read_text(dat)
         _scan_dat(dat, texts[dat], decls, data)
-    text = texts[src]
-    code = _mask_comments(text)
-    tool, base = np.eye(4), np.eye(4)
-    tool_name, base_name = "$NULLFRAME", "$NULLFRAME"
-    targets: dict[str, Target] = {}
-    order: list[Target] = []
-    pos = 0
-    target_names = {k for k, d in decls.items() if d.typ in POSE_TYPES + AXIS_TYPES}
+    reader = _SrcReader(src, dat, texts[src], decls, data)
+    reader.read()
+    if not reader.order:
+        raise ProgramError("no motion target found", src)
+    return Program("krl", texts, reader.order, src)
 
-    def resolve_frame(expr: str, line: int, which: str) -> tuple[np.ndarray, str]:
+
+class _SrcReader:
+    """One pass over the ``.src``: the motion targets in order, each with the tool and base active where it is
+    used (``$TOOL`` / ``$BASE`` assignments and ``FDAT_ACT``)."""
+
+    def __init__(
+        self, src: Path, dat: Path | None, text: str, decls: dict[str, _Decl], data: dict[tuple[str, int], _Decl]
+    ) -> None:
+        self.src, self.dat, self.text, self.decls, self.data = src, dat, text, decls, data
+        self.code = _mask_comments(text)
+        self.tool, self.base = np.eye(4), np.eye(4)
+        self.tool_name, self.base_name = "$NULLFRAME", "$NULLFRAME"
+        self.targets: dict[str, Target] = {}
+        self.order: list[Target] = []
+        self.target_names = {k for k, d in decls.items() if d.typ in POSE_TYPES + AXIS_TYPES}
+
+    def read(self) -> None:
+        pos = 0
+        for raw_line in self.code.split("\n"):
+            line_start = pos
+            pos += len(raw_line) + 1
+            stmt = raw_line.rstrip("\r")
+            if not stmt.strip() or stmt.lstrip().startswith("&"):
+                continue
+            self.statement(stmt, line_start, line_of(self.text, line_start))
+
+    def statement(self, stmt: str, line_start: int, line: int) -> None:
+        """A motion (its targets), a ``$TOOL`` / ``$BASE`` assignment, an ``FDAT_ACT``, or a target assigned at
+        run time (an error); anything else is left alone."""
+        src = self.src
+        m = _MOTION.match(stmt)
+        if m:
+            if m.group(2):
+                raise ProgramError(f"relative motion {m.group(1).upper()}_REL cannot be filtered per target", src, line)
+            rest_start = line_start + m.start(3)
+            args = _motion_args(m.group(3), 2 if m.group(1).upper() in ("CIRC", "SCIRC") else 1, src, line)
+            for a_off, a_text in args:
+                if re.match(r"^\s*(\w+|\{[^}]*\})\s*:", a_text):
+                    raise ProgramError("the geometric operator ':' on a target is not supported", src, line)
+                self.add_target(a_text, rest_start + a_off, line)
+            return
+        m = _ASSIGN_FRAME.match(stmt)
+        if m:
+            which = m.group(1).upper()
+            f, nm = self.resolve_frame(m.group(2), line, which)
+            if which == "TOOL":
+                self.tool, self.tool_name = f, nm
+            else:
+                self.base, self.base_name = f, nm
+            return
+        m = _FDAT_ACT.match(stmt)
+        if m:
+            d = self.decls.get(m.group(1).lower())
+            if d is None or d.typ != "fdat":
+                raise ProgramError(f"FDAT_ACT={m.group(1)}: no FDAT of that name", src, line)
+            tn = int(_number(d.vals.get("tool_no", "0"), "tool_no", d.file, d.line))
+            bn = int(_number(d.vals.get("base_no", "0"), "base_no", d.file, d.line))
+            self.tool, self.tool_name = self.tool_base_no(tn, "TOOL", line)
+            self.base, self.base_name = self.tool_base_no(bn, "BASE", line)
+            return
+        m = _ASSIGN.match(stmt)
+        if m and m.group(1).lower() in self.target_names:
+            raise ProgramError(
+                f"target {m.group(1)!r} is assigned at run time; its value is not known before the run", src, line
+            )
+
+    def resolve_frame(self, expr: str, line: int, which: str) -> tuple[np.ndarray, str]:
+        src, dat = self.src, self.dat
         e = expr.strip()
         if e.upper() == "$NULLFRAME":
             return np.eye(4), "$NULLFRAME"
         m = re.fullmatch(r"(TOOL_DATA|BASE_DATA)\[\s*(\d+)\s*\]", e, re.IGNORECASE)
         if m:
             key = (m.group(1).lower(), int(m.group(2)))
-            d = data.get(key)
+            d = self.data.get(key)
             if d is None:
                 raise ProgramError(
                     f"{e} is not defined in {dat.name if dat else 'the .dat'} or a $config.dat beside the program",
@@ -237,21 +301,22 @@ def read_krl(src: str | Path) -> Any:
         if e.startswith("{"):
             _, vals, _ = parse_aggregate(e, src, line)
             return _frame_of(vals, src, line, f"${which}"), e
-        d = decls.get(e.lower())
+        d = self.decls.get(e.lower())
         if d is not None and d.typ in ("frame", "pos", "e6pos"):
             return _frame_of(d.vals, d.file, d.line, e), e
         raise ProgramError(f"${which}={e}: cannot resolve {e!r} to a frame", src, line)
 
-    def tool_base_no(no: int, kind: str, line: int) -> tuple[np.ndarray, str]:
+    def tool_base_no(self, no: int, kind: str, line: int) -> tuple[np.ndarray, str]:
         if no == 0:
             return np.eye(4), "$NULLFRAME"
-        return resolve_frame(f"{kind}_DATA[{no}]", line, kind)
+        return self.resolve_frame(f"{kind}_DATA[{no}]", line, kind)
 
-    def add_target(arg: str, arg_start: int, line: int) -> None:
+    def add_target(self, arg: str, arg_start: int, line: int) -> None:
+        src, dat, text = self.src, self.dat, self.text
         a = arg.strip()
         if a.startswith("{"):
             s = arg_start + (len(arg) - len(arg.lstrip()))
-            e = _brace_end(code, s, src, text)
+            e = _brace_end(self.code, s, src, text)
             typ, vals, keys = parse_aggregate(text[s:e], src, line)
             kind = "axis" if any(k in vals for k in _AXES) else "pose"
             t = _make_target("<inline>", kind, src, text, (s, e), line, vals, keys, typ)
@@ -261,7 +326,7 @@ def read_krl(src: str | Path) -> Any:
                 if name.upper() in ("$POS_ACT", "$AXIS_ACT"):
                     return
                 raise ProgramError(f"target {name!r} is not a declared name or an aggregate", src, line)
-            d = decls.get(name.lower())
+            d = self.decls.get(name.lower())
             if d is None or d.typ not in POSE_TYPES + AXIS_TYPES:
                 what = "not declared" if d is None else f"a {d.typ.upper()}, not a target"
                 raise ProgramError(f"target {name!r} is {what} (looked in {dat.name if dat else 'no .dat'})", src, line)
@@ -273,61 +338,14 @@ def read_krl(src: str | Path) -> Any:
                     line,
                 )
             key = name.lower()
-            if reuse_target(targets, key, tool, base, f"{tool_name}/{base_name}", src, line):
+            if reuse_target(self.targets, key, self.tool, self.base, f"{self.tool_name}/{self.base_name}", src, line):
                 return
             kind = "pose" if d.typ in POSE_TYPES else "axis"
             t = _make_target(d.name, kind, d.file, d.text, d.span, d.line, d.vals, d.order, d.atype)
-            targets[key] = t
-        t.tool, t.base, t.tool_name, t.base_name = tool.copy(), base.copy(), tool_name, base_name
+            self.targets[key] = t
+        t.tool, t.base, t.tool_name, t.base_name = self.tool.copy(), self.base.copy(), self.tool_name, self.base_name
         t.used_at.append((str(src), line))
-        order.append(t)
-
-    for raw_line in code.split("\n"):
-        line_start = pos
-        pos += len(raw_line) + 1
-        stmt = raw_line.rstrip("\r")
-        if not stmt.strip() or stmt.lstrip().startswith("&"):
-            continue
-        line = line_of(text, line_start)
-        m = _MOTION.match(stmt)
-        if m:
-            if m.group(2):
-                raise ProgramError(f"relative motion {m.group(1).upper()}_REL cannot be filtered per target", src, line)
-            rest = m.group(3)
-            rest_start = line_start + m.start(3)
-            args = _motion_args(rest, 2 if m.group(1).upper() in ("CIRC", "SCIRC") else 1, src, line)
-            for a_off, a_text in args:
-                if re.match(r"^\s*(\w+|\{[^}]*\})\s*:", a_text):
-                    raise ProgramError("the geometric operator ':' on a target is not supported", src, line)
-                add_target(a_text, rest_start + a_off, line)
-            continue
-        m = _ASSIGN_FRAME.match(stmt)
-        if m:
-            which = m.group(1).upper()
-            f, nm = resolve_frame(m.group(2), line, which)
-            if which == "TOOL":
-                tool, tool_name = f, nm
-            else:
-                base, base_name = f, nm
-            continue
-        m = _FDAT_ACT.match(stmt)
-        if m:
-            d = decls.get(m.group(1).lower())
-            if d is None or d.typ != "fdat":
-                raise ProgramError(f"FDAT_ACT={m.group(1)}: no FDAT of that name", src, line)
-            tn = int(_number(d.vals.get("tool_no", "0"), "tool_no", d.file, d.line))
-            bn = int(_number(d.vals.get("base_no", "0"), "base_no", d.file, d.line))
-            tool, tool_name = tool_base_no(tn, "TOOL", line)
-            base, base_name = tool_base_no(bn, "BASE", line)
-            continue
-        m = _ASSIGN.match(stmt)
-        if m and m.group(1).lower() in target_names:
-            raise ProgramError(
-                f"target {m.group(1)!r} is assigned at run time; its value is not known before the run", src, line
-            )
-    if not order:
-        raise ProgramError("no motion target found", src)
-    return Program("krl", texts, order, src)
+        self.order.append(t)
 
 
 def _motion_args(rest: str, n: int, file: Path, line: int) -> list[tuple[int, str]]:

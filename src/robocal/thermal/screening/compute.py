@@ -109,7 +109,7 @@ def _select(names: Sequence[str], score: np.ndarray, sel: SelectionConfig, z: np
     return mask
 
 
-def _what_if(  # noqa: C901, PLR0915
+def _what_if(
     names: Sequence[str],
     score: np.ndarray,
     score_name: str,
@@ -152,11 +152,6 @@ def _what_if(  # noqa: C901, PLR0915
             return {"setting": "top_k", "op": ">=" if add else "<", "value": int(rank[i])}
         return {"setting": "share", "op": ">" if add else "<=", "value": cum_above[i]}
 
-    def say(c: dict[str, Any]) -> str:
-        op = {"<=": "≤", ">=": "≥"}.get(c["op"], c["op"])
-        val = c["value"] if isinstance(c["value"], int) else f"{c['value']:.4g}"
-        return f"{c['setting']} were {op} {val}"
-
     out: list[dict[str, Any]] = []
     for i, n in enumerate(names):
         if not finite[i]:
@@ -175,28 +170,24 @@ def _what_if(  # noqa: C901, PLR0915
             else "drift z unknown (no standard errors)"
         )
         head = f"{score_name} = {v:.4g}, rank {int(rank[i])}"
-        changes: list[dict[str, Any]] = []
         if forced:
-            action = "add" if not selected[i] else "drop"
-            why = f"{'selected' if selected[i] else 'left out'} by selection.{'include' if selected[i] else 'exclude'}"
+            action, why, changes = _forced(bool(selected[i]))
             text = f"{n}: {why} ({head}; {ztxt})"
         elif z_dropped:
             action = "add"
             why = f"passes the rule but its drift is not significant (min_z = {sel.min_z:g})"
             changes = [{"setting": "min_z", "op": "<=", "value": zz}]
-            text = f"would add {n} if {say(changes[0])} ({head}, passes the rule; {ztxt})"
+            text = f"would add {n} if {_say(changes[0])} ({head}, passes the rule; {ztxt})"
         elif selected[i]:
             action = "drop"
             changes = [condition(i, add=False)] if near else []
             if has_z and not significant:
                 changes.append({"setting": "min_z", "op": ">", "value": zz})
             why = "near the cut" if near else "selected on its influence, but the drift is not significant"
-            text = f"would drop {n} if {' or '.join(say(c) for c in changes)} ({head}; {ztxt})"
+            text = f"would drop {n} if {' or '.join(_say(c) for c in changes)} ({head}; {ztxt})"
         else:
-            action = "add"
-            why = "near the cut"
-            changes = [condition(i, add=True)]
-            text = f"would add {n} if {say(changes[0])} ({head}; {ztxt})"
+            action, why, changes = "add", "near the cut", [condition(i, add=True)]
+            text = f"would add {n} if {_say(changes[0])} ({head}; {ztxt})"
         out.append(
             {
                 "parameter": n,
@@ -215,7 +206,22 @@ def _what_if(  # noqa: C901, PLR0915
     return sorted(out, key=lambda w: w["rank"])
 
 
-def screen(  # noqa: C901, PLR0915
+def _forced(selected: bool) -> tuple[str, str, list[dict[str, Any]]]:
+    """A parameter include / exclude forced against the rule: the action that undoes it and why (no setting of
+    the rule flips it)."""
+    action = "add" if not selected else "drop"
+    why = f"{'selected' if selected else 'left out'} by selection.{'include' if selected else 'exclude'}"
+    return action, why, []
+
+
+def _say(c: Mapping[str, Any]) -> str:
+    """A change of a setting in words: ``h_min were ≤ 0.01``."""
+    op = {"<=": "≤", ">=": "≥"}.get(c["op"], c["op"])
+    val = c["value"] if isinstance(c["value"], int) else f"{c['value']:.4g}"
+    return f"{c['setting']} were {op} {val}"
+
+
+def screen(
     robot: RobotDescription,
     cfg: Mapping[str, Any] | None = None,
     params: Sequence[str] | None = None,
@@ -253,81 +259,14 @@ def screen(  # noqa: C901, PLR0915
         raise ConfigError(f"The 'seed' parameter of screen must be an integer. Got {seed!r} instead.")
     chain = build_chain(robot)
     all_names = list(chain.param_names)
-    if params is None:
-        names = all_names
-    else:
-        if isinstance(params, str):
-            raise ConfigError(f"The 'params' parameter of screen must be a list of names. Got {params!r} instead.")
-        bad = [p for p in params if p not in all_names]
-        if bad:
-            raise ConfigError(f"unknown kinematic parameter(s) {bad} for robot {robot.name!r}; known: {all_names}")
-        if len(set(params)) != len(params):
-            raise ConfigError(f"The 'params' parameter of screen has duplicates: {list(params)}")
-        names = [n for n in all_names if n in set(params)]  # chain order
-    if not names:
-        raise ConfigError("The 'params' parameter of screen must name at least one parameter.")
+    names = _screened_names(all_names, params, robot.name)
     idx = np.array([all_names.index(n) for n in names])
     kinds = [chain.param_kind[i] for i in idx]
     is_angle = np.array([k == "angle" for k in kinds])
     steps = np.where(is_angle, np.deg2rad(conf.angle_step_deg), conf.length_step_mm)  # internal units
     notes: list[str] = []
-
-    # -- drift in internal units (mm / rad), one row per temperature state
-    if drift is not None:
-        dmap = _drift_mapping(drift, "drift")
-        assert dmap is not None
-        drift_internal = {k: np.asarray(v) for k, v in dmap.items()}
-        unit_note = "lengths in mm, angles in deg"  # read in mm / rad; every table shows deg
-    elif conf.drift is not None:
-        drift_internal = {}
-        for pname, v in conf.drift.items():
-            arr = np.asarray(v)
-            if pname in all_names and chain.param_kind[all_names.index(pname)] == "angle":
-                arr = np.deg2rad(arr)
-            drift_internal[pname] = arr
-        unit_note = "lengths in mm, angles in deg, from the config"
-    else:
-        drift_internal = {}
-        unit_note = ""
-    unknown = sorted(set(drift_internal) - set(all_names))
-    if unknown:
-        raise ConfigError(f"drift given for unknown parameter(s) {unknown} of robot {robot.name!r}; known: {all_names}")
-    n_states = len(next(iter(drift_internal.values()))) if drift_internal else 0
-    d_used = np.full(len(names), np.nan)
-    state_used: int | str | None = None
-    if n_states:
-        st = conf.drift_state
-        if isinstance(st, int) and not -n_states <= st < n_states:
-            raise SettingError("screen.drift_state", f"must be a state index in [-{n_states}, {n_states - 1}]", st)
-        for j, n in enumerate(names):
-            if n not in drift_internal:
-                continue
-            series = drift_internal[n]
-            if st == "last":
-                d_used[j] = series[-1]
-            elif st == "max_abs":
-                d_used[j] = series[int(np.argmax(np.abs(series)))]
-            else:
-                d_used[j] = series[int(st)]
-        state_used = st if n_states > 1 else 0
-        missing = [n for n in names if n not in drift_internal]
-        if missing:
-            notes.append(
-                f"no drift known for {', '.join(missing)}: P_o and H are undefined (shown as –) and the rule does "
-                "not select them"
-            )
-        notes.append(f"drift of {len(drift_internal)} parameter(s) over {n_states} state(s) ({unit_note})")
-
-    z = np.full(len(names), np.nan)
-    if drift_stderr is not None:
-        bad_se = sorted(set(drift_stderr) - set(all_names))
-        if bad_se:
-            raise ConfigError(f"drift_stderr given for unknown parameter(s) {bad_se} of robot {robot.name!r}")
-        se = np.array([float(drift_stderr.get(n, np.nan)) for n in names])
-        with np.errstate(divide="ignore", invalid="ignore"):
-            z = np.where(se > 0, np.abs(d_used) / se, np.nan)
-    elif conf.selection.min_z > 0:
-        notes.append("selection.min_z is set but the drift has no standard errors: no significance test")
+    d_used, n_states, state_used = _drift_used(conf, drift, chain, names, robot.name, notes)
+    z = _drift_z(conf, drift_stderr, all_names, names, d_used, robot.name, notes)
 
     # -- sensitivity simulation (eq. 23-25)
     q = sample_configurations(robot, conf.n_configs, int(seed), conf.joint_range_fraction)
@@ -403,3 +342,101 @@ def screen(  # noqa: C901, PLR0915
         notes=notes,
         what_if=_what_if(names, score, score_name, sel, z, rank, share, conf.selection),
     )
+
+
+def _screened_names(all_names: list[str], params: Sequence[str] | None, robot: str) -> list[str]:
+    """The parameters to screen, in chain order (all of them by default); unknown or repeated names are errors."""
+    if params is None:
+        names = all_names
+    else:
+        if isinstance(params, str):
+            raise ConfigError(f"The 'params' parameter of screen must be a list of names. Got {params!r} instead.")
+        bad = [p for p in params if p not in all_names]
+        if bad:
+            raise ConfigError(f"unknown kinematic parameter(s) {bad} for robot {robot!r}; known: {all_names}")
+        if len(set(params)) != len(params):
+            raise ConfigError(f"The 'params' parameter of screen has duplicates: {list(params)}")
+        names = [n for n in all_names if n in set(params)]  # chain order
+    if not names:
+        raise ConfigError("The 'params' parameter of screen must name at least one parameter.")
+    return names
+
+
+def _drift_used(
+    conf: ScreeningConfig,
+    drift: Mapping[str, Any] | None,
+    chain: Any,
+    names: list[str],
+    robot: str,
+    notes: list[str],
+) -> tuple[np.ndarray, int, int | str | None]:
+    """The drift of each screened parameter in internal units (mm / rad; NaN where none is known) at the state
+    ``conf.drift_state``, the number of temperature states, and the state used; notes appended to ``notes``."""
+    all_names = list(chain.param_names)
+    if drift is not None:
+        dmap = _drift_mapping(drift, "drift")
+        assert dmap is not None
+        drift_internal = {k: np.asarray(v) for k, v in dmap.items()}
+        unit_note = "lengths in mm, angles in deg"  # read in mm / rad; every table shows deg
+    elif conf.drift is not None:
+        drift_internal = {}
+        for pname, v in conf.drift.items():
+            arr = np.asarray(v)
+            if pname in all_names and chain.param_kind[all_names.index(pname)] == "angle":
+                arr = np.deg2rad(arr)
+            drift_internal[pname] = arr
+        unit_note = "lengths in mm, angles in deg, from the config"
+    else:
+        drift_internal = {}
+        unit_note = ""
+    unknown = sorted(set(drift_internal) - set(all_names))
+    if unknown:
+        raise ConfigError(f"drift given for unknown parameter(s) {unknown} of robot {robot!r}; known: {all_names}")
+    n_states = len(next(iter(drift_internal.values()))) if drift_internal else 0
+    d_used = np.full(len(names), np.nan)
+    if not n_states:
+        return d_used, 0, None
+    st = conf.drift_state
+    if isinstance(st, int) and not -n_states <= st < n_states:
+        raise SettingError("screen.drift_state", f"must be a state index in [-{n_states}, {n_states - 1}]", st)
+    for j, n in enumerate(names):
+        if n not in drift_internal:
+            continue
+        series = drift_internal[n]
+        if st == "last":
+            d_used[j] = series[-1]
+        elif st == "max_abs":
+            d_used[j] = series[int(np.argmax(np.abs(series)))]
+        else:
+            d_used[j] = series[int(st)]
+    missing = [n for n in names if n not in drift_internal]
+    if missing:
+        notes.append(
+            f"no drift known for {', '.join(missing)}: P_o and H are undefined (shown as –) and the rule does "
+            "not select them"
+        )
+    notes.append(f"drift of {len(drift_internal)} parameter(s) over {n_states} state(s) ({unit_note})")
+    return d_used, n_states, st if n_states > 1 else 0
+
+
+def _drift_z(
+    conf: ScreeningConfig,
+    drift_stderr: Mapping[str, float] | None,
+    all_names: list[str],
+    names: list[str],
+    d_used: np.ndarray,
+    robot: str,
+    notes: list[str],
+) -> np.ndarray:
+    """|drift| / its standard error per screened parameter (NaN without standard errors)."""
+    z = np.full(len(names), np.nan)
+    if drift_stderr is not None:
+        bad_se = sorted(set(drift_stderr) - set(all_names))
+        if bad_se:
+            raise ConfigError(f"drift_stderr given for unknown parameter(s) {bad_se} of robot {robot!r}")
+        se = np.array([float(drift_stderr.get(n, np.nan)) for n in names])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            z = np.where(se > 0, np.abs(d_used) / se, np.nan)
+    elif conf.selection.min_z > 0:
+        notes.append("selection.min_z is set but the drift has no standard errors: no significance test")
+    return z
