@@ -12,6 +12,7 @@ from robocal.discovery.search import DiscoveryResult
 from robocal.identification.calibrate import validate_rows
 from robocal.identification.model import FitData
 from robocal.kinematics.chain import fk
+from robocal.metrics import ErrorStats
 
 
 def _public(v: dict[str, Any]) -> dict[str, Any]:
@@ -42,9 +43,7 @@ def _stats_without(v: dict[str, Any], flagged: np.ndarray) -> dict[str, Any]:
         return {"n_rows": 0}
     return {
         "n_rows": int(keep.sum()),
-        "mean_position_mm": float(e.mean()),
-        "rms_position_mm": float(np.sqrt(np.mean(e**2))),
-        "max_position_mm": float(e.max()),
+        **ErrorStats.of(e).position(),
     }
 
 

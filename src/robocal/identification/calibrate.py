@@ -21,10 +21,10 @@ from robocal.kinematics.chain import fk
 from robocal.kinematics.transforms import (
     inv_transform,
     kabsch,
-    matrix_to_rotvec,
     quat_to_matrix,
     rpy_from_matrix,
 )
+from robocal.metrics import ErrorStats, noise_floor, orientation_errors_deg, rotvec_errors_deg
 from robocal.robot import MDH, RobotDescription
 
 if TYPE_CHECKING:
@@ -32,6 +32,8 @@ if TYPE_CHECKING:
 
 
 NOISE_MODELS = ("constant", "u_mm", "distance")
+#: the order of the error statistics in the fit record (calibration.json ``fit`` and ``fit.before``)
+FIT_ORDER = ("rms", "mean", "max")
 
 
 def outlier_rule(value: Any) -> Any:
@@ -453,8 +455,8 @@ def fit_statistics(
     r_rot: np.ndarray | None = None,
     sigma_mm: np.ndarray | None = None,
 ) -> dict[str, Any]:
-    """RMS / mean / max of 3-D errors and chi² against the configured noise (``sigma_mm`` (m,): per point)."""
-    e = np.linalg.norm(r_pos, axis=1)
+    """RMS / mean / max of 3-D errors (:class:`~robocal.metrics.ErrorStats`) and chi² against the configured noise
+    (``sigma_mm`` (m,): per point); the noise floor (:func:`~robocal.metrics.noise_floor`) of a positions-only fit."""
     m = r_pos.shape[0]
     M = 3 * m
     sig = np.full(m, cfg.noise_mm) if sigma_mm is None else np.asarray(sigma_mm, dtype=float)
@@ -463,14 +465,13 @@ def fit_statistics(
         M += 3 * m
         chi2 += float(np.sum(r_rot**2) / np.deg2rad(cfg.noise_deg) ** 2)
     dof = max(M - n_params, 1)
+    stats = ErrorStats.of(r_pos, None if r_rot is None else rotvec_errors_deg(r_rot))
     out: dict[str, Any] = {
         "n_rows": int(m),
         "n_residuals": int(M),
         "n_params": int(n_params),
-        "rms_position_mm": float(np.sqrt(np.mean(e**2))),
-        "mean_position_mm": float(np.mean(e)),
-        "max_position_mm": float(np.max(e)),
-        "noise_floor_rms_mm": float(np.sqrt(np.mean(sig**2)) * np.sqrt(3.0 * dof / M)) if r_rot is None else None,
+        **stats.position(FIT_ORDER),
+        "noise_floor_rms_mm": noise_floor(sig, M, n_params) if r_rot is None else None,
         "chi2": chi2,
         "dof": int(dof),
         "reduced_chi2": chi2 / dof,
@@ -479,11 +480,7 @@ def fit_statistics(
         "chi2_p_value": float(special.chdtrc(dof, chi2)),
     }
     out["chi2_within_band"] = bool(out["chi2_band_95"][0] <= chi2 <= out["chi2_band_95"][1])
-    if r_rot is not None:
-        eo = np.rad2deg(np.linalg.norm(r_rot, axis=1))
-        out["rms_orientation_deg"] = float(np.sqrt(np.mean(eo**2)))
-        out["mean_orientation_deg"] = float(np.mean(eo))
-        out["max_orientation_deg"] = float(np.max(eo))
+    out.update(stats.orientation(FIT_ORDER))
     return out
 
 
@@ -839,11 +836,8 @@ def calibration_result(start: CalibrationStart, screened: Screened) -> Calibrati
         }
     )
     before_pos = r0[: 3 * m].reshape(-1, 3)
-    e0 = np.linalg.norm(before_pos[kept], axis=1)
     fit["before"] = {
-        "rms_position_mm": float(np.sqrt(np.mean(e0**2))),
-        "mean_position_mm": float(np.mean(e0)),
-        "max_position_mm": float(np.max(e0)),
+        **ErrorStats.of(before_pos[kept]).position(FIT_ORDER),
         "definition": "nominal kinematics with frames and tools fitted to convergence (best rigid fit), kept rows",
     }
     # judged on the design (the standard errors the configured noise would give): a fit that stopped early or a
@@ -1042,12 +1036,9 @@ def validate_rows(
     err = pred - val.p_mm
     if not keep.any():
         raise ConfigError(f"no validation row of {val.poses_file} is left to evaluate after registration")
-    e = np.linalg.norm(err[keep], axis=1)
     out: dict[str, Any] = {
         "n_rows": int(keep.sum()),
-        "mean_position_mm": float(e.mean()),
-        "rms_position_mm": float(np.sqrt(np.mean(e**2))),
-        "max_position_mm": float(e.max()),
+        **ErrorStats.of(err[keep]).position(),
         "tool_source": tool_source,
         "tools_mm": tools_used,
         "errors_mm": err,
@@ -1057,13 +1048,8 @@ def validate_rows(
         out["station_source"] = station_source
     if val.quat is not None and tool_R is not None and all(t in tools for t in val.target_names):
         R = T_fl[:, :3, :3] @ np.stack([tool_R[str(t)] for t in val.target])
-        rv = matrix_to_rotvec(R @ np.swapaxes(quat_to_matrix(val.quat), -1, -2))
-        eo = np.rad2deg(np.linalg.norm(rv[keep], axis=1))
-        out.update(
-            mean_orientation_deg=float(eo.mean()),
-            max_orientation_deg=float(eo.max()),
-            rms_orientation_deg=float(np.sqrt(np.mean(eo**2))),
-        )
+        eo = orientation_errors_deg(R[keep], quat_to_matrix(val.quat[keep]))
+        out.update(ErrorStats.of(err[keep], eo).orientation(("mean", "max", "rms")))
     return out
 
 

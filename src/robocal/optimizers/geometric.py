@@ -21,7 +21,6 @@ gradient-versus-other fork is written here once (:func:`is_gradient`).
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
@@ -39,6 +38,7 @@ from robocal.identification.calibrate import (
     fit_from,
 )
 from robocal.identification.result import FitResult
+from robocal.metrics import noise_floor as floor_of
 from robocal.optimizers.calibration import CalibrationSearch, calibration_problem
 from robocal.optimizers.protocol import Problem, evaluate_batch
 from robocal.optimizers.registry import make_optimizer, pipeline_options, registered
@@ -124,16 +124,10 @@ class FitOutcome:
 
 
 def noise_floor(noise_mm: float, m: int, k: int, objective: str = "nonlinear") -> float:
-    """Expected best fitness (mm) with ``m`` poses, ``k`` fitted parameters, noise ``noise_mm`` per coordinate.
-
-    RMS 3-D: ``sigma sqrt(3 (m - k/3) / m)`` (``3m - k`` residual degrees of freedom over ``m`` points);
-    mean 3-D (linearised objective): the mean of a 3-D normal's norm, ``sigma sqrt(8 / pi)``, with the
-    same dof correction.
-    """
-    dof_share = max(3 * m - k, 1) / (3 * m)
-    if objective == "linearized":
-        return float(noise_mm * math.sqrt(8.0 / math.pi) * math.sqrt(dof_share))
-    return float(noise_mm * math.sqrt(3.0 * dof_share))
+    """Expected best fitness (mm) with ``m`` poses, ``k`` fitted parameters, noise ``noise_mm`` per coordinate:
+    :func:`robocal.metrics.noise_floor` over the ``3 m`` position residuals, the RMS 3-D error for the
+    nonlinear objective and the mean 3-D error for the linearised one."""
+    return floor_of(noise_mm, 3 * m, k, "mean" if objective == "linearized" else "rms")
 
 
 def position_config(cfg: CalibrationConfig) -> CalibrationConfig:

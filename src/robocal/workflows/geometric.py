@@ -13,6 +13,7 @@ import pandas as pd
 from robocal.data.contract import Campaign
 from robocal.identification.calibrate import CalibrationConfig, CalibrationResult, calibrate, validate
 from robocal.io import atomic_write, write_json
+from robocal.metrics import ErrorStats
 from robocal.optimizers.geometric import fit_with_optimizer, is_gradient
 from robocal.robot import RobotDescription
 from robocal.workflows import campaign_of, robot_of
@@ -79,7 +80,7 @@ def cannot_start(campaign: Campaign, robot: RobotDescription, start_rms_mm: floa
         as_rad = replace(campaign, q=np.degrees(campaign.q))
         cfg = CalibrationConfig.from_mapping({"max_iter": 1, "outliers": "off"})
         rad = calibrate(as_rad, robot, cfg).extra["residuals_before_mm"]
-        rad_rms = float(np.sqrt(np.mean(np.sum(rad**2, axis=1))))
+        rad_rms = ErrorStats.of(rad).rms_mm
     except Exception:
         rad_rms = float("inf")
     if rad_rms < 0.1 * start_rms_mm:
@@ -161,8 +162,8 @@ def run(
         summary["validation_before"] = {
             k: val_before[k] for k in ("mean_position_mm", "rms_position_mm", "max_position_mm")
         }
-    before = np.linalg.norm(result.extra["residuals_before_mm"], axis=1)
-    summary["start_rms_position_mm"] = float(np.sqrt(np.mean(before**2))) if before.size else None
+    before = result.extra["residuals_before_mm"]
+    summary["start_rms_position_mm"] = ErrorStats.of(before).rms_mm if len(before) else None
     summary["problems"] = result_problems(summary)
     why = cannot_start(camp, rob, summary["start_rms_position_mm"])
     if why:
