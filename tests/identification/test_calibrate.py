@@ -9,7 +9,13 @@ import pytest
 
 from robocal.data import read_campaign
 from robocal.errors import ConfigError
-from robocal.identification.calibrate import CalibrationConfig, calibrate, load_calibration, validate
+from robocal.identification.calibrate import (
+    CalibrationConfig,
+    Validation,
+    calibrate,
+    load_calibration,
+    validate,
+)
 from robocal.sim.truth import equivalent_truth, z_scores
 from robocal.sim.twin import load_scenario, simulate
 
@@ -31,6 +37,23 @@ def test_twin_fit_reaches_the_noise_floor(twin_geometric, kr16):
     assert fit["chi2_within_band"], fit
     # RMS within 10 % of the expected floor sigma*sqrt(3(m-p)/m) (a single draw; chi² spread ~ 1/sqrt(dof))
     assert abs(fit["rms_position_mm"] / fit["noise_floor_rms_mm"] - 1) < 0.10
+
+
+def test_validation_is_typed_and_reads_as_the_record(twin_geometric, kr16):
+    camp, _ = twin_geometric
+    res = calibrate(camp, kr16)
+    v = validate(res, camp)
+    assert isinstance(v, Validation) and v.n_rows == v.stats.n == int(v.kept_rows.sum()) > 0
+    # the typed figures are the record's, bit for bit, and the record keeps its keys and their order
+    e = np.linalg.norm(v.errors_mm[v.kept_rows], axis=1)
+    assert v.stats.mean_mm == v["mean_position_mm"] == float(np.mean(e))
+    assert v.stats.rms_mm == v["rms_position_mm"] == float(np.sqrt(np.mean(e**2)))
+    keys = ["n_rows", "mean_position_mm", "rms_position_mm", "max_position_mm", "tool_source", "tools_mm"]
+    assert list(v) == [*keys, "errors_mm", "kept_rows"] and list(v.record()) == keys
+    before = validate(res, camp, x=res.extra["x_init"])
+    assert before.stats.mean_mm > v.stats.mean_mm  # the calibration helps on held-out rows
+    none = validate(res, camp.calibration())
+    assert none.n_rows == 0 and dict(none) == {"n_rows": 0} and not none.stats.has_orientation
 
 
 def test_twin_parameters_within_three_standard_errors(twin_geometric, kr16):

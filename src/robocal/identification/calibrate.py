@@ -5,7 +5,7 @@ from __future__ import annotations
 import fnmatch
 import re
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
 
@@ -941,11 +941,71 @@ def poorly_determined(model: CalibrationModel, stderr: np.ndarray, cfg: Calibrat
     return out
 
 
-def validate(result: CalibrationResult, campaign: Campaign, x: np.ndarray | None = None) -> dict[str, Any]:
+@dataclass(frozen=True, eq=False)
+class Validation(Mapping[str, Any]):
+    """Errors of a model on a campaign's validation rows (:func:`validate_rows`, :func:`validate`).
+
+    stats : over the rows evaluated (``stats.n`` of them; the registration rows of a station or a target not
+    seen in calibration are left out); errors_mm : (m, 3) prediction - measurement of every validation row;
+    kept_rows : (m,) the rows evaluated; tool_source / tools_mm / station_source : where each target's tool
+    offset and each station's frame came from (``station_source`` None when every station is the calibration's).
+
+    Read as a mapping it is the record ``robocal.validate`` has always returned (``v["mean_position_mm"]``,
+    ``v["errors_mm"]`` ...; :meth:`to_dict`); :meth:`record` is that record without the arrays (summary.json).
+    """
+
+    stats: ErrorStats
+    errors_mm: np.ndarray | None = None
+    kept_rows: np.ndarray | None = None
+    tool_source: dict[str, str] = field(default_factory=dict)
+    tools_mm: dict[str, list[float]] = field(default_factory=dict)
+    station_source: dict[str, str] | None = None
+
+    @classmethod
+    def none(cls) -> Validation:
+        """No validation rows."""
+        return cls(ErrorStats.of(np.zeros(0)))
+
+    @property
+    def n_rows(self) -> int:
+        return self.stats.n
+
+    def to_dict(self) -> dict[str, Any]:
+        """The record (keys and order as the files have them; ``{"n_rows": 0}`` without validation rows)."""
+        if self.errors_mm is None:
+            return {"n_rows": 0}
+        out: dict[str, Any] = {
+            "n_rows": self.n_rows,
+            **self.stats.position(),
+            "tool_source": self.tool_source,
+            "tools_mm": self.tools_mm,
+            "errors_mm": self.errors_mm,
+            "kept_rows": self.kept_rows,
+        }
+        if self.station_source is not None:
+            out["station_source"] = self.station_source
+        out.update(self.stats.orientation(("mean", "max", "rms")))
+        return out
+
+    def record(self) -> dict[str, Any]:
+        """:meth:`to_dict` without the per-row arrays (``errors_mm``, ``kept_rows``)."""
+        return {k: v for k, v in self.to_dict().items() if k not in ("errors_mm", "kept_rows")}
+
+    def __getitem__(self, key: str) -> Any:
+        return self.to_dict()[key]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self.to_dict())
+
+    def __len__(self) -> int:
+        return len(self.to_dict())
+
+
+def validate(result: CalibrationResult, campaign: Campaign, x: np.ndarray | None = None) -> Validation:
     """Errors of the calibrated model on the campaign's validation rows (see :func:`validate_rows`)."""
     val = campaign.validation()
     if val.n_rows == 0:
-        return {"n_rows": 0}
+        return Validation.none()
     model = result.model
     x = result.x if x is None else x
     eta = x[: model.chain.n_params]
@@ -965,7 +1025,7 @@ def validate_rows(
     tools: dict[str, np.ndarray],
     tool_R: dict[str, np.ndarray] | None = None,
     dp_mm: np.ndarray | None = None,
-) -> dict[str, Any]:
+) -> Validation:
     """Errors of a model's predictions on validation rows, with the tool and station handling every caller
     shares (geometric calibration and discovery alike).
 
@@ -1036,26 +1096,20 @@ def validate_rows(
     err = pred - val.p_mm
     if not keep.any():
         raise ConfigError(f"no validation row of {val.poses_file} is left to evaluate after registration")
-    out: dict[str, Any] = {
-        "n_rows": int(keep.sum()),
-        **ErrorStats.of(err[keep]).position(),
-        "tool_source": tool_source,
-        "tools_mm": tools_used,
-        "errors_mm": err,
-        "kept_rows": keep,
-    }
-    if len(station_source) > 1 or any(v != "calibration" for v in station_source.values()):
-        out["station_source"] = station_source
+    eo = None
     if val.quat is not None and tool_R is not None and all(t in tools for t in val.target_names):
         R = T_fl[:, :3, :3] @ np.stack([tool_R[str(t)] for t in val.target])
         eo = orientation_errors_deg(R[keep], quat_to_matrix(val.quat[keep]))
-        out.update(ErrorStats.of(err[keep], eo).orientation(("mean", "max", "rms")))
-    return out
+    shown = len(station_source) > 1 or any(v != "calibration" for v in station_source.values())
+    return Validation(
+        ErrorStats.of(err[keep], eo), err, keep, tool_source, tools_used, station_source if shown else None
+    )
 
 
 __all__ = [
     "CalibrationConfig",
     "CalibrationResult",
+    "Validation",
     "calibrate",
     "fit_data",
     "fit_statistics",

@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 
 from robocal.data.contract import Campaign
-from robocal.identification.calibrate import CalibrationConfig, CalibrationResult, calibrate, validate
+from robocal.identification.calibrate import CalibrationConfig, CalibrationResult, Validation, calibrate, validate
 from robocal.io import atomic_write, write_json
 from robocal.metrics import ErrorStats
 from robocal.optimizers.geometric import fit_with_optimizer, is_gradient
@@ -19,7 +19,7 @@ from robocal.robot import RobotDescription
 from robocal.workflows import campaign_of, robot_of
 
 
-def summarise(result: CalibrationResult, validation: dict[str, Any] | None) -> dict[str, Any]:
+def summarise(result: CalibrationResult, validation: Validation | None) -> dict[str, Any]:
     fit = dict(result.fit)
     summary: dict[str, Any] = {
         "robot": result.model.robot.name,
@@ -28,8 +28,8 @@ def summarise(result: CalibrationResult, validation: dict[str, Any] | None) -> d
         "eliminated": [e.describe() for e in result.eliminated],
         "fixed": list(result.fixed_by_user),
     }
-    if validation and validation.get("n_rows"):
-        summary["validation"] = {k: v for k, v in validation.items() if k not in ("errors_mm", "kept_rows")}
+    if validation and validation.n_rows:
+        summary["validation"] = validation.record()
     return summary
 
 
@@ -157,11 +157,9 @@ def run(
         summary["optimizer"] = outcome.summary()
         if outcome.polished is not None and val:
             raw_val = validate(outcome.raw, camp)
-            summary["optimizer"]["raw"]["validation_rms_position_mm"] = raw_val["rms_position_mm"]
+            summary["optimizer"]["raw"]["validation_rms_position_mm"] = raw_val.stats.rms_mm
     if val_before:
-        summary["validation_before"] = {
-            k: val_before[k] for k in ("mean_position_mm", "rms_position_mm", "max_position_mm")
-        }
+        summary["validation_before"] = val_before.stats.position()
     before = result.extra["residuals_before_mm"]
     summary["start_rms_position_mm"] = ErrorStats.of(before).rms_mm if len(before) else None
     summary["problems"] = result_problems(summary)
@@ -194,17 +192,18 @@ def run(
         rows["outlier"] = ~np.asarray(kept, dtype=bool)
     if val and val_before:
         v = camp.validation()
-        keep = val["kept_rows"]
+        keep, e_after, e_before = val.kept_rows, val.errors_mm, val_before.errors_mm
+        assert keep is not None and e_after is not None and e_before is not None
         vr = pd.DataFrame(
             {
                 "pose_id": v.pose_id[keep],
                 "target": v.target[keep],
                 "split": "validation",
-                "err_before_mm": np.linalg.norm(val_before["errors_mm"][keep], axis=1),
-                "err_after_mm": np.linalg.norm(val["errors_mm"][keep], axis=1),
-                "rx_mm": val["errors_mm"][keep, 0],
-                "ry_mm": val["errors_mm"][keep, 1],
-                "rz_mm": val["errors_mm"][keep, 2],
+                "err_before_mm": np.linalg.norm(e_before[keep], axis=1),
+                "err_after_mm": np.linalg.norm(e_after[keep], axis=1),
+                "rx_mm": e_after[keep, 0],
+                "ry_mm": e_after[keep, 1],
+                "rz_mm": e_after[keep, 2],
             }
         )
         rows = pd.concat([rows, vr], ignore_index=True)
