@@ -11,8 +11,10 @@ from robocal.data import read_campaign
 from robocal.errors import ConfigError
 from robocal.identification.calibrate import (
     CalibrationConfig,
+    FitStart,
     Validation,
     calibrate,
+    calibration_record,
     load_calibration,
     validate,
 )
@@ -50,10 +52,27 @@ def test_validation_is_typed_and_reads_as_the_record(twin_geometric, kr16):
     assert v.stats.rms_mm == v["rms_position_mm"] == float(np.sqrt(np.mean(e**2)))
     keys = ["n_rows", "mean_position_mm", "rms_position_mm", "max_position_mm", "tool_source", "tools_mm"]
     assert list(v) == [*keys, "errors_mm", "kept_rows"] and list(v.record()) == keys
-    before = validate(res, camp, x=res.extra["x_init"])
+    before = validate(res, camp, x=res.start.x_init)
     assert before.stats.mean_mm > v.stats.mean_mm  # the calibration helps on held-out rows
     none = validate(res, camp.calibration())
     assert none.n_rows == 0 and dict(none) == {"n_rows": 0} and not none.stats.has_orientation
+
+
+def test_start_is_typed_and_the_record_is_written_from_parts(twin_geometric, kr16):
+    camp, _ = twin_geometric
+    res = calibrate(camp, kr16)
+    st = res.start
+    assert isinstance(st, FitStart) and st.kept.all() and st.residuals_before_mm.shape == res.residuals_mm.shape
+    # the "before" figures of the fit record are those of the typed start
+    e0 = np.linalg.norm(st.residuals_before_mm[st.kept], axis=1)
+    assert res.fit["before"]["rms_position_mm"] == float(np.sqrt(np.mean(e0**2)))
+    with pytest.raises(TypeError):
+        res.extra["kept"] = None  # the old view is read-only
+    parts = (res.model, res.x, res.identified, res.stderr, res.covariance, res.identifiability, res.fixed_by_user)
+    record = calibration_record(*parts, res.fit, res.config)
+    assert json.dumps(record, default=str) == json.dumps(res.to_dict(), default=str)
+    loaded = load_calibration(json.loads(json.dumps(record, default=str)), kr16)
+    assert loaded.start is None and loaded.effects == ()
 
 
 def test_twin_parameters_within_three_standard_errors(twin_geometric, kr16):

@@ -44,7 +44,7 @@ def twin(tmp_path_factory, kr16):
 
 def _problem(twin, **kw):
     _, _, _, base, data = twin
-    return calibration_problem(base.model, data, base.extra["x_init"], np.flatnonzero(base.identified), **kw)
+    return calibration_problem(base.model, data, base.start.x_init, np.flatnonzero(base.identified), **kw)
 
 
 # ---------------------------------------------------------------------------------------------- kernel

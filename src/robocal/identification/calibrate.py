@@ -7,6 +7,7 @@ import re
 import time
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field, replace
+from types import MappingProxyType
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -176,11 +177,32 @@ def register_frames(
 
 
 @dataclass(frozen=True, eq=False)
+class FitStart:
+    """Where a calibration started and which rows it kept (the "before" of :class:`CalibrationResult`).
+
+    x_init : the nominal model's best rigid fit on the kept rows (frames and tools fitted to convergence with
+    the nominal kinematics): the "before calibration" point; x_analysis : where the identifiability analysis
+    ran (``x_init`` before any row was left out); residuals_before_mm : (m, 3) at ``x_init``, every calibration
+    row; kept : (m,) the rows in the fit (not left out as gross errors); row_test : the gross-error row test
+    at the fit (:class:`robocal.identification.robust.RowTest`), None when the rule is off or rows are listed.
+    """
+
+    x_init: np.ndarray
+    x_analysis: np.ndarray
+    residuals_before_mm: np.ndarray
+    kept: np.ndarray
+    row_test: Any = None
+
+
+@dataclass(frozen=True, eq=False)
 class CalibrationResult:
     """A fitted calibration: parameters with standard errors, frames, tools and fit statistics.
 
     Immutable (derive a changed one with :func:`dataclasses.replace`); ``solver`` is the least-squares core's
-    :class:`~robocal.identification.result.FitResult` (χ², covariance, status, timings of the fit itself).
+    :class:`~robocal.identification.result.FitResult` (χ², covariance, status, timings of the fit itself);
+    ``start`` where the fit started and which rows it kept (None for a calibration read from a file);
+    ``effects`` the joint-level effects a discovery wrote into the calibration (``effects`` records of
+    ``calibration.json``, evaluated by :func:`robocal.discovery.effects.joint_offsets`).
     """
 
     model: CalibrationModel
@@ -195,7 +217,19 @@ class CalibrationResult:
     residuals_deg: np.ndarray | None
     config: CalibrationConfig
     solver: FitResult | None = None
-    extra: dict[str, Any] = field(default_factory=dict)
+    start: FitStart | None = None
+    effects: tuple[dict[str, Any], ...] = ()
+
+    @property
+    def extra(self) -> Mapping[str, Any]:
+        """The old untyped view (``x_init``, ``x_analysis``, ``residuals_before_mm``, ``kept``, ``row_test``,
+        ``effects``) of :attr:`start` and :attr:`effects`, read-only: for readers not yet switched to them."""
+        out: dict[str, Any] = {}
+        if self.start is not None:
+            out = {f: getattr(self.start, f) for f in FitStart.__dataclass_fields__}
+        if self.effects:
+            out["effects"] = list(self.effects)
+        return MappingProxyType(out)
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -207,9 +241,7 @@ class CalibrationResult:
 
     @property
     def correlation(self) -> np.ndarray:
-        d = np.sqrt(np.diag(self.covariance))
-        d[d == 0] = 1.0
-        return self.covariance / np.outer(d, d)
+        return correlation_of(self.covariance)
 
     @property
     def tracker_T_base(self) -> np.ndarray:
@@ -233,64 +265,107 @@ class CalibrationResult:
 
     def parameter_table(self) -> list[dict[str, Any]]:
         """One row per parameter: value and standard error in display units (mm, deg)."""
-        rows = []
-        for k, name in enumerate(self.names):
-            unit = self.model.units[k]
-            f = np.rad2deg(1.0) if unit == "rad" else 1.0
-            rows.append(
-                {
-                    "name": name,
-                    "kind": self.model.kinds[k],
-                    "unit": "deg" if unit == "rad" else unit,
-                    "value": float(self.x[k] * f),
-                    "stderr": float(self.stderr[k] * f) if self.identified[k] else None,
-                    "status": "identified"
-                    if self.identified[k]
-                    else ("fixed" if name in self.fixed_by_user else "eliminated"),
-                }
-            )
-        return rows
+        return parameter_table(self.model, self.x, self.stderr, self.identified, self.fixed_by_user)
 
     def to_dict(self) -> dict[str, Any]:
-        T = self.tracker_T_base
-        idx = np.flatnonzero(self.identified)
-        return {
-            "robot": self.model.robot.name,
-            "convention": self.model.robot.convention,
-            "nominal": nominal_record(self.model.robot),
-            "parameters": self.parameter_table(),
-            "kinematic_errors": {n: float(self.x[k]) for k, n in enumerate(self.model.chain.param_names)},
-            "eliminated": [e.to_dict() for e in self.eliminated],
-            "fixed": list(self.fixed_by_user),
-            "tracker_T_base": T.tolist(),
-            "tracker_T_base_xyz_mm": T[:3, 3].tolist(),
-            "tracker_T_base_rpy_deg": np.rad2deg(rpy_from_matrix(T[:3, :3])).tolist(),
-            "tools_mm": {k: v.tolist() for k, v in self.tools.items()},
-            "tool_rotations": {
-                k: R.tolist() for k, R in zip(self.model.target_names, self.model.tool_rotations(self.x), strict=True)
-            },
-            "stations": list(self.model.station_names),
-            "stations_T_base": {
-                s: self.model.base_transform(self.x, k).tolist() for k, s in enumerate(self.model.station_names)
-            },
-            "station_T_ref": self.model.station_T_ref.tolist(),
-            "T_ref": self.model.T_ref.tolist(),
-            "tool_R_ref": self.model.tool_R_ref.tolist(),
-            "orientation": self.model.orientation,
-            "x": self.x.tolist(),
-            "names": list(self.names),
-            "correlation": {
-                "names": [self.names[i] for i in idx],
-                "matrix": self.correlation.tolist(),
-            },
-            "identifiability": {
-                "rank": self.identifiability.rank,
-                "n_candidates": int(len(self.identifiability.kept) + len(self.eliminated)),
-                "condition_number": self.identifiability.condition_number,
-            },
-            "fit": self.fit,
-            "config": {k: getattr(self.config, k) for k in self.config.__dataclass_fields__},
-        }
+        """The ``calibration.json`` record (:func:`calibration_record`)."""
+        return calibration_record(
+            self.model,
+            self.x,
+            self.identified,
+            self.stderr,
+            self.covariance,
+            self.identifiability,
+            self.fixed_by_user,
+            self.fit,
+            self.config,
+        )
+
+
+def correlation_of(covariance: np.ndarray) -> np.ndarray:
+    """The correlation matrix of a covariance (a zero variance reads as 1: its row and column stay 0)."""
+    d = np.sqrt(np.diag(covariance))
+    d[d == 0] = 1.0
+    return covariance / np.outer(d, d)
+
+
+def parameter_table(
+    model: CalibrationModel, x: np.ndarray, stderr: np.ndarray, identified: np.ndarray, fixed: tuple[str, ...]
+) -> list[dict[str, Any]]:
+    """One row per parameter of ``model``: value and standard error in display units (mm, deg) and status
+    (identified, fixed by the user, or eliminated)."""
+    rows = []
+    for k, name in enumerate(model.names):
+        unit = model.units[k]
+        f = np.rad2deg(1.0) if unit == "rad" else 1.0
+        rows.append(
+            {
+                "name": name,
+                "kind": model.kinds[k],
+                "unit": "deg" if unit == "rad" else unit,
+                "value": float(x[k] * f),
+                "stderr": float(stderr[k] * f) if identified[k] else None,
+                "status": "identified" if identified[k] else ("fixed" if name in fixed else "eliminated"),
+            }
+        )
+    return rows
+
+
+def calibration_record(
+    model: CalibrationModel,
+    x: np.ndarray,
+    identified: np.ndarray,
+    stderr: np.ndarray,
+    covariance: np.ndarray,
+    identifiability: Identifiability,
+    fixed: tuple[str, ...],
+    fit: Mapping[str, Any],
+    config: CalibrationConfig,
+) -> dict[str, Any]:
+    """The ``calibration.json`` record of a calibration given by its parts (what :func:`load_calibration`
+    reads back): :meth:`CalibrationResult.to_dict`, and any model that writes the geometric format (the
+    discovered model's geometry) without being a fitted :class:`CalibrationResult`.
+
+    x : (n,) every parameter of ``model``; identified : (n,) bool; stderr : (n,) NaN where not identified;
+    covariance : (k, k) over the identified ones; fixed : parameters fixed by the user; fit : the fit record
+    (``fit`` of the file); config : the settings recorded under ``config``."""
+    T = model.base_transform(x)
+    idx = np.flatnonzero(identified)
+    names = model.names
+    elim = identifiability.eliminated
+    return {
+        "robot": model.robot.name,
+        "convention": model.robot.convention,
+        "nominal": nominal_record(model.robot),
+        "parameters": parameter_table(model, x, stderr, identified, fixed),
+        "kinematic_errors": {n: float(x[k]) for k, n in enumerate(model.chain.param_names)},
+        "eliminated": [e.to_dict() for e in elim],
+        "fixed": list(fixed),
+        "tracker_T_base": T.tolist(),
+        "tracker_T_base_xyz_mm": T[:3, 3].tolist(),
+        "tracker_T_base_rpy_deg": np.rad2deg(rpy_from_matrix(T[:3, :3])).tolist(),
+        "tools_mm": {name: t.tolist() for name, t in zip(model.target_names, model.tools(x), strict=True)},
+        "tool_rotations": {k: R.tolist() for k, R in zip(model.target_names, model.tool_rotations(x), strict=True)},
+        "stations": list(model.station_names),
+        "stations_T_base": {s: model.base_transform(x, k).tolist() for k, s in enumerate(model.station_names)},
+        "station_T_ref": model.station_T_ref.tolist(),
+        "T_ref": model.T_ref.tolist(),
+        "tool_R_ref": model.tool_R_ref.tolist(),
+        "orientation": model.orientation,
+        "x": x.tolist(),
+        "names": list(names),
+        "correlation": {
+            "names": [names[i] for i in idx],
+            "matrix": correlation_of(covariance).tolist(),
+        },
+        "identifiability": {
+            "rank": identifiability.rank,
+            "n_candidates": int(len(identifiability.kept) + len(elim)),
+            "condition_number": identifiability.condition_number,
+        },
+        "fit": fit,
+        "config": {k: getattr(config, k) for k in config.__dataclass_fields__},
+    }
 
 
 #: tolerance of the nominal-table comparison (mm and deg): calibration.json keeps 9 significant digits
@@ -362,8 +437,8 @@ def check_robot(data: dict[str, Any], robot: RobotDescription, where: str = "the
 def load_calibration(data: dict[str, Any], robot: RobotDescription) -> CalibrationResult:
     """Rebuild a :class:`CalibrationResult` (enough to predict and compensate) from :meth:`to_dict` output.
 
-    A calibration written by discovery also carries joint-level ``effects`` (in ``extra["effects"]``) and, when
-    it freed a Hayati beta, the robot's ``beta_free``. A calibration of another robot (name, joint count,
+    A calibration written by discovery also carries joint-level ``effects`` (:attr:`CalibrationResult.effects`)
+    and, when it freed a Hayati beta, the robot's ``beta_free``. A calibration of another robot (name, joint count,
     nominal table: :func:`check_robot`) is refused."""
     check_robot(data, robot)
     if "beta_free" in data:
@@ -426,7 +501,7 @@ def load_calibration(data: dict[str, Any], robot: RobotDescription) -> Calibrati
         np.zeros((0, 3)),
         None,
         cfg,
-        extra={"effects": list(data.get("effects") or [])},
+        effects=tuple(data.get("effects") or ()),
     )
 
 
@@ -859,13 +934,7 @@ def calibration_result(start: CalibrationStart, screened: Screened) -> Calibrati
         residuals_deg=None if r_rot is None else np.rad2deg(r_rot),
         config=cfg,
         solver=lm,
-        extra={
-            "x_init": x_init,
-            "x_analysis": x_analysis,
-            "residuals_before_mm": before_pos,
-            "kept": kept,
-            "row_test": test,
-        },
+        start=FitStart(x_init, x_analysis, before_pos, kept, test),
     )
 
 
@@ -1109,6 +1178,7 @@ def validate_rows(
 __all__ = [
     "CalibrationConfig",
     "CalibrationResult",
+    "FitStart",
     "Validation",
     "calibrate",
     "fit_data",

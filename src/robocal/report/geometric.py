@@ -101,10 +101,9 @@ def geometric_report(
             caption=f"Noise the data imply; used to judge residuals: {noise['used_mm']:.4f} mm, "
             f"{noise['used_because']}",
         )
-    kept = result.extra.get("kept")
-    if kept is None:
-        kept = np.ones(len(result.residuals_mm), dtype=bool)
-    before = np.linalg.norm(result.extra["residuals_before_mm"], axis=1)[kept]
+    assert result.start is not None  # a fitted calibration (not one read from a file)
+    kept = result.start.kept
+    before = np.linalg.norm(result.start.residuals_before_mm, axis=1)[kept]
     after = np.linalg.norm(result.residuals_mm, axis=1)[kept]
     cal_all = campaign.calibration() if validation else campaign
     cal = cal_all.subset(kept)

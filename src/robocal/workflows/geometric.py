@@ -79,7 +79,9 @@ def cannot_start(campaign: Campaign, robot: RobotDescription, start_rms_mm: floa
     try:  # the joint columns read as radians (values v in q*_deg: the contract made them v*pi/180 rad)
         as_rad = replace(campaign, q=np.degrees(campaign.q))
         cfg = CalibrationConfig.from_mapping({"max_iter": 1, "outliers": "off"})
-        rad = calibrate(as_rad, robot, cfg).extra["residuals_before_mm"]
+        rad_start = calibrate(as_rad, robot, cfg).start
+        assert rad_start is not None
+        rad = rad_start.residuals_before_mm
         rad_rms = ErrorStats.of(rad).rms_mm
     except Exception:
         rad_rms = float("inf")
@@ -151,7 +153,9 @@ def run(
     outcome = fit_with_optimizer(camp, rob, cfg, optimizer)
     result = outcome.result
     val = validate(result, camp) if np.any(camp.split == "validation") else None
-    val_before = validate(result, camp, x=result.extra["x_init"]) if val else None
+    start = result.start
+    assert start is not None  # a fitted calibration
+    val_before = validate(result, camp, x=start.x_init) if val else None
     summary = summarise(result, val)
     if not is_gradient(optimizer):  # the raw and (with polish) the polished result of the method
         summary["optimizer"] = outcome.summary()
@@ -160,7 +164,7 @@ def run(
             summary["optimizer"]["raw"]["validation_rms_position_mm"] = raw_val.stats.rms_mm
     if val_before:
         summary["validation_before"] = val_before.stats.position()
-    before = result.extra["residuals_before_mm"]
+    before = start.residuals_before_mm
     summary["start_rms_position_mm"] = ErrorStats.of(before).rms_mm if len(before) else None
     summary["problems"] = result_problems(summary)
     why = cannot_start(camp, rob, summary["start_rms_position_mm"])
@@ -179,17 +183,15 @@ def run(
             "pose_id": cal.pose_id,
             "target": cal.target,
             "split": "calibration",
-            "err_before_mm": np.linalg.norm(result.extra["residuals_before_mm"], axis=1),
+            "err_before_mm": np.linalg.norm(start.residuals_before_mm, axis=1),
             "err_after_mm": np.linalg.norm(result.residuals_mm, axis=1),
             "rx_mm": result.residuals_mm[:, 0],
             "ry_mm": result.residuals_mm[:, 1],
             "rz_mm": result.residuals_mm[:, 2],
         }
     )
-    kept = result.extra.get("kept")
-    if kept is not None:
-        rows["row"] = cal.row_number
-        rows["outlier"] = ~np.asarray(kept, dtype=bool)
+    rows["row"] = cal.row_number
+    rows["outlier"] = ~np.asarray(start.kept, dtype=bool)
     if val and val_before:
         v = camp.validation()
         keep, e_after, e_before = val.kept_rows, val.errors_mm, val_before.errors_mm
