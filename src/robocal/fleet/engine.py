@@ -95,19 +95,14 @@ def cached_summary(out_dir: str | Path, serial: str, campaign: str, key: str) ->
 
 
 def accept(fit: Mapping[str, Any], validation: Mapping[str, Any], rules: Mapping[str, Any]) -> tuple[bool, str]:
-    """Is a calibration good enough to serve? (accepted, reason)."""
-    if not fit.get("success"):
-        return False, f"the least-squares fit did not converge: {fit.get('message')}"
-    if fit.get("outlier_suspects"):
-        return False, "too many rows stand out: the model misses an effect (run robocal discover)"
-    after, before = float(fit["rms_position_mm"]), float(fit["before"]["rms_position_mm"])
-    ratio = float(rules.get("max_rms_ratio", 1.0))
-    if not after <= ratio * before:
-        return False, f"RMS after {after:.4f} mm is worse than {ratio:g} x before ({before:.4f} mm)"
-    vmax = rules.get("max_validation_mean_mm")
-    vmean = validation.get("mean_position_mm")
-    if vmax is not None and vmean is not None and float(vmean) > float(vmax):
-        return False, f"validation mean error {float(vmean):.4f} mm above the limit {float(vmax):g} mm"
+    """Is a calibration good enough to serve? (accepted, reason): the one rule
+    (:func:`robocal.identification.acceptance.judge`) with the fleet's levels (:data:`~robocal.identification.
+    acceptance.FLEET`) and ``rules`` (the ``acceptance`` settings); the reason is the first problem."""
+    from robocal.identification.acceptance import FLEET, AcceptanceRules, judge
+
+    verdict = judge(fit, validation, None, AcceptanceRules.from_mapping({**FLEET, **rules}))
+    if verdict.problems:
+        return False, verdict.problems[0]
     return True, "converged, not worse than before"
 
 

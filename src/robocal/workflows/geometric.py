@@ -11,6 +11,7 @@ import numpy as np
 import pandas as pd
 
 from robocal.data.contract import Campaign
+from robocal.identification.acceptance import judge
 from robocal.identification.calibrate import CalibrationConfig, CalibrationResult, Validation, calibrate, validate
 from robocal.io import atomic_write, write_json
 from robocal.metrics import ErrorStats
@@ -34,19 +35,9 @@ def summarise(result: CalibrationResult, validation: Validation | None) -> dict[
 
 
 def result_problems(summary: Mapping[str, Any]) -> list[str]:
-    """Why a calibration must not be called ok: its fit is worse than its start (calibration poses), or the
-    calibrated model is worse than the nominal one on the validation poses. Empty when neither."""
-    out = []
-    fit, start = summary["fit"], summary.get("start_rms_position_mm")
-    if start is not None and fit["rms_position_mm"] > start:
-        out.append(f"the fit's RMS error {fit['rms_position_mm']:.4f} mm is worse than its start ({start:.4f} mm)")
-    val, before = summary.get("validation"), summary.get("validation_before")
-    if val and before and val["mean_position_mm"] > before["mean_position_mm"]:
-        out.append(
-            f"on the validation poses the calibrated model ({val['mean_position_mm']:.4f} mm mean error) is worse "
-            f"than the nominal one ({before['mean_position_mm']:.4f} mm)"
-        )
-    return out
+    """Why a calibration must not be called ok (:func:`robocal.identification.acceptance.judge` on the summary's
+    fit and validation figures). Empty when none."""
+    return list(judge(summary["fit"], summary.get("validation"), summary.get("validation_before")).problems)
 
 
 #: A fit that cannot start: the nominal model's best rigid fit ("before") misses the measurements by more than
@@ -93,34 +84,11 @@ def cannot_start(campaign: Campaign, robot: RobotDescription, start_rms_mm: floa
     return f"{text}. Check the joint angles' unit (degrees), the robot (--robot) and the targets"
 
 
-def _iterations(n: Any) -> str:
-    return f"{n} iteration" + ("" if n == 1 else "s")
-
-
 def result_warnings(summary: Mapping[str, Any]) -> list[str]:
-    """Why a calibration that is not failed must still not be called ok: its fit stopped without converging
-    (e.g. on its iteration limit), or its largest validation error is worse than the nominal model's (while the
-    mean is not: that is a failure, :func:`result_problems`). Empty when neither."""
-    out = []
-    fit = summary["fit"]
-    if fit.get("success") is False:
-        out.append(
-            f"the fit did not converge: {fit.get('message', 'no message')} ({_iterations(fit.get('nit'))}); the "
-            "result may be far from the least-squares minimum (raise max_iter, or check the data: joint units, "
-            "robot, targets)"
-        )
-    val, before = summary.get("validation"), summary.get("validation_before")
-    if (
-        val
-        and before
-        and val["mean_position_mm"] <= before["mean_position_mm"]
-        and val.get("max_position_mm", 0.0) > before.get("max_position_mm", float("inf"))
-    ):
-        out.append(
-            f"on the validation poses the largest error of the calibrated model ({val['max_position_mm']:.4f} mm) "
-            f"is worse than the nominal one's ({before['max_position_mm']:.4f} mm), although the mean improved"
-        )
-    return out
+    """Why a calibration that is not failed must still not be called ok (the warnings of
+    :func:`robocal.identification.acceptance.judge`: a fit that stopped without converging, a largest
+    validation error worse than the nominal model's). Empty when none."""
+    return list(judge(summary["fit"], summary.get("validation"), summary.get("validation_before")).warnings)
 
 
 def status_of(summary: Mapping[str, Any]) -> str:
