@@ -30,6 +30,7 @@ from typing import Any
 
 from robocal.errors import ConfigError, RobocalError
 from robocal.fleet.layout import Fleet, RobotFolder, campaign_dir
+from robocal.status import CampaignStatus
 
 #: keys of the calibration's ``fit`` that are timings (never written: outputs must not depend on the machine)
 TIMING_KEYS = ("wall_time_s", "solver_time_s", "elapsed_s", "time_s")
@@ -87,7 +88,7 @@ def cached_summary(out_dir: str | Path, serial: str, campaign: str, key: str) ->
         return None
     if not isinstance(s, dict) or s.get("key") != key:
         return None
-    if s.get("status") != "error" and not (
+    if s.get("status") != CampaignStatus.ERROR and not (
         (d / "calibration.json").is_file() and (d / "bundle/manifest.json").is_file()
     ):
         return None
@@ -122,13 +123,13 @@ def _calibrate_one(
         result = robocal.calibrate(campaign, robot, CalibrationConfig.from_mapping(cal_cfg))
         validation = robocal.validate(result, campaign)
     except RobocalError as exc:  # bad data: recorded (and cached: the same bytes fail the same way)
-        summary = {**base, "status": "error", "accepted": False, "reason": str(exc)}
+        summary = {**base, "status": CampaignStatus.ERROR, "accepted": False, "reason": str(exc)}
         write_json(d / "summary.json", summary)
         return summary
     except Exception as exc:  # a bug or a numerical failure: reported, not cached (the next run tries again),
         # and the rest of the fleet goes on
         (d / "summary.json").unlink(missing_ok=True)
-        return {**base, "status": "error", "accepted": False, "reason": f"{type(exc).__name__}: {exc}"}
+        return {**base, "status": CampaignStatus.ERROR, "accepted": False, "reason": f"{type(exc).__name__}: {exc}"}
     cal = _strip_timings(result.to_dict())
     fit = cal["fit"]
     ok, reason = accept(fit, validation, rules)
@@ -140,7 +141,7 @@ def _calibrate_one(
     write_json(d / "bundle" / MANIFEST, manifest)
     summary = {
         **base,
-        "status": "ok" if ok else "rejected",
+        "status": CampaignStatus.OK if ok else CampaignStatus.REJECTED,
         "accepted": ok,
         "reason": reason,
         "fit": {

@@ -17,6 +17,7 @@ from robocal.io import atomic_write, write_json
 from robocal.metrics import ErrorStats
 from robocal.optimizers.geometric import fit_with_optimizer, is_gradient
 from robocal.robot import RobotDescription
+from robocal.status import CampaignStatus
 from robocal.workflows import campaign_of, robot_of
 
 
@@ -93,7 +94,9 @@ def result_warnings(summary: Mapping[str, Any]) -> list[str]:
 
 def status_of(summary: Mapping[str, Any]) -> str:
     """``failed`` (:func:`result_problems`), ``warning`` (:func:`result_warnings`) or ``ok``."""
-    return "failed" if summary.get("problems") else ("warning" if summary.get("warnings") else "ok")
+    if summary.get("problems"):
+        return CampaignStatus.FAILED
+    return CampaignStatus.WARNING if summary.get("warnings") else CampaignStatus.OK
 
 
 def run(
