@@ -212,7 +212,7 @@ class CalibrationResult:
     covariance: np.ndarray  # (k, k) over identified parameters, in their units
     identifiability: Identifiability
     fixed_by_user: tuple[str, ...]
-    fit: dict[str, Any]
+    statistics: dict[str, Any]  # the fit record without the solver's figures (see :attr:`fit`)
     residuals_mm: np.ndarray  # (m, 3)
     residuals_deg: np.ndarray | None
     config: CalibrationConfig
@@ -230,6 +230,28 @@ class CalibrationResult:
         if self.effects:
             out["effects"] = list(self.effects)
         return MappingProxyType(out)
+
+    @property
+    def fit(self) -> dict[str, Any]:
+        """The fit record (``calibration.json`` ``fit``, a new dict): :attr:`statistics` with the solver's
+        figures read from :attr:`solver` (:func:`solver_figures`: after ``n_eliminated`` the iterations,
+        evaluations and stopping status, after ``wall_time_s`` the solver's own time); the statistics alone
+        when there is no solver (a calibration read from a file keeps its figures there)."""
+        if self.solver is None:
+            return dict(self.statistics)
+        out: dict[str, Any] = {}
+        figures = solver_figures(self.solver)
+        for key, v in self.statistics.items():
+            out[key] = v
+            if key == "n_eliminated":
+                out.update({k: figures[k] for k in ("nit", "nfev", "status", "message", "success")})
+            elif key == "wall_time_s":
+                out["solver_time_s"] = figures["solver_time_s"]
+        return out
+
+    def with_statistics(self, **changes: Any) -> CalibrationResult:
+        """A copy with ``changes`` to the statistics (e.g. ``poorly_determined``)."""
+        return replace(self, statistics={**self.statistics, **changes})
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -280,6 +302,19 @@ class CalibrationResult:
             self.fit,
             self.config,
         )
+
+
+def solver_figures(fr: FitResult) -> dict[str, Any]:
+    """What the fit record says of the solve that produced a calibration's point: iterations, evaluations,
+    stopping status and message, success, the solve's own time (``solver_time_s``)."""
+    return {
+        "nit": fr.nit,
+        "nfev": fr.nfev,
+        "status": fr.status,
+        "message": fr.message,
+        "success": fr.success,
+        "solver_time_s": fr.wall_time_s,
+    }
 
 
 def correlation_of(covariance: np.ndarray) -> np.ndarray:
@@ -497,7 +532,7 @@ def load_calibration(data: dict[str, Any], robot: RobotDescription) -> Calibrati
         cov,
         ident,
         tuple(data.get("fixed", ())),
-        data["fit"],
+        dict(data["fit"]),
         np.zeros((0, 3)),
         None,
         cfg,
@@ -891,13 +926,7 @@ def calibration_result(start: CalibrationStart, screened: Screened) -> Calibrati
         {
             "n_identified": k,
             "n_eliminated": len(ident.eliminated),
-            "nit": lm.nit,
-            "nfev": lm.nfev,
-            "status": lm.status,
-            "message": lm.message,
-            "success": lm.success,
             "wall_time_s": time.perf_counter() - start.t0,
-            "solver_time_s": lm.wall_time_s,
             "targets": list(start.targets),
             "stations": list(start.stations),
             "uses_orientation": use_rot,
@@ -929,7 +958,7 @@ def calibration_result(start: CalibrationStart, screened: Screened) -> Calibrati
         covariance=cov,
         identifiability=ident,
         fixed_by_user=tuple(sorted(start.fixed - start.held)),
-        fit=fit,
+        statistics=fit,
         residuals_mm=r_pos,
         residuals_deg=None if r_rot is None else np.rad2deg(r_rot),
         config=cfg,
@@ -959,13 +988,12 @@ def calibrate(
     """
     cfg = config or CalibrationConfig()
     res = fit_from(calibration_start(campaign, robot, cfg, x0))
-    poor = res.fit.get("poorly_determined") or []
+    poor = res.statistics.get("poorly_determined") or []
     if cfg.poorly_determined == "report" or not poor:
         return res
     if len(poor) >= int(res.identified.sum()):  # holding them all would leave nothing to fit: report only
         why = "reported: holding every poorly determined parameter would leave nothing to fit"
-        res.fit["poorly_determined"] = [{**p, "action": why} for p in poor]
-        return res
+        return res.with_statistics(poorly_determined=[{**p, "action": why} for p in poor])
     # held one at a time, the worst determined first (holding one of a correlated pair usually determines the
     # other), at its start (nominal, or the registration's frame and tool), and the rest fitted again
     held: list[str] = []
@@ -976,15 +1004,15 @@ def calibrate(
         held.append(worst["name"])
         records.append({**worst, "action": action})
         nxt = fit_from(calibration_start(campaign, robot, cfg, x0, held=tuple(held)))
-        poor = nxt.fit.get("poorly_determined") or []
+        poor = nxt.statistics.get("poorly_determined") or []
         if len(poor) >= int(nxt.identified.sum()):
             break
         res = nxt
-    res.fit["poorly_determined"] = records + [
+    left = [
         {**p, "action": "reported: holding it would leave nothing to fit"}
-        for p in (res.fit.get("poorly_determined") or [])
+        for p in (res.statistics.get("poorly_determined") or [])
     ]
-    return res
+    return res.with_statistics(poorly_determined=records + left)
 
 
 def poorly_determined(model: CalibrationModel, stderr: np.ndarray, cfg: CalibrationConfig) -> list[dict[str, Any]]:

@@ -81,7 +81,7 @@ class FitOutcome:
     result: CalibrationResult  # the final calibration (polished when polish is on)
     raw: CalibrationResult  # at the optimizer's point
     polished: CalibrationResult | None
-    optimize: FitResult | None  # the optimizer's own result; None for gn / lm (calibrate's is result.solver)
+    optimize: FitResult | None  # the optimizer's own result (raw.solver); None for gn / lm (result.solver)
     options: dict[str, Any] = field(default_factory=dict)
     times: dict[str, float] = field(default_factory=dict)
 
@@ -233,20 +233,9 @@ def fit_with_optimizer(
     t2 = time.perf_counter()
     x_raw = search.full(res.x)
     at = fit_from(start, solve_at(x_raw))  # the statistics at the optimizer's point ...
-    raw = replace(  # ... with the optimizer's own figures; its config says the least-squares core made no step
-        at,
-        config=replace(at.config, max_iter=0),
-        fit={
-            **at.fit,
-            "nit": res.nit,
-            "nfev": res.nfev,
-            "status": res.status,
-            "message": res.message,
-            "success": res.success,
-            "solver_time_s": res.wall_time_s,
-            "wall_time_s": t2 - t0 - warmup_s,  # the method's own time, not the statistics
-        },
-    )
+    # ... whose solve is the optimizer's (its FitResult gives the fit record's iterations, status and time); its
+    # config says the least-squares core made no step; its wall time is the method's own, not the statistics'
+    raw = replace(at, config=replace(at.config, max_iter=0), solver=res).with_statistics(wall_time_s=t2 - t0 - warmup_s)
     options["noise_floor_fitness_mm"] = floor
     options["stop_fitness_mm"] = problem.target
     polished = None
@@ -260,11 +249,9 @@ def fit_with_optimizer(
         "polish_s": time.perf_counter() - t3 if polished is not None else 0.0,
     }
     if polished is not None:  # the final result's time is the whole fit: method + polish
-        polished = replace(
-            polished,
-            config=replace(polished.config, **POLISH),  # the settings of the polish (its stopping rules)
-            fit={**polished.fit, "wall_time_s": raw.fit["wall_time_s"] + times["polish_s"]},
-        )
+        polished = replace(  # the settings of the polish (its stopping rules)
+            polished, config=replace(polished.config, **POLISH)
+        ).with_statistics(wall_time_s=raw.statistics["wall_time_s"] + times["polish_s"])
     return FitOutcome(name, polished or raw, raw, polished, res, options, times)
 
 
