@@ -35,6 +35,7 @@ __all__ = [
     "noise_floor",
     "orientation_errors_deg",
     "position_errors_mm",
+    "position_keys",
 ]
 
 #: the statistics, in the order :meth:`ErrorStats.position` writes them by default
@@ -44,6 +45,11 @@ SCHEMES = {
     "long": ("{s}_position_mm", "{s}_orientation_deg"),
     "short": ("{s}_mm", "{s}_deg"),
 }
+
+
+def position_keys(order: Sequence[str] = STATS, scheme: str = "long") -> tuple[str, ...]:
+    """The file keys of the position statistics in ``order`` (e.g. ``rms_position_mm``, or ``rms_mm``)."""
+    return tuple(SCHEMES[scheme][0].format(s=s) for s in order)
 
 
 def position_errors_mm(err: np.ndarray) -> np.ndarray:
@@ -97,8 +103,7 @@ class ErrorStats:
 
     def position(self, order: Sequence[str] = STATS, scheme: str = "long") -> dict[str, float]:
         """The position statistics as the files name them, in ``order`` (a permutation of :data:`STATS`)."""
-        key = SCHEMES[scheme][0]
-        return {key.format(s=s): float(getattr(self, f"{s}_mm")) for s in order}
+        return {k: float(getattr(self, f"{s}_mm")) for k, s in zip(position_keys(order, scheme), order, strict=True)}
 
     def orientation(self, order: Sequence[str] = STATS, scheme: str = "long") -> dict[str, float]:
         """The orientation statistics as the files name them (empty without orientations)."""

@@ -30,6 +30,7 @@ import numpy as np
 
 from robocal.errors import ConfigError
 from robocal.identification.calibrate import (
+    FIT_ORDER,
     CalibrationConfig,
     CalibrationResult,
     CalibrationStart,
@@ -39,6 +40,7 @@ from robocal.identification.calibrate import (
 )
 from robocal.identification.result import FitResult
 from robocal.metrics import noise_floor as floor_of
+from robocal.metrics import position_keys
 from robocal.optimizers.calibration import CalibrationSearch, calibration_problem
 from robocal.optimizers.protocol import Problem, evaluate_batch
 from robocal.optimizers.registry import make_optimizer, pipeline_options, registered
@@ -63,6 +65,8 @@ __all__ = [
 
 #: Gauss-Newton settings of the polish (conf/optimizer/gn.yaml).
 POLISH: dict[str, Any] = {"max_iter": 30, "ftol": 1e-12, "xtol": 1e-10}
+#: the fit figures the comparison of raw and polished results reads (the fit record's keys and order)
+COMPARED = (*position_keys(FIT_ORDER), "chi2")
 #: the stopping rules of the gradient family, read from its optimizer config into the CalibrationConfig
 GRADIENT_KEYS = ("max_iter", "ftol", "xtol")
 
@@ -89,12 +93,7 @@ class FitOutcome:
         """The honest comparison: what the method reached alone, and after the polish."""
         out: dict[str, Any] = {
             "method": self.method,
-            "raw": {
-                "rms_position_mm": self.raw.fit["rms_position_mm"],
-                "mean_position_mm": self.raw.fit["mean_position_mm"],
-                "max_position_mm": self.raw.fit["max_position_mm"],
-                "chi2": self.raw.fit["chi2"],
-            },
+            "raw": {k: self.raw.fit[k] for k in COMPARED},
             "options": {k: v for k, v in self.options.items() if isinstance(v, str | int | float | bool) or v is None},
             "times_s": dict(self.times),
         }
@@ -112,14 +111,7 @@ class FitOutcome:
             )
         if self.polished is not None:
             p = self.polished
-            out["polished"] = {
-                "rms_position_mm": p.fit["rms_position_mm"],
-                "mean_position_mm": p.fit["mean_position_mm"],
-                "max_position_mm": p.fit["max_position_mm"],
-                "chi2": p.fit["chi2"],
-                "nit": p.fit["nit"],
-                "solver_time_s": p.fit["solver_time_s"],
-            }
+            out["polished"] = {k: p.fit[k] for k in (*COMPARED, "nit", "solver_time_s")}
         return out
 
 
