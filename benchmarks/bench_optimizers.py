@@ -69,7 +69,7 @@ def main() -> None:
     base = calibrate(camp, robot, CalibrationConfig(max_iter=0))
     free = np.flatnonzero(base.identified)
     data = fit_data(camp, False, present_targets(camp))
-    x_init = base.extra["x_init"]
+    x_init = base.start.x_init
     problem, search = calibration_problem(base.model, data, x_init, free, max_iter=200)
     lin, _ = calibration_problem(base.model, data, x_init, free, objective="linearized", max_iter=200)
     rng = np.random.default_rng(0)

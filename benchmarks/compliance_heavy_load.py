@@ -45,7 +45,7 @@ def main() -> None:
                         {"geometric": {"noise_mm": 0.02}, "kind": kind, "method": method}
                     )
                     fit = fit_compliance(camp, robot, geo, cfg)
-                    cond = accuracy_by_condition(camp, geo, fit, geo.extra["x_init"])
+                    cond = accuracy_by_condition(camp, geo, fit, geo.start.x_init)
                     tc = np.array(truth["c_rad_per_A" if kind == "current" else "c_rad_per_Nm"])
                     rel = np.where(fit.model.identified, fit.model.c / tc - 1.0, np.nan)
                     val = {c["payload_kg"]: c for c in cond if c["split"] == "validation"}

@@ -94,7 +94,7 @@ def gross(seeds: int, robot) -> None:
         extra = flagged - true
         ratios.append(res.fit["rms_position_mm"] / res.fit["noise_floor_rms_mm"])
         cal = camp.calibration()
-        kept = res.extra["kept"]
+        kept = res.start.kept
         z = np.array(list(z_scores(res, truth, cal.q[kept], cal.target_index[kept]).values()))
         z_in += int(np.sum(np.abs(z) <= 3))
         z_all += len(z)

@@ -60,7 +60,7 @@ def bench(path: Path, campaign=None) -> dict:  # type: ignore[no-untyped-def]
     assert val is not None, f"{path} has no validation rows"
     summ = summary(res, val)
     geo = res.extra["geometric_calibration"]
-    before = validate(geo, camp, x=geo.extra["x_init"])
+    before = validate(geo, camp, x=geo.start.x_init)
     print(f"{path.name}: {int(np.sum(camp.split == 'calibration'))} calibration / {val['geometric']['n_rows']} "
           f"validation rows; discovery {dt:.0f} s")  # fmt: skip
     print(_row("before (nominal, rigid fit)", before))

@@ -174,7 +174,7 @@ def test_calibrate_a_result_worse_than_nominal_is_failed(campaign_dir, tmp_path,
                  "optimizer.population=10", "optimizer.max_iter=2", "--no-report"])  # fmt: skip
     summary = json.loads((out / "summary.json").read_text())
     worse = summary["validation"]["mean_position_mm"] > summary["validation_before"]["mean_position_mm"] or (
-        summary["fit"]["rms_position_mm"] > summary["start_rms_position_mm"]
+        summary["fit"]["rms_position_mm"] > summary["fit"]["before"]["rms_position_mm"]
     )
     assert (summary["status"] == "failed") == worse and (code == 1) == worse
     if worse:
@@ -184,10 +184,10 @@ def test_calibrate_a_result_worse_than_nominal_is_failed(campaign_dir, tmp_path,
 def test_result_problems_names_each_way_a_calibration_fails():
     from robocal.workflows.geometric import result_problems
 
-    ok = {"fit": {"rms_position_mm": 0.1}, "start_rms_position_mm": 0.9,
+    ok = {"fit": {"rms_position_mm": 0.1, "before": {"rms_position_mm": 0.9}},
           "validation": {"mean_position_mm": 0.1}, "validation_before": {"mean_position_mm": 0.8}}  # fmt: skip
     assert result_problems(ok) == []
-    worse_fit = {**ok, "fit": {"rms_position_mm": 1.0}}
+    worse_fit = {**ok, "fit": {"rms_position_mm": 1.0, "before": {"rms_position_mm": 0.9}}}
     (text,) = result_problems(worse_fit)
     assert "worse than its start" in text and "1.0000 mm" in text and "0.9000 mm" in text
     worse_val = {**ok, "validation": {"mean_position_mm": 0.9}}

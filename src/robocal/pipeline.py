@@ -27,15 +27,16 @@ import yaml
 
 from robocal.errors import ConfigError
 from robocal.io import write_json
+from robocal.status import StageStatus
 
 #: Name of the generated parameter file (DVC's default params file).
 PARAMS_FILE = "params.yaml"
 #: Hydra config directory and primary config name (DVC's defaults for ``hydra.enabled``).
 CONF_DIR = "conf"
 CONFIG_NAME = "config"
-#: Status values of a stage result.
-STATUS_OK = "ok"
-STATUS_SKIPPED = "skipped"
+#: Status values of a stage result (:class:`robocal.status.StageStatus`).
+STATUS_OK = StageStatus.OK
+STATUS_SKIPPED = StageStatus.SKIPPED
 
 _MISSING = object()
 

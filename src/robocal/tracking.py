@@ -50,6 +50,7 @@ from typing import Any, TypeVar
 from urllib.parse import unquote, urlparse
 
 from robocal.errors import RobocalError
+from robocal.status import StageStatus
 
 #: Environment variable carrying the parent run id of a Hydra sweep to its jobs.
 PARENT_ENV = "ROBOCAL_MLFLOW_PARENT_RUN_ID"
@@ -432,7 +433,12 @@ class StageRun:
         """The stage had nothing to do: tag it (``robocal.status``, ``robocal.skipped``) and end it as
         :data:`SKIPPED_STATUS`, so it does not look like a computed success."""
         self.run_name = skipped_title(self.run_name)
-        self.set_tags({"robocal.status": "skipped", "robocal.skipped": reason[:5000], "mlflow.runName": self.run_name})
+        tags = {
+            "robocal.status": StageStatus.SKIPPED,
+            "robocal.skipped": reason[:5000],
+            "mlflow.runName": self.run_name,
+        }
+        self.set_tags(tags)
         self.end_status = SKIPPED_STATUS
 
     def close(self, status: str = "FINISHED") -> None:
@@ -592,7 +598,7 @@ class PendingRun:
         self.run_name = skipped_title(self.run_name)
         if self._tmp is not None:
             self._record["run_name"] = self.run_name
-        self.set_tags({"robocal.status": "skipped", "robocal.skipped": reason[:5000]})
+        self.set_tags({"robocal.status": StageStatus.SKIPPED, "robocal.skipped": reason[:5000]})
         self.end_status = SKIPPED_STATUS
 
     def log_text(self, text: str, artifact_file: str) -> None:

@@ -3,13 +3,22 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from robocal.data import read_campaign
 from robocal.errors import ConfigError
-from robocal.identification.calibrate import CalibrationConfig, calibrate, load_calibration, validate
+from robocal.identification.calibrate import (
+    CalibrationConfig,
+    FitStart,
+    Validation,
+    calibrate,
+    calibration_record,
+    load_calibration,
+    validate,
+)
 from robocal.sim.truth import equivalent_truth, z_scores
 from robocal.sim.twin import load_scenario, simulate
 
@@ -31,6 +40,55 @@ def test_twin_fit_reaches_the_noise_floor(twin_geometric, kr16):
     assert fit["chi2_within_band"], fit
     # RMS within 10 % of the expected floor sigma*sqrt(3(m-p)/m) (a single draw; chi² spread ~ 1/sqrt(dof))
     assert abs(fit["rms_position_mm"] / fit["noise_floor_rms_mm"] - 1) < 0.10
+
+
+def test_validation_is_typed_and_reads_as_the_record(twin_geometric, kr16):
+    camp, _ = twin_geometric
+    res = calibrate(camp, kr16)
+    v = validate(res, camp)
+    assert isinstance(v, Validation) and v.n_rows == v.stats.n == int(v.kept_rows.sum()) > 0
+    # the typed figures are the record's, bit for bit, and the record keeps its keys and their order
+    e = np.linalg.norm(v.errors_mm[v.kept_rows], axis=1)
+    assert v.stats.mean_mm == v["mean_position_mm"] == float(np.mean(e))
+    assert v.stats.rms_mm == v["rms_position_mm"] == float(np.sqrt(np.mean(e**2)))
+    keys = ["n_rows", "mean_position_mm", "rms_position_mm", "max_position_mm", "tool_source", "tools_mm"]
+    assert list(v) == [*keys, "errors_mm", "kept_rows"] and list(v.record()) == keys
+    before = validate(res, camp, x=res.start.x_init)
+    assert before.stats.mean_mm > v.stats.mean_mm  # the calibration helps on held-out rows
+    none = validate(res, camp.calibration())
+    assert none.n_rows == 0 and dict(none) == {"n_rows": 0} and not none.stats.has_orientation
+
+
+def test_start_is_typed_and_the_record_is_written_from_parts(twin_geometric, kr16):
+    camp, _ = twin_geometric
+    res = calibrate(camp, kr16)
+    st = res.start
+    assert isinstance(st, FitStart) and st.kept.all() and st.residuals_before_mm.shape == res.residuals_mm.shape
+    # the "before" figures of the fit record are those of the typed start
+    e0 = np.linalg.norm(st.residuals_before_mm[st.kept], axis=1)
+    assert res.fit["before"]["rms_position_mm"] == float(np.sqrt(np.mean(e0**2)))
+    with pytest.raises(TypeError):
+        res.extra["kept"] = None  # the old view is read-only
+    parts = (res.model, res.x, res.identified, res.stderr, res.covariance, res.identifiability, res.fixed_by_user)
+    record = calibration_record(*parts, res.fit, res.config)
+    assert json.dumps(record, default=str) == json.dumps(res.to_dict(), default=str)
+    loaded = load_calibration(json.loads(json.dumps(record, default=str)), kr16)
+    assert loaded.start is None and loaded.effects == ()
+
+
+def test_the_fit_record_reads_the_solver_figures_from_its_fit_result(twin_geometric, kr16):
+    camp, _ = twin_geometric
+    res = calibrate(camp, kr16)
+    assert not {"nit", "nfev", "status", "message", "success", "solver_time_s"} & set(res.statistics)
+    fit = res.fit
+    assert (fit["nit"], fit["status"], fit["message"]) == (res.solver.nit, res.solver.status, res.solver.message)
+    keys = list(fit)  # the file's order: the solver's figures after n_eliminated, its time after wall_time_s
+    assert keys[keys.index("n_eliminated") + 1 : keys.index("n_eliminated") + 6] == [
+        "nit", "nfev", "status", "message", "success"
+    ]  # fmt: skip
+    assert keys[keys.index("wall_time_s") + 1] == "solver_time_s"
+    other = replace(res, solver=res.solver.evolve(nit=99, status=0))  # one place holds them: the FitResult
+    assert other.fit["nit"] == 99 and other.fit["success"] is False and res.fit["nit"] == res.solver.nit
 
 
 def test_twin_parameters_within_three_standard_errors(twin_geometric, kr16):

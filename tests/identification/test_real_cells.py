@@ -52,7 +52,7 @@ def test_fit_on_kept_rows_is_at_the_floor_and_unbiased(gross, kr16):
     # within 10 % of the floor sigma sqrt(3 dof / M) (one draw: the chi² spread is ~ 1/sqrt(dof) ~ 7 %)
     assert abs(fit["rms_position_mm"] / fit["noise_floor_rms_mm"] - 1) < 0.10, fit
     cal = camp.calibration()
-    kept = res.extra["kept"]
+    kept = res.start.kept
     z = z_scores(res, truth, cal.q[kept], cal.target_index[kept])
     # 27 Gaussian z-scores: P(|z| > 3) = 0.27 % each; one allowed for a fixed seed
     assert sum(abs(v) > 3 for v in z.values()) <= 1, z
@@ -92,7 +92,7 @@ def test_before_is_the_nominal_models_best_rigid_fit(gross, kr16):
     """The "before" figure: frames and tools fitted to convergence with the nominal kinematics (kept rows),
     checked against scipy's least_squares on the same problem started far from it."""
     camp, _, res = gross
-    kept = res.extra["kept"]
+    kept = res.start.kept
     cal = camp.calibration().subset(kept)
     model = res.model
     data = fit_data(cal, False, model.target_names)
@@ -103,7 +103,7 @@ def test_before_is_the_nominal_models_best_rigid_fit(gross, kr16):
         x[rigid] = z
         return model.residuals(x, data)
 
-    z0 = res.extra["x_init"][rigid] + np.r_[5.0, -5.0, 3.0, 0.01, -0.01, 0.02, 2.0, 2.0, -2.0]
+    z0 = res.start.x_init[rigid] + np.r_[5.0, -5.0, 3.0, 0.01, -0.01, 0.02, 2.0, 2.0, -2.0]
     ref = least_squares(resid, z0, xtol=1e-15, ftol=1e-15, gtol=1e-15)
     e_ref = np.linalg.norm(ref.fun.reshape(-1, 3), axis=1)
     before = res.fit["before"]

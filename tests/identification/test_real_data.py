@@ -27,7 +27,7 @@ def _fit(folder: str) -> tuple[Any, Any, CalibrationResult, dict[str, Any], dict
     robot = load_robot(Path(folder) / "robot.yaml")
     camp = read_campaign(folder, robot)
     res = calibrate(camp, robot)
-    return robot, camp, res, validate(res, camp), validate(res, camp, x=res.extra["x_init"])
+    return robot, camp, res, validate(res, camp), validate(res, camp, x=res.start.x_init)
 
 
 @pytest.fixture()
@@ -116,7 +116,7 @@ def test_eliminated_parameters_and_what_absorbs_them(irb120):
         assert e.describe().startswith(f"{name} with ")
     # theta6 turns every target about the flange z axis: d tool = z x tool = (-t_y, t_x, 0) per target,
     # at the tool offsets where the analysis ran (the registration's)
-    x0 = res.extra["x_analysis"]
+    x0 = res.start.x_analysis
     tools0 = res.model.tools(x0)
     e = elim["theta6"]
     assert e.reason == "redundant"

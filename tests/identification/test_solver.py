@@ -23,7 +23,7 @@ def problem(tmp_path_factory, kr16):
     res = calibrate(camp, kr16, CalibrationConfig(outliers="off"))
     data = fit_data(camp, False, res.model.target_names)
     free = np.flatnonzero(res.identified)
-    x0 = res.extra["x_init"]
+    x0 = res.start.x_init
     w = 1.0 / 0.015
     return res, data, free, x0, w
 

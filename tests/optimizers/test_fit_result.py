@@ -36,7 +36,7 @@ def twin(tmp_path_factory, kr16):
 def _problem(twin, bounded):
     _, base, _, data = twin
     return calibration_problem(
-        base.model, data, base.extra["x_init"], np.flatnonzero(base.identified), bounded=bounded, max_iter=5
+        base.model, data, base.start.x_init, np.flatnonzero(base.identified), bounded=bounded, max_iter=5
     )
 
 
@@ -89,7 +89,7 @@ def test_gauss_newton_covariance_is_the_calibrations(twin):
 
 def test_solver_statistics_agree_with_scipy(twin):
     _, base, _, data = twin
-    model, x0, free = base.model, base.extra["x_init"], np.flatnonzero(base.identified)
+    model, x0, free = base.model, base.start.x_init, np.flatnonzero(base.identified)
     w = 1.0 / 0.015
 
     def fun(x):
@@ -119,7 +119,7 @@ def test_rows_left_out_are_not_data(twin):
     _, base, _, data = twin
     from robocal.identification.robust import least_squares_on
 
-    model, x0, free = base.model, base.extra["x_init"], np.flatnonzero(base.identified)
+    model, x0, free = base.model, base.start.x_init, np.flatnonzero(base.identified)
     m = data.m
     rows = np.repeat(np.arange(m), 3)
     kept = np.ones(m, dtype=bool)

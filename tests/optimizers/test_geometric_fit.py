@@ -69,7 +69,7 @@ def test_the_statistics_of_a_method_are_the_starts(campaign, kr16):
     # "before" is the nominal model's best rigid fit (as for LM), not the method's own point (the old
     # zero-iteration calibrate(x0=...) reported the method's point as "before": 0.385 mm here, = its "after")
     assert raw.fit["before"] == lm.fit["before"]
-    np.testing.assert_array_equal(raw.extra["x_init"], lm.extra["x_init"])
+    np.testing.assert_array_equal(raw.start.x_init, lm.start.x_init)
     # the statistics are at the method's own point (a clean twin campaign: no row left out)
     assert out.optimize is not None and not raw.fit["outliers"]
     np.testing.assert_array_equal(raw.x[start.free], out.optimize.x)

@@ -53,7 +53,7 @@ def test_a_fit_stopped_by_its_iteration_limit_is_a_warning(twin, tmp_path, capsy
 def test_a_worse_maximum_validation_error_is_a_warning():
     from robocal.workflows.geometric import result_problems, result_warnings, status_of
 
-    ok = {"fit": {"rms_position_mm": 0.1, "success": True}, "start_rms_position_mm": 0.9,
+    ok = {"fit": {"rms_position_mm": 0.1, "success": True, "before": {"rms_position_mm": 0.9}},
           "validation": {"mean_position_mm": 0.1, "max_position_mm": 0.3},
           "validation_before": {"mean_position_mm": 0.8, "max_position_mm": 1.5}}  # fmt: skip
     assert result_warnings(ok) == [] and status_of({**ok, "problems": []}) == "ok"

@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from robocal.kinematics.chain import Chain, ChainState, propagate
+from robocal.status import TargetStatus
 
 
 @dataclass(frozen=True)
@@ -207,8 +208,8 @@ def write_compensation_csv(
     from robocal.compensation.controller_csv import write_controller_csv
 
     m = len(target_ids)
-    st = list(status) if status is not None else ["ok"] * m
-    applied = np.array([s != "refused" for s in st], dtype=bool)
+    st = list(status) if status is not None else [TargetStatus.OK] * m
+    applied = np.array([s != TargetStatus.REFUSED for s in st], dtype=bool)
     return write_controller_csv(
         path,
         target_ids,

@@ -21,6 +21,7 @@ from robocal.compensation.safety import SafetyPolicy
 from robocal.config import setting
 from robocal.kinematics.chain import RX, RY, RZ, Chain
 from robocal.kinematics.ik import CompiledChain, forward, solve
+from robocal.status import TargetStatus
 
 
 @dataclass(frozen=True)
@@ -81,7 +82,7 @@ class Corrected:
 
     @property
     def refused(self) -> np.ndarray:
-        return np.array([s == "refused" for s in self.status], dtype=bool)
+        return np.array([s == TargetStatus.REFUSED for s in self.status], dtype=bool)
 
 
 def own_correction(

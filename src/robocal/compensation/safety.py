@@ -40,9 +40,10 @@ from typing import Any
 import numpy as np
 
 from robocal.config import parse, setting
+from robocal.status import TargetStatus
 
-#: per-target status, in every consumer (service reply, filter table, controller CSV)
-STATUSES = ("ok", "flagged", "refused")
+#: per-target status, in every consumer (service reply, filter table, controller CSV): :class:`TargetStatus`
+STATUSES = tuple(TargetStatus)
 POLICIES = ("refuse", "flag")
 
 
@@ -122,8 +123,8 @@ class SafetyPolicy:
             bad_conv |= unreachable
         flag = bad_conv | out_any | too_big
         if not request_reasons and not flag.any():  # the usual case: every target ok
-            return ["ok"] * m, [[] for _ in range(m)]
-        status: list[str] = ["ok"] * m
+            return [TargetStatus.OK] * m, [[] for _ in range(m)]
+        status: list[str] = [TargetStatus.OK] * m
         reasons: list[list[str]] = [[] for _ in range(m)]
         refuse_all = bool(request_reasons) and self.on_temperature_range == "refuse"
         # only the targets with a reason are looked at one by one
@@ -153,6 +154,6 @@ class SafetyPolicy:
                     "joint offsets and effects"
                 )
                 refuse |= self.on_correction_bound == "refuse"
-            status[k] = "refused" if refuse else ("flagged" if r else "ok")
+            status[k] = TargetStatus.REFUSED if refuse else (TargetStatus.FLAGGED if r else TargetStatus.OK)
             reasons[k] = r
         return status, reasons

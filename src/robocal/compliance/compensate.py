@@ -10,6 +10,7 @@ import numpy as np
 from robocal.compensation import ActualRobot, compensate, judge_compensation
 from robocal.compliance.fit import ComplianceFit, campaign_signal
 from robocal.kinematics.chain import fk
+from robocal.status import TargetStatus
 
 if TYPE_CHECKING:
     from robocal.data.contract import Campaign
@@ -33,7 +34,7 @@ def compensation_rows(
     q_c = np.zeros_like(campaign.q)
     cmd = np.zeros((campaign.n_rows, 4, 4))
     res = np.zeros((campaign.n_rows, 3))
-    status = np.full(campaign.n_rows, "ok", dtype=object)
+    status = np.full(campaign.n_rows, TargetStatus.OK, dtype=object)
     reason = np.full(campaign.n_rows, "", dtype=object)
     corr_max = np.zeros(campaign.n_rows)
     eta = cfit.x[: gm.chain.n_params]
@@ -58,7 +59,7 @@ def compensation_rows(
         p_des, _, _ = desired.pose(sub.q)
         comp = compensate(actual, sub.q, p_des)
         st, why = judge_compensation(actual, comp, p_des, policy, gm.robot.q_limits, gm.robot.joint_names)
-        refused = np.array([x == "refused" for x in st], dtype=bool)
+        refused = np.array([x == TargetStatus.REFUSED for x in st], dtype=bool)
         status[sel], reason[sel] = st, ["; ".join(r) for r in why]
         corr_max[sel] = np.rad2deg(np.abs(comp.q - sub.q).max(axis=1))
         q_send = np.where(refused[:, None], sub.q, comp.q)

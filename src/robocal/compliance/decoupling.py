@@ -26,6 +26,7 @@ from robocal.errors import ConfigError
 from robocal.identification.calibrate import CalibrationResult
 from robocal.identification.model import CalibrationModel, FitData
 from robocal.identification.solver import levenberg_marquardt
+from robocal.metrics import ErrorStats
 from robocal.robot import RobotDescription
 
 _W = np.array([[0, 0, 1], [0, -1, 0], [0, -1, 0], [1, 0, 0], [0, -1, 0], [1, 0, 0]], dtype=float)
@@ -143,7 +144,7 @@ def controller_parameters(result: CalibrationResult, q: np.ndarray, target_index
     lm = levenberg_marquardt(fun, w0, np.arange(len(w0)), 1.0, max_iter=8, ftol=1e-15, xtol=1e-12, method="gn")
     y, z = unpack(lm.x)
     r = build(z).residuals(y, data)
-    e = np.linalg.norm(r.reshape(-1, 3), axis=1)
+    e = ErrorStats.of(r.reshape(-1, 3))
     return {
         "layout": "Mao 2021 fig. 3 (eq. 25)",
         "L_nominal_mm": L0.tolist(),
@@ -151,8 +152,7 @@ def controller_parameters(result: CalibrationResult, q: np.ndarray, target_index
         "dL_mm": z[:5].tolist(),
         "dtheta_deg": np.rad2deg(z[5:]).tolist(),
         "fixed": list(CONTROLLER_FIXED),
-        "rms_mm": float(np.sqrt(np.mean(e**2))),
-        "max_mm": float(e.max()),
+        **e.position(("rms", "max"), scheme="short"),
         "n_poses": len(q),
         "B": decoupling_matrix(robot).tolist(),
     }

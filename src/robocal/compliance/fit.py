@@ -35,6 +35,7 @@ from robocal.errors import ConfigError
 from robocal.identification.calibrate import CalibrationConfig, CalibrationResult, calibrate, fit_data
 from robocal.identification.model import FitData
 from robocal.identification.solver import levenberg_marquardt
+from robocal.metrics import ErrorStats
 
 if TYPE_CHECKING:
     from robocal.data.contract import Campaign
@@ -130,7 +131,6 @@ class GNResult:
     cov: np.ndarray
     residuals_mm: np.ndarray
     nit: int
-    rms_mm: float
     s2: float
 
 
@@ -165,8 +165,7 @@ def _gauss_newton(
     res = lm.residual.reshape(-1, 3)
     s2 = lm.redchi if lm.dof > 0 else lm.chi2  # the residual variance (per coordinate)
     assert lm.covariance is not None  # the fit is finite (the model's residuals always are)
-    rms = float(np.sqrt(np.mean(np.sum(res**2, axis=1))))
-    return GNResult(lm.x[:nx].copy(), lm.x[nx:].copy(), np.array(lm.covariance), res.copy(), lm.nit, rms, s2)
+    return GNResult(lm.x[:nx].copy(), lm.x[nx:].copy(), np.array(lm.covariance), res.copy(), lm.nit, s2)
 
 
 @dataclass
@@ -264,9 +263,7 @@ def fit_compliance(
         "method": cfg.method,
         "n_rows": m_rows,
         "loads_kg": sorted({float(v) for v in sub.payload_kg}),
-        "rms_position_mm": gn.rms_mm,
-        "mean_position_mm": float(np.mean(np.linalg.norm(gn.residuals_mm, axis=1))),
-        "max_position_mm": float(np.max(np.linalg.norm(gn.residuals_mm, axis=1))),
+        **ErrorStats.of(gn.residuals_mm).position(("rms", "mean", "max")),
         "residual_sigma_mm": float(np.sqrt(gn.s2)),
         "nit": gn.nit,
         "joints": [int(j) + 1 for j in jj],
@@ -318,8 +315,7 @@ def distance_accuracy(err_mm: np.ndarray, p_meas: np.ndarray) -> float:
 
 
 def _stats(e: np.ndarray) -> dict[str, float]:
-    d = np.linalg.norm(e, axis=1)
-    return {"mean_mm": float(d.mean()), "max_mm": float(d.max()), "rms_mm": float(np.sqrt(np.mean(d**2)))}
+    return ErrorStats.of(e).position(("mean", "max", "rms"), scheme="short")
 
 
 def accuracy_by_condition(

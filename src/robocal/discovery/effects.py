@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from robocal.discovery.model import Accepted, Fit
-from robocal.identification.calibrate import CalibrationConfig, CalibrationResult
+from robocal.identification.calibrate import CalibrationConfig, CalibrationResult, calibration_record
 from robocal.identification.identifiability import Eliminated, Identifiability
 from robocal.robot import RobotDescription
 
@@ -240,8 +240,8 @@ class DiscoveredEffects:
 
 def extended_calibration(fit: Fit, robot: RobotDescription, summary_fit: dict[str, Any]) -> dict[str, Any]:
     """The discovered model written as a calibration (the geometric format of
-    :meth:`CalibrationResult.to_dict`, so every reader of ``calibration.json`` takes it) with its joint-level
-    effects under ``effects`` and the rest under ``effects_not_compensated``."""
+    :func:`~robocal.identification.calibrate.calibration_record`, so every reader of ``calibration.json`` takes
+    it) with its joint-level effects under ``effects`` and the rest under ``effects_not_compensated``."""
     model = fit.model
     base = model.base
     nb = model.nb
@@ -264,20 +264,9 @@ def extended_calibration(fit: Fit, robot: RobotDescription, summary_fit: dict[st
         singular_values=np.linalg.svd(Jn, compute_uv=False),
         names=base.names,
     )
-    res = CalibrationResult(
-        model=base,
-        x=x,
-        identified=identified,
-        stderr=stderr,
-        covariance=cov,
-        identifiability=ident,
-        fixed_by_user=(),
-        fit=summary_fit,
-        residuals_mm=fit.residuals_mm,
-        residuals_deg=None,
-        config=CalibrationConfig(noise_mm=fit.sigma),
+    out = calibration_record(
+        base, x, identified, stderr, cov, ident, (), summary_fit, CalibrationConfig(noise_mm=fit.sigma)
     )
-    out = res.to_dict()
     joint_level, other = effect_records(fit)
     out["effects"] = joint_level
     out["effects_not_compensated"] = other
@@ -314,7 +303,7 @@ def compensate_targets(
     tool_R = model.tool_rotations(cal.x)[k]
     m = len(q_target)
     pay = np.broadcast_to(np.asarray(payload_kg, dtype=float), (m,))
-    records = tuple(cal.extra.get("effects") or ())
+    records = cal.effects
     effects = joint_effects(None, DiscoveredEffects(records, model.robot) if records else None)
     try:
         offset = compose(effects, Signals(pay, tau_Nm, current_A, direction))

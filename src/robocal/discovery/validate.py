@@ -3,18 +3,20 @@ campaign's held-out rows, with and without the held-out rows that are gross erro
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 
 from robocal.discovery.model import Fit, tracker_columns
 from robocal.discovery.search import DiscoveryResult
-from robocal.identification.calibrate import validate_rows
+from robocal.identification.calibrate import Validation, validate_rows
 from robocal.identification.model import FitData
 from robocal.kinematics.chain import fk
+from robocal.metrics import ErrorStats
 
 
-def _public(v: dict[str, Any]) -> dict[str, Any]:
+def _public(v: Mapping[str, Any]) -> dict[str, Any]:
     return {k: x for k, x in v.items() if k not in ("errors_mm", "kept_rows")}
 
 
@@ -35,20 +37,18 @@ def gross_errors(errors_mm: np.ndarray, kept: np.ndarray, alpha: float) -> np.nd
     return np.asarray(kept & (p < alpha / m))
 
 
-def _stats_without(v: dict[str, Any], flagged: np.ndarray) -> dict[str, Any]:
+def _stats_without(v: Mapping[str, Any], flagged: np.ndarray) -> dict[str, Any]:
     keep = v["kept_rows"] & ~flagged
     e = np.linalg.norm(v["errors_mm"][keep], axis=1)
     if len(e) == 0:
         return {"n_rows": 0}
     return {
         "n_rows": int(keep.sum()),
-        "mean_position_mm": float(e.mean()),
-        "rms_position_mm": float(np.sqrt(np.mean(e**2))),
-        "max_position_mm": float(e.max()),
+        **ErrorStats.of(e).position(),
     }
 
 
-def _validate_fit(res: DiscoveryResult, fit: Fit) -> dict[str, Any]:
+def _validate_fit(res: DiscoveryResult, fit: Fit) -> Validation:
     """One model's errors on the validation rows, through :func:`validate_rows` (the tool and station handling
     of ``calibrate``'s validation): joint-level effects enter the joint angles exactly, parameter drifts
     (thermal, drift) to first order at the tool, as in the fit."""

@@ -30,6 +30,7 @@ from typing import Any
 
 from robocal.errors import ConfigError, RobocalError
 from robocal.fleet.layout import Fleet, RobotFolder, campaign_dir
+from robocal.status import CampaignStatus
 
 #: keys of the calibration's ``fit`` that are timings (never written: outputs must not depend on the machine)
 TIMING_KEYS = ("wall_time_s", "solver_time_s", "elapsed_s", "time_s")
@@ -87,7 +88,7 @@ def cached_summary(out_dir: str | Path, serial: str, campaign: str, key: str) ->
         return None
     if not isinstance(s, dict) or s.get("key") != key:
         return None
-    if s.get("status") != "error" and not (
+    if s.get("status") != CampaignStatus.ERROR and not (
         (d / "calibration.json").is_file() and (d / "bundle/manifest.json").is_file()
     ):
         return None
@@ -95,19 +96,14 @@ def cached_summary(out_dir: str | Path, serial: str, campaign: str, key: str) ->
 
 
 def accept(fit: Mapping[str, Any], validation: Mapping[str, Any], rules: Mapping[str, Any]) -> tuple[bool, str]:
-    """Is a calibration good enough to serve? (accepted, reason)."""
-    if not fit.get("success"):
-        return False, f"the least-squares fit did not converge: {fit.get('message')}"
-    if fit.get("outlier_suspects"):
-        return False, "too many rows stand out: the model misses an effect (run robocal discover)"
-    after, before = float(fit["rms_position_mm"]), float(fit["before"]["rms_position_mm"])
-    ratio = float(rules.get("max_rms_ratio", 1.0))
-    if not after <= ratio * before:
-        return False, f"RMS after {after:.4f} mm is worse than {ratio:g} x before ({before:.4f} mm)"
-    vmax = rules.get("max_validation_mean_mm")
-    vmean = validation.get("mean_position_mm")
-    if vmax is not None and vmean is not None and float(vmean) > float(vmax):
-        return False, f"validation mean error {float(vmean):.4f} mm above the limit {float(vmax):g} mm"
+    """Is a calibration good enough to serve? (accepted, reason): the one rule
+    (:func:`robocal.identification.acceptance.judge`) with the fleet's levels (:data:`~robocal.identification.
+    acceptance.FLEET`) and ``rules`` (the ``acceptance`` settings); the reason is the first problem."""
+    from robocal.identification.acceptance import FLEET, AcceptanceRules, judge
+
+    verdict = judge(fit, validation, None, AcceptanceRules.from_mapping({**FLEET, **rules}))
+    if verdict.problems:
+        return False, verdict.problems[0]
     return True, "converged, not worse than before"
 
 
@@ -127,13 +123,13 @@ def _calibrate_one(
         result = robocal.calibrate(campaign, robot, CalibrationConfig.from_mapping(cal_cfg))
         validation = robocal.validate(result, campaign)
     except RobocalError as exc:  # bad data: recorded (and cached: the same bytes fail the same way)
-        summary = {**base, "status": "error", "accepted": False, "reason": str(exc)}
+        summary = {**base, "status": CampaignStatus.ERROR, "accepted": False, "reason": str(exc)}
         write_json(d / "summary.json", summary)
         return summary
     except Exception as exc:  # a bug or a numerical failure: reported, not cached (the next run tries again),
         # and the rest of the fleet goes on
         (d / "summary.json").unlink(missing_ok=True)
-        return {**base, "status": "error", "accepted": False, "reason": f"{type(exc).__name__}: {exc}"}
+        return {**base, "status": CampaignStatus.ERROR, "accepted": False, "reason": f"{type(exc).__name__}: {exc}"}
     cal = _strip_timings(result.to_dict())
     fit = cal["fit"]
     ok, reason = accept(fit, validation, rules)
@@ -145,7 +141,7 @@ def _calibrate_one(
     write_json(d / "bundle" / MANIFEST, manifest)
     summary = {
         **base,
-        "status": "ok" if ok else "rejected",
+        "status": CampaignStatus.OK if ok else CampaignStatus.REJECTED,
         "accepted": ok,
         "reason": reason,
         "fit": {

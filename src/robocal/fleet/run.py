@@ -23,6 +23,7 @@ from typing import Any
 import yaml
 
 from robocal.errors import ConfigError, RobocalError
+from robocal.status import CampaignStatus
 
 DEFAULT_CONFIG = Path(__file__).resolve().parents[3] / "conf" / "fleet" / "default.yaml"
 
@@ -141,9 +142,9 @@ def run_fleet(
         "counts": {
             "robots": len(fleet.robots),
             "campaigns": len(all_c),
-            "accepted": sum(1 for s in all_c if s["status"] == "ok"),
-            "rejected": sum(1 for s in all_c if s["status"] == "rejected"),
-            "errors": sum(1 for s in all_c if s["status"] == "error"),
+            "accepted": sum(1 for s in all_c if s["status"] == CampaignStatus.OK),
+            "rejected": sum(1 for s in all_c if s["status"] == CampaignStatus.REJECTED),
+            "errors": sum(1 for s in all_c if s["status"] == CampaignStatus.ERROR),
         },
         "settings": {k: cfg.get(k) for k in ("calibration", "acceptance", "drift")},
         "robots": [

@@ -5,8 +5,9 @@ from __future__ import annotations
 import fnmatch
 import re
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field, replace
+from types import MappingProxyType
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -21,10 +22,10 @@ from robocal.kinematics.chain import fk
 from robocal.kinematics.transforms import (
     inv_transform,
     kabsch,
-    matrix_to_rotvec,
     quat_to_matrix,
     rpy_from_matrix,
 )
+from robocal.metrics import ErrorStats, noise_floor, orientation_errors_deg, rotvec_errors_deg
 from robocal.robot import MDH, RobotDescription
 
 if TYPE_CHECKING:
@@ -32,6 +33,8 @@ if TYPE_CHECKING:
 
 
 NOISE_MODELS = ("constant", "u_mm", "distance")
+#: the order of the error statistics in the fit record (calibration.json ``fit`` and ``fit.before``)
+FIT_ORDER = ("rms", "mean", "max")
 
 
 def outlier_rule(value: Any) -> Any:
@@ -174,11 +177,32 @@ def register_frames(
 
 
 @dataclass(frozen=True, eq=False)
+class FitStart:
+    """Where a calibration started and which rows it kept (the "before" of :class:`CalibrationResult`).
+
+    x_init : the nominal model's best rigid fit on the kept rows (frames and tools fitted to convergence with
+    the nominal kinematics): the "before calibration" point; x_analysis : where the identifiability analysis
+    ran (``x_init`` before any row was left out); residuals_before_mm : (m, 3) at ``x_init``, every calibration
+    row; kept : (m,) the rows in the fit (not left out as gross errors); row_test : the gross-error row test
+    at the fit (:class:`robocal.identification.robust.RowTest`), None when the rule is off or rows are listed.
+    """
+
+    x_init: np.ndarray
+    x_analysis: np.ndarray
+    residuals_before_mm: np.ndarray
+    kept: np.ndarray
+    row_test: Any = None
+
+
+@dataclass(frozen=True, eq=False)
 class CalibrationResult:
     """A fitted calibration: parameters with standard errors, frames, tools and fit statistics.
 
     Immutable (derive a changed one with :func:`dataclasses.replace`); ``solver`` is the least-squares core's
-    :class:`~robocal.identification.result.FitResult` (χ², covariance, status, timings of the fit itself).
+    :class:`~robocal.identification.result.FitResult` (χ², covariance, status, timings of the fit itself);
+    ``start`` where the fit started and which rows it kept (None for a calibration read from a file);
+    ``effects`` the joint-level effects a discovery wrote into the calibration (``effects`` records of
+    ``calibration.json``, evaluated by :func:`robocal.discovery.effects.joint_offsets`).
     """
 
     model: CalibrationModel
@@ -188,12 +212,46 @@ class CalibrationResult:
     covariance: np.ndarray  # (k, k) over identified parameters, in their units
     identifiability: Identifiability
     fixed_by_user: tuple[str, ...]
-    fit: dict[str, Any]
+    statistics: dict[str, Any]  # the fit record without the solver's figures (see :attr:`fit`)
     residuals_mm: np.ndarray  # (m, 3)
     residuals_deg: np.ndarray | None
     config: CalibrationConfig
     solver: FitResult | None = None
-    extra: dict[str, Any] = field(default_factory=dict)
+    start: FitStart | None = None
+    effects: tuple[dict[str, Any], ...] = ()
+
+    @property
+    def extra(self) -> Mapping[str, Any]:
+        """The old untyped view (``x_init``, ``x_analysis``, ``residuals_before_mm``, ``kept``, ``row_test``,
+        ``effects``) of :attr:`start` and :attr:`effects`, read-only: for readers not yet switched to them."""
+        out: dict[str, Any] = {}
+        if self.start is not None:
+            out = {f: getattr(self.start, f) for f in FitStart.__dataclass_fields__}
+        if self.effects:
+            out["effects"] = list(self.effects)
+        return MappingProxyType(out)
+
+    @property
+    def fit(self) -> dict[str, Any]:
+        """The fit record (``calibration.json`` ``fit``, a new dict): :attr:`statistics` with the solver's
+        figures read from :attr:`solver` (:func:`solver_figures`: after ``n_eliminated`` the iterations,
+        evaluations and stopping status, after ``wall_time_s`` the solver's own time); the statistics alone
+        when there is no solver (a calibration read from a file keeps its figures there)."""
+        if self.solver is None:
+            return dict(self.statistics)
+        out: dict[str, Any] = {}
+        figures = solver_figures(self.solver)
+        for key, v in self.statistics.items():
+            out[key] = v
+            if key == "n_eliminated":
+                out.update({k: figures[k] for k in ("nit", "nfev", "status", "message", "success")})
+            elif key == "wall_time_s":
+                out["solver_time_s"] = figures["solver_time_s"]
+        return out
+
+    def with_statistics(self, **changes: Any) -> CalibrationResult:
+        """A copy with ``changes`` to the statistics (e.g. ``poorly_determined``)."""
+        return replace(self, statistics={**self.statistics, **changes})
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -205,9 +263,7 @@ class CalibrationResult:
 
     @property
     def correlation(self) -> np.ndarray:
-        d = np.sqrt(np.diag(self.covariance))
-        d[d == 0] = 1.0
-        return self.covariance / np.outer(d, d)
+        return correlation_of(self.covariance)
 
     @property
     def tracker_T_base(self) -> np.ndarray:
@@ -231,64 +287,120 @@ class CalibrationResult:
 
     def parameter_table(self) -> list[dict[str, Any]]:
         """One row per parameter: value and standard error in display units (mm, deg)."""
-        rows = []
-        for k, name in enumerate(self.names):
-            unit = self.model.units[k]
-            f = np.rad2deg(1.0) if unit == "rad" else 1.0
-            rows.append(
-                {
-                    "name": name,
-                    "kind": self.model.kinds[k],
-                    "unit": "deg" if unit == "rad" else unit,
-                    "value": float(self.x[k] * f),
-                    "stderr": float(self.stderr[k] * f) if self.identified[k] else None,
-                    "status": "identified"
-                    if self.identified[k]
-                    else ("fixed" if name in self.fixed_by_user else "eliminated"),
-                }
-            )
-        return rows
+        return parameter_table(self.model, self.x, self.stderr, self.identified, self.fixed_by_user)
 
     def to_dict(self) -> dict[str, Any]:
-        T = self.tracker_T_base
-        idx = np.flatnonzero(self.identified)
-        return {
-            "robot": self.model.robot.name,
-            "convention": self.model.robot.convention,
-            "nominal": nominal_record(self.model.robot),
-            "parameters": self.parameter_table(),
-            "kinematic_errors": {n: float(self.x[k]) for k, n in enumerate(self.model.chain.param_names)},
-            "eliminated": [e.to_dict() for e in self.eliminated],
-            "fixed": list(self.fixed_by_user),
-            "tracker_T_base": T.tolist(),
-            "tracker_T_base_xyz_mm": T[:3, 3].tolist(),
-            "tracker_T_base_rpy_deg": np.rad2deg(rpy_from_matrix(T[:3, :3])).tolist(),
-            "tools_mm": {k: v.tolist() for k, v in self.tools.items()},
-            "tool_rotations": {
-                k: R.tolist() for k, R in zip(self.model.target_names, self.model.tool_rotations(self.x), strict=True)
-            },
-            "stations": list(self.model.station_names),
-            "stations_T_base": {
-                s: self.model.base_transform(self.x, k).tolist() for k, s in enumerate(self.model.station_names)
-            },
-            "station_T_ref": self.model.station_T_ref.tolist(),
-            "T_ref": self.model.T_ref.tolist(),
-            "tool_R_ref": self.model.tool_R_ref.tolist(),
-            "orientation": self.model.orientation,
-            "x": self.x.tolist(),
-            "names": list(self.names),
-            "correlation": {
-                "names": [self.names[i] for i in idx],
-                "matrix": self.correlation.tolist(),
-            },
-            "identifiability": {
-                "rank": self.identifiability.rank,
-                "n_candidates": int(len(self.identifiability.kept) + len(self.eliminated)),
-                "condition_number": self.identifiability.condition_number,
-            },
-            "fit": self.fit,
-            "config": {k: getattr(self.config, k) for k in self.config.__dataclass_fields__},
-        }
+        """The ``calibration.json`` record (:func:`calibration_record`)."""
+        return calibration_record(
+            self.model,
+            self.x,
+            self.identified,
+            self.stderr,
+            self.covariance,
+            self.identifiability,
+            self.fixed_by_user,
+            self.fit,
+            self.config,
+        )
+
+
+def solver_figures(fr: FitResult) -> dict[str, Any]:
+    """What the fit record says of the solve that produced a calibration's point: iterations, evaluations,
+    stopping status and message, success, the solve's own time (``solver_time_s``)."""
+    return {
+        "nit": fr.nit,
+        "nfev": fr.nfev,
+        "status": fr.status,
+        "message": fr.message,
+        "success": fr.success,
+        "solver_time_s": fr.wall_time_s,
+    }
+
+
+def correlation_of(covariance: np.ndarray) -> np.ndarray:
+    """The correlation matrix of a covariance (a zero variance reads as 1: its row and column stay 0)."""
+    d = np.sqrt(np.diag(covariance))
+    d[d == 0] = 1.0
+    return covariance / np.outer(d, d)
+
+
+def parameter_table(
+    model: CalibrationModel, x: np.ndarray, stderr: np.ndarray, identified: np.ndarray, fixed: tuple[str, ...]
+) -> list[dict[str, Any]]:
+    """One row per parameter of ``model``: value and standard error in display units (mm, deg) and status
+    (identified, fixed by the user, or eliminated)."""
+    rows = []
+    for k, name in enumerate(model.names):
+        unit = model.units[k]
+        f = np.rad2deg(1.0) if unit == "rad" else 1.0
+        rows.append(
+            {
+                "name": name,
+                "kind": model.kinds[k],
+                "unit": "deg" if unit == "rad" else unit,
+                "value": float(x[k] * f),
+                "stderr": float(stderr[k] * f) if identified[k] else None,
+                "status": "identified" if identified[k] else ("fixed" if name in fixed else "eliminated"),
+            }
+        )
+    return rows
+
+
+def calibration_record(
+    model: CalibrationModel,
+    x: np.ndarray,
+    identified: np.ndarray,
+    stderr: np.ndarray,
+    covariance: np.ndarray,
+    identifiability: Identifiability,
+    fixed: tuple[str, ...],
+    fit: Mapping[str, Any],
+    config: CalibrationConfig,
+) -> dict[str, Any]:
+    """The ``calibration.json`` record of a calibration given by its parts (what :func:`load_calibration`
+    reads back): :meth:`CalibrationResult.to_dict`, and any model that writes the geometric format (the
+    discovered model's geometry) without being a fitted :class:`CalibrationResult`.
+
+    x : (n,) every parameter of ``model``; identified : (n,) bool; stderr : (n,) NaN where not identified;
+    covariance : (k, k) over the identified ones; fixed : parameters fixed by the user; fit : the fit record
+    (``fit`` of the file); config : the settings recorded under ``config``."""
+    T = model.base_transform(x)
+    idx = np.flatnonzero(identified)
+    names = model.names
+    elim = identifiability.eliminated
+    return {
+        "robot": model.robot.name,
+        "convention": model.robot.convention,
+        "nominal": nominal_record(model.robot),
+        "parameters": parameter_table(model, x, stderr, identified, fixed),
+        "kinematic_errors": {n: float(x[k]) for k, n in enumerate(model.chain.param_names)},
+        "eliminated": [e.to_dict() for e in elim],
+        "fixed": list(fixed),
+        "tracker_T_base": T.tolist(),
+        "tracker_T_base_xyz_mm": T[:3, 3].tolist(),
+        "tracker_T_base_rpy_deg": np.rad2deg(rpy_from_matrix(T[:3, :3])).tolist(),
+        "tools_mm": {name: t.tolist() for name, t in zip(model.target_names, model.tools(x), strict=True)},
+        "tool_rotations": {k: R.tolist() for k, R in zip(model.target_names, model.tool_rotations(x), strict=True)},
+        "stations": list(model.station_names),
+        "stations_T_base": {s: model.base_transform(x, k).tolist() for k, s in enumerate(model.station_names)},
+        "station_T_ref": model.station_T_ref.tolist(),
+        "T_ref": model.T_ref.tolist(),
+        "tool_R_ref": model.tool_R_ref.tolist(),
+        "orientation": model.orientation,
+        "x": x.tolist(),
+        "names": list(names),
+        "correlation": {
+            "names": [names[i] for i in idx],
+            "matrix": correlation_of(covariance).tolist(),
+        },
+        "identifiability": {
+            "rank": identifiability.rank,
+            "n_candidates": int(len(identifiability.kept) + len(elim)),
+            "condition_number": identifiability.condition_number,
+        },
+        "fit": fit,
+        "config": {k: getattr(config, k) for k in config.__dataclass_fields__},
+    }
 
 
 #: tolerance of the nominal-table comparison (mm and deg): calibration.json keeps 9 significant digits
@@ -360,8 +472,8 @@ def check_robot(data: dict[str, Any], robot: RobotDescription, where: str = "the
 def load_calibration(data: dict[str, Any], robot: RobotDescription) -> CalibrationResult:
     """Rebuild a :class:`CalibrationResult` (enough to predict and compensate) from :meth:`to_dict` output.
 
-    A calibration written by discovery also carries joint-level ``effects`` (in ``extra["effects"]``) and, when
-    it freed a Hayati beta, the robot's ``beta_free``. A calibration of another robot (name, joint count,
+    A calibration written by discovery also carries joint-level ``effects`` (:attr:`CalibrationResult.effects`)
+    and, when it freed a Hayati beta, the robot's ``beta_free``. A calibration of another robot (name, joint count,
     nominal table: :func:`check_robot`) is refused."""
     check_robot(data, robot)
     if "beta_free" in data:
@@ -420,11 +532,11 @@ def load_calibration(data: dict[str, Any], robot: RobotDescription) -> Calibrati
         cov,
         ident,
         tuple(data.get("fixed", ())),
-        data["fit"],
+        dict(data["fit"]),
         np.zeros((0, 3)),
         None,
         cfg,
-        extra={"effects": list(data.get("effects") or [])},
+        effects=tuple(data.get("effects") or ()),
     )
 
 
@@ -453,8 +565,8 @@ def fit_statistics(
     r_rot: np.ndarray | None = None,
     sigma_mm: np.ndarray | None = None,
 ) -> dict[str, Any]:
-    """RMS / mean / max of 3-D errors and chi² against the configured noise (``sigma_mm`` (m,): per point)."""
-    e = np.linalg.norm(r_pos, axis=1)
+    """RMS / mean / max of 3-D errors (:class:`~robocal.metrics.ErrorStats`) and chi² against the configured noise
+    (``sigma_mm`` (m,): per point); the noise floor (:func:`~robocal.metrics.noise_floor`) of a positions-only fit."""
     m = r_pos.shape[0]
     M = 3 * m
     sig = np.full(m, cfg.noise_mm) if sigma_mm is None else np.asarray(sigma_mm, dtype=float)
@@ -463,14 +575,13 @@ def fit_statistics(
         M += 3 * m
         chi2 += float(np.sum(r_rot**2) / np.deg2rad(cfg.noise_deg) ** 2)
     dof = max(M - n_params, 1)
+    stats = ErrorStats.of(r_pos, None if r_rot is None else rotvec_errors_deg(r_rot))
     out: dict[str, Any] = {
         "n_rows": int(m),
         "n_residuals": int(M),
         "n_params": int(n_params),
-        "rms_position_mm": float(np.sqrt(np.mean(e**2))),
-        "mean_position_mm": float(np.mean(e)),
-        "max_position_mm": float(np.max(e)),
-        "noise_floor_rms_mm": float(np.sqrt(np.mean(sig**2)) * np.sqrt(3.0 * dof / M)) if r_rot is None else None,
+        **stats.position(FIT_ORDER),
+        "noise_floor_rms_mm": noise_floor(sig, M, n_params) if r_rot is None else None,
         "chi2": chi2,
         "dof": int(dof),
         "reduced_chi2": chi2 / dof,
@@ -479,11 +590,7 @@ def fit_statistics(
         "chi2_p_value": float(special.chdtrc(dof, chi2)),
     }
     out["chi2_within_band"] = bool(out["chi2_band_95"][0] <= chi2 <= out["chi2_band_95"][1])
-    if r_rot is not None:
-        eo = np.rad2deg(np.linalg.norm(r_rot, axis=1))
-        out["rms_orientation_deg"] = float(np.sqrt(np.mean(eo**2)))
-        out["mean_orientation_deg"] = float(np.mean(eo))
-        out["max_orientation_deg"] = float(np.max(eo))
+    out.update(stats.orientation(FIT_ORDER))
     return out
 
 
@@ -819,13 +926,7 @@ def calibration_result(start: CalibrationStart, screened: Screened) -> Calibrati
         {
             "n_identified": k,
             "n_eliminated": len(ident.eliminated),
-            "nit": lm.nit,
-            "nfev": lm.nfev,
-            "status": lm.status,
-            "message": lm.message,
-            "success": lm.success,
             "wall_time_s": time.perf_counter() - start.t0,
-            "solver_time_s": lm.wall_time_s,
             "targets": list(start.targets),
             "stations": list(start.stations),
             "uses_orientation": use_rot,
@@ -839,11 +940,8 @@ def calibration_result(start: CalibrationStart, screened: Screened) -> Calibrati
         }
     )
     before_pos = r0[: 3 * m].reshape(-1, 3)
-    e0 = np.linalg.norm(before_pos[kept], axis=1)
     fit["before"] = {
-        "rms_position_mm": float(np.sqrt(np.mean(e0**2))),
-        "mean_position_mm": float(np.mean(e0)),
-        "max_position_mm": float(np.max(e0)),
+        **ErrorStats.of(before_pos[kept]).position(FIT_ORDER),
         "definition": "nominal kinematics with frames and tools fitted to convergence (best rigid fit), kept rows",
     }
     # judged on the design (the standard errors the configured noise would give): a fit that stopped early or a
@@ -860,18 +958,12 @@ def calibration_result(start: CalibrationStart, screened: Screened) -> Calibrati
         covariance=cov,
         identifiability=ident,
         fixed_by_user=tuple(sorted(start.fixed - start.held)),
-        fit=fit,
+        statistics=fit,
         residuals_mm=r_pos,
         residuals_deg=None if r_rot is None else np.rad2deg(r_rot),
         config=cfg,
         solver=lm,
-        extra={
-            "x_init": x_init,
-            "x_analysis": x_analysis,
-            "residuals_before_mm": before_pos,
-            "kept": kept,
-            "row_test": test,
-        },
+        start=FitStart(x_init, x_analysis, before_pos, kept, test),
     )
 
 
@@ -896,13 +988,12 @@ def calibrate(
     """
     cfg = config or CalibrationConfig()
     res = fit_from(calibration_start(campaign, robot, cfg, x0))
-    poor = res.fit.get("poorly_determined") or []
+    poor = res.statistics.get("poorly_determined") or []
     if cfg.poorly_determined == "report" or not poor:
         return res
     if len(poor) >= int(res.identified.sum()):  # holding them all would leave nothing to fit: report only
         why = "reported: holding every poorly determined parameter would leave nothing to fit"
-        res.fit["poorly_determined"] = [{**p, "action": why} for p in poor]
-        return res
+        return res.with_statistics(poorly_determined=[{**p, "action": why} for p in poor])
     # held one at a time, the worst determined first (holding one of a correlated pair usually determines the
     # other), at its start (nominal, or the registration's frame and tool), and the rest fitted again
     held: list[str] = []
@@ -913,15 +1004,15 @@ def calibrate(
         held.append(worst["name"])
         records.append({**worst, "action": action})
         nxt = fit_from(calibration_start(campaign, robot, cfg, x0, held=tuple(held)))
-        poor = nxt.fit.get("poorly_determined") or []
+        poor = nxt.statistics.get("poorly_determined") or []
         if len(poor) >= int(nxt.identified.sum()):
             break
         res = nxt
-    res.fit["poorly_determined"] = records + [
+    left = [
         {**p, "action": "reported: holding it would leave nothing to fit"}
-        for p in (res.fit.get("poorly_determined") or [])
+        for p in (res.statistics.get("poorly_determined") or [])
     ]
-    return res
+    return res.with_statistics(poorly_determined=records + left)
 
 
 def poorly_determined(model: CalibrationModel, stderr: np.ndarray, cfg: CalibrationConfig) -> list[dict[str, Any]]:
@@ -947,11 +1038,71 @@ def poorly_determined(model: CalibrationModel, stderr: np.ndarray, cfg: Calibrat
     return out
 
 
-def validate(result: CalibrationResult, campaign: Campaign, x: np.ndarray | None = None) -> dict[str, Any]:
+@dataclass(frozen=True, eq=False)
+class Validation(Mapping[str, Any]):
+    """Errors of a model on a campaign's validation rows (:func:`validate_rows`, :func:`validate`).
+
+    stats : over the rows evaluated (``stats.n`` of them; the registration rows of a station or a target not
+    seen in calibration are left out); errors_mm : (m, 3) prediction - measurement of every validation row;
+    kept_rows : (m,) the rows evaluated; tool_source / tools_mm / station_source : where each target's tool
+    offset and each station's frame came from (``station_source`` None when every station is the calibration's).
+
+    Read as a mapping it is the record ``robocal.validate`` has always returned (``v["mean_position_mm"]``,
+    ``v["errors_mm"]`` ...; :meth:`to_dict`); :meth:`record` is that record without the arrays (summary.json).
+    """
+
+    stats: ErrorStats
+    errors_mm: np.ndarray | None = None
+    kept_rows: np.ndarray | None = None
+    tool_source: dict[str, str] = field(default_factory=dict)
+    tools_mm: dict[str, list[float]] = field(default_factory=dict)
+    station_source: dict[str, str] | None = None
+
+    @classmethod
+    def none(cls) -> Validation:
+        """No validation rows."""
+        return cls(ErrorStats.of(np.zeros(0)))
+
+    @property
+    def n_rows(self) -> int:
+        return self.stats.n
+
+    def to_dict(self) -> dict[str, Any]:
+        """The record (keys and order as the files have them; ``{"n_rows": 0}`` without validation rows)."""
+        if self.errors_mm is None:
+            return {"n_rows": 0}
+        out: dict[str, Any] = {
+            "n_rows": self.n_rows,
+            **self.stats.position(),
+            "tool_source": self.tool_source,
+            "tools_mm": self.tools_mm,
+            "errors_mm": self.errors_mm,
+            "kept_rows": self.kept_rows,
+        }
+        if self.station_source is not None:
+            out["station_source"] = self.station_source
+        out.update(self.stats.orientation(("mean", "max", "rms")))
+        return out
+
+    def record(self) -> dict[str, Any]:
+        """:meth:`to_dict` without the per-row arrays (``errors_mm``, ``kept_rows``)."""
+        return {k: v for k, v in self.to_dict().items() if k not in ("errors_mm", "kept_rows")}
+
+    def __getitem__(self, key: str) -> Any:
+        return self.to_dict()[key]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self.to_dict())
+
+    def __len__(self) -> int:
+        return len(self.to_dict())
+
+
+def validate(result: CalibrationResult, campaign: Campaign, x: np.ndarray | None = None) -> Validation:
     """Errors of the calibrated model on the campaign's validation rows (see :func:`validate_rows`)."""
     val = campaign.validation()
     if val.n_rows == 0:
-        return {"n_rows": 0}
+        return Validation.none()
     model = result.model
     x = result.x if x is None else x
     eta = x[: model.chain.n_params]
@@ -971,7 +1122,7 @@ def validate_rows(
     tools: dict[str, np.ndarray],
     tool_R: dict[str, np.ndarray] | None = None,
     dp_mm: np.ndarray | None = None,
-) -> dict[str, Any]:
+) -> Validation:
     """Errors of a model's predictions on validation rows, with the tool and station handling every caller
     shares (geometric calibration and discovery alike).
 
@@ -1042,34 +1193,21 @@ def validate_rows(
     err = pred - val.p_mm
     if not keep.any():
         raise ConfigError(f"no validation row of {val.poses_file} is left to evaluate after registration")
-    e = np.linalg.norm(err[keep], axis=1)
-    out: dict[str, Any] = {
-        "n_rows": int(keep.sum()),
-        "mean_position_mm": float(e.mean()),
-        "rms_position_mm": float(np.sqrt(np.mean(e**2))),
-        "max_position_mm": float(e.max()),
-        "tool_source": tool_source,
-        "tools_mm": tools_used,
-        "errors_mm": err,
-        "kept_rows": keep,
-    }
-    if len(station_source) > 1 or any(v != "calibration" for v in station_source.values()):
-        out["station_source"] = station_source
+    eo = None
     if val.quat is not None and tool_R is not None and all(t in tools for t in val.target_names):
         R = T_fl[:, :3, :3] @ np.stack([tool_R[str(t)] for t in val.target])
-        rv = matrix_to_rotvec(R @ np.swapaxes(quat_to_matrix(val.quat), -1, -2))
-        eo = np.rad2deg(np.linalg.norm(rv[keep], axis=1))
-        out.update(
-            mean_orientation_deg=float(eo.mean()),
-            max_orientation_deg=float(eo.max()),
-            rms_orientation_deg=float(np.sqrt(np.mean(eo**2))),
-        )
-    return out
+        eo = orientation_errors_deg(R[keep], quat_to_matrix(val.quat[keep]))
+    shown = len(station_source) > 1 or any(v != "calibration" for v in station_source.values())
+    return Validation(
+        ErrorStats.of(err[keep], eo), err, keep, tool_source, tools_used, station_source if shown else None
+    )
 
 
 __all__ = [
     "CalibrationConfig",
     "CalibrationResult",
+    "FitStart",
+    "Validation",
     "calibrate",
     "fit_data",
     "fit_statistics",

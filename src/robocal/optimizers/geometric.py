@@ -21,7 +21,6 @@ gradient-versus-other fork is written here once (:func:`is_gradient`).
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
@@ -31,6 +30,7 @@ import numpy as np
 
 from robocal.errors import ConfigError
 from robocal.identification.calibrate import (
+    FIT_ORDER,
     CalibrationConfig,
     CalibrationResult,
     CalibrationStart,
@@ -39,6 +39,8 @@ from robocal.identification.calibrate import (
     fit_from,
 )
 from robocal.identification.result import FitResult
+from robocal.metrics import noise_floor as floor_of
+from robocal.metrics import position_keys
 from robocal.optimizers.calibration import CalibrationSearch, calibration_problem
 from robocal.optimizers.protocol import Problem, evaluate_batch
 from robocal.optimizers.registry import make_optimizer, pipeline_options, registered
@@ -63,6 +65,8 @@ __all__ = [
 
 #: Gauss-Newton settings of the polish (conf/optimizer/gn.yaml).
 POLISH: dict[str, Any] = {"max_iter": 30, "ftol": 1e-12, "xtol": 1e-10}
+#: the fit figures the comparison of raw and polished results reads (the fit record's keys and order)
+COMPARED = (*position_keys(FIT_ORDER), "chi2")
 #: the stopping rules of the gradient family, read from its optimizer config into the CalibrationConfig
 GRADIENT_KEYS = ("max_iter", "ftol", "xtol")
 
@@ -81,7 +85,7 @@ class FitOutcome:
     result: CalibrationResult  # the final calibration (polished when polish is on)
     raw: CalibrationResult  # at the optimizer's point
     polished: CalibrationResult | None
-    optimize: FitResult | None  # the optimizer's own result; None for gn / lm (calibrate's is result.solver)
+    optimize: FitResult | None  # the optimizer's own result (raw.solver); None for gn / lm (result.solver)
     options: dict[str, Any] = field(default_factory=dict)
     times: dict[str, float] = field(default_factory=dict)
 
@@ -89,12 +93,7 @@ class FitOutcome:
         """The honest comparison: what the method reached alone, and after the polish."""
         out: dict[str, Any] = {
             "method": self.method,
-            "raw": {
-                "rms_position_mm": self.raw.fit["rms_position_mm"],
-                "mean_position_mm": self.raw.fit["mean_position_mm"],
-                "max_position_mm": self.raw.fit["max_position_mm"],
-                "chi2": self.raw.fit["chi2"],
-            },
+            "raw": {k: self.raw.fit[k] for k in COMPARED},
             "options": {k: v for k, v in self.options.items() if isinstance(v, str | int | float | bool) or v is None},
             "times_s": dict(self.times),
         }
@@ -112,28 +111,15 @@ class FitOutcome:
             )
         if self.polished is not None:
             p = self.polished
-            out["polished"] = {
-                "rms_position_mm": p.fit["rms_position_mm"],
-                "mean_position_mm": p.fit["mean_position_mm"],
-                "max_position_mm": p.fit["max_position_mm"],
-                "chi2": p.fit["chi2"],
-                "nit": p.fit["nit"],
-                "solver_time_s": p.fit["solver_time_s"],
-            }
+            out["polished"] = {k: p.fit[k] for k in (*COMPARED, "nit", "solver_time_s")}
         return out
 
 
 def noise_floor(noise_mm: float, m: int, k: int, objective: str = "nonlinear") -> float:
-    """Expected best fitness (mm) with ``m`` poses, ``k`` fitted parameters, noise ``noise_mm`` per coordinate.
-
-    RMS 3-D: ``sigma sqrt(3 (m - k/3) / m)`` (``3m - k`` residual degrees of freedom over ``m`` points);
-    mean 3-D (linearised objective): the mean of a 3-D normal's norm, ``sigma sqrt(8 / pi)``, with the
-    same dof correction.
-    """
-    dof_share = max(3 * m - k, 1) / (3 * m)
-    if objective == "linearized":
-        return float(noise_mm * math.sqrt(8.0 / math.pi) * math.sqrt(dof_share))
-    return float(noise_mm * math.sqrt(3.0 * dof_share))
+    """Expected best fitness (mm) with ``m`` poses, ``k`` fitted parameters, noise ``noise_mm`` per coordinate:
+    :func:`robocal.metrics.noise_floor` over the ``3 m`` position residuals, the RMS 3-D error for the
+    nonlinear objective and the mean 3-D error for the linearised one."""
+    return floor_of(noise_mm, 3 * m, k, "mean" if objective == "linearized" else "rms")
 
 
 def position_config(cfg: CalibrationConfig) -> CalibrationConfig:
@@ -239,20 +225,9 @@ def fit_with_optimizer(
     t2 = time.perf_counter()
     x_raw = search.full(res.x)
     at = fit_from(start, solve_at(x_raw))  # the statistics at the optimizer's point ...
-    raw = replace(  # ... with the optimizer's own figures; its config says the least-squares core made no step
-        at,
-        config=replace(at.config, max_iter=0),
-        fit={
-            **at.fit,
-            "nit": res.nit,
-            "nfev": res.nfev,
-            "status": res.status,
-            "message": res.message,
-            "success": res.success,
-            "solver_time_s": res.wall_time_s,
-            "wall_time_s": t2 - t0 - warmup_s,  # the method's own time, not the statistics
-        },
-    )
+    # ... whose solve is the optimizer's (its FitResult gives the fit record's iterations, status and time); its
+    # config says the least-squares core made no step; its wall time is the method's own, not the statistics'
+    raw = replace(at, config=replace(at.config, max_iter=0), solver=res).with_statistics(wall_time_s=t2 - t0 - warmup_s)
     options["noise_floor_fitness_mm"] = floor
     options["stop_fitness_mm"] = problem.target
     polished = None
@@ -266,11 +241,9 @@ def fit_with_optimizer(
         "polish_s": time.perf_counter() - t3 if polished is not None else 0.0,
     }
     if polished is not None:  # the final result's time is the whole fit: method + polish
-        polished = replace(
-            polished,
-            config=replace(polished.config, **POLISH),  # the settings of the polish (its stopping rules)
-            fit={**polished.fit, "wall_time_s": raw.fit["wall_time_s"] + times["polish_s"]},
-        )
+        polished = replace(  # the settings of the polish (its stopping rules)
+            polished, config=replace(polished.config, **POLISH)
+        ).with_statistics(wall_time_s=raw.statistics["wall_time_s"] + times["polish_s"])
     return FitOutcome(name, polished or raw, raw, polished, res, options, times)
 
 

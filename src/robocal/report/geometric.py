@@ -9,19 +9,24 @@ import numpy as np
 
 from robocal.io import is_reproducible
 from robocal.kinematics.transforms import rpy_from_matrix
+from robocal.metrics import ErrorStats
 from robocal.report import plots
 from robocal.report.html import Report
 
 if TYPE_CHECKING:
     from robocal.data.contract import Campaign
-    from robocal.identification.calibrate import CalibrationResult
+    from robocal.identification.calibrate import CalibrationResult, Validation
+
+
+def _mean_rms_max(s: ErrorStats) -> str:
+    return f"{s.mean_mm:.4f} / {s.rms_mm:.4f} / {s.max_mm:.4f}"
 
 
 def geometric_report(
     result: CalibrationResult,
     campaign: Campaign,
-    validation: dict[str, Any] | None,
-    validation_before: dict[str, Any] | None,
+    validation: Validation | None,
+    validation_before: Validation | None,
     summary: dict[str, Any],
 ) -> Report:
     """Error before/after per pose, histograms, parameter table with standard errors, eliminated
@@ -96,10 +101,9 @@ def geometric_report(
             caption=f"Noise the data imply; used to judge residuals: {noise['used_mm']:.4f} mm, "
             f"{noise['used_because']}",
         )
-    kept = result.extra.get("kept")
-    if kept is None:
-        kept = np.ones(len(result.residuals_mm), dtype=bool)
-    before = np.linalg.norm(result.extra["residuals_before_mm"], axis=1)[kept]
+    assert result.start is not None  # a fitted calibration (not one read from a file)
+    kept = result.start.kept
+    before = np.linalg.norm(result.start.residuals_before_mm, axis=1)[kept]
     after = np.linalg.norm(result.residuals_mm, axis=1)[kept]
     cal_all = campaign.calibration() if validation else campaign
     cal = cal_all.subset(kept)
@@ -120,17 +124,16 @@ def geometric_report(
         rep.heading("Validation")
         rep.kv(
             {
-                "rows": str(validation["n_rows"]),
-                "mean / RMS / max after (mm)": f"{validation['mean_position_mm']:.4f} / "
-                f"{validation['rms_position_mm']:.4f} / {validation['max_position_mm']:.4f}",
-                "mean / RMS / max before (mm)": f"{validation_before['mean_position_mm']:.4f} / "
-                f"{validation_before['rms_position_mm']:.4f} / {validation_before['max_position_mm']:.4f}",
-                **{f"tool of {k}": v for k, v in validation["tool_source"].items()},
+                "rows": str(validation.n_rows),
+                "mean / RMS / max after (mm)": _mean_rms_max(validation.stats),
+                "mean / RMS / max before (mm)": _mean_rms_max(validation_before.stats),
+                **{f"tool of {k}": v for k, v in validation.tool_source.items()},
             }
         )
-        keep = validation["kept_rows"]
-        vb = np.linalg.norm(validation_before["errors_mm"][keep], axis=1)
-        va = np.linalg.norm(validation["errors_mm"][keep], axis=1)
+        keep = validation.kept_rows
+        assert keep is not None and validation.errors_mm is not None and validation_before.errors_mm is not None
+        vb = np.linalg.norm(validation_before.errors_mm[keep], axis=1)
+        va = np.linalg.norm(validation.errors_mm[keep], axis=1)
         val = campaign.validation()
         vl = [f"{p}/{t}" for p, t in zip(val.pose_id[keep], val.target[keep], strict=True)]
         rep.figure(plots.error_per_pose(vb, va, vl), "Validation rows: 3-D error before and after")

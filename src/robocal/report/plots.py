@@ -25,6 +25,7 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
 from robocal.io import write_bytes
+from robocal.metrics import ErrorStats
 
 __all__ = [
     "AFTER_COLOR",
@@ -123,7 +124,8 @@ def _labels(labels: Any, n: int, func: str, name: str = "labels") -> list[str]:
 
 
 def _stats(e: np.ndarray) -> str:
-    return f"mean {e.mean():.3g}, RMS {np.sqrt(np.mean(e**2)):.3g}, max {e.max():.3g}"
+    st = ErrorStats.of(e)
+    return f"mean {st.mean_mm:.3g}, RMS {st.rms_mm:.3g}, max {st.max_mm:.3g}"
 
 
 # ---------------------------------------------------------------------------- plots
@@ -199,9 +201,10 @@ def error_histogram(before_mm: Any, after_mm: Any, bins: int = 20, xlabel: str =
     axes = fig.subplots(1, 2)
     for ax, e, color, title in ((axes[0], before, BEFORE_COLOR, "before"), (axes[1], after, AFTER_COLOR, "after")):
         ax.hist(e, bins=int(bins), color=color, alpha=0.85, edgecolor="white", linewidth=0.5)
-        ax.axvline(e.mean(), color="k", ls="--", lw=1.0, label=f"mean {e.mean():.3g}")
-        ax.axvline(np.sqrt(np.mean(e**2)), color="k", ls=":", lw=1.0, label=f"RMS {np.sqrt(np.mean(e**2)):.3g}")
-        ax.set_title(f"{title}: n = {e.size}, max {e.max():.3g}")
+        st = ErrorStats.of(e)
+        ax.axvline(st.mean_mm, color="k", ls="--", lw=1.0, label=f"mean {st.mean_mm:.3g}")
+        ax.axvline(st.rms_mm, color="k", ls=":", lw=1.0, label=f"RMS {st.rms_mm:.3g}")
+        ax.set_title(f"{title}: n = {st.n}, max {st.max_mm:.3g}")
         ax.set_xlabel(xlabel)
         ax.set_ylabel("count")
         ax.yaxis.set_major_locator(MaxNLocator(integer=True))

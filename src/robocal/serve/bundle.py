@@ -266,7 +266,7 @@ def load_bundle(path: str | Path, loaders: Mapping[str, Loader] | None = None) -
         t_hi=t_hi,
         manifest=manifest,
         bundle_id=digest,
-        effects=tuple(cal.extra.get("effects") or ()),
+        effects=cal.effects,
     )
 
 

@@ -24,6 +24,7 @@ from robocal.compensation import desired_poses
 from robocal.compensation.safety import SafetyPolicy
 from robocal.identification.calibrate import CalibrationResult
 from robocal.kinematics.transforms import matrix_to_rotvec, quat_to_matrix
+from robocal.metrics import ErrorStats, orientation_errors_deg
 from robocal.thermal.compensate import compensate_targets, nominal_robot, true_robot
 from robocal.thermal.model import ThermalModel
 
@@ -75,16 +76,10 @@ def _truth_predict(
 
 
 def _stats(e_pos: np.ndarray, e_deg: np.ndarray | None) -> dict[str, float]:
-    if e_pos.size == 0:  # nothing to score (e.g. every target refused by the compensation)
-        nan = float("nan")
-        out = {"mean_position_mm": nan, "max_position_mm": nan, "rms_position_mm": nan}
-        return out if e_deg is None else {**out, "mean_orientation_deg": nan, "max_orientation_deg": nan}
-    out = {"mean_position_mm": float(np.mean(e_pos)), "max_position_mm": float(np.max(e_pos))}
-    out["rms_position_mm"] = float(np.sqrt(np.mean(e_pos**2)))
-    if e_deg is not None:
-        out["mean_orientation_deg"] = float(np.mean(e_deg))
-        out["max_orientation_deg"] = float(np.max(e_deg))
-    return out
+    """Mean / max / RMS of the position errors and mean / max of the orientation errors (NaN with no rows:
+    e.g. every target refused by the compensation)."""
+    st = ErrorStats.of(e_pos, e_deg)
+    return {**st.position(("mean", "max", "rms")), **st.orientation(("mean", "max"))}
 
 
 def evaluate(
@@ -128,7 +123,7 @@ def evaluate(
         e = np.linalg.norm(p - val.p_mm, axis=1)
         ed = None
         if R_meas is not None:
-            ed = np.rad2deg(np.linalg.norm(matrix_to_rotvec(R @ np.swapaxes(R_meas, -1, -2)), axis=1))
+            ed = orientation_errors_deg(R, R_meas)
         errors[name] = e
         errors_deg[name] = ed
         table[name] = _stats(e, ed)

@@ -51,7 +51,7 @@ def run(
         raise ConfigError(f"campaign {camp.source}: every payload_kg is 0; nothing to identify compliance from")
     geo = geometric_step(camp, rob, cfg)
     cfit = fit_compliance(camp, rob, geo, cfg)
-    conditions = accuracy_by_condition(camp, geo, cfit, geo.extra.get("x_init"))
+    conditions = accuracy_by_condition(camp, geo, cfit, None if geo.start is None else geo.start.x_init)
     table = load_table(conditions)
     unloaded_cal = camp.subset((camp.split == "calibration") & (camp.payload_kg <= cfg.unloaded_max_kg))
     decoupled: dict[str, Any] | None

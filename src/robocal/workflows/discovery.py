@@ -17,6 +17,7 @@ from robocal.discovery.summary import summary
 from robocal.discovery.validate import validation_errors
 from robocal.io import write_json
 from robocal.robot import RobotDescription
+from robocal.status import TargetStatus
 from robocal.workflows import campaign_of, robot_of
 
 
@@ -294,7 +295,7 @@ def write_product(res: DiscoveryResult, summ: dict[str, Any], out: Path) -> str 
     qc = np.zeros((len(idx), sub.n_joints))
     cmd = np.zeros((len(idx), 4, 4))
     res_mm = np.zeros((len(idx), 3))
-    status = np.full(len(idx), "ok", dtype=object)
+    status = np.full(len(idx), TargetStatus.OK, dtype=object)
     reason = np.full(len(idx), "", dtype=object)
     corr_max = np.zeros(len(idx))
     for t in dict.fromkeys(tgt):
@@ -310,7 +311,7 @@ def write_product(res: DiscoveryResult, summ: dict[str, Any], out: Path) -> str 
             None if sub.direction is None else sub.direction[r],
         )
         assert comp.status is not None and comp.reasons is not None
-        refused = np.array([x == "refused" for x in comp.status], dtype=bool)
+        refused = np.array([x == TargetStatus.REFUSED for x in comp.status], dtype=bool)
         qc[rows] = np.where(refused[:, None], comp.q_target, comp.q)
         cmd[rows] = np.where(refused[:, None, None], fk(cal.model.chain, comp.q_target) @ _tool_T(cal, t), c)
         res_mm[rows] = np.where(refused[:, None], comp.error_before_mm, comp.residual_mm)

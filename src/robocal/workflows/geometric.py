@@ -11,14 +11,17 @@ import numpy as np
 import pandas as pd
 
 from robocal.data.contract import Campaign
-from robocal.identification.calibrate import CalibrationConfig, CalibrationResult, calibrate, validate
+from robocal.identification.acceptance import judge
+from robocal.identification.calibrate import CalibrationConfig, CalibrationResult, Validation, calibrate, validate
 from robocal.io import atomic_write, write_json
+from robocal.metrics import ErrorStats
 from robocal.optimizers.geometric import fit_with_optimizer, is_gradient
 from robocal.robot import RobotDescription
+from robocal.status import CampaignStatus
 from robocal.workflows import campaign_of, robot_of
 
 
-def summarise(result: CalibrationResult, validation: dict[str, Any] | None) -> dict[str, Any]:
+def summarise(result: CalibrationResult, validation: Validation | None) -> dict[str, Any]:
     fit = dict(result.fit)
     summary: dict[str, Any] = {
         "robot": result.model.robot.name,
@@ -27,25 +30,15 @@ def summarise(result: CalibrationResult, validation: dict[str, Any] | None) -> d
         "eliminated": [e.describe() for e in result.eliminated],
         "fixed": list(result.fixed_by_user),
     }
-    if validation and validation.get("n_rows"):
-        summary["validation"] = {k: v for k, v in validation.items() if k not in ("errors_mm", "kept_rows")}
+    if validation and validation.n_rows:
+        summary["validation"] = validation.record()
     return summary
 
 
 def result_problems(summary: Mapping[str, Any]) -> list[str]:
-    """Why a calibration must not be called ok: its fit is worse than its start (calibration poses), or the
-    calibrated model is worse than the nominal one on the validation poses. Empty when neither."""
-    out = []
-    fit, start = summary["fit"], summary.get("start_rms_position_mm")
-    if start is not None and fit["rms_position_mm"] > start:
-        out.append(f"the fit's RMS error {fit['rms_position_mm']:.4f} mm is worse than its start ({start:.4f} mm)")
-    val, before = summary.get("validation"), summary.get("validation_before")
-    if val and before and val["mean_position_mm"] > before["mean_position_mm"]:
-        out.append(
-            f"on the validation poses the calibrated model ({val['mean_position_mm']:.4f} mm mean error) is worse "
-            f"than the nominal one ({before['mean_position_mm']:.4f} mm)"
-        )
-    return out
+    """Why a calibration must not be called ok (:func:`robocal.identification.acceptance.judge` on the summary's
+    fit and validation figures). Empty when none."""
+    return list(judge(summary["fit"], summary.get("validation"), summary.get("validation_before")).problems)
 
 
 #: A fit that cannot start: the nominal model's best rigid fit ("before") misses the measurements by more than
@@ -78,8 +71,10 @@ def cannot_start(campaign: Campaign, robot: RobotDescription, start_rms_mm: floa
     try:  # the joint columns read as radians (values v in q*_deg: the contract made them v*pi/180 rad)
         as_rad = replace(campaign, q=np.degrees(campaign.q))
         cfg = CalibrationConfig.from_mapping({"max_iter": 1, "outliers": "off"})
-        rad = calibrate(as_rad, robot, cfg).extra["residuals_before_mm"]
-        rad_rms = float(np.sqrt(np.mean(np.sum(rad**2, axis=1))))
+        rad_start = calibrate(as_rad, robot, cfg).start
+        assert rad_start is not None
+        rad = rad_start.residuals_before_mm
+        rad_rms = ErrorStats.of(rad).rms_mm
     except Exception:
         rad_rms = float("inf")
     if rad_rms < 0.1 * start_rms_mm:
@@ -90,39 +85,18 @@ def cannot_start(campaign: Campaign, robot: RobotDescription, start_rms_mm: floa
     return f"{text}. Check the joint angles' unit (degrees), the robot (--robot) and the targets"
 
 
-def _iterations(n: Any) -> str:
-    return f"{n} iteration" + ("" if n == 1 else "s")
-
-
 def result_warnings(summary: Mapping[str, Any]) -> list[str]:
-    """Why a calibration that is not failed must still not be called ok: its fit stopped without converging
-    (e.g. on its iteration limit), or its largest validation error is worse than the nominal model's (while the
-    mean is not: that is a failure, :func:`result_problems`). Empty when neither."""
-    out = []
-    fit = summary["fit"]
-    if fit.get("success") is False:
-        out.append(
-            f"the fit did not converge: {fit.get('message', 'no message')} ({_iterations(fit.get('nit'))}); the "
-            "result may be far from the least-squares minimum (raise max_iter, or check the data: joint units, "
-            "robot, targets)"
-        )
-    val, before = summary.get("validation"), summary.get("validation_before")
-    if (
-        val
-        and before
-        and val["mean_position_mm"] <= before["mean_position_mm"]
-        and val.get("max_position_mm", 0.0) > before.get("max_position_mm", float("inf"))
-    ):
-        out.append(
-            f"on the validation poses the largest error of the calibrated model ({val['max_position_mm']:.4f} mm) "
-            f"is worse than the nominal one's ({before['max_position_mm']:.4f} mm), although the mean improved"
-        )
-    return out
+    """Why a calibration that is not failed must still not be called ok (the warnings of
+    :func:`robocal.identification.acceptance.judge`: a fit that stopped without converging, a largest
+    validation error worse than the nominal model's). Empty when none."""
+    return list(judge(summary["fit"], summary.get("validation"), summary.get("validation_before")).warnings)
 
 
 def status_of(summary: Mapping[str, Any]) -> str:
     """``failed`` (:func:`result_problems`), ``warning`` (:func:`result_warnings`) or ``ok``."""
-    return "failed" if summary.get("problems") else ("warning" if summary.get("warnings") else "ok")
+    if summary.get("problems"):
+        return CampaignStatus.FAILED
+    return CampaignStatus.WARNING if summary.get("warnings") else CampaignStatus.OK
 
 
 def run(
@@ -150,19 +124,19 @@ def run(
     outcome = fit_with_optimizer(camp, rob, cfg, optimizer)
     result = outcome.result
     val = validate(result, camp) if np.any(camp.split == "validation") else None
-    val_before = validate(result, camp, x=result.extra["x_init"]) if val else None
+    start = result.start
+    assert start is not None  # a fitted calibration
+    val_before = validate(result, camp, x=start.x_init) if val else None
     summary = summarise(result, val)
     if not is_gradient(optimizer):  # the raw and (with polish) the polished result of the method
         summary["optimizer"] = outcome.summary()
         if outcome.polished is not None and val:
             raw_val = validate(outcome.raw, camp)
-            summary["optimizer"]["raw"]["validation_rms_position_mm"] = raw_val["rms_position_mm"]
+            summary["optimizer"]["raw"]["validation_rms_position_mm"] = raw_val.stats.rms_mm
     if val_before:
-        summary["validation_before"] = {
-            k: val_before[k] for k in ("mean_position_mm", "rms_position_mm", "max_position_mm")
-        }
-    before = np.linalg.norm(result.extra["residuals_before_mm"], axis=1)
-    summary["start_rms_position_mm"] = float(np.sqrt(np.mean(before**2))) if before.size else None
+        summary["validation_before"] = val_before.stats.position()
+    before = start.residuals_before_mm
+    summary["start_rms_position_mm"] = ErrorStats.of(before).rms_mm if len(before) else None
     summary["problems"] = result_problems(summary)
     why = cannot_start(camp, rob, summary["start_rms_position_mm"])
     if why:
@@ -180,30 +154,29 @@ def run(
             "pose_id": cal.pose_id,
             "target": cal.target,
             "split": "calibration",
-            "err_before_mm": np.linalg.norm(result.extra["residuals_before_mm"], axis=1),
+            "err_before_mm": np.linalg.norm(start.residuals_before_mm, axis=1),
             "err_after_mm": np.linalg.norm(result.residuals_mm, axis=1),
             "rx_mm": result.residuals_mm[:, 0],
             "ry_mm": result.residuals_mm[:, 1],
             "rz_mm": result.residuals_mm[:, 2],
         }
     )
-    kept = result.extra.get("kept")
-    if kept is not None:
-        rows["row"] = cal.row_number
-        rows["outlier"] = ~np.asarray(kept, dtype=bool)
+    rows["row"] = cal.row_number
+    rows["outlier"] = ~np.asarray(start.kept, dtype=bool)
     if val and val_before:
         v = camp.validation()
-        keep = val["kept_rows"]
+        keep, e_after, e_before = val.kept_rows, val.errors_mm, val_before.errors_mm
+        assert keep is not None and e_after is not None and e_before is not None
         vr = pd.DataFrame(
             {
                 "pose_id": v.pose_id[keep],
                 "target": v.target[keep],
                 "split": "validation",
-                "err_before_mm": np.linalg.norm(val_before["errors_mm"][keep], axis=1),
-                "err_after_mm": np.linalg.norm(val["errors_mm"][keep], axis=1),
-                "rx_mm": val["errors_mm"][keep, 0],
-                "ry_mm": val["errors_mm"][keep, 1],
-                "rz_mm": val["errors_mm"][keep, 2],
+                "err_before_mm": np.linalg.norm(e_before[keep], axis=1),
+                "err_after_mm": np.linalg.norm(e_after[keep], axis=1),
+                "rx_mm": e_after[keep, 0],
+                "ry_mm": e_after[keep, 1],
+                "rz_mm": e_after[keep, 2],
             }
         )
         rows = pd.concat([rows, vr], ignore_index=True)
