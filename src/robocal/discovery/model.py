@@ -236,8 +236,10 @@ class Fit:
 
     @property
     def noise_floor_mm(self) -> float:
-        """Expected RMS of the 3-D position residual of a correct model: ``sigma sqrt(3 dof / M)``."""
-        return float(self.sigma * np.sqrt(3.0 * self.dof / self.M))
+        """Expected RMS of the 3-D position residual of a correct model (:func:`robocal.metrics.noise_floor`)."""
+        from robocal.metrics import noise_floor
+
+        return noise_floor(self.sigma, self.M, self.k)
 
     def stderr(self, name: str) -> float:
         i = self.model.index(name)

@@ -206,7 +206,8 @@ def discover(campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig |
     sigma = float(noise["used_mm"])
     sigma_rad = float(np.deg2rad(cfg.noise_deg))
     library, skipped = build_library(campaign, robot, cfg)
-    kept = np.asarray(geo.extra["kept"], dtype=bool).copy()
+    assert geo.start is not None  # a fit of calibrate, with its start
+    kept = np.asarray(geo.start.kept, dtype=bool).copy()
     m = cal.n_rows
     res: DiscoveryResult | None = None
     test = None

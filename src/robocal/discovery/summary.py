@@ -384,7 +384,7 @@ def summary(res: DiscoveryResult, validation: dict[str, Any] | None = None) -> d
             "rms_position_mm": geo.fit.get("rms_position_mm"),
             "noise_floor_rms_mm": geo.fit.get("noise_floor_rms_mm"),
             "noise_used_mm": (geo.fit.get("noise") or {}).get("used_mm"),
-            "n_rows": int(np.sum(geo.extra["kept"])),
+            "n_rows": int(np.sum(geo.start.kept)) if geo.start is not None else None,
             "outlier_rows": [o["row"] for o in geo.fit.get("outliers", [])],
         }
     cv = res.extra.get("cv") or {}

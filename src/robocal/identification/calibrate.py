@@ -7,7 +7,6 @@ import re
 import time
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field, replace
-from types import MappingProxyType
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -219,17 +218,6 @@ class CalibrationResult:
     solver: FitResult | None = None
     start: FitStart | None = None
     effects: tuple[dict[str, Any], ...] = ()
-
-    @property
-    def extra(self) -> Mapping[str, Any]:
-        """The old untyped view (``x_init``, ``x_analysis``, ``residuals_before_mm``, ``kept``, ``row_test``,
-        ``effects``) of :attr:`start` and :attr:`effects`, read-only: for readers not yet switched to them."""
-        out: dict[str, Any] = {}
-        if self.start is not None:
-            out = {f: getattr(self.start, f) for f in FitStart.__dataclass_fields__}
-        if self.effects:
-            out["effects"] = list(self.effects)
-        return MappingProxyType(out)
 
     @property
     def fit(self) -> dict[str, Any]:
