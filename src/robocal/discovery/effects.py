@@ -22,6 +22,7 @@ Parameter drifts (thermal, drift) need the temperatures or the time of the momen
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -209,6 +210,52 @@ def needs(effects: list[dict[str, Any]]) -> set[str]:
     return {names[e["signal"]] for e in effects if e["signal"] in names}
 
 
+TWO_PI = 2.0 * np.pi
+#: numeric list fields of the effect records (converted once by :class:`DiscoveredEffects`)
+_ARRAY_FIELDS = ("coefficients", "basis", "scale", "centre", "centres_rad")
+
+
+def _interp_tables(
+    q: np.ndarray, cols: np.ndarray, grid: np.ndarray, vals: np.ndarray, start: np.ndarray
+) -> np.ndarray:
+    """Linear interpolation of the tables of :meth:`DiscoveredEffects._tables` at joints ``q`` (compiled when
+    numba is there)."""
+    from robocal.kinematics import compiled
+
+    if compiled.AVAILABLE:
+        return compiled.periodic_tables(q, cols, grid, vals, start, TWO_PI)
+    out = np.empty((len(q), len(cols)))
+    for t, j in enumerate(cols):
+        g, v = grid[start[t] : start[t + 1]], vals[start[t] : start[t + 1]]
+        x = np.mod(q[:, j], TWO_PI)
+        i = np.minimum(np.searchsorted(g, x, side="right") - 1, len(g) - 2)  # x = 2 pi after rounding
+        out[:, t] = v[i] + (x - g[i]) * ((v[i + 1] - v[i]) / (g[i + 1] - g[i]))
+    return out
+
+
+def _window_kinks(records: list[dict[str, Any]]) -> np.ndarray:
+    """The angles (rad, in [0, 2 pi]) where a transmission record's coverage window is not smooth: each visited
+    interval's ends, the ends of its tapers, and half-way between neighbouring intervals (where the nearest one
+    changes). On the table's grid, linear interpolation is exact there."""
+    out: list[float] = []
+    for e in records:
+        if e["signal"] != "transmission":
+            continue
+        tp = float(e["taper_deg"])
+        iv = sorted((float(lo), float(hi)) for lo, hi in e["visited_deg"])
+        for k, (lo, hi) in enumerate(iv):
+            lo_next = iv[(k + 1) % len(iv)][0]
+            out += [lo, hi, lo - tp, hi + tp, hi + 0.5 * ((lo_next - hi) % 360.0)]
+    return np.deg2rad(np.mod(out, 360.0))
+
+
+#: A joint's single-angle effects are tabulated over one revolution in this many steps (4.8e-5 rad) ...
+TABLE_SIZE = 1 << 17
+#: ... when linear interpolation is within this (rad) of the exact sum: 1e-8 rad is 1e-5 mm at a metre's reach,
+#: a tenth of the Newton solver's tolerance (a stiffer effect is evaluated exactly).
+TABLE_TOL_RAD = 1e-8
+
+
 @dataclass(frozen=True)
 class DiscoveredEffects:
     """The joint-level effects a discovery wrote into a calibration (``effects`` records, evaluated by
@@ -227,7 +274,66 @@ class DiscoveredEffects:
         return [str(e["key"]) for e in self.records]
 
     def offsets(self, q: np.ndarray, s: Signals) -> np.ndarray:
-        return joint_offsets(list(self.records), self.robot, q, s.payload_kg, s.tau_Nm, s.current_A, s.direction)
+        tables, weights, rest = self._tables
+        q = np.atleast_2d(np.asarray(q, dtype=float))
+        dq = joint_offsets(rest, self.robot, q, s.payload_kg, s.tau_Nm, s.current_A, s.direction) if rest else (
+            np.zeros(q.shape))  # fmt: skip
+        if tables is not None:
+            cols, grid, vals, start = tables
+            dq[:, cols] += _interp_tables(q, cols, grid, vals, start)
+        if weights:
+            from robocal.discovery.physics import gravity_regressor
+
+            Y = gravity_regressor(self.robot, q)
+            for j, pi in weights.items():
+                dq[:, j] += Y[:, j, :] @ pi
+        return dq
+
+    @cached_property
+    def _tables(
+        self,
+    ) -> tuple[tuple[np.ndarray, ...] | None, dict[int, np.ndarray], list[dict[str, Any]]]:
+        """The records in the form the service evaluates at every Newton step: ``(tables, weights, rest)``.
+
+        tables: the effects of one joint's own angle (gear harmonics, transmission error: periodic in it), summed
+        per joint and tabulated over one revolution (:data:`TABLE_SIZE` steps, plus the windows' kinks) for
+        linear interpolation, as ``(joints, grids, values, starts)``; a joint whose table is not within
+        :data:`TABLE_TOL_RAD` of the exact sum at every mid-point (the largest error of linear interpolation)
+        stays exact. weights: the compliance under the arm's own weight of joint ``j`` is ``Y_j(q) @ pi_j``
+        (``pi_j = basis (coefficients / scale)``: mass moments over stiffness). rest: the other records, their
+        numeric lists as arrays."""
+        single = [e for e in self.records if e["signal"] in ("angle", "transmission")]
+        rest = [e for e in self.records if e["signal"] not in ("angle", "transmission", "weight")]
+        weights: dict[int, np.ndarray] = {}
+        for e in self.records:
+            if e["signal"] == "weight":
+                j = int(e["joint"]) - 1
+                c = np.asarray(e["coefficients"], dtype=float) / np.asarray(e["scale"], dtype=float)
+                weights[j] = weights.get(j, 0.0) + np.asarray(e["basis"], dtype=float) @ c
+        n = self.robot.n_joints
+        uniform = np.linspace(0.0, TWO_PI, TABLE_SIZE + 1)  # both ends: the angle is taken modulo one revolution
+        cols, grids, vals_all = [], [], []
+        for j in sorted({int(e["joint"]) - 1 for e in single}):
+            recs = [e for e in single if int(e["joint"]) - 1 == j]
+            grid = np.unique(np.concatenate([uniform, _window_kinks(recs)]))
+            mid = 0.5 * (grid[:-1] + grid[1:])
+            Q = np.zeros((len(grid) + len(mid), n))
+            Q[:, j] = np.concatenate([grid, mid])
+            v = joint_offsets(recs, self.robot, Q)[:, j]
+            vals, exact = v[: len(grid)], v[len(grid) :]
+            if float(np.abs(0.5 * (vals[:-1] + vals[1:]) - exact).max()) <= TABLE_TOL_RAD:
+                cols.append(j)
+                grids.append(grid)
+                vals_all.append(vals)
+            else:
+                rest += recs
+        tables = None
+        if cols:
+            start = np.cumsum([0] + [len(g) for g in grids]).astype(np.int64)
+            tables = (np.array(cols, dtype=np.int64), np.concatenate(grids), np.concatenate(vals_all), start)
+        # the stored lists (coefficients, bases) as arrays once, not at every call
+        rest = [{k: (np.asarray(v, dtype=float) if k in _ARRAY_FIELDS else v) for k, v in e.items()} for e in rest]
+        return tables, weights, rest
 
     def notes(self, q: np.ndarray) -> list[list[str]]:
         """Per target: :data:`LAYER_NOTE` (with the layer's weight) where the residual layer is not fully

@@ -42,6 +42,7 @@ __all__ = [
     "gravity_regressor",
     "harmonics",
     "newton",
+    "periodic_tables",
     "points_to_base",
     "population_positions",
     "quat",
@@ -592,3 +593,30 @@ def harmonics(z: np.ndarray, z0: np.ndarray, H: int) -> np.ndarray:
             re[r, k] = c * a - d * b
             im[r, k] = c * b + d * a
     return re + 1j * im
+
+
+@_jit
+def periodic_tables(
+    q: np.ndarray, cols: np.ndarray, grid: np.ndarray, vals: np.ndarray, start: np.ndarray, period: float
+) -> np.ndarray:
+    """``(m, k)``: for each table ``t`` (``grid[start[t]:start[t + 1]]`` ascending over ``[0, period]``, values
+    ``vals`` there) the linear interpolation at ``q[:, cols[t]]`` modulo ``period`` (the tabulated joint
+    effects of :class:`robocal.discovery.effects.DiscoveredEffects`)."""
+    m = q.shape[0]
+    k = len(cols)
+    out = np.empty((m, k))
+    for t in range(k):
+        a = start[t]
+        b = start[t + 1]
+        for r in range(m):
+            x = q[r, cols[t]] % period
+            lo = a
+            hi = b - 1
+            while hi - lo > 1:  # grid[lo] <= x < grid[hi]
+                mid = (lo + hi) // 2
+                if grid[mid] <= x:
+                    lo = mid
+                else:
+                    hi = mid
+            out[r, t] = vals[lo] + (x - grid[lo]) * ((vals[hi] - vals[lo]) / (grid[hi] - grid[lo]))
+    return out

@@ -112,6 +112,79 @@ def _rotvec(E: np.ndarray) -> np.ndarray:
     return matrix_to_rotvec(E)
 
 
+#: Joint-space tolerance (rad) of the inversion ``q + dq(q) = q_true`` (1e-6 mm at a metre's reach, a hundredth of
+#: the Cartesian Newton's default tolerance) and the forward-difference step of its Jacobian.
+INVERT_TOL_RAD = 1e-9
+INVERT_EPS_RAD = 1e-6
+
+
+def offsets_and_jacobian(joint_offset: JointOffset, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``dq(q) (m, n)`` and ``I + d dq / dq (m, n, n)`` by forward differences, in one batched call."""
+    m, n = q.shape
+    rows = np.arange(m)
+    Q = np.concatenate([q[:, None, :], q[:, None, :] + INVERT_EPS_RAD * np.eye(n)[None]], axis=1)
+    out = joint_offset(Q.reshape(m * (n + 1), n), np.repeat(rows, n + 1)).reshape(m, n + 1, n)
+    d = out[:, 0, :]
+    return d, np.eye(n)[None] + np.swapaxes(out[:, 1:, :] - d[:, None, :], 1, 2) / INVERT_EPS_RAD
+
+
+def invert_offsets(
+    joint_offset: JointOffset, q_true: np.ndarray, q0: np.ndarray, max_iter: int = 20, tol_rad: float = INVERT_TOL_RAD
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """Commanded joints ``q`` (m, n) with ``q + joint_offset(q) = q_true``, from ``q0``: Newton steps with
+    ``I + d dq / dq`` at ``q0`` (:func:`offsets_and_jacobian`, one batched call), kept for every step (chord
+    method: ``q0`` is within a correction's size of the answer and the offsets are small). Returns
+    ``(q, dq(q), converged (m,), iterations)``; converged: ``|q + dq(q) - q_true| < tol_rad`` on every joint."""
+    m = len(q_true)
+    q = np.array(q0, dtype=float)
+    d, J = offsets_and_jacobian(joint_offset, q)
+    ok = np.zeros(m, dtype=bool)
+    it = 0
+    for it in range(max_iter + 1):
+        r = q + d - q_true
+        ok = np.abs(r).max(axis=1) < tol_rad
+        if ok.all() or it == max_iter:
+            break
+        act = np.flatnonzero(~ok)
+        q[act] -= np.linalg.solve(J[act], r[act][:, :, None])[:, :, 0]
+        d[act] = joint_offset(q[act], act)
+    return q, d, ok, it
+
+
+def _solve_through_joints(
+    cc: CompiledChain,
+    tool_T: np.ndarray,
+    q_start: np.ndarray,
+    p_desired: np.ndarray,
+    R_desired: np.ndarray,
+    joint_offset: JointOffset,
+    max_iter: int,
+    tol_mm: float,
+    tol_rad: float,
+    max_step_rad: float,
+    rot_weight_mm: float,
+) -> Solution:
+    """:func:`solve` with joint offsets, a full pose and six joints, in two stages: the joints ``q_true`` the robot
+    must reach (the compiled Newton from where the start command takes it, ``q_start + dq(q_start)``), then the
+    command ``q`` with ``q + dq(q) = q_true`` (:func:`invert_offsets`). The error before is at the start
+    command, as in the one-stage loop; the residual is the robot's at ``q + dq(q)``."""
+    d0 = joint_offset(np.asarray(q_start, dtype=float), np.arange(len(q_start)))
+    true = solve(cc, tool_T, q_start + d0, p_desired, R_desired, None, max_iter, tol_mm, tol_rad, max_step_rad,
+                 rot_weight_mm, compiled=True)  # fmt: skip
+    # as tight as the orientation asked of the Cartesian stage, and at least INVERT_TOL_RAD
+    q, d, inverted, it = invert_offsets(joint_offset, true.q, true.q - d0, max_iter, min(INVERT_TOL_RAD, tol_rad))
+    p, R, _, _ = forward(cc, q + d, tool_T)
+    return Solution(
+        q,
+        true.converged & inverted,
+        true.iterations + it,
+        true.error_before_mm,
+        true.error_before_rad,
+        p - p_desired,
+        _rotvec(R @ np.swapaxes(R_desired, -1, -2)),
+    )
+
+
 @dataclass
 class Solution:
     """Result of :func:`solve`.
@@ -156,11 +229,27 @@ def solve(  # noqa: PLR0915 (known: the Newton loop, to be split)
     singularity then fails to converge instead of running away); converged targets stop moving.
 
     ``compiled`` : run the same iteration compiled with numba (:func:`robocal.kinematics.compiled.newton`), per target;
-    None = when numba is available and there is no ``joint_offset``; False = this numpy reference path.
+    None = when numba is available and there is no ``joint_offset``; False = this numpy reference path. With a
+    ``joint_offset``, a full pose and six joints (one solution, not a redundant one), None solves in two stages
+    (:func:`_solve_through_joints`): the compiled Newton finds the joints the robot must reach, then the joint
+    offsets are inverted in joint space; the same solution, with the offsets evaluated a few times instead of at
+    every Cartesian step.
     ``stall`` : stop a target whose error stops halving (compensation: a small correction is expected, and a
     target that needs a large one is near a singularity); False for inverse kinematics over large moves
     (numpy path only).
     """
+    if (
+        joint_offset is not None
+        and R_desired is not None
+        and cc.n_joints == 6
+        and compiled is not False
+        and _compiled.AVAILABLE
+        and stall
+    ):
+        return _solve_through_joints(
+            cc, tool_T, q_start, p_desired, R_desired, joint_offset, max_iter, tol_mm, tol_rad, max_step_rad,
+            rot_weight_mm,
+        )  # fmt: skip
     if compiled is None:
         compiled = _compiled.AVAILABLE and joint_offset is None and stall
     if compiled and not stall:

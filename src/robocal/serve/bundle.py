@@ -33,6 +33,7 @@ import shutil
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -132,12 +133,16 @@ class Bundle:
         reaches the service and the program filter."""
         from robocal.compensation.effects import joint_effects
 
-        discovered = None
-        if self.effects:
-            from robocal.discovery.effects import DiscoveredEffects
+        return joint_effects(self.compliance, self._discovered)
 
-            discovered = DiscoveredEffects(tuple(self.effects), self.robot)
-        return joint_effects(self.compliance, discovered)
+    @cached_property
+    def _discovered(self) -> Any:
+        """The discovered effects, built once per loaded bundle (their tables are built at the first use)."""
+        if not self.effects:
+            return None
+        from robocal.discovery.effects import DiscoveredEffects
+
+        return DiscoveredEffects(tuple(self.effects), self.robot)
 
     def eta_at(self, temperatures: np.ndarray | None) -> np.ndarray:
         """The robot's kinematic errors at these temperatures: the calibration's, plus the thermal drift when the
