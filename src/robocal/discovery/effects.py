@@ -281,18 +281,17 @@ class DiscoveredEffects:
         if tables is not None:
             cols, grid, vals, start = tables
             dq[:, cols] += _interp_tables(q, cols, grid, vals, start)
-        if weights:
+        if weights is not None:
             from robocal.discovery.physics import gravity_regressor
 
-            Y = gravity_regressor(self.robot, q)
-            for j, pi in weights.items():
-                dq[:, j] += Y[:, j, :] @ pi
+            wcols, P = weights
+            dq[:, wcols] += np.einsum("mjk,jk->mj", gravity_regressor(self.robot, q)[:, wcols, :], P)
         return dq
 
     @cached_property
     def _tables(
         self,
-    ) -> tuple[tuple[np.ndarray, ...] | None, dict[int, np.ndarray], list[dict[str, Any]]]:
+    ) -> tuple[tuple[np.ndarray, ...] | None, tuple[np.ndarray, np.ndarray] | None, list[dict[str, Any]]]:
         """The records in the form the service evaluates at every Newton step: ``(tables, weights, rest)``.
 
         tables: the effects of one joint's own angle (gear harmonics, transmission error: periodic in it), summed
@@ -300,16 +299,20 @@ class DiscoveredEffects:
         linear interpolation, as ``(joints, grids, values, starts)``; a joint whose table is not within
         :data:`TABLE_TOL_RAD` of the exact sum at every mid-point (the largest error of linear interpolation)
         stays exact. weights: the compliance under the arm's own weight of joint ``j`` is ``Y_j(q) @ pi_j``
-        (``pi_j = basis (coefficients / scale)``: mass moments over stiffness). rest: the other records, their
-        numeric lists as arrays."""
+        (``pi_j = basis (coefficients / scale)``: mass moments over stiffness), as ``(joints, rows pi_j)``.
+        rest: the other records, their numeric lists as arrays."""
         single = [e for e in self.records if e["signal"] in ("angle", "transmission")]
         rest = [e for e in self.records if e["signal"] not in ("angle", "transmission", "weight")]
-        weights: dict[int, np.ndarray] = {}
+        per_joint: dict[int, np.ndarray] = {}
         for e in self.records:
             if e["signal"] == "weight":
                 j = int(e["joint"]) - 1
                 c = np.asarray(e["coefficients"], dtype=float) / np.asarray(e["scale"], dtype=float)
-                weights[j] = weights.get(j, 0.0) + np.asarray(e["basis"], dtype=float) @ c
+                per_joint[j] = per_joint.get(j, 0.0) + np.asarray(e["basis"], dtype=float) @ c
+        weights = None
+        if per_joint:
+            wj = sorted(per_joint)
+            weights = (np.array(wj, dtype=np.int64), np.stack([per_joint[j] for j in wj]))
         n = self.robot.n_joints
         uniform = np.linspace(0.0, TWO_PI, TABLE_SIZE + 1)  # both ends: the angle is taken modulo one revolution
         cols, grids, vals_all = [], [], []
