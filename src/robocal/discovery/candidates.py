@@ -154,14 +154,15 @@ _SCALE_SIGNALS = {
 }
 
 
-def _air_temperature(campaign: Campaign, robot: RobotDescription) -> np.ndarray | None:
-    """The mean of the logged sensors with ``location: ambient`` (degC per row), or None without one."""
+def _air_temperature(campaign: Campaign, robot: RobotDescription) -> tuple[list[str], np.ndarray | None]:
+    """The names of the sensors with ``location: ambient`` and the mean of those logged (degC per row), or None
+    without one."""
     ambient = [x.name for x in robot.sensors if x.location == "ambient"]
     logged = list(campaign.sensor_names) if campaign.temperatures is not None else []
     cols = [logged.index(a) for a in ambient if a in logged]
     if not cols or campaign.temperatures is None:
-        return None
-    return np.asarray(campaign.temperatures, dtype=float)[:, cols].mean(axis=1)
+        return ambient, None
+    return ambient, np.asarray(campaign.temperatures, dtype=float)[:, cols].mean(axis=1)
 
 
 def _parallel_joints(robot: RobotDescription) -> list[int]:
@@ -313,8 +314,7 @@ def build_library(
             )  # fmt: skip
         elif effect == "air":
             key = "air"
-            ambient = [x.name for x in robot.sensors if x.location == "ambient"]
-            Ta = _air_temperature(campaign, robot)
+            ambient, Ta = _air_temperature(campaign, robot)
             if Ta is None:
                 why = "no air temperature (a sensor with location: ambient in the robot description) in the log"
                 skipped.append(SkippedCandidate(key, effect, None, why))
@@ -343,7 +343,7 @@ def build_library(
             if _varies(t, 1.0):
                 cols.append((t - t.mean()) / HOUR_S)
                 sig_names.append("ppm_per_h")
-            Ta = _air_temperature(campaign, robot)
+            _, Ta = _air_temperature(campaign, robot)
             if Ta is not None and _varies(Ta, max(tol, 0.05)):
                 cols.append(Ta - Ta.mean())
                 sig_names.append("ppm_per_degC_air")

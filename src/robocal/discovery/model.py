@@ -19,6 +19,7 @@ from robocal.discovery.candidates import Candidate, with_beta
 from robocal.identification.identifiability import analyse
 from robocal.identification.model import CalibrationModel, FitData
 from robocal.identification.solver import levenberg_marquardt
+from robocal.metrics import noise_floor
 from robocal.robot import RobotDescription
 
 
@@ -237,8 +238,6 @@ class Fit:
     @property
     def noise_floor_mm(self) -> float:
         """Expected RMS of the 3-D position residual of a correct model (:func:`robocal.metrics.noise_floor`)."""
-        from robocal.metrics import noise_floor
-
         return noise_floor(self.sigma, self.M, self.k)
 
     def stderr(self, name: str) -> float:
