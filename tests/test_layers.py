@@ -36,11 +36,7 @@ LAYERS: list[set[str]] = [
 ]
 
 #: (importer package, imported package) -> why it is allowed for now. Each one is known and to be removed.
-EXCEPTIONS: dict[tuple[str, str], str] = {
-    # the bundle builds its discovered effects (a lazy import); the effect should register itself with the
-    # compensation package instead
-    ("serve", "discovery"): "serve.bundle imports discovery.effects (lazily); to register instead",
-}
+EXCEPTIONS: dict[tuple[str, str], str] = {}
 
 
 #: (importer module, imported module) -> why; module-level circles known and to be removed

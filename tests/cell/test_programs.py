@@ -344,7 +344,7 @@ def test_compliance_at_the_stated_payload(tmp_path, bundle, cc_nom):
 def test_discovered_effects_and_backlash_direction_from_the_program(tmp_path, bundle, cc_nom):
     from dataclasses import replace
 
-    from robocal.discovery.effects import joint_offsets
+    from robocal.compensation.discovered import joint_offsets
     from robocal.errors import ConfigError
 
     gear = {"key": "gear_j2_h1", "effect": "gear", "joint": 2, "harmonic": 1, "signal": "angle",

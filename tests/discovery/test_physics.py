@@ -6,21 +6,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from robocal.compensation.discovered import joint_offsets
+from robocal.compensation.signals import coverage_weight, fourier_signal, layer_gate, transmission_signal
 from robocal.discovery.config import DiscoveryConfig
-from robocal.discovery.effects import extended_calibration, joint_offsets
-from robocal.discovery.physics import (
-    coverage_weight,
-    fourier_signal,
-    gravity_regressor,
-    layer_gate,
-    transmission_signal,
-    visited_intervals,
-    weight_basis,
-)
+from robocal.discovery.effects import extended_calibration
+from robocal.discovery.physics import visited_intervals, weight_basis
 from robocal.discovery.search import discover
 from robocal.discovery.summary import summary
 from robocal.discovery.validate import validation_errors
-from robocal.kinematics.gravity import gravity_torques
+from robocal.kinematics.gravity import gravity_regressor, gravity_torques
 from robocal.robot import load_robot
 
 from .conftest import make_campaign
@@ -75,7 +69,7 @@ def test_gravity_regressor_reproduces_the_torques_of_known_masses():
 def test_the_compiled_regressor_and_harmonics_are_the_numpy_ones():
     """The service evaluates the weight and transmission effects per Newton step through numba kernels: the same
     quantities as the numpy reference (the regressor to the bit on these robots, the harmonics to 1e-14)."""
-    from robocal.discovery.physics import fourier_signal
+    from robocal.compensation.signals import fourier_signal
     from robocal.kinematics import compiled
 
     if not compiled.AVAILABLE:
@@ -146,7 +140,7 @@ def test_grow_off_keeps_the_library_search(tmp_path):
 
 
 def test_layer_coverage_says_where_the_layer_applies():
-    from robocal.discovery.effects import joint_offsets, layer_coverage
+    from robocal.compensation.discovered import joint_offsets, layer_coverage
 
     robot = load_robot("kr16_2")
     centres = np.zeros((1, 6))

@@ -102,7 +102,7 @@ def test_orientations_reveal_a_wrist_gear(tmp_path):
 def test_a_proposed_equation_reaches_the_service(tmp_path):
     """A proposed equation whose terms the commanded joints give is written into calibration.json as a
     joint-level effect and evaluated by the same code offline and online."""
-    from robocal.discovery.effects import joint_offsets
+    from robocal.compensation.discovered import joint_offsets
 
     camp, robot, _ = make_campaign(tmp_path, "geometric", 3, {"test_q1q5": {"amplitude_deg": 0.03}})
     summ = discovery.run(None, robot, tmp_path / "out", report=False, campaign=camp)

@@ -50,8 +50,8 @@ def test_the_two_stage_solve_is_the_one_stage_answer():
 
 
 def test_the_tabulated_discovered_effects_are_the_records_sum():
+    from robocal.compensation.discovered import TABLE_TOL_RAD, DiscoveredEffects, joint_offsets
     from robocal.compensation.effects import Signals
-    from robocal.discovery.effects import TABLE_TOL_RAD, DiscoveredEffects, joint_offsets
 
     robot = load_robot("kr16_2")
     h = list(range(6, 31))

@@ -94,7 +94,7 @@ def test_outside_the_residual_layer_the_service_and_the_filter_say_so(geo, tmp_p
 
     from robocal.cell.programs.filter import filter_program, read_program
     from robocal.cell.programs.make import rapid_module
-    from robocal.discovery.effects import LAYER_NOTE
+    from robocal.compensation.discovered import LAYER_NOTE
     from robocal.kinematics.ik import compile_chain
     from robocal.serve.protocol import Service
 

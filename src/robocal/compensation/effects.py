@@ -78,7 +78,7 @@ class ComplianceEffect:
 def joint_effects(compliance: Any = None, *effects: JointEffect | None) -> list[JointEffect]:
     """The joint-space effects in the order they are summed: the compliance model (a model with
     ``joint_offsets``, wrapped in :class:`ComplianceEffect`), then ``effects`` (None entries skipped): the
-    discovered joint-level effects (:class:`robocal.discovery.effects.DiscoveredEffects`) and any new one.
+    discovered joint-level effects (:class:`robocal.compensation.discovered.DiscoveredEffects`) and any new one.
     :meth:`robocal.serve.bundle.Bundle.joint_effects` is where a bundle's effects are listed."""
     out: list[JointEffect] = []
     if compliance is not None:

@@ -28,11 +28,9 @@ from typing import Any
 
 import numpy as np
 
+from robocal.compensation.signals import Factor, evaluate_factor, factor_label
 from robocal.data.contract import Campaign
 from robocal.robot import RobotDescription
-
-#: a factor of a term: ("sin" | "cos", joint 1-based, harmonic) or (signal kind, index 1-based or 0, 0)
-Factor = tuple[str, int, int]
 
 
 @dataclass(frozen=True)
@@ -43,7 +41,7 @@ class Term:
 
     @property
     def label(self) -> str:
-        return "·".join(_factor_label(f) for f in self.factors)
+        return "·".join(factor_label(f) for f in self.factors)
 
     @property
     def from_joints_only(self) -> bool:
@@ -54,20 +52,6 @@ class Term:
         return {"signal": self.label, "factors": [{"kind": k, "index": i, "harmonic": h} for k, i, h in self.factors]}
 
 
-def _factor_label(f: Factor) -> str:
-    kind, i, h = f
-    if kind in ("sin", "cos"):
-        return f"{kind}({'' if h == 1 else h}q{i})"
-    return {
-        "gravity": f"tau_g{i}",
-        "tau": f"tau{i}",
-        "current": f"i{i}",
-        "temperature": f"T_PC{i}",
-        "dtemperature": f"dT_PC{i}/dt",
-        "time": "t_h",
-    }[kind]
-
-
 @dataclass
 class Dictionary:
     """The dictionary's functions evaluated on every campaign row: ``F (m_all, K)``, one :class:`Term` per column."""
@@ -75,25 +59,6 @@ class Dictionary:
     terms: list[Term]
     F: np.ndarray
     skipped: list[str] = field(default_factory=list)
-
-
-def evaluate_factor(
-    f: Factor,
-    q: np.ndarray,
-    grav: np.ndarray | None = None,
-    tau: np.ndarray | None = None,
-    current: np.ndarray | None = None,
-) -> np.ndarray:
-    """One factor at joints ``q (m, n)`` rad (gravity torques, torques, currents given where needed)."""
-    kind, i, h = f
-    if kind == "sin":
-        return np.sin(h * q[:, i - 1])
-    if kind == "cos":
-        return np.cos(h * q[:, i - 1])
-    arr = {"gravity": grav, "tau": tau, "current": current}.get(kind)
-    if arr is None:
-        raise ValueError(f"the term factor {_factor_label(f)} needs a signal that was not given")
-    return np.asarray(arr)[:, i - 1]
 
 
 def build_dictionary(

@@ -53,16 +53,15 @@ def physics_candidates(
     """The transmission-error candidate of every moving joint (Fourier orders x prior widths as variants) and,
     without link masses, torques or currents, the compliance under the arm's own weight of every joint with a
     gravity torque. Signals for every campaign row; coverage and bases from the fitted ``rows``."""
+    from robocal.compensation.signals import coverage_weight, fourier_signal
     from robocal.discovery.candidates import periodic_window
     from robocal.discovery.physics import (
-        coverage_weight,
-        fourier_signal,
-        gravity_regressor,
         lowest_harmonic,
         visited_intervals,
         visited_span_deg,
         weight_basis,
     )
+    from robocal.kinematics.gravity import gravity_regressor
 
     out: list[tuple[Candidate, list[Variant]]] = []
     q = campaign.q
@@ -421,8 +420,9 @@ def _step(
 def layer_candidates(campaign: Campaign, cfg: DiscoveryConfig, rows: np.ndarray) -> Pool:
     """The residual layer: every joint's leftover error as a kernel ridge (Gaussian kernel on all joint angles,
     k-means centres of the calibration poses) — one pool entry per length scale, the prior widths as variants.
-    Gated to the calibrated region (:func:`robocal.discovery.physics.layer_gate`)."""
-    from robocal.discovery.physics import layer_centres, layer_features, layer_gate
+    Gated to the calibrated region (:func:`robocal.compensation.signals.layer_gate`)."""
+    from robocal.compensation.signals import layer_features, layer_gate
+    from robocal.discovery.physics import layer_centres
 
     q = campaign.q
     n_poses = len(np.unique(np.asarray(campaign.pose_id)[rows].astype(str)))

@@ -201,7 +201,7 @@ class CalibrationResult:
     :class:`~robocal.identification.result.FitResult` (χ², covariance, status, timings of the fit itself);
     ``start`` where the fit started and which rows it kept (None for a calibration read from a file);
     ``effects`` the joint-level effects a discovery wrote into the calibration (``effects`` records of
-    ``calibration.json``, evaluated by :func:`robocal.discovery.effects.joint_offsets`).
+    ``calibration.json``, evaluated by :func:`robocal.compensation.discovered.joint_offsets`).
     """
 
     model: CalibrationModel

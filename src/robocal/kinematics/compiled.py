@@ -11,7 +11,7 @@ more, on scalars, for numba, and builds every compiled kernel from it:
 * :func:`forward` (one pose, joint axes and origins recorded) and :func:`points_to_base` (a point carried
   backwards, over many poses) are the forward kinematics of a folded chain from ``cos q`` / ``sin q``;
 * :func:`gravity_regressor`: the gravity load torque of every joint per unit mass moment of every body (the
-  numpy reference is :func:`robocal.discovery.physics.gravity_regressor`'s own pass over ``chain.step``);
+  numpy reference is :func:`robocal.kinematics.gravity.gravity_regressor`'s own pass over ``chain.step``);
 * the kernels: :func:`population_positions` (target positions of a population of parameter vectors, used by
   :class:`robocal.optimizers.fastfk.PopulationPositions`), :func:`newton` (the service's compensation,
   :func:`robocal.kinematics.ik.solve`), :func:`fk_poses`, and the rotation conversions :func:`rotvec` /
@@ -498,7 +498,7 @@ def quat(R: np.ndarray) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------------------------------------
-# gravity regressor (robocal.discovery.physics.gravity_regressor)
+# gravity regressor (robocal.kinematics.gravity.gravity_regressor)
 # --------------------------------------------------------------------------------------------------------
 
 
@@ -580,7 +580,7 @@ def gravity_regressor(
 @_jit
 def harmonics(z: np.ndarray, z0: np.ndarray, H: int) -> np.ndarray:
     """``Z (m, H)`` complex: ``Z[:, 0] = z0``, ``Z[:, k] = Z[:, k - 1] z`` (``z = e^{i q}``, ``z0 = e^{i h0 q}``):
-    the consecutive harmonics of :func:`robocal.discovery.physics.fourier_signal`, the same operations."""
+    the consecutive harmonics of :func:`robocal.compensation.signals.fourier_signal`, the same operations."""
     m = len(z)
     re = np.empty((m, H))
     im = np.empty((m, H))
@@ -601,7 +601,7 @@ def periodic_tables(
 ) -> np.ndarray:
     """``(m, k)``: for each table ``t`` (``grid[start[t]:start[t + 1]]`` ascending over ``[0, period]``, values
     ``vals`` there) the linear interpolation at ``q[:, cols[t]]`` modulo ``period`` (the tabulated joint
-    effects of :class:`robocal.discovery.effects.DiscoveredEffects`)."""
+    effects of :class:`robocal.compensation.discovered.DiscoveredEffects`)."""
     m = q.shape[0]
     k = len(cols)
     out = np.empty((m, k))

@@ -22,9 +22,11 @@ Everything is vectorised over poses: ``q`` is ``(m, n)`` rad, the result ``(m, n
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
-from robocal.kinematics.chain import FIXED, Chain, build_chain, propagate
+from robocal.kinematics.chain import FIXED, Chain, build_chain, propagate, step
 from robocal.robot import RobotDescription
 
 MM = 1e-3  # m per mm
@@ -168,3 +170,100 @@ def potential_energy(
 
 
 __all__ = ["body_frame_boundaries", "gravity_torques", "potential_energy"]
+
+
+# ------------------------------------------------------------------------------------------------------------
+# the gravity regressor: the load torques per unit mass moment (compliance without known masses)
+# ------------------------------------------------------------------------------------------------------------
+
+
+def gravity_regressor(robot: RobotDescription, q: np.ndarray, compiled_ok: bool = True) -> np.ndarray:
+    """``Y (m, n, 4 n)``: the gravity load torque of every joint (N·m) per unit mass moment of every body:
+    column ``4 i`` is body ``i``'s mass (1 kg at its frame origin), columns ``4 i + 1..3`` its first mass moment
+    (1 kg·m along its frame's x, y, z). ``tau = Y @ pi`` for any masses (nominal kinematics, the robot's
+    gravity vector); the tests check it against :func:`robocal.kinematics.gravity.gravity_torques`.
+
+    One pass over the chain: ``tau_j = u_j · sum_{i >= j} ((o_i - o_j) m_i + R_i (m c)_i) x g`` with ``u_j, o_j``
+    joint ``j``'s world axis and a point on it, ``o_i, R_i`` body ``i``'s frame (same body frames as
+    ``gravity_torques``). Compiled (:func:`robocal.kinematics.compiled.gravity_regressor`: the service evaluates
+    it per Newton step) unless numba is missing or ``compiled_ok`` is False (the numpy reference)."""
+    from robocal.kinematics import compiled  # numba: imported when first needed
+
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    if compiled.AVAILABLE and compiled_ok:
+        args = _regressor_arrays(robot)
+        return compiled.gravity_regressor(*args[:5], np.ascontiguousarray(q), *args[5:])
+    return _gravity_regressor_numpy(robot, q)
+
+
+def _gravity_regressor_numpy(robot: RobotDescription, q: np.ndarray) -> np.ndarray:
+    """The reference (numpy) pass of :func:`gravity_regressor`, through ``chain.step``."""
+
+    m, n = q.shape
+    chain = _chain(robot)
+    bounds = body_frame_boundaries(chain, robot.is_mdh)
+    joint_el = [int(np.flatnonzero(chain.joint == j)[0]) for j in range(n)]
+    want = set(bounds) | set(joint_el)
+    rec: dict[int, tuple[np.ndarray, ...]] = {}
+    one = np.ones((m, 1))
+    frame = (np.eye(3)[0] * one, np.eye(3)[1] * one, np.eye(3)[2] * one, np.zeros((m, 3)))
+    for e, kind in enumerate(chain.kinds):
+        if e in want:
+            rec[e] = frame
+        if kind == FIXED:
+            frame = step(FIXED, 0.0, frame, chain.fixed[e])
+            continue
+        v = chain.nominal[e] + (q[:, chain.joint[e]] if chain.joint[e] >= 0 else 0.0)
+        frame = step(kind, np.broadcast_to(v, (m,))[:, None], frame)
+    rec[len(chain.kinds)] = frame
+    g = np.asarray(robot.gravity, dtype=float)
+    U = np.stack([rec[joint_el[j]][chain.kinds[joint_el[j]] % 3] for j in range(n)], axis=1)  # (m, n, 3)
+    Oj = np.stack([rec[joint_el[j]][3] for j in range(n)], axis=1) * MM
+    Ob = np.stack([rec[bounds[i]][3] for i in range(n)], axis=1) * MM
+    Ab = np.stack([np.stack(rec[bounds[i]][:3], axis=1) for i in range(n)], axis=1)  # (m, n, 3 axes, 3)
+    # u_j · ((o_i - o_j) x g) = u_j · (o_i x g) - u_j · (o_j x g); u_j · (a x g) for the body axes
+    mass = np.einsum("mjk,mik->mji", U, np.cross(Ob, g)) - np.einsum("mjk,mjk->mj", U, np.cross(Oj, g))[:, :, None]
+    first = np.einsum("mjk,miak->mjia", U, np.cross(Ab, g))
+    carried = np.triu(np.ones((n, n), dtype=bool))[None, :, :]  # body i >= joint j
+    Y = np.concatenate([(mass * carried)[..., None], first * carried[..., None]], axis=3).reshape(m, n, 4 * n)
+    return Y
+
+
+_CHAINS: dict[int, tuple[RobotDescription, Any]] = {}
+
+
+_REGRESSOR_ARRAYS: dict[int, tuple[RobotDescription, tuple[Any, ...]]] = {}
+
+
+def _regressor_arrays(robot: RobotDescription) -> tuple[Any, ...]:
+    """The compiled regressor's chain arrays for this description (built once per description object):
+    ``(kinds, nominal, joint, fR, ft, slot, joint_slot, joint_axis, body_slot, g, MM)``."""
+    from robocal.kinematics.compiled import chain_arrays
+
+    hit = _REGRESSOR_ARRAYS.get(id(robot))
+    if hit is not None and hit[0] is robot:
+        return hit[1]
+    chain = _chain(robot)
+    n = robot.n_joints
+    kinds, nominal, _param, _is_joint, fR, ft = chain_arrays(chain)
+    bounds = body_frame_boundaries(chain, robot.is_mdh)
+    joint_el = [int(np.flatnonzero(chain.joint == j)[0]) for j in range(n)]
+    slot = np.full(len(kinds) + 1, -1, dtype=np.int64)
+    for k, e in enumerate(sorted(set(bounds) | set(joint_el))):
+        slot[e] = k
+    out = (
+        kinds, np.ascontiguousarray(nominal), np.asarray(chain.joint, dtype=np.int64), fR, ft, slot,
+        slot[joint_el], np.array([kinds[e] % 3 for e in joint_el], dtype=np.int64), slot[bounds],
+        np.asarray(robot.gravity, dtype=float), float(MM),
+    )  # fmt: skip
+    _REGRESSOR_ARRAYS[id(robot)] = (robot, out)
+    return out
+
+
+def _chain(robot: RobotDescription) -> Any:
+    """The robot's chain, built once per description object (the service evaluates effects per request)."""
+    hit = _CHAINS.get(id(robot))
+    if hit is None or hit[0] is not robot:
+        hit = (robot, build_chain(robot))
+        _CHAINS[id(robot)] = hit
+    return hit[1]

@@ -121,7 +121,7 @@ class Bundle:
     t_hi: np.ndarray | None = None
     manifest: dict[str, Any] = field(default_factory=dict)
     bundle_id: str = ""
-    effects: tuple[dict[str, Any], ...] = ()  # discovered joint-level effects (robocal.discovery.effects)
+    effects: tuple[dict[str, Any], ...] = ()  # discovered joint-level effects (robocal.compensation.discovered)
 
     @property
     def default_tool(self) -> str:
@@ -140,7 +140,7 @@ class Bundle:
         """The discovered effects, built once per loaded bundle (their tables are built at the first use)."""
         if not self.effects:
             return None
-        from robocal.discovery.effects import DiscoveredEffects
+        from robocal.compensation.discovered import DiscoveredEffects
 
         return DiscoveredEffects(tuple(self.effects), self.robot)
 

@@ -1,0 +1,145 @@
+"""The signals of stored joint-level effects, evaluated at commanded joints: what the compensation (the service,
+the program filter, ``compensation.csv``) and the discovery's fit both compute from an effect's record.
+
+* :func:`transmission_signal`: a Fourier series of one joint's angle (:func:`fourier_signal`) weighted by the
+  coverage of the angles the calibration visited (:func:`coverage_weight`): the gear transmission error;
+* :func:`weight_signal`: the load torque of the arm's own weight per mass-moment combination
+  (:func:`robocal.kinematics.gravity.gravity_regressor`): compliance without known masses;
+* :func:`layer_signal`: the residual layer's gated kernel features (:func:`layer_features`, :func:`layer_gate`);
+* :func:`evaluate_factor`: one factor of a proposed equation's term.
+
+How they are fitted (visited intervals, the weight basis, the layer's centres) is the discovery's
+(:mod:`robocal.discovery.physics`); the records they read are written by :mod:`robocal.discovery.effects`.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from robocal.kinematics.gravity import gravity_regressor
+from robocal.robot import RobotDescription
+
+REV_DEG = 360.0
+
+#: a factor of a term: ("sin" | "cos", joint 1-based, harmonic) or (signal kind, index 1-based or 0, 0)
+Factor = tuple[str, int, int]
+
+
+def coverage_weight(q_rad: np.ndarray, intervals: list[list[float]], taper_deg: float) -> np.ndarray:
+    """``w (m,)`` in [0, 1]: 1 on the visited intervals, a raised cosine to 0 over ``taper_deg`` outside."""
+    a = np.mod(np.rad2deg(np.asarray(q_rad, dtype=float)), REV_DEG)
+    if not intervals:
+        return np.zeros(a.shape)
+    iv = np.asarray(intervals, dtype=float)
+    lo, hi = iv[:, 0], iv[:, 1]  # (K,) every interval at once: the service evaluates this per Newton step
+    A = a[..., None]
+    inside = np.where(lo <= hi, (A >= lo) & (A <= hi), (A >= lo) | (A <= hi))  # lo > hi: wraps through 0
+    d = np.minimum(np.mod(lo - A, REV_DEG), np.mod(A - hi, REV_DEG))
+    dist = np.where(inside, 0.0, d).min(axis=-1)
+    if taper_deg <= 0:
+        return (dist == 0).astype(float)
+    t = np.clip(dist / taper_deg, 0.0, 1.0)
+    return 0.5 * (1.0 + np.cos(np.pi * t))
+
+
+def fourier_signal(q_rad: np.ndarray, harmonics: np.ndarray, weight: np.ndarray | None = None) -> np.ndarray:
+    """``S (m, 2H)``: ``[sin(h q) ..., cos(h q) ...]`` for the harmonics ``h`` (times ``weight`` when given)."""
+    q = np.asarray(q_rad, dtype=float)
+    h = np.asarray(harmonics, dtype=int)
+    if len(h) and np.array_equal(h, np.arange(h[0], h[0] + len(h))):
+        # consecutive harmonics: e^{i h q} by repeated multiplication (one sin/cos per pose; the service and
+        # compensation.csv evaluate tens of harmonics per Newton step), exact to ~len(h) ulp
+        from robocal.kinematics import compiled
+
+        z = np.exp(1j * q)
+        z0 = np.exp(1j * h[0] * q)
+        if compiled.AVAILABLE:  # the same recurrence, compiled (a Python loop over tens of harmonics otherwise)
+            Z = compiled.harmonics(z, z0, len(h))
+        else:
+            Z = np.empty((len(q), len(h)), dtype=complex)
+            Z[:, 0] = z0
+            for k in range(1, len(h)):
+                Z[:, k] = Z[:, k - 1] * z
+        S = np.concatenate([Z.imag, Z.real], axis=1)
+    else:
+        S = np.concatenate([np.sin(h[None, :] * q[:, None]), np.cos(h[None, :] * q[:, None])], axis=1)
+    return S if weight is None else S * np.asarray(weight, dtype=float)[:, None]
+
+
+def transmission_signal(q_rad: np.ndarray, record: dict[str, Any]) -> np.ndarray:
+    """The transmission-error signal of a stored effect (``harmonics``, ``visited_deg``, ``taper_deg``, and the
+    ``centre`` subtracted: the signal's mean over the calibration poses, whose constant part the geometry's
+    joint offset carries)."""
+    w = coverage_weight(q_rad, record["visited_deg"], float(record["taper_deg"]))
+    S = fourier_signal(q_rad, np.asarray(record["harmonics"], dtype=int), w)
+    return S - np.asarray(record.get("centre", 0.0), dtype=float)
+
+
+def weight_signal(
+    robot: RobotDescription, q: np.ndarray, record: dict[str, Any], Y: np.ndarray | None = None
+) -> np.ndarray:
+    """The compliance-under-own-weight signal of a stored effect (``basis``, ``scale``); ``Y``: the
+    :func:`gravity_regressor` at ``q`` when already computed (one for every joint's effect)."""
+    j = int(record["joint"]) - 1
+    Yj = (gravity_regressor(robot, q) if Y is None else Y)[:, j, :]
+    return Yj @ np.asarray(record["basis"], dtype=float) / np.asarray(record["scale"], dtype=float)
+
+
+def layer_features(q_rad: np.ndarray, centres: np.ndarray, length_rad: float) -> tuple[np.ndarray, np.ndarray]:
+    """Gaussian kernel features ``exp(-|q - c|² / (2 l²))`` ``(m, D)`` and each pose's distance to its nearest
+    centre ``(m,)`` rad (scikit-learn's pairwise kernels)."""
+    from sklearn.metrics.pairwise import euclidean_distances
+
+    d = euclidean_distances(np.atleast_2d(np.asarray(q_rad, dtype=float)), centres)
+    return np.exp(-(d**2) / (2.0 * length_rad**2)), d.min(axis=1)
+
+
+def layer_gate(dist_rad: np.ndarray, inside_rad: float, length_rad: float) -> np.ndarray:
+    """1 within ``inside_rad`` of a centre (the calibrated region), a raised cosine to 0 one length scale
+    further: outside the calibrated region the layer is not applied (the parametric model alone)."""
+    t = np.clip((np.asarray(dist_rad, dtype=float) - inside_rad) / length_rad, 0.0, 1.0)
+    return np.asarray(0.5 * (1.0 + np.cos(np.pi * t)))
+
+
+def layer_signal(q_rad: np.ndarray, record: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
+    """The residual layer's gated features ``(m, D)`` of a stored effect and the gate ``(m,)`` (1 = inside the
+    calibrated region, 0 = outside: parametric correction only)."""
+    ell = float(record["length_rad"])
+    F, d = layer_features(q_rad, np.asarray(record["centres_rad"], dtype=float), ell)
+    g = layer_gate(d, float(record["inside_rad"]), ell)
+    return F * g[:, None], g
+
+
+def factor_label(f: Factor) -> str:
+    kind, i, h = f
+    if kind in ("sin", "cos"):
+        return f"{kind}({'' if h == 1 else h}q{i})"
+    return {
+        "gravity": f"tau_g{i}",
+        "tau": f"tau{i}",
+        "current": f"i{i}",
+        "temperature": f"T_PC{i}",
+        "dtemperature": f"dT_PC{i}/dt",
+        "time": "t_h",
+    }[kind]
+
+
+def evaluate_factor(
+    f: Factor,
+    q: np.ndarray,
+    grav: np.ndarray | None = None,
+    tau: np.ndarray | None = None,
+    current: np.ndarray | None = None,
+) -> np.ndarray:
+    """One factor at joints ``q (m, n)`` rad (gravity torques, torques, currents given where needed)."""
+    kind, i, h = f
+    if kind == "sin":
+        return np.sin(h * q[:, i - 1])
+    if kind == "cos":
+        return np.cos(h * q[:, i - 1])
+    arr = {"gravity": grav, "tau": tau, "current": current}.get(kind)
+    if arr is None:
+        raise ValueError(f"the term factor {factor_label(f)} needs a signal that was not given")
+    return np.asarray(arr)[:, i - 1]
