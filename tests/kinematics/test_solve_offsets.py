@@ -73,3 +73,37 @@ def test_the_tabulated_discovered_effects_are_the_records_sum():
     assert np.abs(fast - exact).max() <= TABLE_TOL_RAD
     tables, _weights, rest = de._tables
     assert tables is not None and sorted(tables[0].tolist()) == [1, 4] and rest == []  # both joints tabulated
+
+
+def test_the_discovered_effects_in_one_compiled_call_are_the_records_sum():
+    """Tables and weight effects together go through one compiled kernel (the service's path); a record that is
+    neither (a torque effect) takes the term-by-term sum. Both equal the records evaluated one by one."""
+    from robocal.compensation.discovered import TABLE_TOL_RAD, DiscoveredEffects, joint_offsets
+    from robocal.compensation.effects import Signals
+
+    robot = load_robot("kr16_2")
+    rng = np.random.default_rng(5)
+    n = robot.n_joints
+    weight = [
+        {"key": f"weight:j{j}", "effect": "weight", "joint": j, "signal": "weight",
+         "basis": np.linalg.qr(rng.normal(size=(4 * n, 3)))[0].tolist(), "scale": [30.0, 8.0, 2.0],
+         "prior_deg": 0.05, "coefficients": rng.normal(0, 1e-4, 3).tolist()}
+        for j in (2, 3)
+    ]  # fmt: skip
+    gear = [{"key": "gear:j1:h3", "effect": "gear", "joint": 1, "harmonic": 3, "signal": "angle",
+             "coefficients": [2e-4, -1e-4]}]  # fmt: skip
+    q = rng.uniform(-3.0, 3.0, (500, n))
+    for records in (weight, weight + gear):
+        de = DiscoveredEffects(tuple(records), robot)
+        assert de._fused is not None  # the one-call path
+        exact = joint_offsets(records, robot, q)
+        assert np.abs(exact).max() > 1e-5  # the effects are there: the check below means something
+        # the weight effects are the same sums in another order (1e-15); the tables within their tolerance
+        assert np.abs(de.offsets(q, Signals(np.zeros(len(q)))) - exact).max() <= TABLE_TOL_RAD
+    torque = {"key": "compliance:j2", "effect": "compliance", "joint": 2, "signal": "torque",
+              "coefficients": [1e-5]}  # fmt: skip
+    de = DiscoveredEffects((*weight, torque), robot)
+    assert de._fused is None  # a record neither tabulated nor a weight effect: term by term
+    tau = rng.normal(0, 50.0, q.shape)
+    exact = joint_offsets([*weight, torque], robot, q, tau_Nm=tau)
+    assert np.abs(de.offsets(q, Signals(np.zeros(len(q)), tau_Nm=tau)) - exact).max() <= 1e-14

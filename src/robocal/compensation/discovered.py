@@ -28,7 +28,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from robocal.compensation.signals import evaluate_factor, layer_signal, transmission_signal, weight_signal
-from robocal.kinematics.gravity import gravity_regressor, gravity_torques
+from robocal.kinematics import compiled
+from robocal.kinematics.gravity import gravity_regressor, gravity_torques, regressor_arrays
 from robocal.robot import RobotDescription
 
 if TYPE_CHECKING:
@@ -133,8 +134,6 @@ def _interp_tables(
 ) -> np.ndarray:
     """Linear interpolation of the tables of :meth:`DiscoveredEffects._tables` at joints ``q`` (compiled when
     numba is there)."""
-    from robocal.kinematics import compiled
-
     if compiled.AVAILABLE:
         return compiled.periodic_tables(q, cols, grid, vals, start, TWO_PI)
     out = np.empty((len(q), len(cols)))
@@ -191,6 +190,9 @@ class DiscoveredEffects:
     def offsets(self, q: np.ndarray, s: Signals) -> np.ndarray:
         tables, weights, rest = self._tables
         q = np.atleast_2d(np.asarray(q, dtype=float))
+        fused = self._fused
+        if fused is not None:  # every effect tabulated or a weight effect: one compiled call
+            return compiled.joint_tables_and_weight(np.ascontiguousarray(q), *fused)
         dq = joint_offsets(rest, self.robot, q, s.payload_kg, s.tau_Nm, s.current_A, s.direction) if rest else (
             np.zeros(q.shape))  # fmt: skip
         if tables is not None:
@@ -200,6 +202,19 @@ class DiscoveredEffects:
             wcols, P = weights
             dq[:, wcols] += np.einsum("mjk,jk->mj", gravity_regressor(self.robot, q)[:, wcols, :], P)
         return dq
+
+    @cached_property
+    def _fused(self) -> tuple[Any, ...] | None:
+        """The arguments of :func:`robocal.kinematics.compiled.joint_tables_and_weight` after ``q`` when every
+        record is in the tables or a weight effect (and numba is there), else None (the sum term by term)."""
+        tables, weights, rest = self._tables
+        if rest or not compiled.AVAILABLE or (tables is None and weights is None):
+            return None
+        n = self.robot.n_joints
+        none_i, none_f = np.zeros(0, dtype=np.int64), np.zeros(0)
+        cols, grid, vals, start = tables if tables is not None else (none_i, none_f, none_f, np.zeros(1, np.int64))
+        wcols, P = weights if weights is not None else (none_i, np.zeros((0, 4 * n)))
+        return (cols, grid, vals, start, TWO_PI, wcols, np.ascontiguousarray(P), *regressor_arrays(self.robot))
 
     @cached_property
     def _tables(

@@ -41,6 +41,7 @@ __all__ = [
     "forward",
     "gravity_regressor",
     "harmonics",
+    "joint_tables_and_weight",
     "newton",
     "periodic_tables",
     "points_to_base",
@@ -620,3 +621,49 @@ def periodic_tables(
                     hi = mid
             out[r, t] = vals[lo] + (x - grid[lo]) * ((vals[hi] - vals[lo]) / (grid[hi] - grid[lo]))
     return out
+
+
+@_jit
+def joint_tables_and_weight(
+    q: np.ndarray,
+    cols: np.ndarray,
+    grid: np.ndarray,
+    vals: np.ndarray,
+    start: np.ndarray,
+    period: float,
+    wcols: np.ndarray,
+    P: np.ndarray,
+    kinds: np.ndarray,
+    nominal: np.ndarray,
+    joint: np.ndarray,
+    fR: np.ndarray,
+    ft: np.ndarray,
+    slot: np.ndarray,
+    joint_slot: np.ndarray,
+    joint_axis: np.ndarray,
+    body_slot: np.ndarray,
+    g: np.ndarray,
+    mm: float,
+) -> np.ndarray:
+    """``dq (m, n)``: the tabulated single-angle effects (:func:`periodic_tables` of joints ``cols``) plus the
+    compliance under the arm's own weight ``Y_j(q) @ P[k]`` of joints ``wcols[k]`` (:func:`gravity_regressor`),
+    in one call: the stored discovered effects of :class:`robocal.compensation.discovered.DiscoveredEffects`
+    as the service evaluates them at every Newton step (``cols`` or ``wcols`` may be empty)."""
+    m, n = q.shape
+    dq = np.zeros((m, n))
+    if len(cols) > 0:
+        T = periodic_tables(q, cols, grid, vals, start, period)
+        for t in range(len(cols)):
+            for r in range(m):
+                dq[r, cols[t]] += T[r, t]
+    if len(wcols) > 0:
+        Y = gravity_regressor(kinds, nominal, joint, fR, ft, q, slot, joint_slot, joint_axis, body_slot, g, mm)
+        K = P.shape[1]
+        for k in range(len(wcols)):
+            j = wcols[k]
+            for r in range(m):
+                acc = 0.0
+                for c in range(K):
+                    acc += Y[r, j, c] * P[k, c]
+                dq[r, j] += acc
+    return dq

@@ -191,7 +191,7 @@ def gravity_regressor(robot: RobotDescription, q: np.ndarray, compiled_ok: bool 
 
     q = np.atleast_2d(np.asarray(q, dtype=float))
     if compiled.AVAILABLE and compiled_ok:
-        args = _regressor_arrays(robot)
+        args = regressor_arrays(robot)
         return compiled.gravity_regressor(*args[:5], np.ascontiguousarray(q), *args[5:])
     return _gravity_regressor_numpy(robot, q)
 
@@ -235,7 +235,7 @@ _CHAINS: dict[int, tuple[RobotDescription, Any]] = {}
 _REGRESSOR_ARRAYS: dict[int, tuple[RobotDescription, tuple[Any, ...]]] = {}
 
 
-def _regressor_arrays(robot: RobotDescription) -> tuple[Any, ...]:
+def regressor_arrays(robot: RobotDescription) -> tuple[Any, ...]:
     """The compiled regressor's chain arrays for this description (built once per description object):
     ``(kinds, nominal, joint, fR, ft, slot, joint_slot, joint_axis, body_slot, g, MM)``."""
     from robocal.kinematics.compiled import chain_arrays
