@@ -203,7 +203,7 @@ class Solution:
     residual_rad: np.ndarray
 
 
-def solve(  # noqa: PLR0915 (known: the Newton loop, to be split)
+def solve(
     cc: CompiledChain,
     tool_T: np.ndarray,
     q_start: np.ndarray,
@@ -257,28 +257,10 @@ def solve(  # noqa: PLR0915 (known: the Newton loop, to be split)
     if compiled:
         if joint_offset is not None or not _compiled.AVAILABLE:
             raise ValueError("the compiled solver needs numba and no joint_offset")
-        qs = _f64(q_start)
-        Rd = _f64(R_desired) if R_desired is not None else np.zeros((len(qs), 3, 3))
-        qf, cf, itf, e0, E0f, e1, E1f = _compiled.newton(
-            *_kernel_args(cc),
-            _f64(tool_T),
-            qs,
-            _f64(p_desired),
-            Rd,
-            R_desired is not None,
-            int(max_iter),
-            float(tol_mm),
-            float(tol_rad),
-            float(max_step_rad),
-            float(rot_weight_mm),
-        )
-        iters = int(itf.max(initial=0))
-        zeros3 = np.zeros((len(qs), 3))
-        if R_desired is None:
-            return Solution(qf, cf, iters, e0, zeros3, e1, zeros3)
-        return Solution(qf, cf, iters, e0, _rotvec(E0f), e1, _rotvec(E1f))
+        return _solve_compiled(cc, tool_T, q_start, p_desired, R_desired, max_iter, tol_mm, tol_rad, max_step_rad,
+                               rot_weight_mm)  # fmt: skip
     q = np.array(q_start, dtype=float)
-    m, n = q.shape
+    m = len(q)
     Rd_T = np.swapaxes(R_desired, -1, -2) if R_desired is not None else None
     conv = np.zeros(m, dtype=bool)
     e_p = np.zeros((m, 3))
@@ -313,29 +295,83 @@ def solve(  # noqa: PLR0915 (known: the Newton loop, to be split)
         keep = ~(ok | stalled)
         if not keep.any() or it == max_iter:
             break
-        active, ep, U, O, p = active[keep], ep[keep], U[keep], O[keep], p[keep]
-        D = p[:, :, None] - O
-        Jp = U[:, _C1] * D[:, _C2] - U[:, _C2] * D[:, _C1]  # u x (p - o), (m, 3, n)
-        if Rd_T is not None:
-            A = np.concatenate([Jp, rot_weight_mm * U], axis=1)  # (m, 6, n)
-            b = np.concatenate([ep, rot_weight_mm * w[keep]], axis=1)
-        else:
-            A, b = Jp, ep
-        At = np.swapaxes(A, 1, 2)
-        k = A.shape[1]
-        if k >= n:  # (over)determined: damped normal equations
-            N = At @ A
-            N[:, _DIAG[n], _DIAG[n]] += 1e-12 * np.einsum("mii->m", N)[:, None]
-            dq = -np.linalg.solve(N, At @ b[:, :, None])[:, :, 0]
-        else:  # redundant (position only): minimum-norm step
-            N = A @ At
-            N[:, _DIAG[k], _DIAG[k]] += 1e-12 * np.einsum("mii->m", N)[:, None]
-            dq = -(At @ np.linalg.solve(N, b[:, :, None]))[:, :, 0]
-        big = np.abs(dq).max(axis=1)
-        if big.max() > max_step_rad:
-            dq *= np.minimum(1.0, max_step_rad / np.maximum(big, 1e-300))[:, None]
-        q[active] += dq
+        active = active[keep]
+        q[active] += _newton_step(
+            U[keep], O[keep], p[keep], ep[keep], None if Rd_T is None else w[keep], rot_weight_mm, max_step_rad
+        )
     zeros = np.zeros((m, 3))
     if R_desired is None:
         return Solution(q, conv, it, e_p0, zeros, e_p, zeros)
     return Solution(q, conv, it, e_p0, _rotvec(E0), e_p, _rotvec(E))
+
+
+def _solve_compiled(
+    cc: CompiledChain,
+    tool_T: np.ndarray,
+    q_start: np.ndarray,
+    p_desired: np.ndarray,
+    R_desired: np.ndarray | None,
+    max_iter: int,
+    tol_mm: float,
+    tol_rad: float,
+    max_step_rad: float,
+    rot_weight_mm: float,
+) -> Solution:
+    """:func:`solve` without joint offsets, compiled (:func:`robocal.kinematics.compiled.newton`, per target)."""
+    qs = _f64(q_start)
+    Rd = _f64(R_desired) if R_desired is not None else np.zeros((len(qs), 3, 3))
+    qf, cf, itf, e0, E0f, e1, E1f = _compiled.newton(
+        *_kernel_args(cc),
+        _f64(tool_T),
+        qs,
+        _f64(p_desired),
+        Rd,
+        R_desired is not None,
+        int(max_iter),
+        float(tol_mm),
+        float(tol_rad),
+        float(max_step_rad),
+        float(rot_weight_mm),
+    )
+    iters = int(itf.max(initial=0))
+    zeros3 = np.zeros((len(qs), 3))
+    if R_desired is None:
+        return Solution(qf, cf, iters, e0, zeros3, e1, zeros3)
+    return Solution(qf, cf, iters, e0, _rotvec(E0f), e1, _rotvec(E1f))
+
+
+def _newton_step(
+    U: np.ndarray,
+    O: np.ndarray,
+    p: np.ndarray,
+    ep: np.ndarray,
+    w: np.ndarray | None,
+    rot_weight_mm: float,
+    max_step_rad: float,
+) -> np.ndarray:
+    """The joint step ``(k, n)`` of the targets still iterating, from their joint axes ``U`` and points ``O``
+    (k, 3, n), tool positions ``p`` (k, 3), position errors ``ep`` (k, 3) and, with an orientation, rotation
+    errors ``w`` (k, 3): damped normal equations when (over)determined, the minimum-norm step when redundant,
+    each target's largest joint step clipped to ``max_step_rad``."""
+    n = U.shape[2]
+    D = p[:, :, None] - O
+    Jp = U[:, _C1] * D[:, _C2] - U[:, _C2] * D[:, _C1]  # u x (p - o), (m, 3, n)
+    if w is not None:
+        A = np.concatenate([Jp, rot_weight_mm * U], axis=1)  # (m, 6, n)
+        b = np.concatenate([ep, rot_weight_mm * w], axis=1)
+    else:
+        A, b = Jp, ep
+    At = np.swapaxes(A, 1, 2)
+    k = A.shape[1]
+    if k >= n:  # (over)determined: damped normal equations
+        N = At @ A
+        N[:, _DIAG[n], _DIAG[n]] += 1e-12 * np.einsum("mii->m", N)[:, None]
+        dq = -np.linalg.solve(N, At @ b[:, :, None])[:, :, 0]
+    else:  # redundant (position only): minimum-norm step
+        N = A @ At
+        N[:, _DIAG[k], _DIAG[k]] += 1e-12 * np.einsum("mii->m", N)[:, None]
+        dq = -(At @ np.linalg.solve(N, b[:, :, None]))[:, :, 0]
+    big = np.abs(dq).max(axis=1)
+    if big.max() > max_step_rad:
+        dq *= np.minimum(1.0, max_step_rad / np.maximum(big, 1e-300))[:, None]
+    return dq

@@ -190,6 +190,37 @@ def load_bundle(path: str | Path, loaders: Mapping[str, Loader] | None = None) -
     :data:`DEFAULT_LOADERS`); used by tests with stand-in models.
     """
     d = Path(path)
+    manifest = _read_manifest(d)
+    robot_ref = manifest.get("robot")
+    if not robot_ref:
+        raise ConfigError(f"bundle {d}: {MANIFEST} must name the 'robot'")
+    robot = load_robot(d / robot_ref if str(robot_ref).endswith((".yaml", ".yml")) else str(robot_ref))
+    cal = _read_calibration(d, manifest, robot)
+    models = _read_models(d, manifest, loaders)
+    th = models.get("thermal")
+    sensors, t_lo, t_hi = _thermal_range_checked(d, th, robot, cal.model.chain.n_params)
+    digest = hashlib.sha256(json.dumps(manifest, sort_keys=True).encode()).hexdigest()[:12]
+    return Bundle(
+        path=d.resolve(),
+        robot=robot,
+        calibration=cal,
+        chain=cal.model.chain,
+        eta0=cal.kinematic_errors,
+        tracker_T_base=cal.tracker_T_base,
+        tools=_tool_frames(cal),
+        thermal=th,
+        compliance=models.get("compliance"),
+        sensors=sensors,
+        t_lo=t_lo,
+        t_hi=t_hi,
+        manifest=manifest,
+        bundle_id=digest,
+        effects=cal.effects,
+    )
+
+
+def _read_manifest(d: Path) -> dict[str, Any]:
+    """The bundle's manifest, checked: its format and version, and every listed file against its sha256."""
     mpath = d / MANIFEST
     if not mpath.is_file():
         raise ConfigError(f"bundle {d}: no {MANIFEST}")
@@ -207,18 +238,22 @@ def load_bundle(path: str | Path, loaders: Mapping[str, Loader] | None = None) -
             raise ConfigError(f"bundle {d}: {name} is listed in {MANIFEST} but missing")
         if _sha256(f) != digest:
             raise ConfigError(f"bundle {d}: {name} does not match its sha256 in {MANIFEST} (changed or half-written)")
-    robot_ref = manifest.get("robot")
-    if not robot_ref:
-        raise ConfigError(f"bundle {d}: {MANIFEST} must name the 'robot'")
-    robot = load_robot(d / robot_ref if str(robot_ref).endswith((".yaml", ".yml")) else str(robot_ref))
+    return manifest
+
+
+def _read_calibration(d: Path, manifest: dict[str, Any], robot: RobotDescription) -> CalibrationResult:
+    """The bundle's calibration, read for ``robot`` (an error names the bundle and the file)."""
     cal_file = d / str(manifest.get("calibration") or "calibration.json")
     try:
-        cal = load_calibration(json.loads(cal_file.read_text(encoding="utf-8")), robot)
+        return load_calibration(json.loads(cal_file.read_text(encoding="utf-8")), robot)
     except ConfigError as exc:  # e.g. a calibration of another robot: the error names both
         raise ConfigError(f"bundle {d}: {cal_file.name}: {exc}") from None
     except (OSError, json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
         raise ConfigError(f"bundle {d}: cannot load {cal_file.name}: {type(exc).__name__}: {exc}") from exc
-    chain = cal.model.chain
+
+
+def _tool_frames(cal: CalibrationResult) -> dict[str, np.ndarray]:
+    """``{target name: (4, 4) flange_T_tool}`` of the calibration."""
     tools: dict[str, np.ndarray] = {}
     tool_R = cal.model.tool_rotations(cal.x)
     for k, (name, t) in enumerate(cal.tools.items()):
@@ -226,6 +261,11 @@ def load_bundle(path: str | Path, loaders: Mapping[str, Loader] | None = None) -
         T[:3, :3] = tool_R[k]
         T[:3, 3] = t
         tools[name] = T
+    return tools
+
+
+def _read_models(d: Path, manifest: dict[str, Any], loaders: Mapping[str, Loader] | None) -> dict[str, Any]:
+    """The thermal and compliance models the manifest lists (a model that fails to load names its file)."""
     models: dict[str, Any] = {}
     for kind in ("thermal", "compliance"):
         ref = manifest.get(kind)
@@ -241,38 +281,26 @@ def load_bundle(path: str | Path, loaders: Mapping[str, Loader] | None = None) -
             raise ConfigError(
                 f"bundle {d}: cannot load the {kind} model {f.name}: {type(exc).__name__}: {exc}"
             ) from exc
-    sensors: tuple[str, ...] = ()
-    t_lo = t_hi = None
-    th = models.get("thermal")
-    if th is not None:
-        sensors = tuple(str(s) for s in th.sensors)
-        rng = thermal_range(th)
-        if rng is not None:
-            t_lo, t_hi = rng
-        probe = np.asarray(th.deta(np.full((1, len(sensors)), float(robot.T0_C or 20.0))))
-        if probe.shape != (1, chain.n_params):
-            raise ConfigError(
-                f"bundle {d}: thermal model deta returns shape {probe.shape}; expected (1, {chain.n_params}) "
-                f"(the parameters of {robot.name})"
-            )
-    digest = hashlib.sha256(json.dumps(manifest, sort_keys=True).encode()).hexdigest()[:12]
-    return Bundle(
-        path=d.resolve(),
-        robot=robot,
-        calibration=cal,
-        chain=chain,
-        eta0=cal.kinematic_errors,
-        tracker_T_base=cal.tracker_T_base,
-        tools=tools,
-        thermal=th,
-        compliance=models.get("compliance"),
-        sensors=sensors,
-        t_lo=t_lo,
-        t_hi=t_hi,
-        manifest=manifest,
-        bundle_id=digest,
-        effects=cal.effects,
-    )
+    return models
+
+
+def _thermal_range_checked(
+    d: Path, th: Any, robot: RobotDescription, n_params: int
+) -> tuple[tuple[str, ...], np.ndarray | None, np.ndarray | None]:
+    """``(sensors, t_lo, t_hi)`` of the thermal model (empty and None without one), after checking that its
+    drift has one value per chain parameter of ``robot``."""
+    if th is None:
+        return (), None, None
+    sensors = tuple(str(s) for s in th.sensors)
+    rng = thermal_range(th)
+    t_lo, t_hi = rng if rng is not None else (None, None)
+    probe = np.asarray(th.deta(np.full((1, len(sensors)), float(robot.T0_C or 20.0))))
+    if probe.shape != (1, n_params):
+        raise ConfigError(
+            f"bundle {d}: thermal model deta returns shape {probe.shape}; expected (1, {n_params}) "
+            f"(the parameters of {robot.name})"
+        )
+    return sensors, t_lo, t_hi
 
 
 def write_bundle(
