@@ -26,6 +26,7 @@ with the reason.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -181,211 +182,276 @@ def build_library(
     campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig
 ) -> tuple[list[Candidate], list[SkippedCandidate]]:
     """Every candidate of the configured effects for this campaign, and the skipped ones with reasons."""
+    out = _Library([], [])
+    for effect in cfg.effects:
+        build = _EFFECT_CANDIDATES.get(effect)
+        if build is not None:
+            build(campaign, robot, cfg, out)
+    return out.cands, out.skipped
+
+
+@dataclass
+class _Library:
+    """The candidates built so far and the skipped ones, in the order of the configured effects."""
+
+    cands: list[Candidate]
+    skipped: list[SkippedCandidate]
+
+
+def _compliance_candidates(campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig, out: _Library) -> None:
+    """The ``compliance`` candidates of the campaign, or why there are none."""
+    effect = "compliance"
     n = robot.n_joints
     tol = cfg.min_signal_std
-    cands: list[Candidate] = []
-    skipped: list[SkippedCandidate] = []
+    for j in range(n):
+        key = f"compliance:j{j + 1}"
+        sig, desc, unit, why = compliance_signal(campaign, robot, j)
+        if sig is None:
+            out.skipped.append(SkippedCandidate(key, effect, j + 1, why))
+        elif not _varies(sig, max(tol, 1e-6)):
+            out.skipped.append(SkippedCandidate(key, effect, j + 1, f"the signal ({desc}) does not vary"))
+        else:
+            out.cands.append(
+                Candidate(
+                    key, effect, j + 1, None,
+                    cause=f"torsional elasticity of the joint-{j + 1} reducer under load (dq = c·tau)",
+                    signal=desc, shape="joint", S=sig[:, None],
+                    coef_names=("c",), coef_units=(unit,),
+                    extra={"source": "torque" if desc.startswith("reported torque") else
+                           "current" if desc.startswith("motor current") else "gravity"},
+                )
+            )  # fmt: skip
+
+
+def _gear_candidates(campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig, out: _Library) -> None:
+    """The ``gear`` candidates of the campaign, or why there are none."""
+    effect = "gear"
+    n = robot.n_joints
     q = campaign.q
-    for effect in cfg.effects:
-        if effect == "compliance":
-            for j in range(n):
-                key = f"compliance:j{j + 1}"
-                sig, desc, unit, why = compliance_signal(campaign, robot, j)
-                if sig is None:
-                    skipped.append(SkippedCandidate(key, effect, j + 1, why))
-                elif not _varies(sig, max(tol, 1e-6)):
-                    skipped.append(SkippedCandidate(key, effect, j + 1, f"the signal ({desc}) does not vary"))
-                else:
-                    cands.append(
-                        Candidate(
-                            key, effect, j + 1, None,
-                            cause=f"torsional elasticity of the joint-{j + 1} reducer under load (dq = c·tau)",
-                            signal=desc, shape="joint", S=sig[:, None],
-                            coef_names=("c",), coef_units=(unit,),
-                            extra={"source": "torque" if desc.startswith("reported torque") else
-                                   "current" if desc.startswith("motor current") else "gravity"},
-                        )
-                    )  # fmt: skip
-        elif effect == "gear":
-            for j in range(n):
-                rng = float(np.ptp(q[:, j]))
-                for h in cfg.gear_harmonics:
-                    key = f"gear:j{j + 1}:h{h}"
-                    if rng < 1e-6:
-                        skipped.append(SkippedCandidate(key, effect, j + 1, f"joint {j + 1} does not move"))
-                        continue
-                    # harmonics 1-2 (eccentricity) are one revolution's error: evaluated everywhere, unlike the
-                    # transmission error's many harmonics (robocal.discovery.physics), which are windowed
-                    S = np.column_stack([np.sin(h * q[:, j]), np.cos(h * q[:, j])])
-                    cands.append(
-                        Candidate(
-                            key, effect, j + 1, int(h),
-                            cause=f"periodic transmission error of the joint-{j + 1} reducer, harmonic {h} "
-                            "of the joint angle",
-                            signal=f"sin/cos({h}·q{j + 1})", shape="joint", S=S,
-                            coef_names=("sin", "cos"), coef_units=("rad", "rad"),
-                            extra={"joint_range_deg": float(np.rad2deg(rng))},
-                        )
-                    )  # fmt: skip
-        elif effect == "backlash":
-            for j in range(n):
-                key = f"backlash:j{j + 1}"
-                if campaign.direction is None:
-                    skipped.append(SkippedCandidate(key, effect, j + 1, "no approach directions (dir1..dirN)"))
-                    continue
-                d = campaign.direction[:, j].astype(float)
-                if not _varies(d, 1e-9):
-                    skipped.append(
-                        SkippedCandidate(key, effect, j + 1, f"every pose approached joint {j + 1} the same way")
-                    )
-                    continue
-                cands.append(
-                    Candidate(
-                        key, effect, j + 1, None,
-                        cause=f"dead band of the joint-{j + 1} drive: the joint lags against its approach direction",
-                        signal=f"approach direction dir{j + 1}", shape="joint", S=d[:, None],
-                        coef_names=("half_band",), coef_units=("rad",),
-                    )
-                )  # fmt: skip
-        elif effect == "thermal":
-            key = "thermal"
-            if campaign.temperatures is None:
-                skipped.append(SkippedCandidate(key, effect, None, "no temperature log (temperatures.csv)"))
+    for j in range(n):
+        rng = float(np.ptp(q[:, j]))
+        for h in cfg.gear_harmonics:
+            key = f"gear:j{j + 1}:h{h}"
+            if rng < 1e-6:
+                out.skipped.append(SkippedCandidate(key, effect, j + 1, f"joint {j + 1} does not move"))
                 continue
-            T = np.asarray(campaign.temperatures, dtype=float)
-            if not np.all(np.isfinite(T)) or float(np.max(np.std(T, axis=0))) < max(tol, 0.05):
-                skipped.append(
-                    SkippedCandidate(key, effect, None, "the temperatures do not vary (a constant offset is a pure "
-                                     "length scale, absorbed by the geometry)")
-                )  # fmt: skip
-                continue
-            S, names, load = _temperature_signals(campaign, cfg.thermal_components)
-            cands.append(
+            # harmonics 1-2 (eccentricity) are one revolution's error: evaluated everywhere, unlike the
+            # transmission error's many harmonics (robocal.discovery.physics), which are windowed
+            S = np.column_stack([np.sin(h * q[:, j]), np.cos(h * q[:, j])])
+            out.cands.append(
                 Candidate(
-                    key, effect, None, None,
-                    cause="thermal expansion and tilt: every identifiable parameter (base and tool included) drifts "
-                    "linearly with the temperature signals",
-                    signal=f"temperature principal components ({load})", shape="param", S=S,
-                    params=("*identified*",), signal_names=names,
+                    key, effect, j + 1, int(h),
+                    cause=f"periodic transmission error of the joint-{j + 1} reducer, harmonic {h} "
+                    "of the joint angle",
+                    signal=f"sin/cos({h}·q{j + 1})", shape="joint", S=S,
+                    coef_names=("sin", "cos"), coef_units=("rad", "rad"),
+                    extra={"joint_range_deg": float(np.rad2deg(rng))},
                 )
             )  # fmt: skip
-        elif effect == "drift":
-            key = "drift"
-            t = np.asarray(campaign.timestamp_s, dtype=float)
-            if not _varies(t, 1.0):
-                skipped.append(SkippedCandidate(key, effect, None, "the timestamps do not vary"))
-                continue
-            S = ((t - t.mean()) / HOUR_S)[:, None]
-            cands.append(
-                Candidate(
-                    key, effect, None, None,
-                    cause="tracker or robot base moving over the campaign (tripod settling, floor): the tracker-to-"
-                    "base frame drifts linearly in time",
-                    signal="timestamp (h from the campaign's mean time)", shape="param", S=S,
-                    params=("base_tx", "base_ty", "base_tz", "base_rx", "base_ry", "base_rz"), signal_names=("t_h",),
-                )
-            )  # fmt: skip
-        elif effect == "regap":
-            key = "regap"
-            t = np.asarray(campaign.timestamp_s, dtype=float)
-            cal_rows = campaign.split == "calibration" if np.any(campaign.split == "validation") else slice(None)
-            tc = np.sort(t[cal_rows])
-            gaps = np.diff(tc)
-            big = np.flatnonzero(gaps > cfg.registration_gap_h * HOUR_S)
-            if len(big) == 0:
-                skipped.append(SkippedCandidate(key, effect, None, f"no gap of more than {cfg.registration_gap_h} h "
-                                                "between measurements"))  # fmt: skip
-                continue
-            big = np.sort(big[np.argsort(-gaps[big])][:3])  # the three longest gaps at most
-            cuts = [(tc[k] + tc[k + 1]) / 2.0 for k in big]
-            S = np.column_stack([(t > c).astype(float) for c in cuts])
-            S = S - S[cal_rows].mean(axis=0)
-            names = tuple(f"after_gap{i + 1}" for i in range(len(cuts)))
-            cands.append(
-                Candidate(
-                    key, effect, None, None,
-                    cause="the tracker was set up again (or bumped) during a pause: after each gap of more than "
-                    f"{cfg.registration_gap_h} h the tracker-to-base frame is a fresh registration (a measurement-"
-                    "side effect, never sent to the controller)",
-                    signal="measured after the gap(s) at " + ", ".join(f"{c / HOUR_S:.1f} h" for c in cuts),
-                    shape="param", S=S,
-                    params=("base_tx", "base_ty", "base_tz", "base_rx", "base_ry", "base_rz"), signal_names=names,
-                )
-            )  # fmt: skip
-        elif effect == "air":
-            key = "air"
-            ambient, Ta = _air_temperature(campaign, robot)
-            if Ta is None:
-                why = "no air temperature (a sensor with location: ambient in the robot description) in the log"
-                skipped.append(SkippedCandidate(key, effect, None, why))
-                continue
-            if not np.all(np.isfinite(Ta)) or float(np.std(Ta)) < max(tol, 0.05):
-                skipped.append(SkippedCandidate(key, effect, None, "the air temperature does not vary"))
-                continue
-            cands.append(
-                Candidate(
-                    key, effect, None, None,
-                    cause="the tracker's frame moves with the air temperature (its stand, the air's refractive "
-                    "index compensation): a measurement-side effect, never sent to the controller",
-                    signal=f"air temperature ({', '.join(ambient)}) from its mean, degC", shape="param",
-                    S=(Ta - Ta.mean())[:, None],
-                    params=("base_tx", "base_ty", "base_tz", "base_rx", "base_ry", "base_rz"), signal_names=("T_air",),
-                )
-            )  # fmt: skip
-        elif effect == "scale":
-            t = np.asarray(campaign.timestamp_s, dtype=float)
-            skipped.append(SkippedCandidate("scale", effect, None, "a constant tracker scale is a uniform scale of the "
-                                            "robot's lengths and base: absorbed by the geometric calibration, not "
-                                            "separable without a reference length (only a scale that changes "
-                                            "during the campaign is tested)"))  # fmt: skip
-            cols: list[np.ndarray] = []
-            sig_names: list[str] = []
-            if _varies(t, 1.0):
-                cols.append((t - t.mean()) / HOUR_S)
-                sig_names.append("ppm_per_h")
-            _, Ta = _air_temperature(campaign, robot)
-            if Ta is not None and _varies(Ta, max(tol, 0.05)):
-                cols.append(Ta - Ta.mean())
-                sig_names.append("ppm_per_degC_air")
-            if not cols:
-                why = "neither the timestamps nor an air temperature vary"
-                skipped.append(SkippedCandidate("scale:drift", effect, None, why))
-                continue
-            cands.append(
-                Candidate(
-                    "scale:drift", effect, None, None,
-                    cause="the tracker's length scale changes during the campaign (the air's refractive index as "
-                    "the weather changes, a stale weather station): a measurement-side effect, never sent to the "
-                    "controller",
-                    signal=" and ".join(_SCALE_SIGNALS[n][0] for n in sig_names),
-                    shape="tracker", S=np.column_stack(cols) * PPM,
-                    coef_names=tuple(sig_names), coef_units=tuple(_SCALE_SIGNALS[n][1] for n in sig_names),
-                    extra={"p_mm": campaign.p_mm, **_confounded(np.column_stack(cols), campaign)},
-                )
-            )  # fmt: skip
-        elif effect == "beta":
-            par = _parallel_joints(robot)
-            if not robot.is_mdh:
-                skipped.append(SkippedCandidate("beta", effect, None, "POE robot: the twists already carry any tilt"))
-            elif not par:
-                skipped.append(SkippedCandidate("beta", effect, None, "no parallel consecutive joint axes"))
-            for j in par:
-                key = f"beta:j{j + 1}"
-                if bool(robot.beta_free[j]):
-                    skipped.append(SkippedCandidate(key, effect, j + 1, f"beta{j + 1} is already in the model"))
-                    continue
-                if any(p in (f"beta{j + 1}", "beta*") for p in cfg.fixed):
-                    skipped.append(SkippedCandidate(key, effect, j + 1, f"beta{j + 1} is fixed by the settings"))
-                    continue
-                cands.append(
-                    Candidate(
-                        key, effect, j + 1, None,
-                        cause=f"axes {j + 1} and {j + 2} are not exactly parallel (Hayati tilt beta{j + 1})",
-                        signal="geometry", shape="structure", S=np.zeros((campaign.n_rows, 0)),
-                        coef_names=(f"beta{j + 1}",), coef_units=("rad",),
-                    )
-                )  # fmt: skip
-    return cands, skipped
+
+
+def _backlash_candidates(campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig, out: _Library) -> None:
+    """The ``backlash`` candidates of the campaign, or why there are none."""
+    effect = "backlash"
+    n = robot.n_joints
+    for j in range(n):
+        key = f"backlash:j{j + 1}"
+        if campaign.direction is None:
+            out.skipped.append(SkippedCandidate(key, effect, j + 1, "no approach directions (dir1..dirN)"))
+            continue
+        d = campaign.direction[:, j].astype(float)
+        if not _varies(d, 1e-9):
+            out.skipped.append(
+                SkippedCandidate(key, effect, j + 1, f"every pose approached joint {j + 1} the same way")
+            )
+            continue
+        out.cands.append(
+            Candidate(
+                key, effect, j + 1, None,
+                cause=f"dead band of the joint-{j + 1} drive: the joint lags against its approach direction",
+                signal=f"approach direction dir{j + 1}", shape="joint", S=d[:, None],
+                coef_names=("half_band",), coef_units=("rad",),
+            )
+        )  # fmt: skip
+
+
+def _thermal_candidates(campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig, out: _Library) -> None:
+    """The ``thermal`` candidates of the campaign, or why there are none."""
+    effect = "thermal"
+    tol = cfg.min_signal_std
+    key = "thermal"
+    if campaign.temperatures is None:
+        out.skipped.append(SkippedCandidate(key, effect, None, "no temperature log (temperatures.csv)"))
+        return
+    T = np.asarray(campaign.temperatures, dtype=float)
+    if not np.all(np.isfinite(T)) or float(np.max(np.std(T, axis=0))) < max(tol, 0.05):
+        out.skipped.append(
+            SkippedCandidate(key, effect, None, "the temperatures do not vary (a constant offset is a pure "
+                             "length scale, absorbed by the geometry)")
+        )  # fmt: skip
+        return
+    S, names, load = _temperature_signals(campaign, cfg.thermal_components)
+    out.cands.append(
+        Candidate(
+            key, effect, None, None,
+            cause="thermal expansion and tilt: every identifiable parameter (base and tool included) drifts "
+            "linearly with the temperature signals",
+            signal=f"temperature principal components ({load})", shape="param", S=S,
+            params=("*identified*",), signal_names=names,
+        )
+    )  # fmt: skip
+
+
+def _drift_candidates(campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig, out: _Library) -> None:
+    """The ``drift`` candidates of the campaign, or why there are none."""
+    effect = "drift"
+    key = "drift"
+    t = np.asarray(campaign.timestamp_s, dtype=float)
+    if not _varies(t, 1.0):
+        out.skipped.append(SkippedCandidate(key, effect, None, "the timestamps do not vary"))
+        return
+    S = ((t - t.mean()) / HOUR_S)[:, None]
+    out.cands.append(
+        Candidate(
+            key, effect, None, None,
+            cause="tracker or robot base moving over the campaign (tripod settling, floor): the tracker-to-"
+            "base frame drifts linearly in time",
+            signal="timestamp (h from the campaign's mean time)", shape="param", S=S,
+            params=("base_tx", "base_ty", "base_tz", "base_rx", "base_ry", "base_rz"), signal_names=("t_h",),
+        )
+    )  # fmt: skip
+
+
+def _regap_candidates(campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig, out: _Library) -> None:
+    """The ``regap`` candidates of the campaign, or why there are none."""
+    effect = "regap"
+    key = "regap"
+    t = np.asarray(campaign.timestamp_s, dtype=float)
+    cal_rows = campaign.split == "calibration" if np.any(campaign.split == "validation") else slice(None)
+    tc = np.sort(t[cal_rows])
+    gaps = np.diff(tc)
+    big = np.flatnonzero(gaps > cfg.registration_gap_h * HOUR_S)
+    if len(big) == 0:
+        out.skipped.append(SkippedCandidate(key, effect, None, f"no gap of more than {cfg.registration_gap_h} h "
+                                        "between measurements"))  # fmt: skip
+        return
+    big = np.sort(big[np.argsort(-gaps[big])][:3])  # the three longest gaps at most
+    cuts = [(tc[k] + tc[k + 1]) / 2.0 for k in big]
+    S = np.column_stack([(t > c).astype(float) for c in cuts])
+    S = S - S[cal_rows].mean(axis=0)
+    names = tuple(f"after_gap{i + 1}" for i in range(len(cuts)))
+    out.cands.append(
+        Candidate(
+            key, effect, None, None,
+            cause="the tracker was set up again (or bumped) during a pause: after each gap of more than "
+            f"{cfg.registration_gap_h} h the tracker-to-base frame is a fresh registration (a measurement-"
+            "side effect, never sent to the controller)",
+            signal="measured after the gap(s) at " + ", ".join(f"{c / HOUR_S:.1f} h" for c in cuts),
+            shape="param", S=S,
+            params=("base_tx", "base_ty", "base_tz", "base_rx", "base_ry", "base_rz"), signal_names=names,
+        )
+    )  # fmt: skip
+
+
+def _air_candidates(campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig, out: _Library) -> None:
+    """The ``air`` candidates of the campaign, or why there are none."""
+    effect = "air"
+    tol = cfg.min_signal_std
+    key = "air"
+    ambient, Ta = _air_temperature(campaign, robot)
+    if Ta is None:
+        why = "no air temperature (a sensor with location: ambient in the robot description) in the log"
+        out.skipped.append(SkippedCandidate(key, effect, None, why))
+        return
+    if not np.all(np.isfinite(Ta)) or float(np.std(Ta)) < max(tol, 0.05):
+        out.skipped.append(SkippedCandidate(key, effect, None, "the air temperature does not vary"))
+        return
+    out.cands.append(
+        Candidate(
+            key, effect, None, None,
+            cause="the tracker's frame moves with the air temperature (its stand, the air's refractive "
+            "index compensation): a measurement-side effect, never sent to the controller",
+            signal=f"air temperature ({', '.join(ambient)}) from its mean, degC", shape="param",
+            S=(Ta - Ta.mean())[:, None],
+            params=("base_tx", "base_ty", "base_tz", "base_rx", "base_ry", "base_rz"), signal_names=("T_air",),
+        )
+    )  # fmt: skip
+
+
+def _scale_candidates(campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig, out: _Library) -> None:
+    """The ``scale`` candidates of the campaign, or why there are none."""
+    effect = "scale"
+    tol = cfg.min_signal_std
+    t = np.asarray(campaign.timestamp_s, dtype=float)
+    out.skipped.append(SkippedCandidate("scale", effect, None, "a constant tracker scale is a uniform scale of the "
+                                    "robot's lengths and base: absorbed by the geometric calibration, not "
+                                    "separable without a reference length (only a scale that changes "
+                                    "during the campaign is tested)"))  # fmt: skip
+    cols: list[np.ndarray] = []
+    sig_names: list[str] = []
+    if _varies(t, 1.0):
+        cols.append((t - t.mean()) / HOUR_S)
+        sig_names.append("ppm_per_h")
+    _, Ta = _air_temperature(campaign, robot)
+    if Ta is not None and _varies(Ta, max(tol, 0.05)):
+        cols.append(Ta - Ta.mean())
+        sig_names.append("ppm_per_degC_air")
+    if not cols:
+        why = "neither the timestamps nor an air temperature vary"
+        out.skipped.append(SkippedCandidate("scale:drift", effect, None, why))
+        return
+    out.cands.append(
+        Candidate(
+            "scale:drift", effect, None, None,
+            cause="the tracker's length scale changes during the campaign (the air's refractive index as "
+            "the weather changes, a stale weather station): a measurement-side effect, never sent to the "
+            "controller",
+            signal=" and ".join(_SCALE_SIGNALS[n][0] for n in sig_names),
+            shape="tracker", S=np.column_stack(cols) * PPM,
+            coef_names=tuple(sig_names), coef_units=tuple(_SCALE_SIGNALS[n][1] for n in sig_names),
+            extra={"p_mm": campaign.p_mm, **_confounded(np.column_stack(cols), campaign)},
+        )
+    )  # fmt: skip
+
+
+def _beta_candidates(campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig, out: _Library) -> None:
+    """The ``beta`` candidates of the campaign, or why there are none."""
+    effect = "beta"
+    par = _parallel_joints(robot)
+    if not robot.is_mdh:
+        out.skipped.append(SkippedCandidate("beta", effect, None, "POE robot: the twists already carry any tilt"))
+    elif not par:
+        out.skipped.append(SkippedCandidate("beta", effect, None, "no parallel consecutive joint axes"))
+    for j in par:
+        key = f"beta:j{j + 1}"
+        if bool(robot.beta_free[j]):
+            out.skipped.append(SkippedCandidate(key, effect, j + 1, f"beta{j + 1} is already in the model"))
+            continue
+        if any(p in (f"beta{j + 1}", "beta*") for p in cfg.fixed):
+            out.skipped.append(SkippedCandidate(key, effect, j + 1, f"beta{j + 1} is fixed by the settings"))
+            continue
+        out.cands.append(
+            Candidate(
+                key, effect, j + 1, None,
+                cause=f"axes {j + 1} and {j + 2} are not exactly parallel (Hayati tilt beta{j + 1})",
+                signal="geometry", shape="structure", S=np.zeros((campaign.n_rows, 0)),
+                coef_names=(f"beta{j + 1}",), coef_units=("rad",),
+            )
+        )  # fmt: skip
+
+
+#: the candidate builder of each library effect (an effect not listed has no candidates of its own here)
+_EFFECT_CANDIDATES: dict[str, Callable[..., None]] = {
+    "compliance": _compliance_candidates,
+    "gear": _gear_candidates,
+    "backlash": _backlash_candidates,
+    "thermal": _thermal_candidates,
+    "drift": _drift_candidates,
+    "regap": _regap_candidates,
+    "air": _air_candidates,
+    "scale": _scale_candidates,
+    "beta": _beta_candidates,
+}
 
 
 def periodic_window(cfg: DiscoveryConfig, h_max: int) -> tuple[float, float]:

@@ -71,20 +71,7 @@ def build_dictionary(
     cols: list[np.ndarray] = []
     skipped: list[str] = []
     moving = [i for i in range(n) if np.ptp(q[:, i]) > 1e-6]
-    for i in moving:
-        for h in range(1, harmonics + 1):
-            for fn in ("sin", "cos"):
-                terms.append(Term(((fn, i + 1, h),)))
-                cols.append(evaluate_factor((fn, i + 1, h), q))
-    for a_pos, a in enumerate(moving):
-        for b in moving[a_pos + 1 :]:
-            for h in range(1, product_harmonics + 1):
-                for k in range(1, product_harmonics + 1):
-                    for fa in ("sin", "cos"):
-                        for fb in ("sin", "cos"):
-                            t = Term(((fa, a + 1, h), (fb, b + 1, k)))
-                            terms.append(t)
-                            cols.append(evaluate_factor(t.factors[0], q) * evaluate_factor(t.factors[1], q))
+    _joint_terms(q, moving, harmonics, product_harmonics, terms, cols)
     if robot.has_dynamics:
         from robocal.kinematics.gravity import gravity_torques
 
@@ -101,30 +88,58 @@ def build_dictionary(
                 if np.std(arr[:, i]) > 1e-9:
                     terms.append(Term(((kind, i + 1, 0),)))
                     cols.append(np.asarray(arr[:, i], dtype=float))
-    if campaign.temperatures is not None:
-        T = np.asarray(campaign.temperatures, dtype=float)
-        dT = T - T.mean(axis=0)
-        if np.all(np.isfinite(dT)) and float(np.max(np.std(T, axis=0))) > 0.05:
-            _, s, Vt = np.linalg.svd(dT, full_matrices=False)
-            t_s = np.asarray(campaign.timestamp_s, dtype=float)
-            for k in range(min(2, len(s))):
-                if s[k] <= 0.01 * s[0]:
-                    continue
-                pc = dT @ Vt[k]
-                terms.append(Term((("temperature", k + 1, 0),)))
-                cols.append(pc)
-                order = np.argsort(t_s, kind="stable")
-                d = np.zeros_like(pc)
-                if len(np.unique(t_s)) > 2:
-                    d[order] = np.gradient(pc[order], t_s[order] / 3600.0 + 1e-9 * np.arange(len(order)))
-                    terms.append(Term((("dtemperature", k + 1, 0),)))
-                    cols.append(d)
+    _temperature_terms(campaign, terms, cols)
     t_all = np.asarray(campaign.timestamp_s, dtype=float)
     if np.ptp(t_all) > 1.0:
         terms.append(Term((("time", 0, 0),)))
         cols.append((t_all - t_all.mean()) / 3600.0)
     F = np.column_stack(cols) if cols else np.zeros((campaign.n_rows, 0))
     return Dictionary(terms, F, skipped)
+
+
+def _joint_terms(
+    q: np.ndarray, moving: list[int], harmonics: int, product_harmonics: int, terms: list[Term], cols: list[np.ndarray]
+) -> None:
+    """The harmonics of every moving joint and the products of two joints' harmonics (appended)."""
+    for i in moving:
+        for h in range(1, harmonics + 1):
+            for fn in ("sin", "cos"):
+                terms.append(Term(((fn, i + 1, h),)))
+                cols.append(evaluate_factor((fn, i + 1, h), q))
+    for a_pos, a in enumerate(moving):
+        for b in moving[a_pos + 1 :]:
+            for h in range(1, product_harmonics + 1):
+                for k in range(1, product_harmonics + 1):
+                    for fa in ("sin", "cos"):
+                        for fb in ("sin", "cos"):
+                            t = Term(((fa, a + 1, h), (fb, b + 1, k)))
+                            terms.append(t)
+                            cols.append(evaluate_factor(t.factors[0], q) * evaluate_factor(t.factors[1], q))
+
+
+def _temperature_terms(campaign: Campaign, terms: list[Term], cols: list[np.ndarray]) -> None:
+    """The temperature log's first two principal components and their rates per hour (appended), when the
+    temperatures vary."""
+    if campaign.temperatures is None:
+        return
+    T = np.asarray(campaign.temperatures, dtype=float)
+    dT = T - T.mean(axis=0)
+    if not (np.all(np.isfinite(dT)) and float(np.max(np.std(T, axis=0))) > 0.05):
+        return
+    _, s, Vt = np.linalg.svd(dT, full_matrices=False)
+    t_s = np.asarray(campaign.timestamp_s, dtype=float)
+    for k in range(min(2, len(s))):
+        if s[k] <= 0.01 * s[0]:
+            continue
+        pc = dT @ Vt[k]
+        terms.append(Term((("temperature", k + 1, 0),)))
+        cols.append(pc)
+        order = np.argsort(t_s, kind="stable")
+        d = np.zeros_like(pc)
+        if len(np.unique(t_s)) > 2:
+            d[order] = np.gradient(pc[order], t_s[order] / 3600.0 + 1e-9 * np.arange(len(order)))
+            terms.append(Term((("dtemperature", k + 1, 0),)))
+            cols.append(d)
 
 
 @dataclass
