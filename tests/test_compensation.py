@@ -85,3 +85,27 @@ def test_position_only_and_joint_deflection(kr16, tmp_path):
     )
     lines = path.read_text().splitlines()
     assert lines[0].startswith("target_id,status,applied,q1_deg") and len(lines) == 11  # the one layout
+
+
+def test_a_plain_joint_offset_callable_answers_every_configuration_asked(kr16):
+    """``ActualRobot.joint_offset`` may be a plain ``q -> dq`` callable over every target (per-target signals).
+    The two-stage solve asks for each target at n + 1 configurations in one call (its forward-difference
+    Jacobian): each must be evaluated, not the last one for all (the Jacobian was then the identity, and the
+    joint-space inversion a slower fixed-point iteration that fails on strong effects)."""
+    from robocal.compensation import _rows_of
+    from robocal.kinematics.ik import offsets_and_jacobian
+
+    rng = np.random.default_rng(3)
+    q = rng.uniform(-2.0, 2.0, (5, 6))
+    hook = _rows_of(lambda qq: 0.3 * np.sin(qq), q)
+    d, J = offsets_and_jacobian(hook, q)
+    assert np.array_equal(d, 0.3 * np.sin(q))
+    # I + diag(0.3 cos q): forward differences with a 1e-6 rad step are within ~1e-7 of it
+    assert np.abs(J - (np.eye(6) + np.einsum("mj,jk->mjk", 0.3 * np.cos(q), np.eye(6)))).max() < 1e-6
+    nominal, actual = _robots(kr16, rng, deflection=lambda qq: 0.1 * np.sin(qq))
+    qt = rng.uniform(kr16.q_limits[:, 0], kr16.q_limits[:, 1], (20, 6)) * 0.5
+    qt[:, 4] = np.where(np.abs(qt[:, 4]) < np.deg2rad(20), np.deg2rad(20) * np.sign(qt[:, 4] + 1e-12), qt[:, 4])
+    p_d, R_d = desired_poses(nominal, qt)
+    comp = compensate(actual, qt, p_d, R_d)
+    assert comp.converged.all()
+    assert np.abs(desired_poses(actual, comp.q)[0] - p_d).max() < 1e-6  # mm; the solver's tolerance is 1e-7

@@ -76,9 +76,10 @@ def test_the_tabulated_discovered_effects_are_the_records_sum():
 
 
 def test_the_discovered_effects_in_one_compiled_call_are_the_records_sum():
-    """Tables and weight effects together go through one compiled kernel (the service's path); a record that is
-    neither (a torque effect) takes the term-by-term sum. Both equal the records evaluated one by one."""
-    from robocal.compensation.discovered import TABLE_TOL_RAD, DiscoveredEffects, joint_offsets
+    """Tables, weight effects and the residual layer together go through one compiled kernel (the service's
+    path); a record that is none of them (a torque effect) takes the term-by-term sum. Both equal the records
+    evaluated one by one."""
+    from robocal.compensation.discovered import TABLE_TOL_RAD, DiscoveredEffects, joint_offsets, layer_coverage
     from robocal.compensation.effects import Signals
 
     robot = load_robot("kr16_2")
@@ -93,13 +94,25 @@ def test_the_discovered_effects_in_one_compiled_call_are_the_records_sum():
     gear = [{"key": "gear:j1:h3", "effect": "gear", "joint": 1, "harmonic": 3, "signal": "angle",
              "coefficients": [2e-4, -1e-4]}]  # fmt: skip
     q = rng.uniform(-3.0, 3.0, (500, n))
-    for records in (weight, weight + gear):
+    centres = q[rng.choice(len(q), 40, replace=False)] + rng.normal(0, 0.05, (40, n))
+    layer = [
+        {"key": f"layer:j{j}", "effect": "layer", "joint": j, "signal": "layer", "centres_rad": centres.tolist(),
+         "length_rad": 0.5, "inside_rad": 0.8, "coefficients": rng.normal(0, 1e-4, 40).tolist()}
+        for j in (1, 4, 4)
+    ]  # fmt: skip
+    for records in (weight, weight + gear, layer, weight + gear + layer):
         de = DiscoveredEffects(tuple(records), robot)
         assert de._fused is not None  # the one-call path
         exact = joint_offsets(records, robot, q)
         assert np.abs(exact).max() > 1e-5  # the effects are there: the check below means something
-        # the weight effects are the same sums in another order (1e-15); the tables within their tolerance
+        # the weight effects and the layer are the same sums in another order (1e-15; the layer's distances
+        # without scikit-learn's expansion, 1e-16 rad relative); the tables within their tolerance
         assert np.abs(de.offsets(q, Signals(np.zeros(len(q)))) - exact).max() <= TABLE_TOL_RAD
+    # the layer's coverage (the notes) is the records' gate: some targets inside, some outside, some between
+    cover = layer_coverage(layer, q)
+    assert cover is not None and (cover == 1).any() and (cover == 0).any() and ((cover > 0) & (cover < 1)).any()
+    de = DiscoveredEffects(tuple(layer), robot)
+    assert [bool(x) for x in de.notes(q)] == [bool(c < 1.0) for c in cover]
     torque = {"key": "compliance:j2", "effect": "compliance", "joint": 2, "signal": "torque",
               "coefficients": [1e-5]}  # fmt: skip
     de = DiscoveredEffects((*weight, torque), robot)

@@ -119,15 +119,15 @@ def compensate(
     q0 = np.asarray(q_target, dtype=float)
     cc = compile_chain(actual.chain, np.asarray(actual.eta, dtype=float), actual.tracker_T_base)
     tool_T = homogeneous(np.asarray(actual.tool_R, dtype=float), np.asarray(actual.tool_mm, dtype=float))
-    offset = None
+    offset: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None
     if actual.joint_offset is not None:
-        fn = actual.joint_offset
-        q_all = q0.copy()
+        from robocal.compensation.effects import JointOffsets
 
-        # the engine asks for the rows still iterating; the callable takes every row (its signals are per row)
-        def offset(qs: np.ndarray, rows: np.ndarray) -> np.ndarray:
-            q_all[rows] = qs
-            return np.asarray(fn(q_all), dtype=float)[rows]
+        fn = actual.joint_offset
+        if isinstance(fn, JointOffsets):  # the composed effects take the rows asked about (their signals' rows)
+            offset = fn
+        else:
+            offset = _rows_of(fn, q0)
 
     sol = solve(cc, tool_T, q0, np.asarray(p_desired, dtype=float), R_desired, offset, max_iter=max_iter,
                 tol_mm=tol_mm, tol_rad=tol_rad, max_step_rad=max_step_rad, stall=stall)  # fmt: skip
@@ -141,6 +141,27 @@ def compensate(
         error_before_rad=sol.error_before_rad,
         iterations=sol.iterations,
     )
+
+
+def _rows_of(fn: Callable[[np.ndarray], np.ndarray], q0: np.ndarray) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+    """The solver's hook ``(q (k, n), rows (k,)) -> dq`` over a callable that takes every target's joints at once
+    (its signals are per target): the rows asked about are set in a copy of ``q0`` and read back. A row asked
+    about more than once in one call (the forward-difference Jacobian asks for each target at ``n + 1``
+    configurations) is evaluated in as many passes, one configuration per target each."""
+    q_all = np.array(q0, dtype=float)
+
+    def offset(qs: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        out = np.empty_like(qs)
+        todo = np.arange(len(rows))
+        while len(todo):
+            _, first = np.unique(rows[todo], return_index=True)
+            pick = todo[np.sort(first)]
+            q_all[rows[pick]] = qs[pick]
+            out[pick] = np.asarray(fn(q_all), dtype=float)[rows[pick]]
+            todo = np.setdiff1d(todo, pick, assume_unique=True)
+        return out
+
+    return offset
 
 
 def judge_compensation(

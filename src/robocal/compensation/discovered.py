@@ -208,13 +208,42 @@ class DiscoveredEffects:
         """The arguments of :func:`robocal.kinematics.compiled.joint_tables_and_weight` after ``q`` when every
         record is in the tables or a weight effect (and numba is there), else None (the sum term by term)."""
         tables, weights, rest = self._tables
-        if rest or not compiled.AVAILABLE or (tables is None and weights is None):
+        layer = self._layer
+        if layer is not None:
+            rest = [e for e in rest if e["signal"] != "layer"]
+        if rest or not compiled.AVAILABLE or (tables is None and weights is None and layer is None):
             return None
         n = self.robot.n_joints
         none_i, none_f = np.zeros(0, dtype=np.int64), np.zeros(0)
         cols, grid, vals, start = tables if tables is not None else (none_i, none_f, none_f, np.zeros(1, np.int64))
         wcols, P = weights if weights is not None else (none_i, np.zeros((0, 4 * n)))
-        return (cols, grid, vals, start, TWO_PI, wcols, np.ascontiguousarray(P), *regressor_arrays(self.robot))
+        lay = layer if layer is not None else (none_i, np.zeros((0, n)), 1.0, 0.0, np.zeros((0, 0)))
+        return (cols, grid, vals, start, TWO_PI, wcols, np.ascontiguousarray(P), *lay, *regressor_arrays(self.robot))
+
+    @cached_property
+    def _layer(self) -> tuple[np.ndarray, np.ndarray, float, float, np.ndarray] | None:
+        """The residual layer's records as ``(joints, centres (D, n), length, inside, W (D, joints))`` when they
+        share one kernel (the discovery fits every joint's layer on the same centres), else None (evaluated
+        record by record)."""
+        recs = [e for e in self.records if e["signal"] == "layer"]
+        if not recs:
+            return None
+        centres = np.asarray(recs[0]["centres_rad"], dtype=float)
+        ell, inside = float(recs[0]["length_rad"]), float(recs[0]["inside_rad"])
+        if any(
+            not np.array_equal(np.asarray(e["centres_rad"], dtype=float), centres)
+            or float(e["length_rad"]) != ell
+            or float(e["inside_rad"]) != inside
+            for e in recs
+        ):
+            return None
+        per_joint: dict[int, np.ndarray] = {}
+        for e in recs:
+            j = int(e["joint"]) - 1
+            per_joint[j] = per_joint.get(j, 0.0) + np.asarray(e["coefficients"], dtype=float)
+        js = sorted(per_joint)
+        W = np.ascontiguousarray(np.stack([per_joint[j] for j in js], axis=1))
+        return np.array(js, dtype=np.int64), np.ascontiguousarray(centres), ell, inside, W
 
     @cached_property
     def _tables(
@@ -269,7 +298,13 @@ class DiscoveredEffects:
     def notes(self, q: np.ndarray) -> list[list[str]]:
         """Per target: :data:`LAYER_NOTE` (with the layer's weight) where the residual layer is not fully
         applied (outside the calibrated region), else nothing."""
-        cover = layer_coverage(list(self.records), q)
+        layer = self._layer
+        if layer is not None and compiled.AVAILABLE:
+            _, centres, ell, inside, _ = layer
+            cover = compiled.layer_gate(np.ascontiguousarray(np.atleast_2d(np.asarray(q, dtype=float))), centres, ell,
+                                        inside)  # fmt: skip
+        else:
+            cover = layer_coverage(list(self.records), q)
         if cover is None:
             return [[] for _ in range(len(q))]
         return [[f"{LAYER_NOTE} (layer weight {c:.2f})"] if c < 1.0 else [] for c in cover]

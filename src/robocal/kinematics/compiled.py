@@ -42,6 +42,7 @@ __all__ = [
     "gravity_regressor",
     "harmonics",
     "joint_tables_and_weight",
+    "layer_gate",
     "newton",
     "periodic_tables",
     "points_to_base",
@@ -624,6 +625,25 @@ def periodic_tables(
 
 
 @_jit
+def layer_gate(q: np.ndarray, centres: np.ndarray, length: float, inside: float) -> np.ndarray:
+    """``(m,)`` in [0, 1]: the residual layer's gate at joints ``q (m, n)`` (1 within ``inside`` of the nearest
+    centre, a raised cosine to 0 one ``length`` further; :func:`robocal.compensation.signals.layer_gate`)."""
+    m, n = q.shape
+    out = np.empty(m)
+    for r in range(m):
+        best = np.inf
+        for d in range(centres.shape[0]):
+            s = 0.0
+            for j in range(n):
+                x = q[r, j] - centres[d, j]
+                s += x * x
+            best = min(best, s)
+        t = min(max((np.sqrt(best) - inside) / length, 0.0), 1.0)
+        out[r] = 0.5 * (1.0 + np.cos(np.pi * t))
+    return out
+
+
+@_jit
 def joint_tables_and_weight(
     q: np.ndarray,
     cols: np.ndarray,
@@ -633,6 +653,11 @@ def joint_tables_and_weight(
     period: float,
     wcols: np.ndarray,
     P: np.ndarray,
+    lcols: np.ndarray,
+    centres: np.ndarray,
+    length: float,
+    inside: float,
+    W: np.ndarray,
     kinds: np.ndarray,
     nominal: np.ndarray,
     joint: np.ndarray,
@@ -645,10 +670,12 @@ def joint_tables_and_weight(
     g: np.ndarray,
     mm: float,
 ) -> np.ndarray:
-    """``dq (m, n)``: the tabulated single-angle effects (:func:`periodic_tables` of joints ``cols``) plus the
-    compliance under the arm's own weight ``Y_j(q) @ P[k]`` of joints ``wcols[k]`` (:func:`gravity_regressor`),
-    in one call: the stored discovered effects of :class:`robocal.compensation.discovered.DiscoveredEffects`
-    as the service evaluates them at every Newton step (``cols`` or ``wcols`` may be empty)."""
+    """``dq (m, n)``: the tabulated single-angle effects (:func:`periodic_tables` of joints ``cols``), the
+    compliance under the arm's own weight ``Y_j(q) @ P[k]`` of joints ``wcols[k]`` (:func:`gravity_regressor`)
+    and the residual layer ``gate(q) sum_d exp(-|q - c_d|² / (2 length²)) W[d, k]`` of joints ``lcols[k]``
+    (:func:`layer_gate`), in one call: the stored discovered effects of
+    :class:`robocal.compensation.discovered.DiscoveredEffects` as the service evaluates them at every Newton
+    step (``cols``, ``wcols`` or ``lcols`` may be empty)."""
     m, n = q.shape
     dq = np.zeros((m, n))
     if len(cols) > 0:
@@ -666,4 +693,26 @@ def joint_tables_and_weight(
                 for c in range(K):
                     acc += Y[r, j, c] * P[k, c]
                 dq[r, j] += acc
+    if len(lcols) > 0:
+        D = centres.shape[0]
+        f = np.empty(D)
+        inv = 1.0 / (2.0 * length * length)
+        for r in range(m):
+            best = np.inf
+            for d in range(D):
+                s = 0.0
+                for j in range(n):
+                    x = q[r, j] - centres[d, j]
+                    s += x * x
+                best = min(best, s)
+                f[d] = np.exp(-s * inv)
+            t = min(max((np.sqrt(best) - inside) / length, 0.0), 1.0)
+            gate = 0.5 * (1.0 + np.cos(np.pi * t))
+            if gate == 0.0:
+                continue
+            for k in range(len(lcols)):
+                acc = 0.0
+                for d in range(D):
+                    acc += f[d] * W[d, k]
+                dq[r, lcols[k]] += gate * acc
     return dq
