@@ -11,11 +11,12 @@ import pytest
 from scipy.optimize import least_squares
 
 from robocal.data.contract import read_campaign
-from robocal.identification.calibrate import CalibrationConfig, calibrate, fit_data, present_targets
+from robocal.identification.calibrate import CalibrationConfig, fit_data, present_targets
 from robocal.identification.result import FitResult
 from robocal.identification.solver import levenberg_marquardt
 from robocal.optimizers import make_optimizer, registered
 from robocal.optimizers.calibration import calibration_problem
+from robocal.optimizers.geometric import calibrate
 from robocal.sim.twin import load_scenario, simulate
 
 
