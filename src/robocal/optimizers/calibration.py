@@ -353,7 +353,7 @@ class WhitenedResiduals:
         self.free = start.free
         self.x_from = np.array(x_from, dtype=float)
         self.weights = start.weights if kept.all() else start.weights * kept[start.rows]
-        self._z: np.ndarray | None = None
+        self._key: bytes | None = None  # the bytes of the last point (cheaper to compare than np.array_equal)
         self._pair: tuple[np.ndarray, np.ndarray] = (np.empty(0), np.empty((0, 0)))
 
     def full(self, z: np.ndarray) -> np.ndarray:
@@ -363,11 +363,12 @@ class WhitenedResiduals:
         return x
 
     def _at(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        if self._z is None or not np.array_equal(z, self._z):
+        key = np.ascontiguousarray(z, dtype=float).tobytes()
+        if key != self._key:
             r, J = self.fun(self.full(z))
             w = self.weights
             self._pair = (w * r, w[:, None] * J[:, self.free])
-            self._z = np.array(z, dtype=float)
+            self._key = key
         return self._pair
 
     def residuals(self, z: np.ndarray) -> np.ndarray:

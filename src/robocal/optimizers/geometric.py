@@ -195,12 +195,13 @@ def gradient_fit(cfg: CalibrationConfig, optimizer: Mapping[str, Any] | None) ->
     ``cfg.method``) and stopping rules (:data:`GRADIENT_KEYS`) go into the settings (``calibration.json`` records
     them under ``config``); its other keys (``lam0``) go to the optimizer; ``polish`` must be false (this is the
     gradient method itself)."""
-    ocfg = dict(optimizer or {})
-    name = str(ocfg.get("name", cfg.method))
-    if pipeline_options(ocfg)["polish"]:
+    if optimizer is None:  # calibrate's default: the settings as they are
+        return cfg, solve_with(gradient_optimizer(cfg))
+    name = str(optimizer.get("name", cfg.method))
+    if pipeline_options(optimizer)["polish"]:
         raise ConfigError(f"The config key 'optimizer.polish' must be false for a gradient optimizer ({name!r}).")
-    gcfg = replace(cfg, method=name, **{k: ocfg[k] for k in GRADIENT_KEYS if k in ocfg})
-    own = {k: v for k, v in ocfg.items() if k not in GRADIENT_KEYS and k not in PIPELINE_KEYS}
+    gcfg = replace(cfg, method=name, **{k: optimizer[k] for k in GRADIENT_KEYS if k in optimizer})
+    own = {k: v for k, v in optimizer.items() if k not in GRADIENT_KEYS and k not in PIPELINE_KEYS}
     return gcfg, solve_with(gradient_optimizer(gcfg, **own))
 
 
