@@ -19,7 +19,6 @@ Conventions
 
 from __future__ import annotations
 
-import copy
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -232,7 +231,8 @@ class FitResult:
         unknown = sorted(set(changes) - set(self.__dataclass_fields__))
         if unknown:
             raise TypeError(f"FitResult.evolve: unknown field(s) {unknown}")
-        new = copy.copy(self)
+        new = object.__new__(type(self))  # a shallow copy (copy.copy's reduce protocol costs more than the fit)
+        new.__dict__.update(self.__dict__)
         for name, value in changes.items():
             normal = _NORMAL.get(name)
             object.__setattr__(new, name, value if normal is None else normal(value))
