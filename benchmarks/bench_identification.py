@@ -18,7 +18,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np
 
 from robocal.data import read_campaign
-from robocal.identification.calibrate import calibrate
+from robocal.optimizers.geometric import calibrate
 from robocal.robot import load_robot
 from robocal.sim.twin import load_scenario, simulate
 

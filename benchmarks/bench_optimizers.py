@@ -28,10 +28,11 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np
 
 from robocal.data.contract import read_campaign
-from robocal.identification.calibrate import CalibrationConfig, calibrate, fit_data, present_targets
+from robocal.identification.calibrate import CalibrationConfig, fit_data, present_targets
 from robocal.optimizers import make_optimizer
 from robocal.optimizers.calibration import calibration_problem
 from robocal.optimizers.fastfk import HAVE_NUMBA, PopulationPositions
+from robocal.optimizers.geometric import calibrate
 from robocal.optimizers.protocol import evaluate_batch
 from robocal.robot import load_robot
 from robocal.sim.twin import load_scenario, simulate

@@ -120,7 +120,8 @@ def part_twin() -> None:
     try:
         import robocal.sim.thermal  # noqa: F401
         from robocal.data import read_campaign
-        from robocal.identification.calibrate import CalibrationConfig, calibrate
+        from robocal.identification.calibrate import CalibrationConfig
+        from robocal.optimizers.geometric import calibrate
         from robocal.sim.twin import load_scenario, simulate
         from robocal.thermal.identify import find_states, identify_states
         from robocal.thermal.model import ThermalModel

@@ -30,7 +30,8 @@ import yaml
 from robocal.commands import parse_overrides
 from robocal.commands.simulate import _merge
 from robocal.data.contract import read_campaign
-from robocal.identification.calibrate import CalibrationConfig, calibrate, validate
+from robocal.identification.calibrate import CalibrationConfig, validate
+from robocal.optimizers.geometric import calibrate
 from robocal.plan import PlanConfig, plan_poses, predict, random_poses
 from robocal.plan.planner import rng_stream
 from robocal.robot import load_robot

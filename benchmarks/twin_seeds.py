@@ -19,7 +19,7 @@ import numpy as np
 from scipy import stats
 
 from robocal.data import read_campaign
-from robocal.identification.calibrate import calibrate
+from robocal.optimizers.geometric import calibrate
 from robocal.robot import load_robot
 from robocal.sim.truth import z_scores
 from robocal.sim.twin import load_scenario, simulate

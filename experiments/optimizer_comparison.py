@@ -18,9 +18,16 @@ import numpy as np
 
 from robocal.config import parse, setting
 from robocal.identification.calibrate import CalibrationConfig, calibration_start, fit_from
-from robocal.identification.calibrate import calibrate as least_squares_calibrate
 from robocal.optimizers import make_optimizer, pipeline_options
-from robocal.optimizers.geometric import POLISH, build_problem, position_config, solve_at, solve_polish, warm_up
+from robocal.optimizers.geometric import (
+    POLISH,
+    build_problem,
+    calibrate,
+    position_config,
+    solve_at,
+    solve_polish,
+    warm_up,
+)
 from robocal.optimizers.registry import registered
 from robocal.robot import RobotDescription
 
@@ -90,7 +97,7 @@ def compare_optimizers(
     """
     start = calibration_start(campaign, robot, position_config(cfg))
     initial = fit_from(start, solve_at(start.x_init))  # the statistics at the start (no iteration)
-    gn = least_squares_calibrate(campaign, robot, replace(position_config(cfg), **POLISH))
+    gn = calibrate(campaign, robot, replace(position_config(cfg), **POLISH))
     rows: list[dict[str, Any]] = []
     histories: dict[str, list[list[float]]] = {}
     options = pipeline_options(settings.optimizer_cfg(settings.algorithms[0], settings.populations[0], {}))

@@ -8,7 +8,8 @@ import pytest
 from robocal.compliance.decoupling import controller_parameters, decoupling_matrix, layout_lengths, with_lengths
 from robocal.data import read_campaign
 from robocal.errors import ConfigError
-from robocal.identification.calibrate import CalibrationConfig, calibrate
+from robocal.identification.calibrate import CalibrationConfig
+from robocal.optimizers.geometric import calibrate
 from robocal.sim.twin import load_scenario, simulate
 
 

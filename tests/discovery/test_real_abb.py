@@ -16,7 +16,8 @@ from robocal.data import read_campaign
 from robocal.discovery.search import discover
 from robocal.discovery.summary import summary
 from robocal.discovery.validate import validation_errors
-from robocal.identification.calibrate import calibrate, validate
+from robocal.identification.calibrate import validate
+from robocal.optimizers.geometric import calibrate
 from robocal.robot import load_robot
 
 

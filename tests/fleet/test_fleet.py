@@ -99,9 +99,9 @@ def test_unknown_engine(engine, twin_fleet, tmp_path):
 
 def test_a_crash_in_one_campaign_is_reported_not_cached(twin_fleet, tmp_path, monkeypatch):
     import robocal
-    from robocal.identification import calibrate as cal_mod
+    from robocal.optimizers import geometric
 
-    real = cal_mod.calibrate
+    real = geometric.calibrate
 
     def flaky(campaign, robot, config=None, x0=None):
         if "R0002" in str(campaign.source) and "2026-04-06" in str(campaign.source):

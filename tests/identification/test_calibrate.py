@@ -14,11 +14,11 @@ from robocal.identification.calibrate import (
     CalibrationConfig,
     FitStart,
     Validation,
-    calibrate,
     calibration_record,
     load_calibration,
     validate,
 )
+from robocal.optimizers.geometric import calibrate
 from robocal.sim.truth import equivalent_truth, z_scores
 from robocal.sim.twin import load_scenario, simulate
 

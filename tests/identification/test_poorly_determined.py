@@ -7,7 +7,8 @@ import copy
 import numpy as np
 
 from robocal.data.contract import read_campaign
-from robocal.identification.calibrate import CalibrationConfig, calibrate
+from robocal.identification.calibrate import CalibrationConfig
+from robocal.optimizers.geometric import calibrate
 from robocal.robot import load_robot
 from robocal.sim.twin import load_scenario, simulate
 
@@ -51,3 +52,15 @@ def test_a_well_determined_campaign_lists_nothing(tmp_path):
     camp, robot = _campaign(tmp_path, 60.0)
     res = calibrate(camp, robot)
     assert "poorly_determined" not in res.fit
+
+
+def test_the_pipeline_fit_holds_them_too(tmp_path):
+    """``robocal calibrate`` and the stage fit through :func:`fit_with_optimizer`: its default (Levenberg-Marquardt)
+    is the same fit as ``calibrate``, poorly determined parameters held (it used to fit once and only report them)."""
+    from robocal.optimizers.geometric import fit_with_optimizer
+
+    camp, robot = _campaign(tmp_path, 1.0)
+    out = fit_with_optimizer(camp, robot, CalibrationConfig(), None)
+    held = [p["name"] for p in out.result.fit["poorly_determined"] if p["action"].startswith("held")]
+    assert held
+    np.testing.assert_array_equal(out.result.x, calibrate(camp, robot).x)  # one path: the same bits

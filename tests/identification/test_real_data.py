@@ -16,9 +16,10 @@ import numpy as np
 import pytest
 
 from robocal.data import read_campaign
-from robocal.identification.calibrate import CalibrationConfig, CalibrationResult, calibrate, fit_data, validate
+from robocal.identification.calibrate import CalibrationConfig, CalibrationResult, fit_data, validate
 from robocal.kinematics.chain import fk
 from robocal.kinematics.transforms import inv_transform
+from robocal.optimizers.geometric import calibrate
 from robocal.robot import load_robot
 
 

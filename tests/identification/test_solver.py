@@ -8,8 +8,9 @@ import pytest
 from scipy.optimize import least_squares
 
 from robocal.data import read_campaign
-from robocal.identification.calibrate import CalibrationConfig, calibrate, fit_data
+from robocal.identification.calibrate import CalibrationConfig, fit_data
 from robocal.identification.solver import levenberg_marquardt
+from robocal.optimizers.geometric import calibrate
 from robocal.sim.twin import load_scenario, simulate
 
 

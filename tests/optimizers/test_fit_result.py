@@ -11,11 +11,12 @@ import pytest
 from scipy.optimize import least_squares
 
 from robocal.data.contract import read_campaign
-from robocal.identification.calibrate import CalibrationConfig, calibrate, fit_data, present_targets
+from robocal.identification.calibrate import CalibrationConfig, fit_data, present_targets
 from robocal.identification.result import FitResult
 from robocal.identification.solver import levenberg_marquardt
 from robocal.optimizers import make_optimizer, registered
 from robocal.optimizers.calibration import calibration_problem
+from robocal.optimizers.geometric import calibrate
 from robocal.sim.twin import load_scenario, simulate
 
 
@@ -130,3 +131,23 @@ def test_rows_left_out_are_not_data(twin):
     r = res.residual
     assert res.chi2 == pytest.approx(float(r[kept[rows]] @ r[kept[rows]]), rel=1e-12)
     assert np.any(r[~kept[rows]] != 0)  # the left-out rows are there, as predictions
+
+
+def test_evolve_normalises_what_changes_and_shares_the_rest():
+    """``evolve`` (every protocol result is one: the solver's result re-labelled, then mapped to the full
+    parameters) copies and freezes the fields it is given, as the constructor does, and shares the read-only
+    arrays it is not given instead of copying them again."""
+    J = np.arange(12.0).reshape(6, 2)
+    res = FitResult(method="lm", x=[1.0, 2.0], varied=[0, 1], cost=1.0, chi2=2.0, ndata=6, covariance=None,
+                    status=1, nit=1, nfev=2, residual=np.ones(6), jacobian=J)  # fmt: skip
+    x = np.array([3.0, 4.0])
+    new = res.evolve(x=x, history=[1, 0.5], extra={"a": 1})
+    assert new.jacobian is res.jacobian and new.residual is res.residual  # shared, not copied
+    assert new.x is not x and not new.x.flags.writeable  # the given array copied and frozen
+    x[0] = 9.0
+    assert new.x[0] == 3.0 and new.history == (1.0, 0.5) and new.extra["a"] == 1
+    assert res.x.tolist() == [1.0, 2.0] and res.history == ()  # the original unchanged
+    with pytest.raises(ValueError, match="unknown status"):
+        res.evolve(status=42)
+    with pytest.raises(TypeError, match="unknown field"):
+        res.evolve(speed=1.0)

@@ -16,7 +16,7 @@ from robocal.data.contract import read_campaign
 from robocal.errors import ConfigError
 from robocal.identification import calibrate as calibrate_module
 from robocal.identification.calibrate import CalibrationConfig, calibration_start
-from robocal.optimizers.geometric import fit_with_optimizer
+from robocal.optimizers.geometric import START_DAMPING, fit_with_optimizer, gradient_fit
 from robocal.sim.twin import load_scenario, simulate
 
 SMALL = {"population": 20, "max_iter": 5}  # a fast run: these tests check the path, not the optimum
@@ -74,3 +74,47 @@ def test_the_statistics_of_a_method_are_the_starts(campaign, kr16):
     assert out.optimize is not None and not raw.fit["outliers"]
     np.testing.assert_array_equal(raw.x[start.free], out.optimize.x)
     assert raw.fit["rms_position_mm"] < 0.9 * raw.fit["before"]["rms_position_mm"]  # the method moved (0.38 / 0.82)
+
+
+def test_the_default_fit_solves_through_the_registered_optimizer(campaign, kr16, monkeypatch):
+    """The default fit (Levenberg-Marquardt) is the registered ``lm``'s ``minimize(Problem)``, not a second path
+    to the least-squares core: a spy registered as ``lm`` sees every solve, with the calibration's settings."""
+    from robocal.optimizers import registry
+    from robocal.optimizers.gradient import LevenbergMarquardt
+
+    seen: list[tuple[int, float, int | None]] = []
+
+    class Spy(LevenbergMarquardt):
+        def minimize(self, problem):
+            seen.append((problem.n, self.lam0, self.max_iter))
+            return super().minimize(problem)
+
+    monkeypatch.setitem(registry._REGISTRY, "lm", registry._Entry(Spy, "tests.Spy"))
+    res = robocal.calibrate(campaign, kr16, CalibrationConfig(max_iter=40))
+    k = int(res.identified.sum())
+    assert seen and seen[0] == (k, START_DAMPING, 40)  # the free parameters; calibrate's damping and budget
+    assert res.solver is not None and res.solver.method == "lm" and res.solver.varied.size == k
+
+
+@pytest.mark.parametrize("method", ["lm", "gn"])
+def test_the_protocol_solve_is_the_least_squares_core_to_the_bit(campaign, kr16, method):
+    """The solve through the protocol gives the core's fit bit for bit (same steps, point, residuals, Jacobian,
+    covariance of the kept rows), also with rows left out (weighted zero in the problem, not data)."""
+    from robocal.identification import robust
+
+    cfg = CalibrationConfig(method=method)
+    start = calibration_start(campaign, kr16, cfg)
+    _, solve = gradient_fit(cfg, None)
+    kept = start.kept.copy()
+    for rows in (kept, np.where(np.isin(np.arange(start.m), [3, 17]), False, kept)):
+        core = robust.least_squares_on(
+            start.fun, start.x_init, start.free, start.weights, start.rows, rows,
+            max_iter=cfg.max_iter, ftol=cfg.ftol, xtol=cfg.xtol, method=method,
+        )  # fmt: skip
+        ours = solve(start, start.x_init, rows)
+        assert (ours.nit, ours.nfev, ours.status, ours.ndata, ours.outliers) == (
+            core.nit, core.nfev, core.status, core.ndata, core.outliers,
+        )  # fmt: skip
+        for field in ("x", "varied", "residual", "jacobian", "covariance"):
+            np.testing.assert_array_equal(getattr(ours, field), getattr(core, field), err_msg=field)
+        assert ours.chi2 == core.chi2 and ours.redchi == core.redchi

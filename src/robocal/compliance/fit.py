@@ -32,10 +32,11 @@ import numpy as np
 from robocal.compliance.model import KINDS, ComplianceModel
 from robocal.config import parse, setting
 from robocal.errors import ConfigError
-from robocal.identification.calibrate import CalibrationConfig, CalibrationResult, calibrate, fit_data
+from robocal.identification.calibrate import CalibrationConfig, CalibrationResult, fit_data
 from robocal.identification.model import FitData
 from robocal.identification.solver import levenberg_marquardt
 from robocal.metrics import ErrorStats
+from robocal.optimizers.geometric import calibrate
 
 if TYPE_CHECKING:
     from robocal.data.contract import Campaign

@@ -28,8 +28,9 @@ from robocal.discovery.grow import finish, grow
 from robocal.discovery.model import Accepted, ExtendedModel, Fit, fit_model
 from robocal.discovery.scoring import Score, Step, regressor
 from robocal.errors import ConfigError
-from robocal.identification.calibrate import CalibrationConfig, calibrate, fit_data, present_targets
+from robocal.identification.calibrate import CalibrationConfig, fit_data, present_targets
 from robocal.identification.model import FitData
+from robocal.optimizers.geometric import calibrate
 from robocal.robot import RobotDescription
 
 

@@ -1,4 +1,6 @@
-"""Geometric calibration end to end: registration, identifiability, Levenberg-Marquardt, statistics, validation."""
+"""The geometric calibration's steps: registration, identifiability, the solve step (given by the caller: a
+registered optimizer through the protocol, :mod:`robocal.optimizers.geometric`), gross errors, statistics,
+validation."""
 
 from __future__ import annotations
 
@@ -62,7 +64,8 @@ class CalibrationConfig:
         (a start: the frames and tools are then fitted to convergence with the nominal kinematics, which gives
         the true "before calibration" figures).
     method : ``"lm"`` (Levenberg-Marquardt, the default) or ``"gn"`` (Gauss-Newton with a line search): the
-        identification's least-squares method (:mod:`robocal.identification.solver`).
+        registered gradient optimizer that solves the least squares (:mod:`robocal.optimizers.gradient`, the
+        core :mod:`robocal.identification.solver`).
     outliers : ``"auto"`` (gross errors found by the test in :mod:`robocal.identification.robust`), ``"off"``,
         or a list of file rows (header = row 1) to leave out.
     outlier_alpha : family-wise false-flag rate of the outlier test over the rows of a campaign.
@@ -669,8 +672,9 @@ def _rigid_fit(
     return robust.least_squares_on(fun, x, rigid, weights, rows, kept, max_iter=100, ftol=1e-14, xtol=1e-12, lam0=0.0).x
 
 
-#: The solve step of a calibration: from a start point and the kept rows, a fit (the least-squares core's
-#: :class:`FitResult`: point, whitened residuals and Jacobian of every row, covariance of the kept rows).
+#: The solve step of a calibration: from a start point and the kept rows, a fit (a :class:`FitResult` over the
+#: full parameter vector: point, whitened residuals and Jacobian of every row, covariance of the kept rows).
+#: :func:`robocal.optimizers.geometric.solve_with` makes one of any registered optimizer.
 Solve = Callable[["CalibrationStart", np.ndarray, np.ndarray], FitResult]
 
 
@@ -795,16 +799,6 @@ def calibration_start(
         free=np.sort(ident.kept),
         t0=t0,
     )
-
-
-def least_squares(start: CalibrationStart, x: np.ndarray, kept: np.ndarray) -> FitResult:
-    """The gradient solve (``method`` ``lm`` or ``gn`` of :mod:`robocal.identification.solver`) with the
-    configured stopping rules, on the kept rows."""
-    from robocal.identification import robust
-
-    cfg = start.config
-    lm_kw: dict[str, Any] = {"max_iter": cfg.max_iter, "ftol": cfg.ftol, "xtol": cfg.xtol, "method": cfg.method}
-    return robust.least_squares_on(start.fun, x, start.free, start.weights, start.rows, kept, **lm_kw)
 
 
 @dataclass(frozen=True, eq=False)
@@ -955,27 +949,31 @@ def calibration_result(start: CalibrationStart, screened: Screened) -> Calibrati
     )
 
 
-def fit_from(start: CalibrationStart, solve: Solve = least_squares) -> CalibrationResult:
-    """solve (from ``x_init`` on the rows not listed as outliers) -> outliers -> statistics."""
+def fit_from(start: CalibrationStart, solve: Solve) -> CalibrationResult:
+    """solve (from ``x_init`` on the rows not listed as outliers) -> outliers -> statistics. ``solve`` is the
+    caller's: :func:`robocal.optimizers.geometric.solve_with` runs a registered optimizer through the protocol."""
     lm = solve(start, start.x_init, start.kept)
     return calibration_result(start, screen_outliers(start, lm, solve))
 
 
-def calibrate(
+def calibrate_with(
     campaign: Campaign,
     robot: RobotDescription,
-    config: CalibrationConfig | None = None,
+    config: CalibrationConfig,
+    solve: Solve,
     x0: np.ndarray | None = None,
 ) -> CalibrationResult:
-    """Geometric calibration from the campaign's calibration rows by the least-squares core.
+    """Geometric calibration from the campaign's calibration rows with the solve step ``solve``.
 
     Steps: start (:func:`calibration_start`: registration, the nominal model's best rigid fit, identifiable
-    parameter set) -> solve (Levenberg-Marquardt or Gauss-Newton on the nonlinear model, :func:`least_squares`)
-    -> gross errors found and left out (:func:`screen_outliers`) -> statistics (:func:`calibration_result`).
-    Any other registered optimizer: :func:`robocal.optimizers.geometric.calibrate` (``robocal.calibrate``).
+    parameter set) -> solve (``solve``: the optimizer's, through the protocol) -> gross errors found and left out
+    (:func:`screen_outliers`) -> statistics (:func:`calibration_result`); poorly determined parameters held one at
+    a time and the rest fitted again (``poorly_determined: fix``). The entry point is
+    :func:`robocal.optimizers.geometric.calibrate` (``robocal.calibrate``), which gives the solve of any registered
+    optimizer (Levenberg-Marquardt by default): the optimizers build on this module, not the other way round.
     """
-    cfg = config or CalibrationConfig()
-    res = fit_from(calibration_start(campaign, robot, cfg, x0))
+    cfg = config
+    res = fit_from(calibration_start(campaign, robot, cfg, x0), solve)
     poor = res.statistics.get("poorly_determined") or []
     if cfg.poorly_determined == "report" or not poor:
         return res
@@ -991,7 +989,7 @@ def calibrate(
         worst = max(poor, key=lambda p: p["stderr"] / p["bound"])
         held.append(worst["name"])
         records.append({**worst, "action": action})
-        nxt = fit_from(calibration_start(campaign, robot, cfg, x0, held=tuple(held)))
+        nxt = fit_from(calibration_start(campaign, robot, cfg, x0, held=tuple(held)), solve)
         poor = nxt.statistics.get("poorly_determined") or []
         if len(poor) >= int(nxt.identified.sum()):
             break
@@ -1196,7 +1194,7 @@ __all__ = [
     "CalibrationResult",
     "FitStart",
     "Validation",
-    "calibrate",
+    "calibrate_with",
     "fit_data",
     "fit_statistics",
     "load_calibration",

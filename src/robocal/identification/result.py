@@ -20,8 +20,8 @@ Conventions
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any
 
@@ -74,6 +74,24 @@ def _frozen(a: Any, dtype: Any = float) -> np.ndarray | None:
     v = np.array(a, dtype=dtype)  # a copy: the caller's array stays theirs
     v.setflags(write=False)
     return v
+
+
+#: How the constructor (and :meth:`FitResult.evolve`) normalises each field: arrays copied and read-only,
+#: numbers as float, sequences as tuples, mappings as read-only views of a copy.
+_NORMAL: dict[str, Callable[[Any], Any]] = {
+    "x": _frozen,
+    "varied": lambda a: _frozen(a, int),
+    "covariance": _frozen,
+    "residual": _frozen,
+    "jacobian": _frozen,  # (never None: see the field's default)
+    "cost": float,
+    "chi2": float,
+    "history": lambda h: tuple(float(v) for v in h),
+    "names": tuple,
+    "outliers": lambda o: tuple(int(i) for i in o),
+    "timings": lambda t: MappingProxyType({k: float(v) for k, v in t.items()}),
+    "extra": lambda e: MappingProxyType(dict(e)),
+}
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -138,18 +156,11 @@ class FitResult:
 
     def __post_init__(self) -> None:
         put = object.__setattr__  # frozen: normalise once, here
-        put(self, "x", _frozen(self.x))
-        put(self, "varied", _frozen(self.varied, int))
-        put(self, "covariance", _frozen(self.covariance))
-        put(self, "residual", _frozen(self.residual))
-        put(self, "jacobian", _frozen(self.jacobian))  # (never None: see the field's default)
-        put(self, "cost", float(self.cost))
-        put(self, "chi2", float(self.chi2))
-        put(self, "history", tuple(float(h) for h in self.history))
-        put(self, "names", tuple(self.names))
-        put(self, "outliers", tuple(int(i) for i in self.outliers))
-        put(self, "timings", MappingProxyType({k: float(v) for k, v in self.timings.items()}))
-        put(self, "extra", MappingProxyType(dict(self.extra)))
+        for name, normal in _NORMAL.items():
+            put(self, name, normal(getattr(self, name)))
+        self._check_status()
+
+    def _check_status(self) -> None:
         if self.status not in STATUS_MESSAGES:
             raise ValueError(f"FitResult: unknown status {self.status!r}; known: {sorted(STATUS_MESSAGES)}")
 
@@ -215,8 +226,18 @@ class FitResult:
 
     # ---- derived results ------------------------------------------------------------------------------
     def evolve(self, **changes: Any) -> FitResult:
-        """A copy with ``changes`` (the result itself never changes)."""
-        return replace(self, **changes)
+        """A copy with ``changes`` (the result itself never changes): the changed fields normalised as by the
+        constructor, the others shared (they are read-only already: no array is copied twice)."""
+        unknown = sorted(set(changes) - set(self.__dataclass_fields__))
+        if unknown:
+            raise TypeError(f"FitResult.evolve: unknown field(s) {unknown}")
+        new = object.__new__(type(self))  # a shallow copy (copy.copy's reduce protocol costs more than the fit)
+        new.__dict__.update(self.__dict__)
+        for name, value in changes.items():
+            normal = _NORMAL.get(name)
+            object.__setattr__(new, name, value if normal is None else normal(value))
+        new._check_status()
+        return new
 
     def summary(self) -> dict[str, Any]:
         """The scalar figures as plain JSON types (no arrays)."""

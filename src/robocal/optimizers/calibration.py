@@ -16,6 +16,11 @@ start ``x_init`` (full parameter vector: nominal kinematics, frames from the reg
 Bounds: ``x_init ± bound_mm`` for lengths (mm) and ``± bound_deg`` for angles, per variable. Variable
 scale (used by Ipopt): ``1 / |J_k|``, the change of each parameter that moves the residual vector by 1 mm at
 ``x_init`` (the column scaling Gauss-Newton uses), so that the scaled problem is well conditioned.
+
+:func:`least_squares_problem` is the calibration's own least squares as a Problem (what the gradient optimizers
+``lm`` and ``gn`` solve in every geometric fit): the whitened residuals of every row (positions and, with
+orientation data, rotations) over the free parameters of a :class:`~robocal.identification.calibrate.
+CalibrationStart`, the rows left out as gross errors weighted zero, unbounded.
 """
 
 from __future__ import annotations
@@ -27,12 +32,21 @@ from typing import Any
 import numpy as np
 
 from robocal.errors import ConfigError
+from robocal.identification.calibrate import CalibrationStart
 from robocal.identification.model import CalibrationModel, FitData
 from robocal.kinematics.chain import FIXED, Chain, step
 from robocal.optimizers.fastfk import PopulationPositions
 from robocal.optimizers.protocol import Problem, check_real
 
-__all__ = ["OBJECTIVE_FITNESS", "CalibrationSearch", "CalibrationSymbolic", "calibration_problem", "chain_key"]
+__all__ = [
+    "OBJECTIVE_FITNESS",
+    "CalibrationSearch",
+    "CalibrationSymbolic",
+    "WhitenedResiduals",
+    "calibration_problem",
+    "chain_key",
+    "least_squares_problem",
+]
 
 #: Fitness used for each objective kind of the optimizer config.
 OBJECTIVE_FITNESS = {"nonlinear": "rms3d", "linearized": "mean3d"}
@@ -319,3 +333,69 @@ def calibration_problem(
         batch_residuals=linear_batch,
     )
     return problem, search
+
+
+# --------------------------------------------------------------------------------------------------------
+# the calibration's least squares (the gradient optimizers' Problem)
+# --------------------------------------------------------------------------------------------------------
+
+
+class WhitenedResiduals:
+    """The whitened residuals ``w r(x)`` and Jacobian ``w J(x)`` of a started calibration on its free parameters
+    ``z`` (the others held at ``x_from``), ``w`` the noise weights with the rows left out weighted zero.
+
+    The model gives residuals and Jacobian in one evaluation; the protocol asks for them one at a time: the last
+    point's pair is kept, so that a gradient step costs one model evaluation (at ``x_init`` none: the start's).
+    """
+
+    def __init__(self, start: CalibrationStart, x_from: np.ndarray, kept: np.ndarray) -> None:
+        self.fun = start.fun
+        self.free = start.free
+        self.x_from = np.array(x_from, dtype=float)
+        self.weights = start.weights if kept.all() else start.weights * kept[start.rows]
+        self._key: bytes | None = None  # the bytes of the last point (cheaper to compare than np.array_equal)
+        self._pair: tuple[np.ndarray, np.ndarray] = (np.empty(0), np.empty((0, 0)))
+
+    def full(self, z: np.ndarray) -> np.ndarray:
+        """The full parameter vector with the free entries ``z``."""
+        x = self.x_from.copy()
+        x[self.free] = z
+        return x
+
+    def _at(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        key = np.ascontiguousarray(z, dtype=float).tobytes()
+        if key != self._key:
+            r, J = self.fun(self.full(z))
+            w = self.weights
+            self._pair = (w * r, w[:, None] * J[:, self.free])
+            self._key = key
+        return self._pair
+
+    def residuals(self, z: np.ndarray) -> np.ndarray:
+        return self._at(z)[0]
+
+    def jacobian(self, z: np.ndarray) -> np.ndarray:
+        return self._at(z)[1]
+
+
+def least_squares_problem(
+    start: CalibrationStart, x_from: np.ndarray, kept: np.ndarray
+) -> tuple[Problem, WhitenedResiduals]:
+    """The calibration's least squares from ``x_from`` on the ``kept`` rows as a Problem over the free
+    parameters (objective ``sse``: the sum of squared whitened residuals, χ²; no bounds), and the
+    :class:`WhitenedResiduals` that map its point back to the full vector."""
+    if start.free.size == 0:
+        raise ConfigError("The calibration has no free parameter to fit (every parameter fixed or eliminated).")
+    wr = WhitenedResiduals(start, x_from, kept)
+    names = start.model.names
+    problem = Problem(
+        n=int(start.free.size),
+        lower=np.full(start.free.size, -np.inf),
+        upper=np.full(start.free.size, np.inf),
+        x0=wr.x_from[start.free],
+        names=tuple(names[i] for i in start.free),
+        residuals=wr.residuals,
+        jacobian=wr.jacobian,
+        objective="sse",
+    )
+    return problem, wr

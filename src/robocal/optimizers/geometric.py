@@ -5,10 +5,12 @@ share one path, from :mod:`robocal.identification.calibrate`:
 
 * **start** (:func:`~robocal.identification.calibrate.calibration_start`): registration, the nominal model's
   best rigid fit (``x_init``, the "before" figures), the identifiable (free) parameters;
-* **solve**: the gradient family (``gn``, ``lm``) is the least-squares core itself
-  (:func:`~robocal.identification.calibrate.least_squares`, the solver :class:`LevenbergMarquardt` and
-  :class:`GaussNewton` wrap); every other optimizer runs on the calibration as a
-  :class:`~robocal.optimizers.protocol.Problem` over the free parameters
+* **solve**: every optimizer through the one protocol (``minimize(Problem)``, looked up in the registry). The
+  gradient family (``lm``, the default, and ``gn``: :class:`~robocal.optimizers.gradient.LevenbergMarquardt`,
+  :class:`~robocal.optimizers.gradient.GaussNewton`) solves the calibration's least squares
+  (:func:`robocal.optimizers.calibration.least_squares_problem`: whitened residuals of every row over the free
+  parameters, rows left out weighted zero) with the calibration's stopping rules (:func:`solve_with`); every
+  other optimizer runs on the calibration's position residuals
   (:func:`robocal.optimizers.calibration.calibration_problem`): Ipopt without bounds (the same least squares
   as Gauss-Newton), the population methods within ``x_init ± bound_mm / bound_deg``. With ``polish: true`` a
   Gauss-Newton run (``conf/optimizer/gn.yaml`` defaults) continues from the optimizer's point;
@@ -35,15 +37,21 @@ from robocal.identification.calibrate import (
     CalibrationResult,
     CalibrationStart,
     Solve,
+    calibrate_with,
     calibration_start,
     fit_from,
 )
-from robocal.identification.result import FitResult
+from robocal.identification.result import FitResult, fit_covariance
 from robocal.metrics import noise_floor as floor_of
 from robocal.metrics import position_keys
-from robocal.optimizers.calibration import CalibrationSearch, calibration_problem
-from robocal.optimizers.protocol import Problem, evaluate_batch
-from robocal.optimizers.registry import make_optimizer, pipeline_options, registered
+from robocal.optimizers.calibration import (
+    CalibrationSearch,
+    WhitenedResiduals,
+    calibration_problem,
+    least_squares_problem,
+)
+from robocal.optimizers.protocol import Optimizer, Problem, evaluate_batch
+from robocal.optimizers.registry import PIPELINE_KEYS, make_optimizer, pipeline_options, registered
 
 if TYPE_CHECKING:
     from robocal.data.contract import Campaign
@@ -51,15 +59,19 @@ if TYPE_CHECKING:
 
 __all__ = [
     "POLISH",
+    "START_DAMPING",
     "FitOutcome",
     "build_problem",
     "calibrate",
     "fit_with_optimizer",
+    "gradient_fit",
+    "gradient_optimizer",
     "is_gradient",
     "noise_floor",
     "position_config",
     "solve_at",
     "solve_polish",
+    "solve_with",
     "warm_up",
 ]
 
@@ -69,6 +81,10 @@ POLISH: dict[str, Any] = {"max_iter": 30, "ftol": 1e-12, "xtol": 1e-10}
 COMPARED = (*position_keys(FIT_ORDER), "chi2")
 #: the stopping rules of the gradient family, read from its optimizer config into the CalibrationConfig
 GRADIENT_KEYS = ("max_iter", "ftol", "xtol")
+#: Levenberg-Marquardt's initial damping in a calibration (``lam0``): a calibration starts from the nominal
+#: model's converged rigid fit, close to the minimum (Madsen, Nielsen & Tingleff's 1e-6; the class default, 1e-3,
+#: is for starts that may be far). An optimizer config's ``lam0`` overrides it.
+START_DAMPING = 1e-6
 
 
 def is_gradient(optimizer: Mapping[str, Any] | None) -> bool:
@@ -164,28 +180,79 @@ def warm_up(problem: Problem) -> float:
     return time.perf_counter() - t0
 
 
-def solve_at(x: np.ndarray) -> Solve:
-    """A solve that stays at ``x`` (the optimizer's point): the least-squares core's statistics there, no
-    iteration; for the outlier rule's refits, the statistics at the point it starts from."""
-    from robocal.identification import robust
+def gradient_optimizer(cfg: CalibrationConfig, **settings: Any) -> Optimizer:
+    """The registered gradient optimizer of a calibration's settings: ``cfg.method`` (``lm``, ``gn``) with the
+    calibration's stopping rules (``max_iter``, ``ftol``, ``xtol``) and, for ``lm``, :data:`START_DAMPING`;
+    ``settings`` (e.g. ``lam0``) override them (a key the optimizer does not take is an error naming it)."""
+    spec: dict[str, Any] = {"name": cfg.method, "max_iter": cfg.max_iter, "ftol": cfg.ftol, "xtol": cfg.xtol}
+    if cfg.method == "lm":
+        spec["lam0"] = START_DAMPING
+    return make_optimizer({**spec, **settings})
+
+
+def gradient_fit(cfg: CalibrationConfig, optimizer: Mapping[str, Any] | None) -> tuple[CalibrationConfig, Solve]:
+    """The settings and the solve step of a gradient-family fit: the optimizer config's name (default
+    ``cfg.method``) and stopping rules (:data:`GRADIENT_KEYS`) go into the settings (``calibration.json`` records
+    them under ``config``); its other keys (``lam0``) go to the optimizer; ``polish`` must be false (this is the
+    gradient method itself)."""
+    if optimizer is None:  # calibrate's default: the settings as they are
+        return cfg, solve_with(gradient_optimizer(cfg))
+    name = str(optimizer.get("name", cfg.method))
+    if pipeline_options(optimizer)["polish"]:
+        raise ConfigError(f"The config key 'optimizer.polish' must be false for a gradient optimizer ({name!r}).")
+    gcfg = replace(cfg, method=name, **{k: optimizer[k] for k in GRADIENT_KEYS if k in optimizer})
+    own = {k: v for k, v in optimizer.items() if k not in GRADIENT_KEYS and k not in PIPELINE_KEYS}
+    return gcfg, solve_with(gradient_optimizer(gcfg, **own))
+
+
+def calibration_fit(start: CalibrationStart, wr: WhitenedResiduals, res: FitResult, kept: np.ndarray) -> FitResult:
+    """An optimizer's result on :func:`~robocal.optimizers.calibration.least_squares_problem` as the calibration's
+    fit: the full parameter vector (``varied`` the free parameters), the whitened residuals and Jacobian of every
+    row (the rows left out as predictions, listed in ``outliers``) and the covariance of the kept rows (the
+    problem weighs the left-out rows zero; they are not data: ``ndata`` counts the kept residuals)."""
+    x = wr.full(res.x)
+    ndata = int(np.count_nonzero(wr.weights))
+    cov = res.covariance
+    if cov is not None and ndata != res.ndata:
+        cov = fit_covariance(res.residual, res.jacobian, ndata)
+    out = res.evolve(x=x, varied=start.free, names=start.model.names, ndata=ndata, covariance=cov)
+    if kept.all():
+        return out
+    r, J = start.fun(x)
+    w = start.weights
+    return out.evolve(residual=w * r, jacobian=w[:, None] * J[:, start.free], outliers=tuple(np.flatnonzero(~kept)))
+
+
+def solve_with(optimizer: Optimizer) -> Solve:
+    """The solve step of an optimizer (the default fit's: the registered Levenberg-Marquardt): the calibration's
+    least squares from the given point on the kept rows (:func:`~robocal.optimizers.calibration.
+    least_squares_problem`) minimised through the protocol, mapped back by :func:`calibration_fit`."""
 
     def solve(start: CalibrationStart, x_from: np.ndarray, kept: np.ndarray) -> FitResult:
-        at = x if np.array_equal(x_from, start.x_init) else x_from
-        return robust.least_squares_on(start.fun, at, start.free, start.weights, start.rows, kept, max_iter=0)
+        problem, wr = least_squares_problem(start, x_from, kept)
+        return calibration_fit(start, wr, optimizer.minimize(problem), kept)
+
+    return solve
+
+
+def solve_at(x: np.ndarray) -> Solve:
+    """A solve that stays at ``x`` (the optimizer's point): a zero-iteration Levenberg-Marquardt (the statistics
+    there, no step); for the outlier rule's refits, the statistics at the point it starts from."""
+    stay = solve_with(make_optimizer({"name": "lm", "max_iter": 0}))
+
+    def solve(start: CalibrationStart, x_from: np.ndarray, kept: np.ndarray) -> FitResult:
+        return stay(start, x if np.array_equal(x_from, start.x_init) else x_from, kept)
 
     return solve
 
 
 def solve_polish(x: np.ndarray) -> Solve:
-    """A solve that continues with Gauss-Newton (:data:`POLISH`) from the optimizer's point ``x``."""
-    from robocal.identification import robust
+    """A solve that continues from the optimizer's point ``x`` with the calibration's gradient method and the
+    polish's stopping rules (:data:`POLISH`)."""
 
     def solve(start: CalibrationStart, x_from: np.ndarray, kept: np.ndarray) -> FitResult:
         at = x if np.array_equal(x_from, start.x_init) else x_from
-        cfg = start.config  # the polish keeps the calibration's method, with Gauss-Newton's stopping rules
-        return robust.least_squares_on(
-            start.fun, at, start.free, start.weights, start.rows, kept, method=cfg.method, **POLISH
-        )
+        return solve_with(gradient_optimizer(replace(start.config, **POLISH)))(start, at, kept)
 
     return solve
 
@@ -198,17 +265,15 @@ def fit_with_optimizer(
     *,
     seed: int = 0,
 ) -> FitOutcome:
-    """Calibrate with the optimizer config ``optimizer`` (``conf/optimizer/*.yaml``; None: ``calibrate``'s
-    Levenberg-Marquardt with ``cfg``'s stopping rules). See the module docstring."""
+    """Calibrate with the optimizer config ``optimizer`` (``conf/optimizer/*.yaml``; None: the registered
+    Levenberg-Marquardt with ``cfg``'s stopping rules). See the module docstring. The gradient family holds
+    poorly determined parameters and fits again (``poorly_determined: fix``,
+    :func:`~robocal.identification.calibrate.calibrate_with`)."""
     options = pipeline_options(optimizer or {"name": "lm"})
     if is_gradient(optimizer):
-        name = str((optimizer or {}).get("name", cfg.method))
-        if options["polish"]:
-            raise ConfigError(f"The config key 'optimizer.polish' must be false for a gradient optimizer ({name!r}).")
-        settings = {k: optimizer[k] for k in GRADIENT_KEYS if optimizer is not None and k in optimizer}
-        gcfg = replace(cfg, method=name, **settings)
-        cres = fit_from(calibration_start(campaign, robot, gcfg))
-        return FitOutcome(name, cres, cres, None, None, options, {"optimizer_s": cres.fit["solver_time_s"]})
+        gcfg, solve = gradient_fit(cfg, optimizer)
+        cres = calibrate_with(campaign, robot, gcfg, solve)
+        return FitOutcome(gcfg.method, cres, cres, None, None, options, {"optimizer_s": cres.fit["solver_time_s"]})
     assert optimizer is not None
     name = str(optimizer.get("name"))
     opt = make_optimizer(optimizer)  # validates name and keys
@@ -282,15 +347,12 @@ def calibrate(
     population methods. ``x0`` starts the least-squares core from a given point (gradient family only).
     Returns the final calibration (the polished one when ``polish`` is on).
     """
-    from robocal.identification.calibrate import calibrate as least_squares_calibrate
-
     cfg = config or CalibrationConfig()
     ocfg = optimizer_config(optimizer)
-    if ocfg is None:
-        return least_squares_calibrate(campaign, robot, cfg, x0)
+    if is_gradient(ocfg):
+        gcfg, solve = gradient_fit(cfg, ocfg)
+        return calibrate_with(campaign, robot, gcfg, solve, x0)
+    assert ocfg is not None  # None is the gradient default
     if x0 is not None:
-        if not is_gradient(ocfg):
-            raise ConfigError(f"The 'x0' parameter is for the gradient optimizers; {ocfg.get('name')!r} is not one.")
-        settings = {k: ocfg[k] for k in GRADIENT_KEYS if k in ocfg}
-        return least_squares_calibrate(campaign, robot, replace(cfg, method=str(ocfg["name"]), **settings), x0)
+        raise ConfigError(f"The 'x0' parameter is for the gradient optimizers; {ocfg.get('name')!r} is not one.")
     return fit_with_optimizer(campaign, robot, cfg, ocfg, seed=seed).result

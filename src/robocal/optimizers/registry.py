@@ -9,8 +9,10 @@ Registered: ``gn``, ``lm``, ``ipopt``, ``igoa``, ``goa``, ``woa``; add more with
 
 from __future__ import annotations
 
+import functools
 import inspect
 import re
+import sys
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -153,12 +155,11 @@ def make_optimizer(cfg: Mapping[str, Any]) -> Optimizer:
     name = _resolve(cfg)
     factory = _REGISTRY[name].factory
     kwargs = {str(k): _plain(v) for k, v in cfg.items() if k not in PIPELINE_KEYS}
-    params = inspect.signature(factory).parameters
-    if not any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
-        accepted = [p for p, spec in params.items() if spec.kind is not inspect.Parameter.VAR_POSITIONAL]
+    accepted = _keywords(factory)
+    if accepted is not None:
         for key in kwargs:
             if key not in accepted:
-                raise unknown_setting("optimizer", key, kwargs[key], accepted + list(PIPELINE_KEYS))
+                raise unknown_setting("optimizer", key, kwargs[key], list(accepted) + list(PIPELINE_KEYS))
     try:
         optimizer = factory(**kwargs)
     except TypeError as exc:
@@ -191,8 +192,20 @@ def pipeline_options(cfg: Mapping[str, Any]) -> dict[str, Any]:
     return {"polish": polish, "objective": objective, "bound_mm": bound_mm, "bound_deg": bound_deg, "stop_error": stop}
 
 
+@functools.cache
+def _keywords(factory: Factory) -> tuple[str, ...] | None:
+    """The keyword arguments ``factory`` takes (None: any, it has ``**kwargs``); read once per factory (the
+    signature is the class's, a fit builds its optimizer every time)."""
+    params = inspect.signature(factory).parameters
+    if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
+        return None
+    return tuple(p for p, spec in params.items() if spec.kind is not inspect.Parameter.VAR_POSITIONAL)
+
+
 def _plain(value: Any) -> Any:
     """OmegaConf containers to plain Python (constructor arguments are scalars, but be safe)."""
+    if "omegaconf" not in sys.modules:  # no container can exist: skip the import machinery
+        return value
     try:
         from omegaconf import Container, OmegaConf
     except ImportError:  # pragma: no cover - omegaconf comes with hydra-core

@@ -24,7 +24,8 @@ import numpy as np
 
 from robocal.config import parse, setting, sub_settings
 from robocal.errors import ConfigError, DataError
-from robocal.identification.calibrate import CalibrationConfig, CalibrationResult, calibrate, load_calibration
+from robocal.identification.calibrate import CalibrationConfig, CalibrationResult, load_calibration
+from robocal.optimizers.geometric import calibrate
 from robocal.robot import RobotDescription
 from robocal.thermal.identify import StateDrift, find_states, identify_states
 from robocal.thermal.model import ThermalModel

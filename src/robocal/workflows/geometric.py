@@ -12,10 +12,10 @@ import pandas as pd
 
 from robocal.data.contract import Campaign
 from robocal.identification.acceptance import judge
-from robocal.identification.calibrate import CalibrationConfig, CalibrationResult, Validation, calibrate, validate
+from robocal.identification.calibrate import CalibrationConfig, CalibrationResult, Validation, validate
 from robocal.io import atomic_write, write_json
 from robocal.metrics import ErrorStats
-from robocal.optimizers.geometric import fit_with_optimizer, is_gradient
+from robocal.optimizers.geometric import calibrate, fit_with_optimizer, is_gradient
 from robocal.robot import RobotDescription
 from robocal.status import CampaignStatus
 from robocal.workflows import campaign_of, robot_of
