@@ -1,7 +1,7 @@
 """Offline compensation of many poses with a real robot's full model (issue 25 item 5: "12 000 poses in <= 10 s").
 
-    python benchmarks/bench_compensation.py --calibration D/calibration.json --robot ../shared/data/ur10-ipa/robot.yaml \
-        --data ../shared/data/ur10-ipa [--poses 12000] [--layer]
+    python benchmarks/bench_compensation.py --calibration D/calibration.json \
+        --robot ../shared/data/ur10-ipa/robot.yaml --data ../shared/data/ur10-ipa [--poses 12000] [--layer]
 
 ``D`` is the output folder of ``robocal discover`` on the robot's data (its ``calibration.json`` carries the
 geometry and every joint-level effect the service applies). The poses are the data's joint configurations moved
