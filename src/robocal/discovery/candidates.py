@@ -207,16 +207,23 @@ def build_library(
                         )
                     )  # fmt: skip
         elif effect == "gear":
+            from robocal.discovery.physics import held_harmonic_signal
+
+            cal_rows = campaign.split == "calibration" if np.any(campaign.split == "validation") else slice(None)
             for j in range(n):
                 rng = float(np.ptp(q[:, j]))
+                lo, hi = (float(np.rad2deg(f(q[cal_rows, j]))) for f in (np.min, np.max))
                 for h in cfg.gear_harmonics:
                     key = f"gear:j{j + 1}:h{h}"
                     if rng < 1e-6:
                         skipped.append(SkippedCandidate(key, effect, j + 1, f"joint {j + 1} does not move"))
                         continue
-                    # harmonics 1-2 (eccentricity) are one revolution's error: evaluated everywhere, unlike the
-                    # transmission error's many harmonics (robocal.discovery.physics), which are windowed
-                    S = np.column_stack([np.sin(h * q[:, j]), np.cos(h * q[:, j])])
+                    # harmonics 1-2 (eccentricity) are one revolution's error: evaluated everywhere when the
+                    # calibration visited a whole period of the harmonic; over less, the harmonic is a smooth
+                    # trend there and is held at its values at the visited range's ends outside it (unlike the
+                    # transmission error's many harmonics, which fall to zero: robocal.discovery.physics)
+                    held = [lo, hi] if hi - lo < 360.0 / h else None
+                    S = held_harmonic_signal(q[:, j], h, held)
                     cands.append(
                         Candidate(
                             key, effect, j + 1, int(h),
@@ -224,7 +231,7 @@ def build_library(
                             "of the joint angle",
                             signal=f"sin/cos({h}·q{j + 1})", shape="joint", S=S,
                             coef_names=("sin", "cos"), coef_units=("rad", "rad"),
-                            extra={"joint_range_deg": float(np.rad2deg(rng))},
+                            extra={"joint_range_deg": float(np.rad2deg(rng)), "held_outside_deg": held},
                         )
                     )  # fmt: skip
         elif effect == "backlash":

@@ -5,7 +5,9 @@ A joint-level effect ``dq_j = S(q, payload, torque, current, direction) · c`` i
 angles, exactly as the discovery fitted it (``q_true = q_cmd + dq``) and as the compensation's
 ``joint_offset`` hook expects. Signals:
 
-* ``angle``: ``sin(h q_j), cos(h q_j)`` of the commanded angle (gear transmission error);
+* ``angle``: ``sin(h q_j), cos(h q_j)`` of the commanded angle (gear transmission error); with
+  ``held_outside_deg`` (the calibration visited less than one period of the harmonic) held at its values at the
+  visited range's ends outside it (:func:`robocal.discovery.physics.held_harmonic_signal`);
 * ``gravity``: the gravity torque of joint ``j`` from the robot description's masses and the payload;
 * ``torque`` / ``current``: the torque or motor current the controller reports (given with the target);
 * ``direction``: the approach direction ``±1`` of joint ``j`` (backlash; given with the target);
@@ -90,7 +92,9 @@ def effect_records(fit: Fit) -> tuple[list[dict[str, Any]], list[dict[str, Any]]
             continue
         assert c.joint is not None
         rec_terms: dict[str, Any] = {"terms": c.extra["terms"]} if kind == "dictionary" else {}
-        if kind == "transmission":
+        if kind == "angle" and c.extra.get("held_outside_deg") is not None:
+            rec_terms = {"held_outside_deg": list(c.extra["held_outside_deg"])}
+        elif kind == "transmission":
             rec_terms = {k: c.extra[k] for k in ("harmonics", "visited_deg", "taper_deg", "centre")}
         elif kind == "weight":
             rec_terms = {k: c.extra[k] for k in ("basis", "scale", "prior_deg")}
@@ -136,8 +140,9 @@ def joint_offsets(
         c = np.asarray(e["coefficients"], dtype=float)
         kind = e["signal"]
         if kind == "angle":
-            h = int(e["harmonic"])
-            S = np.column_stack([np.sin(h * q[:, j]), np.cos(h * q[:, j])])
+            from robocal.discovery.physics import held_harmonic_signal
+
+            S = held_harmonic_signal(q[:, j], int(e["harmonic"]), e.get("held_outside_deg"))
         elif kind == "transmission":
             from robocal.discovery.physics import transmission_signal
 
@@ -211,6 +216,14 @@ def needs(effects: list[dict[str, Any]]) -> set[str]:
 
 
 TWO_PI = 2.0 * np.pi
+
+
+def _tabulated(e: dict[str, Any]) -> bool:
+    """A record the service tabulates over one revolution of its joint: the transmission error and a gear
+    harmonic evaluated everywhere (a held one, which bends at the visited range's ends, is evaluated exactly)."""
+    return e["signal"] == "transmission" or (e["signal"] == "angle" and e.get("held_outside_deg") is None)
+
+
 #: numeric list fields of the effect records (converted once by :class:`DiscoveredEffects`)
 _ARRAY_FIELDS = ("coefficients", "basis", "scale", "centre", "centres_rad")
 
@@ -294,15 +307,16 @@ class DiscoveredEffects:
     ) -> tuple[tuple[np.ndarray, ...] | None, tuple[np.ndarray, np.ndarray] | None, list[dict[str, Any]]]:
         """The records in the form the service evaluates at every Newton step: ``(tables, weights, rest)``.
 
-        tables: the effects of one joint's own angle (gear harmonics, transmission error: periodic in it), summed
+        tables: the effects of one joint's own angle (gear harmonics evaluated everywhere, transmission error:
+        periodic in it; :func:`_tabulated`), summed
         per joint and tabulated over one revolution (:data:`TABLE_SIZE` steps, plus the windows' kinks) for
         linear interpolation, as ``(joints, grids, values, starts)``; a joint whose table is not within
         :data:`TABLE_TOL_RAD` of the exact sum at every mid-point (the largest error of linear interpolation)
         stays exact. weights: the compliance under the arm's own weight of joint ``j`` is ``Y_j(q) @ pi_j``
         (``pi_j = basis (coefficients / scale)``: mass moments over stiffness), as ``(joints, rows pi_j)``.
         rest: the other records, their numeric lists as arrays."""
-        single = [e for e in self.records if e["signal"] in ("angle", "transmission")]
-        rest = [e for e in self.records if e["signal"] not in ("angle", "transmission", "weight")]
+        single = [e for e in self.records if _tabulated(e)]
+        rest = [e for e in self.records if not _tabulated(e) and e["signal"] != "weight"]
         per_joint: dict[int, np.ndarray] = {}
         for e in self.records:
             if e["signal"] == "weight":
