@@ -69,6 +69,22 @@ def test_a_harmonic_over_less_than_its_period_is_held_at_the_visited_ends():
     assert held_harmonic_signal(q + 2 * np.pi, 2, [lo, hi]) == pytest.approx(S, abs=1e-12)
 
 
+def test_a_held_gear_record_is_evaluated_held_by_calibration_json_and_the_service():
+    from robocal.compensation.effects import Signals
+    from robocal.discovery.effects import DiscoveredEffects
+
+    robot = load_robot("abb_irb120")
+    rec = {"key": "gear:j2:h2", "effect": "gear", "joint": 2, "harmonic": 2, "signal": "angle",
+           "held_outside_deg": [-42.0, 22.6], "coefficients": [8e-4, 1.3e-3]}  # fmt: skip
+    q = np.zeros((5, 6))
+    q[:, 1] = np.deg2rad([-60.0, -42.0, 0.0, 22.6, 42.0])
+    want = held_harmonic_signal(q[:, 1], 2, [-42.0, 22.6]) @ np.array(rec["coefficients"])
+    assert joint_offsets([rec], robot, q)[:, 1] == pytest.approx(want, abs=1e-15)
+    assert want[4] == pytest.approx(want[3]) and want[0] == pytest.approx(want[1])  # held beyond both ends
+    svc = DiscoveredEffects((rec,), robot)
+    assert svc.offsets(q, Signals(np.zeros(5)))[:, 1] == pytest.approx(want, abs=1e-15)
+
+
 def test_layer_gate():
     g = layer_gate(np.array([0.0, 0.1, 0.15, 0.2, 1.0]), inside_rad=0.1, length_rad=0.1)
     assert g == pytest.approx([1.0, 1.0, 0.5, 0.0, 0.0])
