@@ -82,7 +82,13 @@ def test_a_held_gear_record_is_evaluated_held_by_calibration_json_and_the_servic
     assert joint_offsets([rec], robot, q)[:, 1] == pytest.approx(want, abs=1e-15)
     assert want[4] == pytest.approx(want[3]) and want[0] == pytest.approx(want[1])  # held beyond both ends
     svc = DiscoveredEffects((rec,), robot)
-    assert svc.offsets(q, Signals(np.zeros(5)))[:, 1] == pytest.approx(want, abs=1e-15)
+    assert svc._tables[0] is not None and svc._tables[2] == []  # tabulated like every single-angle effect
+    # within the table's interpolation tolerance (TABLE_TOL_RAD) on random angles, held ones included
+    Q = np.zeros((2000, 6))
+    Q[:, 1] = np.random.default_rng(0).uniform(-2 * np.pi, 2 * np.pi, 2000)
+    exact = joint_offsets([rec], robot, Q)[:, 1]
+    assert svc.offsets(Q, Signals(np.zeros(2000)))[:, 1] == pytest.approx(exact, abs=1e-8)
+    assert svc.offsets(q, Signals(np.zeros(5)))[:, 1] == pytest.approx(want, abs=1e-8)
 
 
 def test_layer_gate():

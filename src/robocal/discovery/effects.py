@@ -219,9 +219,9 @@ TWO_PI = 2.0 * np.pi
 
 
 def _tabulated(e: dict[str, Any]) -> bool:
-    """A record the service tabulates over one revolution of its joint: the transmission error and a gear
-    harmonic evaluated everywhere (a held one, which bends at the visited range's ends, is evaluated exactly)."""
-    return e["signal"] == "transmission" or (e["signal"] == "angle" and e.get("held_outside_deg") is None)
+    """A record the service tabulates over one revolution of its joint: the transmission error and the gear
+    harmonics (held or not: periodic in the joint's angle)."""
+    return e["signal"] in ("transmission", "angle")
 
 
 #: numeric list fields of the effect records (converted once by :class:`DiscoveredEffects`)
@@ -247,11 +247,16 @@ def _interp_tables(
 
 
 def _window_kinks(records: list[dict[str, Any]]) -> np.ndarray:
-    """The angles (rad, in [0, 2 pi]) where a transmission record's coverage window is not smooth: each visited
+    """The angles (rad, in [0, 2 pi]) where a record's signal is not smooth: for a transmission record each visited
     interval's ends, the ends of its tapers, and half-way between neighbouring intervals (where the nearest one
-    changes). On the table's grid, linear interpolation is exact there."""
+    changes); for a held gear harmonic the visited range's ends and the ends of the blend over the middle half of
+    the arc never visited. On the table's grid, linear interpolation is exact there."""
     out: list[float] = []
     for e in records:
+        if e["signal"] == "angle" and e.get("held_outside_deg") is not None:
+            lo, hi = (float(a) for a in e["held_outside_deg"])
+            gap = 360.0 - (hi - lo)
+            out += [lo, hi, hi + 0.25 * gap, hi + 0.75 * gap]
         if e["signal"] != "transmission":
             continue
         tp = float(e["taper_deg"])
@@ -307,8 +312,7 @@ class DiscoveredEffects:
     ) -> tuple[tuple[np.ndarray, ...] | None, tuple[np.ndarray, np.ndarray] | None, list[dict[str, Any]]]:
         """The records in the form the service evaluates at every Newton step: ``(tables, weights, rest)``.
 
-        tables: the effects of one joint's own angle (gear harmonics evaluated everywhere, transmission error:
-        periodic in it; :func:`_tabulated`), summed
+        tables: the effects of one joint's own angle (gear harmonics, transmission error: periodic in it), summed
         per joint and tabulated over one revolution (:data:`TABLE_SIZE` steps, plus the windows' kinks) for
         linear interpolation, as ``(joints, grids, values, starts)``; a joint whose table is not within
         :data:`TABLE_TOL_RAD` of the exact sum at every mid-point (the largest error of linear interpolation)
