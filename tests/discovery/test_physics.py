@@ -7,7 +7,13 @@ import numpy as np
 import pytest
 
 from robocal.compensation.discovered import joint_offsets
-from robocal.compensation.signals import coverage_weight, fourier_signal, layer_gate, transmission_signal
+from robocal.compensation.signals import (
+    coverage_weight,
+    fourier_signal,
+    held_harmonic_signal,
+    layer_gate,
+    transmission_signal,
+)
 from robocal.discovery.config import DiscoveryConfig
 from robocal.discovery.effects import extended_calibration
 from robocal.discovery.physics import visited_intervals, weight_basis
@@ -40,6 +46,48 @@ def test_transmission_signal_is_zero_where_the_joint_never_went():
     S_out = transmission_signal(np.deg2rad(np.array([60.0, 120.0, -120.0])), rec)
     assert np.all(S_out == 0.0)
     assert S_in == pytest.approx(fourier_signal(np.deg2rad(np.array([-60.0, 0.0])), np.array([17, 18, 19])))
+
+
+def test_a_harmonic_over_less_than_its_period_is_held_at_the_visited_ends():
+    lo, hi = -42.0, 22.6  # the ABB's joint 2 in the held-out-range benchmark: 65 deg, less than h = 2's period
+    edge = {a: held_harmonic_signal(np.deg2rad(np.array([a])), 2, None)[0] for a in (lo, hi)}
+    q_in = np.deg2rad(np.linspace(lo, hi, 50))
+    assert held_harmonic_signal(q_in, 2, [lo, hi]) == pytest.approx(held_harmonic_signal(q_in, 2, None), abs=1e-15)
+    # beyond the visited ends the value of the nearer end, not the harmonic's curve (10 and 60 deg beyond)
+    assert held_harmonic_signal(np.deg2rad(np.array([hi + 10.0, hi + 60.0])), 2, [lo, hi]) == pytest.approx(
+        np.stack([edge[hi], edge[hi]]), abs=1e-15
+    )
+    assert held_harmonic_signal(np.deg2rad(np.array([lo - 10.0, lo - 60.0])), 2, [lo, hi]) == pytest.approx(
+        np.stack([edge[lo], edge[lo]]), abs=1e-15
+    )
+    # continuous all the way round (the service's Newton steps need it) and periodic in the joint angle: over
+    # 0.01 deg steps no jump (sin / cos(2q) change by at most 2 per rad inside; the blend far less; bound x2)
+    q = np.deg2rad(np.arange(-360.0, 360.0, 0.01))
+    S = held_harmonic_signal(q, 2, [lo, hi])
+    assert np.abs(np.diff(S, axis=0)).max() < 2.0 * np.deg2rad(0.01) * 2
+    assert held_harmonic_signal(q + 2 * np.pi, 2, [lo, hi]) == pytest.approx(S, abs=1e-12)
+
+
+def test_a_held_gear_record_is_evaluated_held_by_calibration_json_and_the_service():
+    from robocal.compensation.discovered import DiscoveredEffects
+    from robocal.compensation.effects import Signals
+
+    robot = load_robot("abb_irb120")
+    rec = {"key": "gear:j2:h2", "effect": "gear", "joint": 2, "harmonic": 2, "signal": "angle",
+           "held_outside_deg": [-42.0, 22.6], "coefficients": [8e-4, 1.3e-3]}  # fmt: skip
+    q = np.zeros((5, 6))
+    q[:, 1] = np.deg2rad([-60.0, -42.0, 0.0, 22.6, 42.0])
+    want = held_harmonic_signal(q[:, 1], 2, [-42.0, 22.6]) @ np.array(rec["coefficients"])
+    assert joint_offsets([rec], robot, q)[:, 1] == pytest.approx(want, abs=1e-15)
+    assert want[4] == pytest.approx(want[3]) and want[0] == pytest.approx(want[1])  # held beyond both ends
+    svc = DiscoveredEffects((rec,), robot)
+    assert svc._tables[0] is not None and svc._tables[2] == []  # tabulated like every single-angle effect
+    # within the table's interpolation tolerance (TABLE_TOL_RAD) on random angles, held ones included
+    Q = np.zeros((2000, 6))
+    Q[:, 1] = np.random.default_rng(0).uniform(-2 * np.pi, 2 * np.pi, 2000)
+    exact = joint_offsets([rec], robot, Q)[:, 1]
+    assert svc.offsets(Q, Signals(np.zeros(2000)))[:, 1] == pytest.approx(exact, abs=1e-8)
+    assert svc.offsets(q, Signals(np.zeros(5)))[:, 1] == pytest.approx(want, abs=1e-8)
 
 
 def test_layer_gate():

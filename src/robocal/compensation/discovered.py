@@ -5,7 +5,9 @@ service, the program filter and ``compensation.csv`` apply them through the one 
 A joint-level effect ``dq_j = S(q, payload, torque, current, direction) · c`` is added to the commanded joint
 angles, exactly as the discovery fitted it (``q_true = q_cmd + dq``). Signals (:data:`SIGNALS`):
 
-* ``angle``: ``sin(h q_j), cos(h q_j)`` of the commanded angle (gear transmission error);
+* ``angle``: ``sin(h q_j), cos(h q_j)`` of the commanded angle (gear transmission error); with
+  ``held_outside_deg`` (the calibration visited less than one period of the harmonic) held at its values at the
+  visited range's ends outside it (:func:`robocal.compensation.signals.held_harmonic_signal`);
 * ``gravity``: the gravity torque of joint ``j`` from the robot description's masses and the payload;
 * ``torque`` / ``current``: the torque or motor current the controller reports (given with the target);
 * ``direction``: the approach direction ``±1`` of joint ``j`` (backlash; given with the target);
@@ -27,7 +29,13 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from robocal.compensation.signals import evaluate_factor, layer_signal, transmission_signal, weight_signal
+from robocal.compensation.signals import (
+    evaluate_factor,
+    held_harmonic_signal,
+    layer_signal,
+    transmission_signal,
+    weight_signal,
+)
 from robocal.kinematics import compiled
 from robocal.kinematics.gravity import gravity_regressor, gravity_torques, regressor_arrays
 from robocal.robot import RobotDescription
@@ -62,8 +70,7 @@ def joint_offsets(
         c = np.asarray(e["coefficients"], dtype=float)
         kind = e["signal"]
         if kind == "angle":
-            h = int(e["harmonic"])
-            S = np.column_stack([np.sin(h * q[:, j]), np.cos(h * q[:, j])])
+            S = held_harmonic_signal(q[:, j], int(e["harmonic"]), e.get("held_outside_deg"))
         elif kind == "transmission":
             S = transmission_signal(q[:, j], e)
         elif kind == "weight":
@@ -125,6 +132,12 @@ def needs(effects: list[dict[str, Any]]) -> set[str]:
 TWO_PI = 2.0 * np.pi
 
 
+def _tabulated(e: dict[str, Any]) -> bool:
+    """A record the service tabulates over one revolution of its joint: the transmission error and the gear
+    harmonics (held or not: periodic in the joint's angle)."""
+    return e["signal"] in ("transmission", "angle")
+
+
 #: numeric list fields of the effect records (converted once by :class:`DiscoveredEffects`)
 _ARRAY_FIELDS = ("coefficients", "basis", "scale", "centre", "centres_rad")
 
@@ -146,11 +159,16 @@ def _interp_tables(
 
 
 def _window_kinks(records: list[dict[str, Any]]) -> np.ndarray:
-    """The angles (rad, in [0, 2 pi]) where a transmission record's coverage window is not smooth: each visited
+    """The angles (rad, in [0, 2 pi]) where a record's signal is not smooth: for a transmission record each visited
     interval's ends, the ends of its tapers, and half-way between neighbouring intervals (where the nearest one
-    changes). On the table's grid, linear interpolation is exact there."""
+    changes); for a held gear harmonic the visited range's ends and the ends of the blend over the middle half of
+    the arc never visited. On the table's grid, linear interpolation is exact there."""
     out: list[float] = []
     for e in records:
+        if e["signal"] == "angle" and e.get("held_outside_deg") is not None:
+            lo, hi = (float(a) for a in e["held_outside_deg"])
+            gap = 360.0 - (hi - lo)
+            out += [lo, hi, hi + 0.25 * gap, hi + 0.75 * gap]
         if e["signal"] != "transmission":
             continue
         tp = float(e["taper_deg"])
@@ -258,8 +276,8 @@ class DiscoveredEffects:
         stays exact. weights: the compliance under the arm's own weight of joint ``j`` is ``Y_j(q) @ pi_j``
         (``pi_j = basis (coefficients / scale)``: mass moments over stiffness), as ``(joints, rows pi_j)``.
         rest: the other records, their numeric lists as arrays."""
-        single = [e for e in self.records if e["signal"] in ("angle", "transmission")]
-        rest = [e for e in self.records if e["signal"] not in ("angle", "transmission", "weight")]
+        single = [e for e in self.records if _tabulated(e)]
+        rest = [e for e in self.records if not _tabulated(e) and e["signal"] != "weight"]
         per_joint: dict[int, np.ndarray] = {}
         for e in self.records:
             if e["signal"] == "weight":

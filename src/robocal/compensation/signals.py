@@ -68,6 +68,31 @@ def fourier_signal(q_rad: np.ndarray, harmonics: np.ndarray, weight: np.ndarray 
     return S if weight is None else S * np.asarray(weight, dtype=float)[:, None]
 
 
+def held_harmonic_signal(q_rad: np.ndarray, harmonic: int, held_deg: list[float] | None) -> np.ndarray:
+    """``S (m, 2)``: ``sin(h q), cos(h q)`` of a joint's angle on the arc ``held_deg = [lo, hi]`` (deg) its
+    calibration visited, and held outside it at the value of the nearer end: over the first and the last quarter
+    of the arc never visited the value at ``hi`` and at ``lo``, and linearly from one to the other over its middle
+    half (continuous and periodic, as the service needs). ``held_deg`` None: the harmonic everywhere.
+
+    A harmonic whose period the visited angles do not cover is a smooth trend there (a proxy fitted jointly with
+    the geometry), not an identified periodic error: continuing its curve beyond the visited angles extrapolates
+    the trend, and dropping it to zero leaves the geometry fitted with it inconsistent. Held at its edge values,
+    the model outside the visited angles is the one the calibration saw at its nearest edge."""
+    q = np.asarray(q_rad, dtype=float)
+    h = int(harmonic)
+    if held_deg is None:
+        return np.column_stack([np.sin(h * q), np.cos(h * q)])
+    lo, hi = np.deg2rad(float(held_deg[0])), np.deg2rad(float(held_deg[1]))
+    span = hi - lo
+    two_pi = 2.0 * np.pi
+    d = np.mod(q - lo, two_pi)  # angle from lo around the circle
+    f = np.clip(2.0 * (d - span) / max(two_pi - span, 1e-12) - 0.5, 0.0, 1.0)[:, None]  # 0 near hi, 1 near lo
+    inside = (d <= span)[:, None]
+    edge_hi = np.array([np.sin(h * hi), np.cos(h * hi)])
+    edge_lo = np.array([np.sin(h * lo), np.cos(h * lo)])
+    return np.where(inside, np.column_stack([np.sin(h * q), np.cos(h * q)]), (1.0 - f) * edge_hi + f * edge_lo)
+
+
 def transmission_signal(q_rad: np.ndarray, record: dict[str, Any]) -> np.ndarray:
     """The transmission-error signal of a stored effect (``harmonics``, ``visited_deg``, ``taper_deg``, and the
     ``centre`` subtracted: the signal's mean over the calibration poses, whose constant part the geometry's

@@ -226,18 +226,25 @@ def _compliance_candidates(campaign: Campaign, robot: RobotDescription, cfg: Dis
 def _gear_candidates(campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig, out: _Library) -> None:
     """The ``gear`` candidates of the campaign, or why there are none."""
     effect = "gear"
+    from robocal.compensation.signals import held_harmonic_signal
+
     n = robot.n_joints
     q = campaign.q
+    cal_rows = campaign.split == "calibration" if np.any(campaign.split == "validation") else slice(None)
     for j in range(n):
         rng = float(np.ptp(q[:, j]))
+        lo, hi = (float(np.rad2deg(f(q[cal_rows, j]))) for f in (np.min, np.max))
         for h in cfg.gear_harmonics:
             key = f"gear:j{j + 1}:h{h}"
             if rng < 1e-6:
                 out.skipped.append(SkippedCandidate(key, effect, j + 1, f"joint {j + 1} does not move"))
                 continue
-            # harmonics 1-2 (eccentricity) are one revolution's error: evaluated everywhere, unlike the
-            # transmission error's many harmonics (robocal.discovery.physics), which are windowed
-            S = np.column_stack([np.sin(h * q[:, j]), np.cos(h * q[:, j])])
+            # harmonics 1-2 (eccentricity) are one revolution's error: evaluated everywhere when the
+            # calibration visited a whole period of the harmonic; over less, the harmonic is a smooth
+            # trend there and is held at its values at the visited range's ends outside it (unlike the
+            # transmission error's many harmonics, which fall to zero: robocal.compensation.signals)
+            held = [lo, hi] if hi - lo < 360.0 / h else None
+            S = held_harmonic_signal(q[:, j], h, held)
             out.cands.append(
                 Candidate(
                     key, effect, j + 1, int(h),
@@ -245,7 +252,7 @@ def _gear_candidates(campaign: Campaign, robot: RobotDescription, cfg: Discovery
                     "of the joint angle",
                     signal=f"sin/cos({h}·q{j + 1})", shape="joint", S=S,
                     coef_names=("sin", "cos"), coef_units=("rad", "rad"),
-                    extra={"joint_range_deg": float(np.rad2deg(rng))},
+                    extra={"joint_range_deg": float(np.rad2deg(rng)), "held_outside_deg": held},
                 )
             )  # fmt: skip
 

@@ -78,7 +78,9 @@ def effect_records(fit: Fit) -> tuple[list[dict[str, Any]], list[dict[str, Any]]
             continue
         assert c.joint is not None
         rec_terms: dict[str, Any] = {"terms": c.extra["terms"]} if kind == "dictionary" else {}
-        if kind == "transmission":
+        if kind == "angle" and c.extra.get("held_outside_deg") is not None:
+            rec_terms = {"held_outside_deg": list(c.extra["held_outside_deg"])}
+        elif kind == "transmission":
             rec_terms = {k: c.extra[k] for k in ("harmonics", "visited_deg", "taper_deg", "centre")}
         elif kind == "weight":
             rec_terms = {k: c.extra[k] for k in ("basis", "scale", "prior_deg")}

@@ -48,11 +48,16 @@ class Variant:
 
 
 def physics_candidates(
-    campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig, rows: np.ndarray
+    campaign: Campaign,
+    robot: RobotDescription,
+    cfg: DiscoveryConfig,
+    rows: np.ndarray,
+    effects: tuple[str, ...] = ("transmission", "weight"),
 ) -> list[tuple[Candidate, list[Variant]]]:
     """The transmission-error candidate of every moving joint (Fourier orders x prior widths as variants) and,
     without link masses, torques or currents, the compliance under the arm's own weight of every joint with a
-    gravity torque. Signals for every campaign row; coverage and bases from the fitted ``rows``."""
+    gravity torque (of those two, the ``effects`` the settings also name). Signals for every campaign row;
+    coverage and bases from the fitted ``rows``."""
     from robocal.compensation.signals import coverage_weight, fourier_signal
     from robocal.discovery.candidates import periodic_window
     from robocal.discovery.physics import (
@@ -67,7 +72,7 @@ def physics_candidates(
     q = campaign.q
     n = robot.n_joints
     n_poses = len(np.unique(np.asarray(campaign.pose_id)[rows].astype(str)))
-    if "transmission" in cfg.effects:
+    if "transmission" in cfg.effects and "transmission" in effects:
         # at most one coefficient pair per ~4 poses: an order the poses cannot resolve is not tried
         orders = [k for k in cfg.transmission_orders if 2 * k <= max(n_poses // 4, 0)]
         kmax = max(orders) if orders else 0
@@ -103,7 +108,7 @@ def physics_candidates(
             ]  # fmt: skip
             out.append((cand, variants))
     has_load_signal = campaign.tau_Nm is not None or campaign.current_A is not None or robot.has_dynamics
-    if "weight" in cfg.effects and not has_load_signal:
+    if "weight" in cfg.effects and "weight" in effects and not has_load_signal:
         Y = gravity_regressor(robot, q)
         for j in range(n):
             V, scale = weight_basis(Y[rows, j, :])
@@ -287,7 +292,8 @@ def grow(
         for c in leftovers
         if c.shape in ("joint", "param", "tracker")
     ]
-    pool = pooled(single + physics_candidates(campaign, robot, cfg, rows))
+    taken = {a.cand.key for a in accepted}  # the F-test search's weight effects are in ``accepted`` already
+    pool = pooled(single + [(c, v) for c, v in physics_candidates(campaign, robot, cfg, rows) if c.key not in taken])
     n_var = sum(len(v) for _, v in pool)
     record: dict[str, Any] = {"candidates": ["+".join(c.key for c in m) for m, _ in pool], "n_variants": n_var,
                               "steps": []}  # fmt: skip

@@ -24,7 +24,7 @@ from scipy import stats
 from robocal.data.contract import Campaign
 from robocal.discovery.candidates import Candidate, SkippedCandidate, build_library
 from robocal.discovery.config import DiscoveryConfig
-from robocal.discovery.grow import finish, grow
+from robocal.discovery.grow import finish, grow, physics_candidates, variant_candidate
 from robocal.discovery.model import Accepted, ExtendedModel, Fit, fit_model
 from robocal.discovery.scoring import Score, Step, regressor
 from robocal.errors import ConfigError
@@ -281,12 +281,16 @@ def _search(
 
     fit = refit([], None)
     geometric = fit
-    n_tests = max(len(library), 1)
+    # without link masses the compliance under the arm's own weight (robocal.discovery.physics, with its prior on
+    # the deflection) is the library's compliance: tested here with it, so that a gear harmonic fitted over less
+    # than its period (a smooth trend) cannot stand in for it first; the F-test takes its unpenalised directions
+    weight = [variant_candidate(c, v[0]) for c, v in physics_candidates(campaign, robot, cfg, rows, ("weight",))]
+    n_tests = max(len(library) + len(weight), 1)
     log_thr = float(np.log10(cfg.alpha / n_tests))
     accepted: list[Accepted] = []
     steps: list[Step] = []
     unident: dict[str, float] = {}
-    remaining = list(library)
+    remaining = list(library) + weight
     groups = np.repeat(np.asarray(cal.pose_id).astype(str), fit.d)
     for _ in range(cfg.max_steps):
         Q = _basis(fit.J_w)
