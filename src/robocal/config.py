@@ -279,7 +279,7 @@ def _is_union(tp: Any) -> bool:
     return typing.get_origin(tp) in (Union, types.UnionType)
 
 
-def _coerce(tp: Any, v: Any, path: str, meta: Mapping[str, Any]) -> Any:  # noqa: C901
+def _coerce(tp: Any, v: Any, path: str, meta: Mapping[str, Any]) -> Any:
     """``v`` as type ``tp`` with the constraints ``meta`` on its numbers and strings, or a SettingError."""
     v = _plain(v)
     origin = typing.get_origin(tp)
@@ -288,6 +288,7 @@ def _coerce(tp: Any, v: Any, path: str, meta: Mapping[str, Any]) -> Any:  # noqa
         return v
     if _is_union(tp):
         return _union(tp, args, v, path, meta)
+    out: Any = _MISMATCH
     if tp is type(None):
         if v is None:
             return None
@@ -297,7 +298,27 @@ def _coerce(tp: Any, v: Any, path: str, meta: Mapping[str, Any]) -> Any:  # noqa
         raise SettingError(path, f"must be one of {list(args)}", v)
     elif dataclasses.is_dataclass(tp) and isinstance(tp, type):
         return v if isinstance(v, tp) else _build(tp, v, path, frozenset())
-    elif tp is bool:
+    elif tp in (bool, int, float, str):
+        out = _scalar(tp, v, path, meta)
+    elif origin in (tuple, list, Sequence) or tp in (tuple, list):
+        return _sequence(tp, origin or tp, args, v, path, meta)
+    elif origin in (dict, Mapping) or tp in (dict, Mapping):
+        out = _mapping(args, v, path)
+    else:
+        raise TypeError(f"robocal.config cannot parse a setting of type {tp!r} ({path})")
+    if out is _MISMATCH:
+        raise SettingError(path, f"must be {_describe(tp, meta)}", v)
+    return out
+
+
+#: what :func:`_scalar` and :func:`_mapping` return for a value not of the type (the caller says what it must be)
+_MISMATCH = object()
+
+
+def _scalar(tp: type, v: Any, path: str, meta: Mapping[str, Any]) -> Any:
+    """``v`` as a bool, int, float (also from scientific notation text) or str within ``meta``'s bounds or
+    choices; :data:`_MISMATCH` when it is not one."""
+    if tp is bool:
         if isinstance(v, bool | np.bool_):
             return bool(v)
     elif tp is int:
@@ -311,28 +332,28 @@ def _coerce(tp: Any, v: Any, path: str, meta: Mapping[str, Any]) -> Any:  # noqa
             if meta.get("finite", True) and not math.isfinite(x):
                 raise SettingError(path, "must be a finite number", v)
             return _bounded(x, path, meta, v)
-    elif tp is str:
-        if isinstance(v, str):
-            choices = meta.get("choices")
-            if choices is not None and v not in choices:
-                raise SettingError(path, f"must be one of {list(choices)}", v)
-            return v
-    elif origin in (tuple, list, Sequence) or tp in (tuple, list):
-        return _sequence(tp, origin or tp, args, v, path, meta)
-    elif origin in (dict, Mapping) or tp in (dict, Mapping):
-        if v is None:
-            return {}
-        if isinstance(v, Mapping):
-            vt = args[1] if len(args) == 2 else Any
-            out = {}
-            for k, x in v.items():
-                if not isinstance(k, str):
-                    raise SettingError(path, "must have string keys", v)
-                out[k] = _coerce(vt, x, _join(path, k), {})  # the field's constraints are not its values
-            return out
-    else:
-        raise TypeError(f"robocal.config cannot parse a setting of type {tp!r} ({path})")
-    raise SettingError(path, f"must be {_describe(tp, meta)}", v)
+    elif isinstance(v, str):
+        choices = meta.get("choices")
+        if choices is not None and v not in choices:
+            raise SettingError(path, f"must be one of {list(choices)}", v)
+        return v
+    return _MISMATCH
+
+
+def _mapping(args: tuple[Any, ...], v: Any, path: str) -> Any:
+    """``v`` as a dict of string keys and values of ``args[1]`` (empty for None); :data:`_MISMATCH` when it is
+    not a mapping."""
+    if v is None:
+        return {}
+    if not isinstance(v, Mapping):
+        return _MISMATCH
+    vt = args[1] if len(args) == 2 else Any
+    out = {}
+    for k, x in v.items():
+        if not isinstance(k, str):
+            raise SettingError(path, "must have string keys", v)
+        out[k] = _coerce(vt, x, _join(path, k), {})  # the field's constraints are not its values
+    return out
 
 
 def _sequence(tp: Any, origin: Any, args: tuple[Any, ...], v: Any, path: str, meta: Mapping[str, Any]) -> Any:

@@ -162,7 +162,7 @@ def _vec(value: Any, n: int, where: str) -> np.ndarray:
     return arr
 
 
-def robot_from_dict(data: dict[str, Any], source: str = "<dict>") -> RobotDescription:  # noqa: C901, PLR0915
+def robot_from_dict(data: dict[str, Any], source: str = "<dict>") -> RobotDescription:
     """Build a :class:`RobotDescription` from a parsed YAML mapping; errors name ``source`` and the key."""
     if not isinstance(data, dict):
         raise ConfigError(f"{source}: a robot description must be a mapping")
@@ -175,81 +175,11 @@ def robot_from_dict(data: dict[str, Any], source: str = "<dict>") -> RobotDescri
     convention = str(data.get("convention", MDH))
     if convention not in (MDH, POE):
         raise ConfigError(f"{source}: convention must be {MDH!r} or {POE!r}, got {convention!r}")
-    names, a, alpha, d, th, beta, bfree, lim = [], [], [], [], [], [], [], []
-    for i, j in enumerate(joints, start=1):
-        where = f"{source}: joints[{i}]"
-        if not isinstance(j, dict):
-            raise ConfigError(f"{where} must be a mapping")
-        names.append(str(j.get("name", f"q{i}")))
-        mdh_default = 0.0 if convention == POE else None
-        a.append(_num(j, "a_mm", where, mdh_default))
-        alpha.append(np.deg2rad(_num(j, "alpha_deg", where, mdh_default)))
-        d.append(_num(j, "d_mm", where, mdh_default))
-        th.append(np.deg2rad(_num(j, "theta_offset_deg", where, 0.0)))
-        beta.append(np.deg2rad(_num(j, "beta_deg", where, 0.0)))
-        bfree.append(bool(j.get("beta_free", False)))
-        lo, hi = _num(j, "q_min_deg", where), _num(j, "q_max_deg", where)
-        if lo >= hi:
-            raise ConfigError(f"{where}: q_min_deg ({lo}) must be below q_max_deg ({hi})")
-        lim.append((np.deg2rad(lo), np.deg2rad(hi)))
-
-    poe_w = poe_p = poe_f = None
-    if convention == POE:
-        poe = data.get("poe")
-        if not isinstance(poe, dict) or "twists" not in poe:
-            raise ConfigError(f"{source}: convention poe needs a 'poe' mapping with 'twists'")
-        tw = poe["twists"]
-        if len(tw) != n:
-            raise ConfigError(f"{source}: poe.twists has {len(tw)} entries, expected {n}")
-        poe_w = np.array([_vec(t.get("w"), 3, f"{source}: poe.twists[{k + 1}].w") for k, t in enumerate(tw)])
-        norms = np.linalg.norm(poe_w, axis=1)
-        if np.any(np.abs(norms - 1.0) > 1e-6):
-            raise ConfigError(f"{source}: poe.twists[*].w must be unit vectors, norms {norms}")
-        poe_p = np.array([_vec(t.get("p_mm"), 3, f"{source}: poe.twists[{k + 1}].p_mm") for k, t in enumerate(tw)])
-        f = np.eye(4)
-        f[:3, 3] = _vec(poe.get("flange_at_zero_mm"), 3, f"{source}: poe.flange_at_zero_mm")
-        rot = np.asarray(poe.get("flange_R_at_zero", np.eye(3).tolist()), dtype=float)
-        if rot.shape != (3, 3) or np.abs(rot @ rot.T - np.eye(3)).max() > 1e-6 or np.linalg.det(rot) < 0:
-            raise ConfigError(f"{source}: poe.flange_R_at_zero must be a 3x3 rotation matrix")
-        f[:3, :3] = rot
-        poe_f = f
-
-    sensors = []
-    for k, s in enumerate(data.get("temperature_sensors") or []):
-        if isinstance(s, str):
-            sensors.append(Sensor(name=s))
-        elif isinstance(s, dict) and "name" in s:
-            idx = s.get("index")
-            sensors.append(
-                Sensor(
-                    name=str(s["name"]),
-                    location=str(s.get("location", "joint")),
-                    index=None if idx is None else int(idx),
-                )
-            )
-        else:
-            raise ConfigError(f"{source}: temperature_sensors[{k + 1}] must be a name or a mapping with 'name'")
-        if not sensors[-1].name.startswith("T_") or not sensors[-1].name.endswith("_C"):
-            raise ConfigError(f"{source}: temperature sensor {sensors[-1].name!r} must be named T_<sensor>_C")
-
+    names, a, alpha, d, th, beta, bfree, lim = _joint_table(joints, convention, source)
+    poe_w, poe_p, poe_f = _poe_model(data, n, source) if convention == POE else (None, None, None)
+    sensors = _sensors(data, source)
     t0 = data.get("T0_C")
-    mass = com = None
-    payload_com = np.zeros(3)
-    gravity = np.array([0.0, 0.0, -9.81])
-    dyn = data.get("dynamics")
-    if isinstance(dyn, dict) and dyn.get("links"):
-        links = dyn["links"]
-        if len(links) != n:
-            raise ConfigError(f"{source}: dynamics.links has {len(links)} entries, expected {n}")
-        mass = np.array([_num(lk, "mass_kg", f"{source}: dynamics.links[{k + 1}]") for k, lk in enumerate(links)])
-        com = np.array(
-            [_vec(lk.get("com_mm"), 3, f"{source}: dynamics.links[{k + 1}].com_mm") for k, lk in enumerate(links)]
-        )
-        if "payload_com_mm" in dyn:
-            payload_com = _vec(dyn["payload_com_mm"], 3, f"{source}: dynamics.payload_com_mm")
-        if "gravity_mps2" in dyn:
-            gravity = _vec(dyn["gravity_mps2"], 3, f"{source}: dynamics.gravity_mps2")
-
+    mass, com, payload_com, gravity = _dynamics(data, n, source)
     return RobotDescription(
         name=str(data.get("name", Path(source).stem)),
         convention=convention,
@@ -272,6 +202,95 @@ def robot_from_dict(data: dict[str, Any], source: str = "<dict>") -> RobotDescri
         gravity=gravity,
         source=source,
     )
+
+
+def _joint_table(joints: list[Any], convention: str, source: str) -> tuple[list[Any], ...]:
+    """Per joint: names, a (mm), alpha, d (mm), theta offset, beta (rad), beta free, limits (rad)."""
+    names, a, alpha, d, th, beta, bfree, lim = [], [], [], [], [], [], [], []
+    for i, j in enumerate(joints, start=1):
+        where = f"{source}: joints[{i}]"
+        if not isinstance(j, dict):
+            raise ConfigError(f"{where} must be a mapping")
+        names.append(str(j.get("name", f"q{i}")))
+        mdh_default = 0.0 if convention == POE else None
+        a.append(_num(j, "a_mm", where, mdh_default))
+        alpha.append(np.deg2rad(_num(j, "alpha_deg", where, mdh_default)))
+        d.append(_num(j, "d_mm", where, mdh_default))
+        th.append(np.deg2rad(_num(j, "theta_offset_deg", where, 0.0)))
+        beta.append(np.deg2rad(_num(j, "beta_deg", where, 0.0)))
+        bfree.append(bool(j.get("beta_free", False)))
+        lo, hi = _num(j, "q_min_deg", where), _num(j, "q_max_deg", where)
+        if lo >= hi:
+            raise ConfigError(f"{where}: q_min_deg ({lo}) must be below q_max_deg ({hi})")
+        lim.append((np.deg2rad(lo), np.deg2rad(hi)))
+    return names, a, alpha, d, th, beta, bfree, lim
+
+
+def _poe_model(data: dict[str, Any], n: int, source: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The POE twists' unit axes (n, 3), points (n, 3) mm and the flange at zero (4, 4) mm."""
+    poe = data.get("poe")
+    if not isinstance(poe, dict) or "twists" not in poe:
+        raise ConfigError(f"{source}: convention poe needs a 'poe' mapping with 'twists'")
+    tw = poe["twists"]
+    if len(tw) != n:
+        raise ConfigError(f"{source}: poe.twists has {len(tw)} entries, expected {n}")
+    poe_w = np.array([_vec(t.get("w"), 3, f"{source}: poe.twists[{k + 1}].w") for k, t in enumerate(tw)])
+    norms = np.linalg.norm(poe_w, axis=1)
+    if np.any(np.abs(norms - 1.0) > 1e-6):
+        raise ConfigError(f"{source}: poe.twists[*].w must be unit vectors, norms {norms}")
+    poe_p = np.array([_vec(t.get("p_mm"), 3, f"{source}: poe.twists[{k + 1}].p_mm") for k, t in enumerate(tw)])
+    f = np.eye(4)
+    f[:3, 3] = _vec(poe.get("flange_at_zero_mm"), 3, f"{source}: poe.flange_at_zero_mm")
+    rot = np.asarray(poe.get("flange_R_at_zero", np.eye(3).tolist()), dtype=float)
+    if rot.shape != (3, 3) or np.abs(rot @ rot.T - np.eye(3)).max() > 1e-6 or np.linalg.det(rot) < 0:
+        raise ConfigError(f"{source}: poe.flange_R_at_zero must be a 3x3 rotation matrix")
+    f[:3, :3] = rot
+    return poe_w, poe_p, f
+
+
+def _sensors(data: dict[str, Any], source: str) -> list[Sensor]:
+    """The temperature sensors (names T_<sensor>_C), each given as a name or a mapping with 'name'."""
+    sensors = []
+    for k, s in enumerate(data.get("temperature_sensors") or []):
+        if isinstance(s, str):
+            sensors.append(Sensor(name=s))
+        elif isinstance(s, dict) and "name" in s:
+            idx = s.get("index")
+            sensors.append(
+                Sensor(
+                    name=str(s["name"]),
+                    location=str(s.get("location", "joint")),
+                    index=None if idx is None else int(idx),
+                )
+            )
+        else:
+            raise ConfigError(f"{source}: temperature_sensors[{k + 1}] must be a name or a mapping with 'name'")
+        if not sensors[-1].name.startswith("T_") or not sensors[-1].name.endswith("_C"):
+            raise ConfigError(f"{source}: temperature sensor {sensors[-1].name!r} must be named T_<sensor>_C")
+    return sensors
+
+
+def _dynamics(
+    data: dict[str, Any], n: int, source: str
+) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray, np.ndarray]:
+    """Link masses (n,) kg and centres of mass (n, 3) mm (None without 'dynamics'), payload centre of mass, gravity."""
+    mass = com = None
+    payload_com = np.zeros(3)
+    gravity = np.array([0.0, 0.0, -9.81])
+    dyn = data.get("dynamics")
+    if isinstance(dyn, dict) and dyn.get("links"):
+        links = dyn["links"]
+        if len(links) != n:
+            raise ConfigError(f"{source}: dynamics.links has {len(links)} entries, expected {n}")
+        mass = np.array([_num(lk, "mass_kg", f"{source}: dynamics.links[{k + 1}]") for k, lk in enumerate(links)])
+        com = np.array(
+            [_vec(lk.get("com_mm"), 3, f"{source}: dynamics.links[{k + 1}].com_mm") for k, lk in enumerate(links)]
+        )
+        if "payload_com_mm" in dyn:
+            payload_com = _vec(dyn["payload_com_mm"], 3, f"{source}: dynamics.payload_com_mm")
+        if "gravity_mps2" in dyn:
+            gravity = _vec(dyn["gravity_mps2"], 3, f"{source}: dynamics.gravity_mps2")
+    return mass, com, payload_com, gravity
 
 
 def project_robot_dir(start: str | Path | None = None) -> Path | None:

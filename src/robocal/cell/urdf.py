@@ -94,7 +94,7 @@ def _origin_mm(T: np.ndarray | None) -> np.ndarray:
     return out
 
 
-def chain_path(urdf: Any, base: str | None, tip: str | None, source: str) -> tuple[str, str, list[UrdfJoint]]:  # noqa: C901
+def chain_path(urdf: Any, base: str | None, tip: str | None, source: str) -> tuple[str, str, list[UrdfJoint]]:
     """The joints from ``base`` to ``tip`` (defaults: the root link; the end of the only actuated path)."""
     links = set(urdf.link_map)
     by_child = {j.child: j for j in urdf.joint_map.values()}
@@ -106,23 +106,7 @@ def chain_path(urdf: Any, base: str | None, tip: str | None, source: str) -> tup
     if base not in links:
         raise ConfigError(f"{source}: no link named {base!r} (base); links: {sorted(links)}")
     if tip is None:
-        # follow the only actuated branch from the base to a leaf
-        leaves = []
-        stack = [(base, 0)]
-        while stack:
-            link, n_act = stack.pop()
-            kids = children.get(link, [])
-            if not kids:
-                leaves.append((n_act, link))
-            for j in kids:
-                stack.append((j.child, n_act + (j.type in _REVOLUTE)))
-        best = max(n for n, _ in leaves) if leaves else 0
-        cands = sorted(link for n, link in leaves if n == best)
-        if best == 0 or len(cands) != 1:
-            raise ConfigError(
-                f"{source}: name the tip link ('{source}#{base}:TIP'); leaves with {best} joints: {cands}"
-            )
-        tip = cands[0]
+        tip = _only_actuated_leaf(children, base, source)
     if tip not in links:
         raise ConfigError(f"{source}: no link named {tip!r} (tip); links: {sorted(links)}")
     path: list[UrdfJoint] = []
@@ -131,24 +115,45 @@ def chain_path(urdf: Any, base: str | None, tip: str | None, source: str) -> tup
         j = by_child.get(link)
         if j is None:
             raise ConfigError(f"{source}: link {tip!r} is not below link {base!r}")
-        if j.type not in (*_REVOLUTE, "fixed"):
-            raise ConfigError(
-                f"{source}: joint {j.name!r} is {j.type}; only revolute, continuous and fixed are supported"
-            )
-        if getattr(j, "mimic", None) is not None:
-            raise ConfigError(f"{source}: joint {j.name!r} mimics another joint; not supported")
-        axis = np.array([1.0, 0.0, 0.0]) if j.axis is None else np.asarray(j.axis, dtype=float)
-        if j.type in _REVOLUTE and not np.linalg.norm(axis) > 0:
-            raise ConfigError(f"{source}: joint {j.name!r} has a zero axis")
-        lim = j.limit
-        lower = None if lim is None or lim.lower is None else float(lim.lower)
-        upper = None if lim is None or lim.upper is None else float(lim.upper)
-        path.append(UrdfJoint(j.name, j.type, j.parent, j.child, _origin_mm(j.origin), axis, lower, upper))
+        path.append(_urdf_joint(j, source))
         link = j.parent
     path.reverse()
     if not any(j.type in _REVOLUTE for j in path):
         raise ConfigError(f"{source}: no revolute joint between {base!r} and {tip!r}")
     return base, tip, path
+
+
+def _only_actuated_leaf(children: dict[str, list[Any]], base: str, source: str) -> str:
+    """The tip by default: the leaf below ``base`` with the most actuated joints, when it is the only one."""
+    leaves = []
+    stack = [(base, 0)]
+    while stack:
+        link, n_act = stack.pop()
+        kids = children.get(link, [])
+        if not kids:
+            leaves.append((n_act, link))
+        for j in kids:
+            stack.append((j.child, n_act + (j.type in _REVOLUTE)))
+    best = max(n for n, _ in leaves) if leaves else 0
+    cands = sorted(link for n, link in leaves if n == best)
+    if best == 0 or len(cands) != 1:
+        raise ConfigError(f"{source}: name the tip link ('{source}#{base}:TIP'); leaves with {best} joints: {cands}")
+    return cands[0]
+
+
+def _urdf_joint(j: Any, source: str) -> UrdfJoint:
+    """A URDF joint of the chain (mm, its axis and limits), or a ConfigError for a joint robocal cannot model."""
+    if j.type not in (*_REVOLUTE, "fixed"):
+        raise ConfigError(f"{source}: joint {j.name!r} is {j.type}; only revolute, continuous and fixed are supported")
+    if getattr(j, "mimic", None) is not None:
+        raise ConfigError(f"{source}: joint {j.name!r} mimics another joint; not supported")
+    axis = np.array([1.0, 0.0, 0.0]) if j.axis is None else np.asarray(j.axis, dtype=float)
+    if j.type in _REVOLUTE and not np.linalg.norm(axis) > 0:
+        raise ConfigError(f"{source}: joint {j.name!r} has a zero axis")
+    lim = j.limit
+    lower = None if lim is None or lim.lower is None else float(lim.lower)
+    upper = None if lim is None or lim.upper is None else float(lim.upper)
+    return UrdfJoint(j.name, j.type, j.parent, j.child, _origin_mm(j.origin), axis, lower, upper)
 
 
 def robot_dict_from_urdf(path: str | Path, base_link: str | None = None, tip_link: str | None = None) -> dict[str, Any]:
@@ -281,7 +286,7 @@ def _tool_elements(tools: dict[str, np.ndarray]) -> list[tuple[str, np.ndarray]]
     return [(f"robocal_tool_{name}", T) for name, T in tools.items()]
 
 
-def write_calibrated_urdf(  # noqa: C901, PLR0915
+def write_calibrated_urdf(
     robot: RobotDescription,
     eta: np.ndarray,
     out_path: str | Path,
@@ -307,69 +312,9 @@ def write_calibrated_urdf(  # noqa: C901, PLR0915
     if urdf_path is not None and Path(urdf_path).resolve() == out.resolve():
         raise ConfigError(f"refusing to overwrite the original URDF {urdf_path}; choose another output path")
     if urdf_path is None:
-        frames, axes, F_cal = calibrated_link_frames(robot, eta)
-        root = etree.Element("robot", name=f"{robot.name}_calibrated")
-        etree.SubElement(root, "link", name="base_link")
-        parent, P = "base_link", np.eye(4)
-        for i in range(robot.n_joints):
-            child = f"link_{i + 1}"
-            etree.SubElement(root, "link", name=child)
-            jt = etree.SubElement(root, "joint", name=robot.joint_names[i], type="revolute")
-            etree.SubElement(jt, "origin", **_origin_attrs(inv_transform(P) @ frames[i]))
-            etree.SubElement(jt, "parent", link=parent)
-            etree.SubElement(jt, "child", link=child)
-            etree.SubElement(jt, "axis", xyz=" ".join(_fmt(v) for v in axes[i]))
-            lo, hi = robot.q_limits[i]
-            etree.SubElement(jt, "limit", lower=_fmt(lo), upper=_fmt(hi), effort="0", velocity="0")
-            parent, P = child, frames[i]
-        etree.SubElement(root, "link", name="flange")
-        jt = etree.SubElement(root, "joint", name="flange_joint", type="fixed")
-        etree.SubElement(jt, "origin", **_origin_attrs(inv_transform(P) @ F_cal))
-        etree.SubElement(jt, "parent", link=parent)
-        etree.SubElement(jt, "child", link="flange")
-        tip = "flange"
+        root, tip = _fresh_urdf(robot, eta)
     else:
-        src = Path(urdf_path)
-        urdf = load_urdf(src)
-        base, tip, joints = chain_path(urdf, base_link, tip_link, str(src))
-        T = np.eye(4)
-        L = []
-        for j in joints:
-            T = T @ j.origin
-            if j.type in _REVOLUTE:
-                L.append(T.copy())
-        if len(L) != robot.n_joints:
-            raise ConfigError(f"{src}: {len(L)} revolute joints from {base} to {tip}, the robot has {robot.n_joints}")
-        frames, _, F_cal = calibrated_link_frames(robot, eta, L)
-        new_origin: dict[str, np.ndarray] = {}
-        P = np.eye(4)  # calibrated pose of the current parent link
-        k = 0
-        last_act = max(i for i, j in enumerate(joints) if j.type in _REVOLUTE)
-        fixed_after = [i for i, j in enumerate(joints) if i > last_act]
-        for i, j in enumerate(joints):
-            if j.type in _REVOLUTE:
-                new_origin[j.name] = inv_transform(P) @ frames[k]
-                P = frames[k]
-                k += 1
-            elif fixed_after and i == fixed_after[-1]:
-                new_origin[j.name] = inv_transform(P) @ F_cal
-                P = F_cal
-            else:
-                P = P @ j.origin
-        if not fixed_after and np.abs(P - F_cal).max() > 1e-9:
-            raise ConfigError(f"{src}: the tip {tip} is the last joint's link; corrections after it cannot be placed")
-        parser = etree.XMLParser(remove_blank_text=False)
-        tree = etree.parse(str(src), parser)
-        root = tree.getroot()
-        for jel in root.findall("joint"):
-            name = jel.get("name")
-            if name in new_origin:
-                org = jel.find("origin")
-                if org is None:
-                    org = etree.SubElement(jel, "origin")
-                for key, val in _origin_attrs(new_origin[name]).items():
-                    org.set(key, val)
-        root.set("name", f"{root.get('name', 'robot')}_calibrated")
+        root, tip = _calibrated_copy(robot, eta, Path(urdf_path), base_link, tip_link)
     for name, Tt in _tool_elements(tools):
         etree.SubElement(root, "link", name=name)
         jt = etree.SubElement(root, "joint", name=f"{name}_joint", type="fixed")
@@ -378,6 +323,82 @@ def write_calibrated_urdf(  # noqa: C901, PLR0915
         etree.SubElement(jt, "child", link=name)
     data = etree.tostring(root, xml_declaration=True, encoding="utf-8", pretty_print=True)
     return write_bytes(out, data)
+
+
+def _fresh_urdf(robot: RobotDescription, eta: np.ndarray) -> tuple[Any, str]:
+    """A new URDF tree of the calibrated robot (one link per joint, a fixed flange) and its tip link."""
+    from lxml import etree
+
+    frames, axes, F_cal = calibrated_link_frames(robot, eta)
+    root = etree.Element("robot", name=f"{robot.name}_calibrated")
+    etree.SubElement(root, "link", name="base_link")
+    parent, P = "base_link", np.eye(4)
+    for i in range(robot.n_joints):
+        child = f"link_{i + 1}"
+        etree.SubElement(root, "link", name=child)
+        jt = etree.SubElement(root, "joint", name=robot.joint_names[i], type="revolute")
+        etree.SubElement(jt, "origin", **_origin_attrs(inv_transform(P) @ frames[i]))
+        etree.SubElement(jt, "parent", link=parent)
+        etree.SubElement(jt, "child", link=child)
+        etree.SubElement(jt, "axis", xyz=" ".join(_fmt(v) for v in axes[i]))
+        lo, hi = robot.q_limits[i]
+        etree.SubElement(jt, "limit", lower=_fmt(lo), upper=_fmt(hi), effort="0", velocity="0")
+        parent, P = child, frames[i]
+    etree.SubElement(root, "link", name="flange")
+    jt = etree.SubElement(root, "joint", name="flange_joint", type="fixed")
+    etree.SubElement(jt, "origin", **_origin_attrs(inv_transform(P) @ F_cal))
+    etree.SubElement(jt, "parent", link=parent)
+    etree.SubElement(jt, "child", link="flange")
+    return root, "flange"
+
+
+def _calibrated_copy(
+    robot: RobotDescription, eta: np.ndarray, src: Path, base_link: str | None, tip_link: str | None
+) -> tuple[Any, str]:
+    """The original URDF tree ``src`` with the calibrated origins of the joints from base to tip, and the tip."""
+    from lxml import etree
+
+    urdf = load_urdf(src)
+    base, tip, joints = chain_path(urdf, base_link, tip_link, str(src))
+    T = np.eye(4)
+    L = []
+    for j in joints:
+        T = T @ j.origin
+        if j.type in _REVOLUTE:
+            L.append(T.copy())
+    if len(L) != robot.n_joints:
+        raise ConfigError(f"{src}: {len(L)} revolute joints from {base} to {tip}, the robot has {robot.n_joints}")
+    frames, _, F_cal = calibrated_link_frames(robot, eta, L)
+    new_origin: dict[str, np.ndarray] = {}
+    P = np.eye(4)  # calibrated pose of the current parent link
+    k = 0
+    last_act = max(i for i, j in enumerate(joints) if j.type in _REVOLUTE)
+    fixed_after = [i for i, j in enumerate(joints) if i > last_act]
+    for i, j in enumerate(joints):
+        if j.type in _REVOLUTE:
+            new_origin[j.name] = inv_transform(P) @ frames[k]
+            P = frames[k]
+            k += 1
+        elif fixed_after and i == fixed_after[-1]:
+            new_origin[j.name] = inv_transform(P) @ F_cal
+            P = F_cal
+        else:
+            P = P @ j.origin
+    if not fixed_after and np.abs(P - F_cal).max() > 1e-9:
+        raise ConfigError(f"{src}: the tip {tip} is the last joint's link; corrections after it cannot be placed")
+    parser = etree.XMLParser(remove_blank_text=False)
+    tree = etree.parse(str(src), parser)
+    root = tree.getroot()
+    for jel in root.findall("joint"):
+        name = jel.get("name")
+        if name in new_origin:
+            org = jel.find("origin")
+            if org is None:
+                org = etree.SubElement(jel, "origin")
+            for key, val in _origin_attrs(new_origin[name]).items():
+                org.set(key, val)
+    root.set("name", f"{root.get('name', 'robot')}_calibrated")
+    return root, tip
 
 
 def calibration_yaml(

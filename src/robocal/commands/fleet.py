@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+from typing import Any
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -31,7 +32,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("overrides", nargs="*", help="settings key=value, e.g. drift.alpha=0.05 twin.n_poses=60")
 
 
-def run(args: argparse.Namespace) -> int:  # noqa: C901
+def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from robocal.commands import parse_overrides
@@ -44,16 +45,7 @@ def run(args: argparse.Namespace) -> int:  # noqa: C901
         args.fleet_dir = None
     settings = load_settings(args.config, parse_overrides(args.overrides))
     if args.simulate is not None:
-        from robocal.fleet.twin import simulate_fleet
-
-        if not args.out:
-            raise ConfigError("--simulate N needs --out FLEET_DIR (where to write the fleet)")
-        truth = simulate_fleet(args.out, args.simulate, args.campaigns, args.seed, settings.get("twin"))
-        n_ev = sum(len(r["events"]) for r in truth["robots"].values())
-        print(
-            f"wrote a twin fleet of {args.simulate} robots x {args.campaigns} campaigns ({n_ev} events) to {args.out}"
-        )
-        return 0
+        return _simulate(args, settings)
     if not args.fleet_dir:
         raise ConfigError("give the fleet folder (robocal fleet FLEET_DIR --out DIR) or --simulate N --out FLEET_DIR")
     if args.write_dvc:
@@ -83,24 +75,41 @@ def run(args: argparse.Namespace) -> int:  # noqa: C901
     )
     computed = len(res["computed"])
     print(f"calibrated {computed} campaign(s), {res['n_cached']} cached", file=sys.stderr)
-    if "counts" in res:
-        c = res["counts"]
-        print(
-            f"{c['robots']} robots, {c['campaigns']} campaigns: {c['accepted']} accepted, {c['rejected']} rejected, "
-            f"{c['errors']} errors; {len(res['trends']['flags'])} flagged parameter(s); report: {args.out}/report.html"
-        )
-        for f in res["trends"]["flags"]:
-            print(f"  {f['serial']} {f['parameter']}: {f['kind']}: {f['explanation']}")
-        if "truth" in res:
-            t = res["truth"]
-            print(
-                f"  twin truth: {t['n_detected']}/{t['n_events']} events flagged ({t['n_right_kind']} of the right "
-                f"kind), {t['n_false_flags']} false flag(s)"
-            )
-        if c["errors"]:
-            for r in res["robots"]:
-                for s in r["campaigns"]:
-                    if s["status"] == "error":
-                        print(f"robocal fleet: error: {r['serial']} {s['campaign']}: {s['reason']}", file=sys.stderr)
-            return 1
+    return _print_outcome(res, args.out) if "counts" in res else 0
+
+
+def _simulate(args: argparse.Namespace, settings: dict[str, Any]) -> int:
+    """``--simulate N``: write a twin fleet into ``--out``."""
+    from robocal.errors import ConfigError
+    from robocal.fleet.twin import simulate_fleet
+
+    if not args.out:
+        raise ConfigError("--simulate N needs --out FLEET_DIR (where to write the fleet)")
+    truth = simulate_fleet(args.out, args.simulate, args.campaigns, args.seed, settings.get("twin"))
+    n_ev = sum(len(r["events"]) for r in truth["robots"].values())
+    print(f"wrote a twin fleet of {args.simulate} robots x {args.campaigns} campaigns ({n_ev} events) to {args.out}")
     return 0
+
+
+def _print_outcome(res: dict[str, Any], out: str) -> int:
+    """The fleet's counts, flagged parameters, the twin's truth and every failed campaign; 1 when one failed."""
+    c = res["counts"]
+    print(
+        f"{c['robots']} robots, {c['campaigns']} campaigns: {c['accepted']} accepted, {c['rejected']} rejected, "
+        f"{c['errors']} errors; {len(res['trends']['flags'])} flagged parameter(s); report: {out}/report.html"
+    )
+    for f in res["trends"]["flags"]:
+        print(f"  {f['serial']} {f['parameter']}: {f['kind']}: {f['explanation']}")
+    if "truth" in res:
+        t = res["truth"]
+        print(
+            f"  twin truth: {t['n_detected']}/{t['n_events']} events flagged ({t['n_right_kind']} of the right "
+            f"kind), {t['n_false_flags']} false flag(s)"
+        )
+    if not c["errors"]:
+        return 0
+    for r in res["robots"]:
+        for s in r["campaigns"]:
+            if s["status"] == "error":
+                print(f"robocal fleet: error: {r['serial']} {s['campaign']}: {s['reason']}", file=sys.stderr)
+    return 1

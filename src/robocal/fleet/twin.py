@@ -117,7 +117,7 @@ def _settings(cfg: Mapping[str, Any] | None) -> dict[str, Any]:
     return asdict(TwinSettings.from_mapping(cfg))
 
 
-def simulate_fleet(  # noqa: PLR0915
+def simulate_fleet(
     out_dir: str | Path, n_robots: int, n_campaigns: int = 3, seed: int = 0, config: Mapping[str, Any] | None = None
 ) -> dict[str, Any]:
     """Write a twin fleet into ``out_dir`` (see :mod:`robocal.fleet.layout`); returns the truth (also written to
@@ -158,50 +158,14 @@ def simulate_fleet(  # noqa: PLR0915
         sd_len = float(cfg["errors"]["length_mm"])
         sd_ang = np.deg2rad(float(cfg["errors"]["angle_deg"]))
         eta0 = np.array([rng.normal(0, sd_len if k == "length" else sd_ang) for k in kinds])
-        deltas = np.zeros((n_campaigns, len(names)))  # change of eta at each campaign relative to the first
-        events: list[dict[str, Any]] = []
-        kind = kind_of.get(i)
-        if kind == "jump":
-            p = str(rng.choice(JUMP_PARAMS))
-            after = int(rng.integers(1, n_campaigns))  # the jump happens before campaign number `after` (0-based)
-            size_deg = float(rng.uniform(*cfg["jump_deg"]) * rng.choice([-1.0, 1.0]))
-            deltas[after:, names.index(p)] += np.deg2rad(size_deg)
-            events.append({"kind": "jump", "parameter": p, "size_deg": size_deg, "between": [after - 1, after]})
-        elif kind == "drift":
-            p = str(rng.choice(DRIFT_PARAMS))
-            rate = float(rng.uniform(*cfg["drift_mm_per_campaign"]) * rng.choice([-1.0, 1.0]))
-            deltas[:, names.index(p)] += rate * np.arange(n_campaigns)
-            events.append({"kind": "drift", "parameter": p, "mm_per_campaign": rate})
+        deltas, events = _planted_event(kind_of.get(i), rng, names, n_campaigns, cfg)
         rdir = out / serial
         rdir.mkdir(exist_ok=True)
         write_text(rdir / "robot.yaml", yaml.safe_dump({"serial": serial, "robot": cfg["robot"]}, sort_keys=False))
         campaigns = []
         for k in range(n_campaigns):
             day = start + timedelta(days=int(cfg["interval_days"]) * k)
-            sc = dict(base)
-            sc.update(
-                {
-                    "name": f"fleet {serial} campaign {k + 1}",
-                    "robot": cfg["robot"],
-                    "n_poses": int(cfg["n_poses"]),
-                    "n_validation_poses": int(cfg["n_validation_poses"]),
-                    "start": f"{day.isoformat()}T07:00:00Z",
-                }
-            )
-            tr = dict(sc.get("tracker") or {})
-            xyz = np.asarray(tr.get("xyz_mm", [2500.0, 1200.0, -350.0]), dtype=float)
-            jitter = rng.uniform(-1, 1, 3) * float(cfg["tracker_jitter_mm"])
-            sc["tracker"] = {**tr, "xyz_mm": [round(float(v), 3) for v in xyz + jitter]}
-            sc["gross_errors"] = {"n": 1} if rng.uniform() < float(cfg["gross_error_share"]) else {"n": 0}
-            eta = eta0 + deltas[k]
-            sc["effects"] = {
-                **dict(sc.get("effects") or {}),
-                "fleet_state": {
-                    "serial": serial,
-                    "campaign": k,
-                    "eta": {n: float(v) for n, v in zip(names, eta, strict=True)},
-                },
-            }
+            sc = _campaign_scenario(base, cfg, serial, k, day, rng, dict(zip(names, eta0 + deltas[k], strict=True)))
             simulate(sc, rdir / day.isoformat(), seed=robot_seed + 1000 * (k + 1), robot=robot)
             campaigns.append(day.isoformat())
         truth["robots"][serial] = {
@@ -212,3 +176,58 @@ def simulate_fleet(  # noqa: PLR0915
         }
     write_json(out / "truth.json", truth)
     return truth
+
+
+def _planted_event(
+    kind: str | None, rng: np.random.Generator, names: list[str], n_campaigns: int, cfg: Mapping[str, Any]
+) -> tuple[np.ndarray, list[dict[str, Any]]]:
+    """The change of eta at each campaign relative to the first (n_campaigns, P) and the event planted (a jump
+    of a joint offset between two campaigns, a steady drift of a length, or none); ``between`` holds campaign
+    numbers."""
+    deltas = np.zeros((n_campaigns, len(names)))
+    events: list[dict[str, Any]] = []
+    if kind == "jump":
+        p = str(rng.choice(JUMP_PARAMS))
+        after = int(rng.integers(1, n_campaigns))  # the jump happens before campaign number `after` (0-based)
+        size_deg = float(rng.uniform(*cfg["jump_deg"]) * rng.choice([-1.0, 1.0]))
+        deltas[after:, names.index(p)] += np.deg2rad(size_deg)
+        events.append({"kind": "jump", "parameter": p, "size_deg": size_deg, "between": [after - 1, after]})
+    elif kind == "drift":
+        p = str(rng.choice(DRIFT_PARAMS))
+        rate = float(rng.uniform(*cfg["drift_mm_per_campaign"]) * rng.choice([-1.0, 1.0]))
+        deltas[:, names.index(p)] += rate * np.arange(n_campaigns)
+        events.append({"kind": "drift", "parameter": p, "mm_per_campaign": rate})
+    return deltas, events
+
+
+def _campaign_scenario(
+    base: Mapping[str, Any],
+    cfg: Mapping[str, Any],
+    serial: str,
+    k: int,
+    day: date,
+    rng: np.random.Generator,
+    eta: dict[str, float],
+) -> dict[str, Any]:
+    """The twin scenario of campaign ``k`` of robot ``serial``: its day, a jittered tracker, maybe a gross error,
+    and the robot's kinematic errors ``eta`` then (the ``fleet_state`` effect)."""
+    sc = dict(base)
+    sc.update(
+        {
+            "name": f"fleet {serial} campaign {k + 1}",
+            "robot": cfg["robot"],
+            "n_poses": int(cfg["n_poses"]),
+            "n_validation_poses": int(cfg["n_validation_poses"]),
+            "start": f"{day.isoformat()}T07:00:00Z",
+        }
+    )
+    tr = dict(sc.get("tracker") or {})
+    xyz = np.asarray(tr.get("xyz_mm", [2500.0, 1200.0, -350.0]), dtype=float)
+    jitter = rng.uniform(-1, 1, 3) * float(cfg["tracker_jitter_mm"])
+    sc["tracker"] = {**tr, "xyz_mm": [round(float(v), 3) for v in xyz + jitter]}
+    sc["gross_errors"] = {"n": 1} if rng.uniform() < float(cfg["gross_error_share"]) else {"n": 0}
+    sc["effects"] = {
+        **dict(sc.get("effects") or {}),
+        "fleet_state": {"serial": serial, "campaign": k, "eta": {n: float(v) for n, v in eta.items()}},
+    }
+    return sc

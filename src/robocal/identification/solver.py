@@ -22,7 +22,7 @@ from robocal.identification.result import FitResult, fit_covariance, normal_inve
 __all__ = ["FitResult", "levenberg_marquardt", "normal_inverse"]
 
 
-def levenberg_marquardt(  # noqa: C901, PLR0915
+def levenberg_marquardt(
     fun: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
     x0: np.ndarray,
     free: np.ndarray,
@@ -74,12 +74,7 @@ def levenberg_marquardt(  # noqa: C901, PLR0915
     r, Jf = weighted(r), weighted_jacobian(J)
     cost = 0.5 * float(r @ r)
     history = [cost]
-    if scale is None:
-        d = np.linalg.norm(Jf, axis=0)
-        d[d == 0] = 1.0
-        s = 1.0 / d
-    else:
-        s = np.asarray(scale, dtype=float)[free]
+    s = _column_scale(Jf, scale, free)
     lam = (1e-6 if lam0 is None else float(lam0)) if damped else 0.0
     status = 0
     nit = 0
@@ -92,32 +87,18 @@ def levenberg_marquardt(  # noqa: C901, PLR0915
         accepted = False
         # predicted reduction of the undamped Gauss-Newton step: stop without another evaluation when
         # even the full step cannot lower the cost by more than ftol (at a minimum to working precision)
-        try:
-            dz_gn = -np.linalg.solve(H, g)
-            pred = -(g @ dz_gn + 0.5 * dz_gn @ (H @ dz_gn))
-        except np.linalg.LinAlgError:
-            pred = np.inf
-        if pred <= ftol * max(cost, 1e-300):
+        if _predicted_reduction(H, g) <= ftol * max(cost, 1e-300):
             status = 1
             nit -= 1
             break
         alpha = 1.0
         for _ in range(30):
             if damped or alpha == 1.0:
-                Hd = H + lam * np.diag(np.diag(H)) if lam > 0 else H
-                try:
-                    L = np.linalg.cholesky(Hd)
-                    dz_full = -np.linalg.solve(L.T, np.linalg.solve(L, g))
-                except np.linalg.LinAlgError:
-                    dz_full = -np.linalg.lstsq(Hd, g, rcond=None)[0]
+                dz_full = _damped_step(H, g, lam)
             dz = dz_full if damped else alpha * dz_full
-            x_new = x.copy()
-            x_new[free] += s * dz
-            r_new, J_new = fun(x_new)
+            x_new, r_new, J_new, cost_new = _trial(fun, x, free, s * dz, weighted)
             nfev += 1
             njev += 1
-            r_new = weighted(r_new)
-            cost_new = 0.5 * float(r_new @ r_new)
             if np.isfinite(cost_new) and cost_new <= cost * (1.0 + 1e-14):
                 accepted = True
                 break
@@ -141,6 +122,50 @@ def levenberg_marquardt(  # noqa: C901, PLR0915
             status = 2
             break
     return _result(method, x, free, w, r, Jf, cost, nit, nfev, njev, status, t0, history)
+
+
+def _column_scale(Jf: np.ndarray, scale: np.ndarray | None, free: np.ndarray) -> np.ndarray:
+    """Typical magnitude of each free variable: ``scale[free]``, by default the inverse column norms of ``Jf``."""
+    if scale is None:
+        d = np.linalg.norm(Jf, axis=0)
+        d[d == 0] = 1.0
+        return 1.0 / d
+    return np.asarray(scale, dtype=float)[free]
+
+
+def _trial(
+    fun: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
+    x: np.ndarray,
+    free: np.ndarray,
+    dx: np.ndarray,
+    weighted: Callable[[np.ndarray], np.ndarray],
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """``x`` moved by ``dx`` on the free variables, its whitened residuals (``weighted``), its Jacobian and its
+    cost."""
+    x_new = x.copy()
+    x_new[free] += dx
+    r_new, J_new = fun(x_new)
+    r_new = weighted(r_new)
+    return x_new, r_new, J_new, 0.5 * float(r_new @ r_new)
+
+
+def _predicted_reduction(H: np.ndarray, g: np.ndarray) -> float:
+    """The cost reduction the undamped Gauss-Newton step ``H dz = -g`` predicts (inf when ``H`` is singular)."""
+    try:
+        dz_gn = -np.linalg.solve(H, g)
+        return -(g @ dz_gn + 0.5 * dz_gn @ (H @ dz_gn))
+    except np.linalg.LinAlgError:
+        return np.inf
+
+
+def _damped_step(H: np.ndarray, g: np.ndarray, lam: float) -> np.ndarray:
+    """The step ``(H + λ diag(H)) dz = -g`` (Cholesky; least squares when that fails)."""
+    Hd = H + lam * np.diag(np.diag(H)) if lam > 0 else H
+    try:
+        L = np.linalg.cholesky(Hd)
+        return -np.linalg.solve(L.T, np.linalg.solve(L, g))
+    except np.linalg.LinAlgError:
+        return -np.linalg.lstsq(Hd, g, rcond=None)[0]
 
 
 def _result(

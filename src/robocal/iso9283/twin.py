@@ -69,30 +69,14 @@ def simulate_iso(
     return truth
 
 
-def _run(st: IsoSettings, sc: dict[str, Any], out: Path, seed: int | None, bundle: Path | None) -> dict[str, Any]:  # noqa: PLR0915
+def _run(st: IsoSettings, sc: dict[str, Any], out: Path, seed: int | None, bundle: Path | None) -> dict[str, Any]:
     seed = int(sc.get("seed", 0) if seed is None else seed)
     robot = load_robot(sc.get("robot", "kr16_2"))
     chain = build_chain(robot)
     rng = _rng_factory(seed)
     n, P = robot.n_joints, chain.n_params
 
-    # the true robot and the cell, drawn as robocal.sim.twin.simulate draws them (same streams)
-    err = dict(sc.get("errors", {}))
-    length_sd = float(err.get("length_mm", 0.3))
-    angle_sd = np.deg2rad(float(err.get("angle_deg", 0.02)))
-    g = rng("geometry")
-    eta = np.array([g.normal(0, length_sd if k == "length" else angle_sd) for k in chain.param_kind])
-    tr = dict(sc.get("tracker", {}))
-    T_base = homogeneous(
-        matrix_from_rpy(np.deg2rad(np.asarray(tr.get("rpy_deg", [0.3, -0.5, 135.0]), dtype=float))),
-        np.asarray(tr.get("xyz_mm", [2500.0, 1200.0, -350.0]), dtype=float),
-    )
-    targets = dict(sc.get("targets", {"T1": [0.0, 0.0, 120.0]}))
-    tnames = list(targets)
-    tool_R_all = rotvec_to_matrix(rng("tool_rot").normal(0, 0.3, (len(tnames), 3)))
-    tname = tnames[0]
-    tool = np.asarray(targets[tname], dtype=float)
-    tool_R = tool_R_all[0]
+    eta, T_base, tname, tool, tool_R = _true_cell(sc, chain, rng)
     orientation = bool(sc.get("orientation", False))
 
     # the test plan: cube points, their joint configurations, the visits
@@ -134,33 +118,7 @@ def _run(st: IsoSettings, sc: dict[str, Any], out: Path, seed: int | None, bundl
         "noise_mm": float(sc.get("noise_mm", 0.015)),
     }
     ctx = TwinContext(robot=robot, chain=chain, eta_true=eta, rng_factory=rng, truth=truth)
-    effects = dict(sc.get("effects") or {})
-    unknown = sorted(k for k, v in effects.items() if v not in (None, False) and k not in SUPPORTED_EFFECTS)
-    if unknown:
-        raise ConfigError(f"the ISO twin reproduces the effects {list(SUPPORTED_EFFECTS)}; the scenario has {unknown}")
-    bands: dict[int, float] = {}
-    if effects.get("backlash"):
-        for jn, band in dict(dict(effects["backlash"]).get("joints", {})).items():
-            j = int(jn)
-            if not 1 <= j <= n:
-                raise ConfigError(f"backlash effect: joint {jn!r} is not a joint number 1..{n}")
-            bands[j] = float(band)
-            rows.dq[:, j - 1] += dirs[:, j - 1] * np.deg2rad(float(band)) / 2.0
-    thermal = None
-    if effects.get("thermal") or effects.get("gear") or effects.get("compliance"):
-        load_effect_modules()
-        from robocal.sim.twin import EFFECTS
-
-        for name in ("gear", "compliance"):
-            if effects.get(name):
-                EFFECTS[name](dict(effects[name])).apply(rows, ctx)
-        if effects.get("thermal"):
-            from robocal.sim.thermal import ThermalEffect
-
-            thermal = ThermalEffect(dict(effects["thermal"]))
-            thermal._setup(ctx)  # the warm-up starts with the test (day 1's ambient)
-            temps = thermal.temperatures(t_s, 0)
-            rows.deta += thermal.drift(temps, P)
+    bands, thermal = _apply_effects(dict(sc.get("effects") or {}), rows, ctx, dirs, t_s)
 
     # the compensated test: the service corrects every commanded joint target
     # the commanded pose: the nominal controller's tool pose at the test configuration (base frame)
@@ -173,15 +131,7 @@ def _run(st: IsoSettings, sc: dict[str, Any], out: Path, seed: int | None, bundl
     rows.q_cmd = np.deg2rad(np.round(np.rad2deg(rows.q_cmd), 6))
 
     # what the true robot attains (base frame), what the tracker reads
-    q_true = rows.q_cmd + rows.dq
-    p_base = np.zeros((m, 3))
-    R_base = np.zeros((m, 3, 3))
-    keys, inv = np.unique(np.round(rows.deta, 15), axis=0, return_inverse=True)
-    for gi in range(len(keys)):
-        sel = inv.ravel() == gi
-        s = propagate(chain, q_true[sel], eta + rows.deta[np.flatnonzero(sel)[0]])
-        p_base[sel] = s.o + s.x * tool[0] + s.y * tool[1] + s.z * tool[2]
-        R_base[sel] = s.R @ tool_R
+    p_base, R_base = _attained(chain, eta, rows, tool, tool_R)
     rep = rng("iso_repeatability")
     p_att = p_base + rep.normal(0.0, st.twin.repeatability_mm, (m, 3))
     R_att = rotvec_to_matrix(rep.normal(0.0, np.deg2rad(st.twin.repeatability_deg), (m, 3))) @ R_base
@@ -214,6 +164,83 @@ def _run(st: IsoSettings, sc: dict[str, Any], out: Path, seed: int | None, bundl
     _write(out, sc, st, truth, rows, p_meas, R_meas if orientation else None, labels, appr, cyc, ap_i, pt_i,
            cmd_p, cmd_R if orientation else None, tname, thermal, ctx, seed)  # fmt: skip
     return truth
+
+
+def _true_cell(
+    sc: Mapping[str, Any], chain: Any, rng: Any
+) -> tuple[np.ndarray, np.ndarray, str, np.ndarray, np.ndarray]:
+    """The true robot and the cell, drawn as :func:`robocal.sim.twin.simulate` draws them (same streams): the
+    kinematic errors (P,), the tracker frame's base transform, the first target's name, position (flange frame,
+    mm) and rotation."""
+    err = dict(sc.get("errors", {}))
+    length_sd = float(err.get("length_mm", 0.3))
+    angle_sd = np.deg2rad(float(err.get("angle_deg", 0.02)))
+    g = rng("geometry")
+    eta = np.array([g.normal(0, length_sd if k == "length" else angle_sd) for k in chain.param_kind])
+    tr = dict(sc.get("tracker", {}))
+    T_base = homogeneous(
+        matrix_from_rpy(np.deg2rad(np.asarray(tr.get("rpy_deg", [0.3, -0.5, 135.0]), dtype=float))),
+        np.asarray(tr.get("xyz_mm", [2500.0, 1200.0, -350.0]), dtype=float),
+    )
+    targets = dict(sc.get("targets", {"T1": [0.0, 0.0, 120.0]}))
+    tnames = list(targets)
+    tool_R_all = rotvec_to_matrix(rng("tool_rot").normal(0, 0.3, (len(tnames), 3)))
+    tname = tnames[0]
+    return eta, T_base, tname, np.asarray(targets[tname], dtype=float), tool_R_all[0]
+
+
+def _apply_effects(
+    effects: dict[str, Any], rows: Rows, ctx: TwinContext, dirs: np.ndarray, t_s: np.ndarray
+) -> tuple[dict[int, float], Any]:
+    """Add the scenario's effects to ``rows``: backlash (half its band against the joint's direction), gear and
+    compliance (joint offsets), thermal drift (the warm-up starts with the test). Returns the backlash bands per
+    joint and the thermal effect (None without)."""
+    n, P = ctx.robot.n_joints, ctx.chain.n_params
+    unknown = sorted(k for k, v in effects.items() if v not in (None, False) and k not in SUPPORTED_EFFECTS)
+    if unknown:
+        raise ConfigError(f"the ISO twin reproduces the effects {list(SUPPORTED_EFFECTS)}; the scenario has {unknown}")
+    bands: dict[int, float] = {}
+    if effects.get("backlash"):
+        for jn, band in dict(dict(effects["backlash"]).get("joints", {})).items():
+            j = int(jn)
+            if not 1 <= j <= n:
+                raise ConfigError(f"backlash effect: joint {jn!r} is not a joint number 1..{n}")
+            bands[j] = float(band)
+            rows.dq[:, j - 1] += dirs[:, j - 1] * np.deg2rad(float(band)) / 2.0
+    thermal = None
+    if effects.get("thermal") or effects.get("gear") or effects.get("compliance"):
+        load_effect_modules()
+        from robocal.sim.twin import EFFECTS
+
+        for name in ("gear", "compliance"):
+            if effects.get(name):
+                EFFECTS[name](dict(effects[name])).apply(rows, ctx)
+        if effects.get("thermal"):
+            from robocal.sim.thermal import ThermalEffect
+
+            thermal = ThermalEffect(dict(effects["thermal"]))
+            thermal._setup(ctx)  # the warm-up starts with the test (day 1's ambient)
+            temps = thermal.temperatures(t_s, 0)
+            rows.deta += thermal.drift(temps, P)
+    return bands, thermal
+
+
+def _attained(
+    chain: Any, eta: np.ndarray, rows: Rows, tool: np.ndarray, tool_R: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The tool pose the true robot attains at every visit (base frame): positions (m, 3) mm, rotations (m, 3, 3);
+    one forward kinematics per distinct parameter drift."""
+    m = rows.q_cmd.shape[0]
+    q_true = rows.q_cmd + rows.dq
+    p_base = np.zeros((m, 3))
+    R_base = np.zeros((m, 3, 3))
+    keys, inv = np.unique(np.round(rows.deta, 15), axis=0, return_inverse=True)
+    for gi in range(len(keys)):
+        sel = inv.ravel() == gi
+        s = propagate(chain, q_true[sel], eta + rows.deta[np.flatnonzero(sel)[0]])
+        p_base[sel] = s.o + s.x * tool[0] + s.y * tool[1] + s.z * tool[2]
+        R_base[sel] = s.R @ tool_R
+    return p_base, R_base
 
 
 def _compensated(

@@ -170,21 +170,7 @@ def evaluate(robot: RobotDescription, chain: Chain, q: np.ndarray, cfg: PlanConf
 
     segs = link_segments(chain, st.origins, o, targets) if cfg.collision.enabled else []
     if cfg.collision.enabled:
-        rad = _radii(cfg, n)
-        hit = np.zeros(C, dtype=bool)
-        length = [np.linalg.norm(np.broadcast_to(s1 - s0, (C, 3)), axis=-1) for _, s0, s1 in segs]
-        for a in range(len(segs)):
-            for b in range(a + 1, len(segs)):
-                ba, bb = segs[a][0], segs[b][0]
-                if abs(ba - bb) < cfg.collision.skip:
-                    continue
-                reach = rad[ba] + rad[bb]
-                # capsules joined through short bodies (zero-length wrist links, an elbow offset) overlap by
-                # construction: a pair counts only when the chain between them is longer than their radii
-                gap = sum((length[k] for k in range(a + 1, b) if ba < segs[k][0] < bb), np.zeros(C))
-                dist = segment_distance(segs[a][1], segs[a][2], segs[b][1], segs[b][2])
-                hit |= (dist < reach + cfg.collision.clearance_mm) & (gap >= reach)
-        fails["self_collision"] = hit
+        fails["self_collision"] = _self_collision(segs, cfg, n, C)
     else:
         fails["self_collision"] = np.zeros(C, dtype=bool)
 
@@ -196,16 +182,7 @@ def evaluate(robot: RobotDescription, chain: Chain, q: np.ndarray, cfg: PlanConf
     in_cone = cosang >= np.cos(np.deg2rad(tr.acceptance_half_angle_deg)) - 1e-12
     visible = in_range & in_cone
     if cfg.collision.enabled:
-        # the beam from each target to the tracker must pass clear of the arm's capsules (not the tool's own)
-        rad = _radii(cfg, n)
-        trk = np.broadcast_to(np.asarray(tr.position_mm), (C, 3))
-        for k in range(targets.shape[1]):
-            blocked = np.zeros(C, dtype=bool)
-            for body, s0, s1 in segs:
-                if body >= n:
-                    continue
-                blocked |= segment_distance(targets[:, k], trk, s0, s1) < rad[body]
-            visible[:, k] &= ~blocked
+        _block_beams(visible, targets, segs, cfg, n)
     need = tr.min_targets_visible
     fails["tracker_range"] = in_range.sum(1) < need
     fails["line_of_sight"] = visible.sum(1) < need
@@ -216,6 +193,42 @@ def evaluate(robot: RobotDescription, chain: Chain, q: np.ndarray, cfg: PlanConf
         "flange_R": R,
         "sigma_min": sigma_min,
     }
+
+
+def _self_collision(segs: list[tuple[int, np.ndarray, np.ndarray]], cfg: PlanConfig, n: int, C: int) -> np.ndarray:
+    """(C,) True where two link capsules ``segs`` (body, start, end) of the arm come closer than their radii."""
+    rad = _radii(cfg, n)
+    hit = np.zeros(C, dtype=bool)
+    length = [np.linalg.norm(np.broadcast_to(s1 - s0, (C, 3)), axis=-1) for _, s0, s1 in segs]
+    for a in range(len(segs)):
+        for b in range(a + 1, len(segs)):
+            ba, bb = segs[a][0], segs[b][0]
+            if abs(ba - bb) < cfg.collision.skip:
+                continue
+            reach = rad[ba] + rad[bb]
+            # capsules joined through short bodies (zero-length wrist links, an elbow offset) overlap by
+            # construction: a pair counts only when the chain between them is longer than their radii
+            gap = sum((length[k] for k in range(a + 1, b) if ba < segs[k][0] < bb), np.zeros(C))
+            dist = segment_distance(segs[a][1], segs[a][2], segs[b][1], segs[b][2])
+            hit |= (dist < reach + cfg.collision.clearance_mm) & (gap >= reach)
+    return hit
+
+
+def _block_beams(
+    visible: np.ndarray, targets: np.ndarray, segs: list[tuple[int, np.ndarray, np.ndarray]], cfg: PlanConfig, n: int
+) -> None:
+    """Clear ``visible`` (C, K) in place where the beam from a target to the tracker passes through one of the
+    arm's capsules ``segs`` (not the tool's own)."""
+    C = targets.shape[0]
+    rad = _radii(cfg, n)
+    trk = np.broadcast_to(np.asarray(cfg.tracker.position_mm), (C, 3))
+    for k in range(targets.shape[1]):
+        blocked = np.zeros(C, dtype=bool)
+        for body, s0, s1 in segs:
+            if body >= n:
+                continue
+            blocked |= segment_distance(targets[:, k], trk, s0, s1) < rad[body]
+        visible[:, k] &= ~blocked
 
 
 def _radii(cfg: PlanConfig, n: int) -> np.ndarray:

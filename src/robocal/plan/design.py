@@ -170,10 +170,7 @@ def exchange(
         raise ValueError(f"The 'n' parameter of exchange must be at most the number of candidates {C}. Got {n}.")
     if criterion == "I" and L is None:
         raise ValueError("The 'L' parameter of exchange is required for the I criterion.")
-    start = [] if init is None else list(dict.fromkeys(int(i) for i in init))[:n]
-    if len(start) < n:
-        pool = np.setdiff1d(np.arange(C), np.asarray(start, dtype=int))
-        start += [int(i) for i in rng.choice(pool, size=n - len(start), replace=False)]
+    start = _start_design(C, n, rng, init)
     # ridge: 1e-10 of the mean information per scaled parameter of one candidate, times n
     scale = float(np.einsum("crp,crp->", F, F)) / (C * p)
     st = _State(F, np.array(start), criterion, L, ridge=1e-10 * max(scale, 1e-300) * n)
@@ -183,48 +180,17 @@ def exchange(
     since_refresh = 0
     while n_ex < max_exchanges:
         rounds += 1
-        # the active set: the best candidates by gain against the current design (over all C)
-        k = min(active_set, C - n)
-        if k < C - n:
-            g_all = st.gains(np.arange(C), +1.0)
-            g_all[st.in_design] = -np.inf
-            act = np.sort(np.argpartition(-g_all, k - 1)[:k])
-        else:
-            act = np.flatnonzero(~st.in_design)
+        act = _active_set(st, C, n, active_set)
         moves = 0
         while n_ex < max_exchanges:
-            moved = False
-            for exc in range(1, max_excursion + 1):
-                before = st.value
-                added: list[int] = []
-                for _ in range(exc):
-                    g = st.gains(act, +1.0)
-                    g[st.in_design[act]] = -np.inf
-                    j = int(act[int(np.argmax(g))])
-                    st.add(j)
-                    added.append(j)
-                removed: list[int] = []
-                for _ in range(exc):
-                    d = np.asarray(st.idx)
-                    dec = st.gains(d, -1.0)  # <= 0: the removal that raises the criterion least
-                    i = int(d[int(np.argmax(dec))])
-                    st.remove(i)
-                    removed.append(i)
-                if set(added) != set(removed) and st.value < before - tol * max(1.0, abs(before)):
-                    moved = True
-                    n_ex += 1
-                    since_refresh += 1
-                    if since_refresh >= 50:
-                        st.refresh()
-                        since_refresh = 0
-                    break
-                for i in removed:  # undo the excursion
-                    st.add(i)
-                for j in added:
-                    st.remove(j)
-                st.refresh()
-            if not moved:
+            # the shortest excursion that improves the design is kept (longer ones are tried only when it fails)
+            if not any(_excursion(st, act, exc, tol) for exc in range(1, max_excursion + 1)):
                 break
+            n_ex += 1
+            since_refresh += 1
+            if since_refresh >= 50:
+                st.refresh()
+                since_refresh = 0
             moves += 1
         if moves == 0:
             # no excursion from the best candidates over all C improves the design
@@ -238,6 +204,55 @@ def exchange(
         n_rounds=rounds,
         converged=converged,
     )
+
+
+def _start_design(C: int, n: int, rng: np.random.Generator, init: Sequence[int] | np.ndarray | None) -> list[int]:
+    """``init`` without repeats, cut to ``n`` points or completed to ``n`` by distinct random candidates."""
+    start = [] if init is None else list(dict.fromkeys(int(i) for i in init))[:n]
+    if len(start) < n:
+        pool = np.setdiff1d(np.arange(C), np.asarray(start, dtype=int))
+        start += [int(i) for i in rng.choice(pool, size=n - len(start), replace=False)]
+    return start
+
+
+def _active_set(st: _State, C: int, n: int, active_set: int) -> np.ndarray:
+    """The candidates searched in this round: the ``active_set`` best by gain against the current design (over
+    all C), or every candidate outside the design when that is not more."""
+    k = min(active_set, C - n)
+    if k < C - n:
+        g_all = st.gains(np.arange(C), +1.0)
+        g_all[st.in_design] = -np.inf
+        return np.sort(np.argpartition(-g_all, k - 1)[:k])
+    return np.flatnonzero(~st.in_design)
+
+
+def _excursion(st: _State, act: np.ndarray, exc: int, tol: float) -> bool:
+    """Add the ``exc`` best candidates of ``act`` one by one, then remove the ``exc`` design points whose removal
+    raises the criterion least; keep the result (True) when it improves the criterion by more than ``tol``
+    (relative), else undo it (False)."""
+    before = st.value
+    added: list[int] = []
+    for _ in range(exc):
+        g = st.gains(act, +1.0)
+        g[st.in_design[act]] = -np.inf
+        j = int(act[int(np.argmax(g))])
+        st.add(j)
+        added.append(j)
+    removed: list[int] = []
+    for _ in range(exc):
+        d = np.asarray(st.idx)
+        dec = st.gains(d, -1.0)  # <= 0: the removal that raises the criterion least
+        i = int(d[int(np.argmax(dec))])
+        st.remove(i)
+        removed.append(i)
+    if set(added) != set(removed) and st.value < before - tol * max(1.0, abs(before)):
+        return True
+    for i in removed:  # undo the excursion
+        st.add(i)
+    for j in added:
+        st.remove(j)
+    st.refresh()
+    return False
 
 
 def observability(J: np.ndarray) -> dict[str, float]:

@@ -95,18 +95,32 @@ def build_report(result: PlanResult) -> Any:
     import matplotlib
 
     matplotlib.use("Agg")
-    from matplotlib.figure import Figure
 
     from robocal.report.html import Report
 
     pr = result.problem
     cfg = pr.config
-    d = result.to_dict()
     rep = Report(
         f"Measurement plan: {pr.robot.name}, {len(result.idx)} poses",
         f"{cfg.criterion}-optimal by exchange over {pr.cand.n} accepted of {pr.cand.n_sampled} candidates, "
         f"seed {cfg.seed}",
     )
+    _summary_section(rep, result)
+    _region_section(rep, result)
+    _candidates_section(rep, result)
+    _criteria_section(rep, result)
+    _stderr_section(rep, result)
+    _poses_figure(rep, result)
+    _error_map_section(rep, result)
+    _curve_section(rep, result)
+    rep.heading("Settings")
+    rep.kv(settings_rows(cfg), caption="The plan settings (conf/plan/default.yaml and overrides)")
+    return rep
+
+
+def _summary_section(rep: Any, result: PlanResult) -> None:
+    pr = result.problem
+    cfg = pr.config
     rep.heading("Summary")
     pred = result.prediction
     base = result.random_baseline
@@ -123,7 +137,11 @@ def build_report(result: PlanResult) -> Any:
             f"poses needed for {cfg.accuracy_mm} mm RMS over the region": result.n_needed,
         }
     )
-    reg = d["region"]
+
+
+def _region_section(rep: Any, result: PlanResult) -> None:
+    cfg = result.problem.config
+    reg = result.to_dict()["region"]
     rep.heading("Region the plan is made for")
     lo, hi = reg["tool_point_min_mm"], reg["tool_point_max_mm"]
     rep.kv(
@@ -147,6 +165,10 @@ def build_report(result: PlanResult) -> Any:
             f"A {cfg.criterion}-optimal plan maximises parameter precision whatever the region; the predicted "
             "errors below are over this region. criterion=I plans for the region itself."
         )
+
+
+def _candidates_section(rep: Any, result: PlanResult) -> None:
+    pr = result.problem
     rep.heading("Candidates and what the cell refused")
     rep.paragraph(
         "Each refused candidate is counted once, under the first check it fails (in this order); 'failing' "
@@ -156,6 +178,11 @@ def build_report(result: PlanResult) -> Any:
         [{"reason": r, "refused": pr.cand.refused[r], "failing": pr.cand.failing[r]} for r in pr.cand.refused],
         caption=f"{pr.cand.n_sampled} sampled, {pr.cand.n} accepted",
     )
+
+
+def _criteria_section(rep: Any, result: PlanResult) -> None:
+    pred = result.prediction
+    base = result.random_baseline
     rep.heading("Criteria: planned vs random")
     obs_p = pred["observability"]
     obs_r = base.get("observability_mean", {})
@@ -170,8 +197,13 @@ def build_report(result: PlanResult) -> Any:
     ]
     rows += [{"criterion": k, "planned": v, "random": obs_r.get(k)} for k, v in obs_p.items()]
     rep.table(rows, caption="O1-O5: Sun & Hollerbach observability indices of the whitened, column-scaled Jacobian")
+
+
+def _stderr_section(rep: Any, result: PlanResult) -> None:
+    pr = result.problem
+    pred = result.prediction
     rep.heading("Predicted standard errors (Cramér-Rao)")
-    se_r = base.get("stderr_mean", {})
+    se_r = result.random_baseline.get("stderr_mean", {})
     rep.table(
         [
             {"parameter": n, "unit": u, "planned": pred["stderr"][n], "random (mean)": se_r.get(n)}
@@ -182,10 +214,15 @@ def build_report(result: PlanResult) -> Any:
     if pr.eliminated:
         rep.paragraph("Not identifiable (held at nominal): " + "; ".join(e["text"] for e in pr.eliminated))
 
-    # figures
+
+def _poses_figure(rep: Any, result: PlanResult) -> None:
+    """Top and side views of the first target at the planned poses among the accepted candidates."""
+    from matplotlib.figure import Figure
+
+    pr = result.problem
     xyz_all = pr.cand.targets_mm[:, 0]
     xyz = pr.cand.targets_mm[result.idx, 0]
-    trk = np.asarray(cfg.tracker.position_mm)
+    trk = np.asarray(pr.config.tracker.position_mm)
     fig = Figure(figsize=(9, 4))
     for k, (a, b, lab) in enumerate(((0, 1, "top view: x, y (mm)"), (0, 2, "side view: x, z (mm)"))):
         ax = fig.add_subplot(1, 2, k + 1)
@@ -200,57 +237,70 @@ def build_report(result: PlanResult) -> Any:
     rep.heading("Poses")
     rep.figure(fig, "The first target at the planned poses (robot base frame)")
 
+
+def _error_map_section(rep: Any, result: PlanResult) -> None:
+    """The predicted error over the region of the plan next to one random draw of as many accepted candidates."""
+    from matplotlib.figure import Figure
+
+    pr = result.problem
+    cfg = pr.config
+    pred = result.prediction
     rng = np.random.default_rng(np.random.SeedSequence(entropy=cfg.seed, spawn_key=(7,)))
     rnd = predict(pr, np.sort(rng.choice(pr.cand.n, size=len(result.idx), replace=False)))
     fig = Figure(figsize=(9, 4))
     sig_p = pred.get("region_sigma_mm")
     sig_r = rnd.get("region_sigma_mm")
-    if sig_p is not None:
-        vmax = float(np.max(sig_p if sig_r is None else np.concatenate([sig_p, sig_r])))
-        for k, (sig, lab) in enumerate(((sig_p, "planned"), (sig_r, "random (one draw)"))):
-            if sig is None:
-                continue
-            ax = fig.add_subplot(1, 2, k + 1)
-            sc = ax.scatter(pr.region_xyz[:, 0], pr.region_xyz[:, 1], c=sig, s=10, vmin=0, vmax=vmax, cmap="viridis")
-            ax.set_title(f"{lab}: RMS {np.sqrt(np.mean(sig**2)):.4f} mm")
-            ax.set_xlabel("x (mm)")
-            ax.set_ylabel("y (mm)")
-            ax.set_aspect("equal", adjustable="datalim")
-            fig.colorbar(sc, ax=ax, label="predicted error (mm)")
-        fig.tight_layout()
-        rep.heading("Predicted error map over the region")
-        rep.figure(fig, "Predicted RMS 3-D error of the calibrated model at each region configuration (top view)")
+    if sig_p is None:
+        return
+    vmax = float(np.max(sig_p if sig_r is None else np.concatenate([sig_p, sig_r])))
+    for k, (sig, lab) in enumerate(((sig_p, "planned"), (sig_r, "random (one draw)"))):
+        if sig is None:
+            continue
+        ax = fig.add_subplot(1, 2, k + 1)
+        sc = ax.scatter(pr.region_xyz[:, 0], pr.region_xyz[:, 1], c=sig, s=10, vmin=0, vmax=vmax, cmap="viridis")
+        ax.set_title(f"{lab}: RMS {np.sqrt(np.mean(sig**2)):.4f} mm")
+        ax.set_xlabel("x (mm)")
+        ax.set_ylabel("y (mm)")
+        ax.set_aspect("equal", adjustable="datalim")
+        fig.colorbar(sc, ax=ax, label="predicted error (mm)")
+    fig.tight_layout()
+    rep.heading("Predicted error map over the region")
+    rep.figure(fig, "Predicted RMS 3-D error of the calibrated model at each region configuration (top view)")
 
-    if result.curve:
-        fig = Figure(figsize=(6, 3.6))
-        ax = fig.add_subplot(1, 1, 1)
-        ns = [r["n_poses"] for r in result.curve]
-        ax.plot(ns, [r["planned_region_rms_mm"] for r in result.curve], "o-", label="planned")
-        ax.plot(ns, [r["random_region_rms_mm"] for r in result.curve], "s--", label="random (median of 5)")
-        ax.axhline(cfg.accuracy_mm, color="#c44e52", lw=1, label=f"stated accuracy {cfg.accuracy_mm} mm")
-        ax.set_xscale("log")
-        ax.set_yscale("log")
-        ax.set_xlabel("number of poses")
-        ax.set_ylabel("predicted RMS error over the region (mm)")
-        ax.legend()
-        fig.tight_layout()
-        rep.heading("Poses needed for an accuracy")
-        rep.figure(fig, "Predicted RMS model error over the region against the number of poses")
-        rep.table(
-            [
-                {
-                    "poses": r["n_poses"],
-                    "planned: RMS over the region (mm)": r["planned_region_rms_mm"],
-                    "random: RMS over the region (mm)": r["random_region_rms_mm"],
-                    "random draws singular": r["random_singular"],
-                }
-                for r in result.curve
-            ],
-            caption="The curve (random: the median of 5 draws from the accepted candidates)",
-        )
-    rep.heading("Settings")
-    rep.kv(settings_rows(cfg), caption="The plan settings (conf/plan/default.yaml and overrides)")
-    return rep
+
+def _curve_section(rep: Any, result: PlanResult) -> None:
+    """The poses-needed curve (planned vs random) as a figure and a table; nothing without a curve."""
+    from matplotlib.figure import Figure
+
+    if not result.curve:
+        return
+    cfg = result.problem.config
+    fig = Figure(figsize=(6, 3.6))
+    ax = fig.add_subplot(1, 1, 1)
+    ns = [r["n_poses"] for r in result.curve]
+    ax.plot(ns, [r["planned_region_rms_mm"] for r in result.curve], "o-", label="planned")
+    ax.plot(ns, [r["random_region_rms_mm"] for r in result.curve], "s--", label="random (median of 5)")
+    ax.axhline(cfg.accuracy_mm, color="#c44e52", lw=1, label=f"stated accuracy {cfg.accuracy_mm} mm")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("number of poses")
+    ax.set_ylabel("predicted RMS error over the region (mm)")
+    ax.legend()
+    fig.tight_layout()
+    rep.heading("Poses needed for an accuracy")
+    rep.figure(fig, "Predicted RMS model error over the region against the number of poses")
+    rep.table(
+        [
+            {
+                "poses": r["n_poses"],
+                "planned: RMS over the region (mm)": r["planned_region_rms_mm"],
+                "random: RMS over the region (mm)": r["random_region_rms_mm"],
+                "random draws singular": r["random_singular"],
+            }
+            for r in result.curve
+        ],
+        caption="The curve (random: the median of 5 draws from the accepted candidates)",
+    )
 
 
 def settings_rows(cfg: PlanConfig) -> dict[str, str]:

@@ -81,7 +81,7 @@ def well_conditioned_targets(
     raise ConfigError(f"could not find {n} well-conditioned targets in the scenario's joint ranges")
 
 
-def run_closed_loop(  # noqa: PLR0915
+def run_closed_loop(
     scenario: str | dict[str, Any] = "thermal",
     out_dir: str | Path = "reports/closed_loop",
     seed: int = 0,
@@ -122,13 +122,8 @@ def run_closed_loop(  # noqa: PLR0915
         truth = simulate(sc, Path(tmp) / "campaign", seed=seed, robot=robot)
         bdir = Path(bundle) if bundle is not None else build_bundle(Path(tmp) / "campaign", robot, out)
     b = load_bundle(bdir)
-    # the true cell
-    eta_true = np.array([truth["kinematic_errors"][n] for n in chain.param_names])
-    T_true = np.array(truth["tracker_T_base"])
     tname = b.default_tool
-    if tname not in truth["tools_mm"]:
-        raise ConfigError(f"bundle tool {tname!r} is not a target of the scenario {list(truth['tools_mm'])}")
-    tool_true = homogeneous(np.array(truth["tool_rotations"][tname]), np.array(truth["tools_mm"][tname]))
+    eta_true, T_true, tool_true = _true_cell(truth, chain, tname)
     effect = ThermalEffect(th_cfg)
     effect._setup(SimpleNamespace(robot=robot, chain=chain))  # type: ignore[arg-type]
     states = [float(v) for v in (th_cfg.get("validation_states_min") or th_cfg.get("states_min") or [0, 180])]
@@ -150,17 +145,7 @@ def run_closed_loop(  # noqa: PLR0915
             T_now = effect.temperatures(np.array([t * 60.0]), day=1)[0]
             T_read = T_now + rng.normal(0.0, effect.noise_C, T_now.shape)
             temps_read.append(T_read)
-            reply = client.correct(
-                np.rad2deg(q_t),
-                temperatures=dict(zip(b.sensors, T_read.tolist(), strict=True)) if b.thermal is not None else None,
-            )
-            q_c = q_t.copy()
-            ok = np.ones(n_targets, dtype=bool)
-            for k, res in enumerate(reply["results"]):
-                if res["status"] == "refused":
-                    ok[k] = False  # a refused correction is never applied (the cell does not go there)
-                else:
-                    q_c[k] = np.deg2rad(res["q_deg"])
+            q_c, ok = _corrected(client, b, q_t, T_read)
             refused.append(int((~ok).sum()))
             accepted.append(ok)
             cc_true = compile_chain(chain, eta_true + effect.drift(T_now[None, :], chain.n_params)[0], T_true)
@@ -169,14 +154,10 @@ def run_closed_loop(  # noqa: PLR0915
             for arm, q in (("uncompensated", q_t), ("compensated", q_c), ("oracle", oracle.q)):
                 p, _, _, _ = forward(cc_true, q, tool_true)
                 errs[arm].append(np.linalg.norm(p + noise - p_des, axis=1))
-    E = {a: np.array(v) for a, v in errs.items()}
     # statistics over the targets whose correction was accepted (paired: the same targets in every arm); the
     # refused ones are counted apart, and their errors are NaN in the saved arrays
     ok_all = np.array(accepted)
-    for a in arms:
-        E[a] = np.where(ok_all, E[a], np.nan)
-    mean = {a: np.nanmean(E[a], axis=1) for a in arms}
-    ratio = mean["compensated"] / mean["oracle"]
+    E = {a: np.where(ok_all, np.array(v), np.nan) for a, v in errs.items()}
     summary = {
         "scenario": sc.get("name", "custom"),
         "seed": seed,
@@ -184,17 +165,54 @@ def run_closed_loop(  # noqa: PLR0915
         "n_targets": n_targets,
         "interval_min": interval_min,
         "t_min": t_grid.tolist(),
-        "mean_error_mm": {a: mean[a].tolist() for a in arms},
-        "max_error_mm": {a: np.nanmax(E[a], axis=1).tolist() for a in arms},
-        "overall_mean_mm": {a: float(np.nanmean(E[a])) for a in arms},
-        "ratio_compensated_to_oracle": ratio.tolist(),
-        "max_ratio": float(ratio.max()),
-        "ratio_bound": ratio_bound,
-        "within_bound": bool(ratio.max() <= ratio_bound),
+        **_error_summary(E, ratio_bound),
         "refused": [int(x) for x in refused],
     }
     write_json(out / "closed_loop.json", summary)
     return ClosedLoopResult(t_grid, E, np.array(temps_read), np.array(refused), bdir, summary)
+
+
+def _true_cell(truth: dict[str, Any], chain: Any, tname: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The twin's true kinematic errors (P,), tracker frame (4, 4) and the bundle tool's true transform (4, 4)."""
+    eta_true = np.array([truth["kinematic_errors"][n] for n in chain.param_names])
+    T_true = np.array(truth["tracker_T_base"])
+    if tname not in truth["tools_mm"]:
+        raise ConfigError(f"bundle tool {tname!r} is not a target of the scenario {list(truth['tools_mm'])}")
+    tool_true = homogeneous(np.array(truth["tool_rotations"][tname]), np.array(truth["tools_mm"][tname]))
+    return eta_true, T_true, tool_true
+
+
+def _corrected(client: Client, b: Any, q_t: np.ndarray, T_read: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The joints the cell goes to (m, n) rad, as the service corrects the targets ``q_t`` at the temperature
+    reading ``T_read``, and which corrections were accepted (m,); a refused target keeps its joints."""
+    reply = client.correct(
+        np.rad2deg(q_t),
+        temperatures=dict(zip(b.sensors, T_read.tolist(), strict=True)) if b.thermal is not None else None,
+    )
+    q_c = q_t.copy()
+    ok = np.ones(q_t.shape[0], dtype=bool)
+    for k, res in enumerate(reply["results"]):
+        if res["status"] == "refused":
+            ok[k] = False  # a refused correction is never applied (the cell does not go there)
+        else:
+            q_c[k] = np.deg2rad(res["q_deg"])
+    return q_c, ok
+
+
+def _error_summary(E: dict[str, np.ndarray], ratio_bound: float) -> dict[str, Any]:
+    """Mean and max error per arm and time, the overall means, and the compensated-to-oracle ratio against its
+    bound (NaN errors, refused targets, left out)."""
+    mean = {a: np.nanmean(e, axis=1) for a, e in E.items()}
+    ratio = mean["compensated"] / mean["oracle"]
+    return {
+        "mean_error_mm": {a: m.tolist() for a, m in mean.items()},
+        "max_error_mm": {a: np.nanmax(e, axis=1).tolist() for a, e in E.items()},
+        "overall_mean_mm": {a: float(np.nanmean(e)) for a, e in E.items()},
+        "ratio_compensated_to_oracle": ratio.tolist(),
+        "max_ratio": float(ratio.max()),
+        "ratio_bound": ratio_bound,
+        "within_bound": bool(ratio.max() <= ratio_bound),
+    }
 
 
 def write_report(res: ClosedLoopResult, out_dir: str | Path, tracking: bool = True) -> Path:

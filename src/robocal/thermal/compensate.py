@@ -161,47 +161,14 @@ def compensate_targets(
     lim = limits if limits is not None else SafetyPolicy()
     q_target = np.asarray(q_target, dtype=float)
     m = q_target.shape[0]
-    P = result.model.chain.n_params
-    deta = np.zeros(P)
-    excess_C, worst = 0.0, ""
-    if model is not None and temperatures is not None:
-        T = np.asarray(temperatures, dtype=float)[None, :]
-        deta = model.deta(T)[0]
-        ex = range_excess(model, T)[0]
-        excess_C = float(ex.max()) if ex.size else 0.0
-        worst = model.sensors[int(np.argmax(ex))] if ex.size else ""
-    q = q_target.copy()
-    res_mm = np.zeros((m, 3))
-    res_rad = np.zeros((m, 3))
-    before_mm = np.zeros((m, 3))
-    before_rad = np.zeros((m, 3))
-    out: dict[str, Compensation] = {}
+    deta, excess_C, worst = _drift(result, model, temperatures)
     tnames = np.asarray(targets).astype(str)
-    for t in dict.fromkeys(tnames.tolist()):
-        sel = tnames == t
-        act = calibrated_robot(result, t, deta)
-        p_d, R_d = desired_poses(nominal_robot(result, t), q_target[sel])
-        c = compensate(act, q_target[sel], p_d, R_d if orientation else None)
-        q[sel] = c.q
-        res_mm[sel] = c.residual_mm
-        res_rad[sel] = c.residual_rad
-        before_mm[sel] = c.error_before_mm
-        before_rad[sel] = c.error_before_rad
-        out[t] = c
+    q, res_mm, res_rad, before_mm, before_rad, out = _compensate_by_target(result, deta, q_target, tnames, orientation)
     # -- status of every target (the one safety policy): nothing is applied silently
     q_corr = q.copy()
     dq_deg = np.rad2deg(np.abs(q_corr - q_target))
     corr_max = dq_deg.max(axis=1) if q.shape[1] else np.zeros(m)
-    # the calibration's own joint-space correction is minus its zero offsets (reference + drift); the error left
-    # after it, from the calibrated robot commanded there
-    zero = zero_offsets(result.model.chain, result.kinematic_errors + deta)
-    excess = np.minimum(corr_max, np.rad2deg(np.abs(q_corr - q_target + zero).max(axis=1))) if m else corr_max
-    rest = np.zeros(m)
-    for t in out:
-        sel = tnames == t
-        p_d, _ = desired_poses(nominal_robot(result, t), q_target[sel])
-        p_own, _, _ = calibrated_robot(result, t, deta).pose(q_target[sel] - zero)
-        rest[sel] = np.minimum(np.linalg.norm(before_mm[sel], axis=1), np.linalg.norm(p_own - p_d, axis=1))
+    excess, rest = _beyond_own_correction(result, deta, q_target, q_corr, corr_max, before_mm, tnames, out)
     conv = np.zeros(m, dtype=bool)
     for t in out:
         conv[tnames == t] = out[t].converged
@@ -224,16 +191,7 @@ def compensate_targets(
     q = np.where(applied[:, None], q_corr, q_target)
     res_mm = np.where(applied[:, None], res_mm, before_mm)
     res_rad = np.where(applied[:, None], res_rad, before_rad)
-    # the command the nominal controller must receive so that its inverse kinematics gives q: nominal FK at q
-    cmd = np.zeros((m, 4, 4))
-    for t in out:
-        sel = tnames == t
-        nom = nominal_robot(result, t)
-        T = fk(nom.chain, q[sel])
-        tool = np.eye(4)
-        tool[:3, :3] = nom.tool_R
-        tool[:3, 3] = nom.tool_mm
-        cmd[sel] = T @ tool
+    cmd = _nominal_commands(result, q, tnames, out)
     ident = np.asarray(ids if ids is not None else [f"t{k:04d}" for k in range(m)]).astype(str)
     return ThermalCompensation(
         ident,
@@ -254,6 +212,93 @@ def compensate_targets(
         limits=lim,
         target_refused=target_refused,
     )
+
+
+def _drift(
+    result: CalibrationResult, model: ThermalModel | None, temperatures: np.ndarray | None
+) -> tuple[np.ndarray, float, str]:
+    """The drift ``deta`` (P,) the model predicts at one reading (zeros without a model or a reading), how far
+    (degC) the reading lies outside the model's fitted range and for which sensor (worst)."""
+    deta = np.zeros(result.model.chain.n_params)
+    excess_C, worst = 0.0, ""
+    if model is not None and temperatures is not None:
+        T = np.asarray(temperatures, dtype=float)[None, :]
+        deta = model.deta(T)[0]
+        ex = range_excess(model, T)[0]
+        excess_C = float(ex.max()) if ex.size else 0.0
+        worst = model.sensors[int(np.argmax(ex))] if ex.size else ""
+    return deta, excess_C, worst
+
+
+def _compensate_by_target(
+    result: CalibrationResult, deta: np.ndarray, q_target: np.ndarray, tnames: np.ndarray, orientation: bool
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Compensation]]:
+    """Differential error compensation of the rows of each target name: corrected joints ``q`` (m, n), the
+    residual and the error before (position mm, orientation rad; (m, 3) each), and each name's
+    :class:`Compensation`."""
+    m = q_target.shape[0]
+    q = q_target.copy()
+    res_mm = np.zeros((m, 3))
+    res_rad = np.zeros((m, 3))
+    before_mm = np.zeros((m, 3))
+    before_rad = np.zeros((m, 3))
+    out: dict[str, Compensation] = {}
+    for t in dict.fromkeys(tnames.tolist()):
+        sel = tnames == t
+        act = calibrated_robot(result, t, deta)
+        p_d, R_d = desired_poses(nominal_robot(result, t), q_target[sel])
+        c = compensate(act, q_target[sel], p_d, R_d if orientation else None)
+        q[sel] = c.q
+        res_mm[sel] = c.residual_mm
+        res_rad[sel] = c.residual_rad
+        before_mm[sel] = c.error_before_mm
+        before_rad[sel] = c.error_before_rad
+        out[t] = c
+    return q, res_mm, res_rad, before_mm, before_rad, out
+
+
+def _beyond_own_correction(
+    result: CalibrationResult,
+    deta: np.ndarray,
+    q_target: np.ndarray,
+    q_corr: np.ndarray,
+    corr_max: np.ndarray,
+    before_mm: np.ndarray,
+    tnames: np.ndarray,
+    out: dict[str, Compensation],
+) -> tuple[np.ndarray, np.ndarray]:
+    """What the safety policy bounds: the correction beyond the calibration's own joint-space correction (deg,
+    (m,)) and the error left after that own correction (mm, (m,)).
+
+    The calibration's own correction is minus its zero offsets (reference + drift); the error left after it is
+    the calibrated robot's, commanded there."""
+    m = q_target.shape[0]
+    zero = zero_offsets(result.model.chain, result.kinematic_errors + deta)
+    excess = np.minimum(corr_max, np.rad2deg(np.abs(q_corr - q_target + zero).max(axis=1))) if m else corr_max
+    rest = np.zeros(m)
+    for t in out:
+        sel = tnames == t
+        p_d, _ = desired_poses(nominal_robot(result, t), q_target[sel])
+        p_own, _, _ = calibrated_robot(result, t, deta).pose(q_target[sel] - zero)
+        rest[sel] = np.minimum(np.linalg.norm(before_mm[sel], axis=1), np.linalg.norm(p_own - p_d, axis=1))
+    return excess, rest
+
+
+def _nominal_commands(
+    result: CalibrationResult, q: np.ndarray, tnames: np.ndarray, out: dict[str, Compensation]
+) -> np.ndarray:
+    """The command (m, 4, 4) the nominal controller must receive so that its inverse kinematics gives ``q``:
+    nominal FK at ``q`` times the tool."""
+    cmd = np.zeros((q.shape[0], 4, 4))
+    for t in out:
+        sel = tnames == t
+        nom = nominal_robot(result, t)
+        T = fk(nom.chain, q[sel])
+        tool = np.eye(4)
+        tool[:3, :3] = nom.tool_R
+        tool[:3, 3] = nom.tool_mm
+        cmd[sel] = T @ tool
+    return cmd
 
 
 def write_controller_csv(path: str | Path, comp: ThermalCompensation) -> Path:

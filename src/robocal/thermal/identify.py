@@ -127,7 +127,7 @@ def reference_jacobian(
     return J[:, :P], w, data.m
 
 
-def identify_states(  # noqa: PLR0915
+def identify_states(
     campaign: Campaign,
     state: np.ndarray,
     result: CalibrationResult,
@@ -153,13 +153,7 @@ def identify_states(  # noqa: PLR0915
     chain = model.chain
     P = chain.n_params
     names_all = chain.param_names
-    if params is None:
-        cand = list(range(P))
-    else:
-        unknown = [p for p in params if p not in names_all]
-        if unknown:
-            raise ConfigError(f"thermal identification: unknown chain parameter(s) {unknown}; known: {names_all}")
-        cand = [names_all.index(p) for p in names_all if p in set(params)]
+    cand = list(range(P)) if params is None else _candidate_params(names_all, params)
     n_states = int(state.max()) + 1
     ref = campaign.subset(state == 0)
     use_rot = bool(use_orientation and model.orientation and campaign.quat is not None)
@@ -195,29 +189,14 @@ def identify_states(  # noqa: PLR0915
                 f"reference state; {k} parameters need at least {int(np.ceil(2 * k / (6 if use_rot else 3)))}",
                 file=campaign.source,
             )
-        rows_p = (3 * ia[:, None] + np.arange(3)[None, :]).ravel()
-        dp = (cur.p_mm[ib] - ref.p_mm[ia]).ravel()
-        rows = [rows_p]
-        dy = [dp]
-        if use_rot:
-            assert R_ref is not None and cur.quat is not None
-            R_cur = quat_to_matrix(cur.quat[ib])
-            dr = matrix_to_rotvec(R_cur @ np.swapaxes(R_ref[ia], -1, -2)).ravel()
-            rows.append(3 * m0 + rows_p)
-            dy.append(dr)
-        r_idx = np.concatenate(rows)
-        Y = np.concatenate(dy) * w[r_idx]
+        r_idx, dy, dp = _differences(ref, cur, ia, ib, m0, R_ref if use_rot else None)
+        Y = dy * w[r_idx]
         M = Jw[np.ix_(r_idx, kept)]
-        # eq. 20-21 on unit-norm columns (mm and rad compare); singular values below rcond are dropped
-        cn = np.linalg.norm(M, axis=0)
-        U, S, Vt = np.linalg.svd(M / cn, full_matrices=False)
-        inv = np.where(S > rcond * S[0], 1.0 / S, 0.0)
-        sol = (Vt.T * inv) @ (U.T @ Y)
-        deta[s] = sol / cn
+        deta[s], Vw = _truncated_solve(M, Y, rcond)
         r = Y - M @ deta[s]
         rss += float(r @ r)
         dof += len(Y) - k
-        Vw_sum += ((Vt.T * inv**2) @ Vt) / np.outer(cn, cn)
+        Vw_sum += Vw
         npos = 3 * len(ia)
         res_rms[s] = float(np.sqrt(np.mean((r[:npos] / w[r_idx[:npos]]) ** 2) * 3))
         drift_rms[s] = float(np.sqrt(np.mean(dp**2) * 3))
@@ -240,6 +219,43 @@ def identify_states(  # noqa: PLR0915
         identifiability=ident,
         extra={"uses_orientation": use_rot},
     )
+
+
+def _candidate_params(names_all: Sequence[str], params: Sequence[str]) -> list[int]:
+    """Indices (chain order) of the chain parameters ``params``; a ConfigError names unknown ones."""
+    unknown = [p for p in params if p not in names_all]
+    if unknown:
+        raise ConfigError(f"thermal identification: unknown chain parameter(s) {unknown}; known: {names_all}")
+    return [names_all.index(p) for p in names_all if p in set(params)]
+
+
+def _differences(
+    ref: Campaign, cur: Campaign, ia: np.ndarray, ib: np.ndarray, m0: int, R_ref: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The measured change from the reference rows ``ia`` to the current rows ``ib``: the reference Jacobian's
+    rows it belongs to, the change (positions mm, then with ``R_ref`` rotation vectors rad) and the position
+    change alone."""
+    rows_p = (3 * ia[:, None] + np.arange(3)[None, :]).ravel()
+    dp = (cur.p_mm[ib] - ref.p_mm[ia]).ravel()
+    rows = [rows_p]
+    dy = [dp]
+    if R_ref is not None:
+        assert cur.quat is not None
+        R_cur = quat_to_matrix(cur.quat[ib])
+        dr = matrix_to_rotvec(R_cur @ np.swapaxes(R_ref[ia], -1, -2)).ravel()
+        rows.append(3 * m0 + rows_p)
+        dy.append(dr)
+    return np.concatenate(rows), np.concatenate(dy), dp
+
+
+def _truncated_solve(M: np.ndarray, Y: np.ndarray, rcond: float) -> tuple[np.ndarray, np.ndarray]:
+    """Eq. 20-21: the least-squares solution of ``M x = Y`` on unit-norm columns (mm and rad compare), singular
+    values below ``rcond`` times the largest dropped; and its unscaled covariance ``(MᵀM)⁺`` (whitened units)."""
+    cn = np.linalg.norm(M, axis=0)
+    U, S, Vt = np.linalg.svd(M / cn, full_matrices=False)
+    inv = np.where(S > rcond * S[0], 1.0 / S, 0.0)
+    sol = (Vt.T * inv) @ (U.T @ Y)
+    return sol / cn, ((Vt.T * inv**2) @ Vt) / np.outer(cn, cn)
 
 
 __all__ = ["StateDrift", "find_states", "identify_states", "reference_jacobian"]

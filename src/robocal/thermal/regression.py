@@ -130,7 +130,7 @@ class ParameterChoice:
     p_value: float = float("nan")
 
 
-def fit_parameter(  # noqa: C901
+def fit_parameter(
     name: str,
     kind: str,
     x: np.ndarray,
@@ -161,35 +161,9 @@ def fit_parameter(  # noqa: C901
         raise ConfigError(f"thermal regression of {name!r}: needs at least 2 warm states, got {n}")
     v = float(v) if v > 0 else 1e-30
     col = {s: k for k, s in enumerate(sensors)}
-    cands: list[Candidate] = []
-    if cfg.allow_none:
-        cands.append(Candidate("none", (), ()))
-    for form in forms:
-        if form == "expansion":
-            cands += [Candidate("expansion", (s,), ((1,),)) for s in candidates]
-        elif form == "polynomial":
-            for r in range(1, min(cfg.max_sensors, len(candidates)) + 1):
-                for combo in itertools.combinations(candidates, r):
-                    for p in range(1, cfg.max_order + 1):
-                        terms = tuple(monomials(r, p))
-                        if len(terms) <= n - 2:  # leave-one-out must leave a residual degree of freedom
-                            cands.append(Candidate("polynomial", combo, terms))
-        else:
-            raise ConfigError(f"thermal regression of {name!r}: unknown form {form!r}")
-    if not any(c.form != "none" for c in cands):
-        raise ConfigError(f"thermal regression of {name!r}: no candidate model fits {n} states (too few states)")
-
+    cands = _candidate_models(name, n, candidates, forms, cfg)
     for c in cands:
-        if c.form == "none":
-            c.cv_rmse = float(np.sqrt(np.mean(y**2)))
-            continue
-        X = design(x[:, [col[s] for s in c.sensors]], c.terms)
-        err = np.zeros(n)
-        for i in range(n):
-            keep = np.arange(n) != i
-            b, _, _ = _gls(X[keep], y[keep], _cinv(n - 1, v))
-            err[i] = y[i] - X[i] @ b
-        c.cv_rmse = float(np.sqrt(np.mean(err**2)))
+        c.cv_rmse = _loo_rmse(c, x[:, [col[s] for s in c.sensors]], y, v)
     drifting = [c for c in cands if c.form != "none"]
     best = min(c.cv_rmse for c in drifting)
     ok = [c for c in drifting if c.cv_rmse <= best * (1.0 + cfg.cv_tolerance) + 1e-300]
@@ -243,6 +217,46 @@ def fit_parameter(  # noqa: C901
         },
     )
     return ParameterChoice(model, chosen, table, p_value)
+
+
+def _candidate_models(
+    name: str, n: int, candidates: Sequence[str], forms: Sequence[str], cfg: RegressionConfig
+) -> list[Candidate]:
+    """Every model the cross-validation compares for ``n`` states: ``none`` (with ``cfg.allow_none``), an expansion
+    per candidate sensor, polynomials of up to ``cfg.max_sensors`` sensors and order ``cfg.max_order``."""
+    cands: list[Candidate] = []
+    if cfg.allow_none:
+        cands.append(Candidate("none", (), ()))
+    for form in forms:
+        if form == "expansion":
+            cands += [Candidate("expansion", (s,), ((1,),)) for s in candidates]
+        elif form == "polynomial":
+            for r in range(1, min(cfg.max_sensors, len(candidates)) + 1):
+                for combo in itertools.combinations(candidates, r):
+                    for p in range(1, cfg.max_order + 1):
+                        terms = tuple(monomials(r, p))
+                        if len(terms) <= n - 2:  # leave-one-out must leave a residual degree of freedom
+                            cands.append(Candidate("polynomial", combo, terms))
+        else:
+            raise ConfigError(f"thermal regression of {name!r}: unknown form {form!r}")
+    if not any(c.form != "none" for c in cands):
+        raise ConfigError(f"thermal regression of {name!r}: no candidate model fits {n} states (too few states)")
+    return cands
+
+
+def _loo_rmse(c: Candidate, xs: np.ndarray, y: np.ndarray, v: float) -> float:
+    """Leave-one-state-out RMS prediction error of model ``c`` on its sensors' readings ``xs`` (n, len(sensors));
+    of ``none``, the RMS of ``y``."""
+    if c.form == "none":
+        return float(np.sqrt(np.mean(y**2)))
+    n = len(y)
+    X = design(xs, c.terms)
+    err = np.zeros(n)
+    for i in range(n):
+        keep = np.arange(n) != i
+        b, _, _ = _gls(X[keep], y[keep], _cinv(n - 1, v))
+        err[i] = y[i] - X[i] @ b
+    return float(np.sqrt(np.mean(err**2)))
 
 
 def forms_for(kind: str, nominal: float, expansion_only: bool = False) -> tuple[str, ...]:

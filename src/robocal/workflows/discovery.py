@@ -6,7 +6,7 @@ from __future__ import annotations
 import json
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -20,19 +20,33 @@ from robocal.robot import RobotDescription
 from robocal.status import TargetStatus
 from robocal.workflows import campaign_of, robot_of
 
+if TYPE_CHECKING:
+    from robocal.report.html import Report
+
 
 def write_report(res: DiscoveryResult, summ: dict[str, Any], path: Path) -> Path:
     """Self-contained HTML report: the verdict, named effects, every step with residual plots before / after."""
     import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
-    from robocal.report import plots
     from robocal.report.html import Report
 
-    camp = res.campaign.subset(res.rows)
     rep = Report(f"Discovery — {res.robot.name}", subtitle=str(res.campaign.source))
+    _verdict_section(rep, summ)
+    if "validation" in summ:
+        _validation_table(rep, summ["validation"])
+    if summ["named"]:
+        _named_section(rep, summ)
+    if summ.get("proposed"):
+        _proposed_section(rep, res, summ["proposed"])
+    _steps_section(rep, res, summ)
+    _library_section(rep, summ)
+    return rep.save(path)
+
+
+def _verdict_section(rep: Report, summ: dict[str, Any]) -> None:
+    """What was named, the errors before / after, and warnings (gross errors, the noise used, unexplained)."""
     rep.heading("Verdict")
     names = [f"{n['effect']}" + (f" joint {n['joint']}" if n["joint"] else "") for n in summ["named"]]
     rep.kv(
@@ -69,123 +83,142 @@ def write_report(res: DiscoveryResult, summ: dict[str, Any], path: Path) -> Path
             f"{_words(w['workspace_regions'][0])}; time span: {_words(w['time_span'])}.",
             kind="warn",
         )
-    if "validation" in summ:
-        vg, vd = summ["validation"]["geometric"], summ["validation"]["discovered"]
-        vf = summ["validation"]["final"]
-        rows_v = []
-        for key, label in (
-            ("mean_position_mm", "mean, mm"),
-            ("rms_position_mm", "RMS, mm"),
-            ("max_position_mm", "max, mm"),
-            ("mean_orientation_deg", "mean orientation, deg"),
-        ):
-            if key in vg:
-                rows_v.append({"error": label, "geometric (calibrate)": vg[key], "parametric extended": vd[key],
-                               f"final (residual layer: {vf['layer']})": vf[key]})  # fmt: skip
-        ge = summ["validation"].get("gross_errors", {}).get("rows", [])
-        if ge:
-            for key, label in (("mean_position_mm", "mean without gross errors, mm"),
-                               ("max_position_mm", "max without gross errors, mm")):  # fmt: skip
-                rows_v.append({"error": label, "geometric (calibrate)": vg["without_gross_errors"][key],
-                               "parametric extended": vd["without_gross_errors"][key],
-                               f"final (residual layer: {vf['layer']})": vf["without_gross_errors"][key]})  # fmt: skip
-        rep.table(rows_v, caption=f"Validation rows (held out, {vg['n_rows']} rows): tool offsets from "
-                  + "; ".join(f"{t}: {src}" for t, src in vg["tool_source"].items()))  # fmt: skip
-    if summ["named"]:
-        rep.heading("Named effects")
-        rows = []
-        drift_rows = []
-        for n in summ["named"]:
-            for k, e in n["estimates"].items():
-                if k == "drift_by_state":  # a list of states: its own table below
-                    for st in e:
-                        drift_rows.append(
-                            {"effect": n["key"], "t_min": st["t_min"], "rows": st["n_rows"]}
-                            | {
-                                f"{a} (mm)": f"{st[a + '_mm']['value']:.4f} ± {st[a + '_mm']['stderr']:.4f}"
-                                for a in "xyz"
-                            }
-                        )
-                    continue
-                val = e["value"]
-                if isinstance(val, bool):
-                    val = "yes" if val else "no"
-                rows.append({"effect": n["key"], "estimate": k, "value": val, "stderr": e["stderr"],
-                             "unit": e["unit"]})  # fmt: skip
-        rep.table(rows, caption="Estimates with standard errors (joint fit of geometry and every named effect)")
-        if drift_rows:
-            rep.table(
-                drift_rows,
-                caption="Modelled drift at the tool per measurement state, relative to each pose's first measurement "
-                "(tracker frame, ± 1 standard error)",
-            )
+
+
+def _validation_table(rep: Report, validation: dict[str, Any]) -> None:
+    """Errors of the held-out rows: geometric, parametric extended and final model (also without gross errors)."""
+    vg, vd = validation["geometric"], validation["discovered"]
+    vf = validation["final"]
+    rows_v = []
+    for key, label in (
+        ("mean_position_mm", "mean, mm"),
+        ("rms_position_mm", "RMS, mm"),
+        ("max_position_mm", "max, mm"),
+        ("mean_orientation_deg", "mean orientation, deg"),
+    ):
+        if key in vg:
+            rows_v.append({"error": label, "geometric (calibrate)": vg[key], "parametric extended": vd[key],
+                           f"final (residual layer: {vf['layer']})": vf[key]})  # fmt: skip
+    ge = validation.get("gross_errors", {}).get("rows", [])
+    if ge:
+        for key, label in (("mean_position_mm", "mean without gross errors, mm"),
+                           ("max_position_mm", "max without gross errors, mm")):  # fmt: skip
+            rows_v.append({"error": label, "geometric (calibrate)": vg["without_gross_errors"][key],
+                           "parametric extended": vd["without_gross_errors"][key],
+                           f"final (residual layer: {vf['layer']})": vf["without_gross_errors"][key]})  # fmt: skip
+    rep.table(rows_v, caption=f"Validation rows (held out, {vg['n_rows']} rows): tool offsets from "
+              + "; ".join(f"{t}: {src}" for t, src in vg["tool_source"].items()))  # fmt: skip
+
+
+def _named_section(rep: Report, summ: dict[str, Any]) -> None:
+    """The named effects: estimates, drift per state, causes, and each one's held-out contribution."""
+    rep.heading("Named effects")
+    rows = []
+    drift_rows = []
+    for n in summ["named"]:
+        for k, e in n["estimates"].items():
+            if k == "drift_by_state":  # a list of states: its own table below
+                for st in e:
+                    drift_rows.append(
+                        {"effect": n["key"], "t_min": st["t_min"], "rows": st["n_rows"]}
+                        | {f"{a} (mm)": f"{st[a + '_mm']['value']:.4f} ± {st[a + '_mm']['stderr']:.4f}" for a in "xyz"}
+                    )
+                continue
+            val = e["value"]
+            if isinstance(val, bool):
+                val = "yes" if val else "no"
+            rows.append({"effect": n["key"], "estimate": k, "value": val, "stderr": e["stderr"],
+                         "unit": e["unit"]})  # fmt: skip
+    rep.table(rows, caption="Estimates with standard errors (joint fit of geometry and every named effect)")
+    if drift_rows:
         rep.table(
-            [{"effect": n["key"], "cause": n["cause"], "signal": n["signal"]} for n in summ["named"]],
-            caption="Physical causes and signals",
+            drift_rows,
+            caption="Modelled drift at the tool per measurement state, relative to each pose's first measurement "
+            "(tracker frame, ± 1 standard error)",
         )
-        cv = summ.get("cross_validation") or {}
-        held = [n for n in summ["named"] if n.get("held_out")]
-        if held and "cv_mean_position_mm" in cv:
-            rep.table(
-                [
-                    {
-                        "effect": n["key"],
-                        "side": n["side"],
-                        "held-out mean without it, mm": n["held_out"]["cv_mean_without_mm"],
-                        "its contribution, mm": n["held_out"]["cv_mean_without_mm"] - cv["cv_mean_position_mm"],
-                    }
-                    for n in held
-                ],
-                caption=f"Each joint-level effect's own contribution to the held-out error: the pose-grouped "
-                f"cross-validated mean error of the final model is {cv['cv_mean_position_mm']:.4f} mm; without the "
-                "effect (linearised) it is the value shown. Robot-side effects go to the controller; "
-                "measurement-side ones (tracker drift) never do",
-            )
-    if summ.get("proposed"):
-        rep.heading("Proposed equations (beyond the library)")
-        rep.paragraph(
-            "When no library effect explains what is left, each joint's error is offered a dictionary of terms "
-            "(harmonics and products of joint angles, gravity torques, torques, currents, temperatures, time); "
-            "orthogonal matching pursuit with stability selection proposes a few terms, which must then pass the "
-            "library's gate with a Bonferroni threshold over the dictionary's size."
-        )
+    rep.table(
+        [{"effect": n["key"], "cause": n["cause"], "signal": n["signal"]} for n in summ["named"]],
+        caption="Physical causes and signals",
+    )
+    cv = summ.get("cross_validation") or {}
+    held = [n for n in summ["named"] if n.get("held_out")]
+    if held and "cv_mean_position_mm" in cv:
         rep.table(
             [
                 {
-                    "joint": p["joint"],
-                    "equation": p["equation"],
-                    "log10 p / threshold": f"{p['selection'].get('log10_p', float('nan')):.1f} / "
-                    f"{p['selection']['threshold_log10_p']:.1f}",
-                    "stability": ", ".join(f"{v:.2f}" for v in p["selection"]["stability"]),
-                    "online": "yes" if p["compensated_online"] else "no (needs a signal the joints do not give)",
-                    "reading": p["reading"],
+                    "effect": n["key"],
+                    "side": n["side"],
+                    "held-out mean without it, mm": n["held_out"]["cv_mean_without_mm"],
+                    "its contribution, mm": n["held_out"]["cv_mean_without_mm"] - cv["cv_mean_position_mm"],
                 }
-                for p in summ["proposed"]
+                for n in held
             ],
-            caption="Coefficients ± 1 standard error from the joint fit with the geometry and the named effects",
+            caption=f"Each joint-level effect's own contribution to the held-out error: the pose-grouped "
+            f"cross-validated mean error of the final model is {cv['cv_mean_position_mm']:.4f} mm; without the "
+            "effect (linearised) it is the value shown. Robot-side effects go to the controller; "
+            "measurement-side ones (tracker drift) never do",
         )
-        for p, acc in zip(summ["proposed"], [a for a in res.accepted if a.cand.effect == "proposed"], strict=True):
-            step = next((st for st in res.steps if st.accepted == acc.cand.key), None)
-            if step is None or step.residuals_before_mm is None or step.residuals_after_mm is None:
-                continue
-            j = int(p["joint"]) - 1
-            Jj = res.final.Jq[:, :3, j]  # mm/rad: each row's position change per radian of joint j
-            nrm = np.maximum(np.sum(Jj**2, axis=1), 1e-12)
 
-            def joint_equiv(r_mm: np.ndarray, Jj: np.ndarray = Jj, nrm: np.ndarray = nrm) -> np.ndarray:
-                return np.rad2deg(np.sum(Jj * r_mm, axis=1) / nrm)
 
-            term = acc.cand.S[res.rows][:, 0]
-            fig = plots.term_before_after(
-                term,
-                joint_equiv(step.residuals_before_mm),
-                joint_equiv(step.residuals_after_mm),
-                xlabel=p["terms"][0]["signal"],
-                ylabel=f"residual as a joint-{j + 1} angle (deg)",
-            )
-            rep.figure(fig, caption=f"Joint {j + 1}: the residual against {p['terms'][0]['signal']}, before and "
-                       "after the proposed term")  # fmt: skip
-            plt.close(fig)
+def _proposed_section(rep: Report, res: DiscoveryResult, proposed: list[dict[str, Any]]) -> None:
+    """Equations beyond the library: the table, and each one's residual against its term before / after."""
+    import matplotlib.pyplot as plt
+
+    from robocal.report import plots
+
+    rep.heading("Proposed equations (beyond the library)")
+    rep.paragraph(
+        "When no library effect explains what is left, each joint's error is offered a dictionary of terms "
+        "(harmonics and products of joint angles, gravity torques, torques, currents, temperatures, time); "
+        "orthogonal matching pursuit with stability selection proposes a few terms, which must then pass the "
+        "library's gate with a Bonferroni threshold over the dictionary's size."
+    )
+    rep.table(
+        [
+            {
+                "joint": p["joint"],
+                "equation": p["equation"],
+                "log10 p / threshold": f"{p['selection'].get('log10_p', float('nan')):.1f} / "
+                f"{p['selection']['threshold_log10_p']:.1f}",
+                "stability": ", ".join(f"{v:.2f}" for v in p["selection"]["stability"]),
+                "online": "yes" if p["compensated_online"] else "no (needs a signal the joints do not give)",
+                "reading": p["reading"],
+            }
+            for p in proposed
+        ],
+        caption="Coefficients ± 1 standard error from the joint fit with the geometry and the named effects",
+    )
+    for p, acc in zip(proposed, [a for a in res.accepted if a.cand.effect == "proposed"], strict=True):
+        step = next((st for st in res.steps if st.accepted == acc.cand.key), None)
+        if step is None or step.residuals_before_mm is None or step.residuals_after_mm is None:
+            continue
+        j = int(p["joint"]) - 1
+        Jj = res.final.Jq[:, :3, j]  # mm/rad: each row's position change per radian of joint j
+        nrm = np.maximum(np.sum(Jj**2, axis=1), 1e-12)
+
+        def joint_equiv(r_mm: np.ndarray, Jj: np.ndarray = Jj, nrm: np.ndarray = nrm) -> np.ndarray:
+            return np.rad2deg(np.sum(Jj * r_mm, axis=1) / nrm)
+
+        term = acc.cand.S[res.rows][:, 0]
+        fig = plots.term_before_after(
+            term,
+            joint_equiv(step.residuals_before_mm),
+            joint_equiv(step.residuals_after_mm),
+            xlabel=p["terms"][0]["signal"],
+            ylabel=f"residual as a joint-{j + 1} angle (deg)",
+        )
+        rep.figure(fig, caption=f"Joint {j + 1}: the residual against {p['terms'][0]['signal']}, before and "
+                   "after the proposed term")  # fmt: skip
+        plt.close(fig)
+
+
+def _steps_section(rep: Report, res: DiscoveryResult, summ: dict[str, Any]) -> None:
+    """One table per step (the best candidates) with residual plots before / after the accepted effect."""
+    import matplotlib.pyplot as plt
+
+    from robocal.report import plots
+
+    camp = res.campaign.subset(res.rows)
     rep.heading("Steps")
     rep.table(
         [
@@ -238,6 +271,10 @@ def write_report(res: DiscoveryResult, summ: dict[str, Any], path: Path) -> Path
         fig = plots.residuals_vs_joints(camp.q, res.final.residuals_mm, list(res.robot.joint_names))
         rep.figure(fig, caption="Residuals of the geometric fit against the joint angles (nothing named)")
         plt.close(fig)
+
+
+def _library_section(rep: Report, summ: dict[str, Any]) -> None:
+    """The candidates tested, skipped and unidentifiable, and the caution that the noise floor proves no physics."""
     rep.heading("Library")
     rep.table(summ["library"], columns=["key", "cause", "signal"], caption="Candidates tested")
     if summ["skipped"]:
@@ -248,7 +285,6 @@ def write_report(res: DiscoveryResult, summ: dict[str, Any], path: Path) -> Path
         "Reaching the noise floor does not prove the physics: check that the estimates are physically plausible "
         "(e.g. compliance of the right sign and size) before compensating with them."
     )
-    return rep.save(path)
 
 
 def _tool_T(cal: Any, target: str) -> np.ndarray:

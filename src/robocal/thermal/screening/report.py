@@ -41,13 +41,30 @@ def screening_figures(result: ScreeningResult) -> list[tuple[Figure, str]]:
        without drift, the pure sensitivity score ``E_mean`` instead;
     3. cumulative share of the score, parameters by rank, selected ones highlighted.
     """
+    with _style():
+        return [_sensitivity_figure(result), _influence_figure(result), _cumulative_share_figure(result)]
+
+
+def _width(n: int) -> float:
+    """Figure width (in) for ``n`` parameters along the x axis."""
+    return min(max(6.0, 0.32 * n + 2.0), 14.0)
+
+
+def _tilt(n: int) -> int:
+    """Rotation (deg) of the x tick labels for ``n`` parameters."""
+    return 60 if n > 12 else 0
+
+
+def _sensitivity_figure(result: ScreeningResult) -> tuple[Figure, str]:
+    """Mean (bar) and max (tick) position and orientation error per parameter (fig. 9)."""
     from matplotlib.figure import Figure
+    from matplotlib.patches import Patch
 
     t = result.table
     names = list(t["parameter"])
     x = np.arange(len(names))
+    tilt = _tilt(len(names))
     colors = [_ANGLE_COLOR if k == "angle" else _LENGTH_COLOR for k in t["kind"]]
-    tilt = 60 if len(names) > 12 else 0
     step_a = t.loc[t["kind"] == "angle", "step"]
     step_l = t.loc[t["kind"] == "length", "step"]
     steps = ", ".join(
@@ -59,77 +76,86 @@ def screening_figures(result: ScreeningResult) -> list[tuple[Figure, str]]:
         if s
     )
     n_cfg = result.config.get("n_configs", "?")
-    out: list[tuple[Figure, str]] = []
-    with _style():
-        fig = Figure(figsize=(min(max(6.0, 0.32 * len(names) + 2.0), 14.0), 5.6), layout="constrained")
-        ax1, ax2 = fig.subplots(2, 1, sharex=True)
-        ax1.bar(x, t["mean_position_mm"], color=colors)
-        ax1.plot(x, t["max_position_mm"], "_", color="k", ms=9, mew=1.5, label="max")
-        ax1.set_ylabel("position error (mm)")
-        ax2.bar(x, 1e3 * t["mean_orientation"], color=colors)
-        ax2.plot(x, 1e3 * t["max_orientation"], "_", color="k", ms=9, mew=1.5, label="max")
-        ax2.set_ylabel("orientation error ‖R_s R_0ᵀ − I‖_F (×10⁻³)")
-        from matplotlib.patches import Patch
+    fig = Figure(figsize=(_width(len(names)), 5.6), layout="constrained")
+    ax1, ax2 = fig.subplots(2, 1, sharex=True)
+    ax1.bar(x, t["mean_position_mm"], color=colors)
+    ax1.plot(x, t["max_position_mm"], "_", color="k", ms=9, mew=1.5, label="max")
+    ax1.set_ylabel("position error (mm)")
+    ax2.bar(x, 1e3 * t["mean_orientation"], color=colors)
+    ax2.plot(x, 1e3 * t["max_orientation"], "_", color="k", ms=9, mew=1.5, label="max")
+    ax2.set_ylabel("orientation error ‖R_s R_0ᵀ − I‖_F (×10⁻³)")
+    handles = [
+        Patch(color=_LENGTH_COLOR, label="length (mean)"),
+        Patch(color=_ANGLE_COLOR, label="angle (mean)"),
+        *ax1.get_legend_handles_labels()[0],
+    ]
+    ax1.legend(handles=handles, loc="best")
+    ax2.set_xticks(x, names, rotation=tilt, ha="right" if tilt else "center")
+    ax1.grid(False, axis="x")
+    ax2.grid(False, axis="x")
+    return fig, f"Sensitivity of the tool pose to each kinematic parameter ({steps}; {n_cfg} random configurations)"
 
-        handles = [
-            Patch(color=_LENGTH_COLOR, label="length (mean)"),
-            Patch(color=_ANGLE_COLOR, label="angle (mean)"),
-            *ax1.get_legend_handles_labels()[0],
-        ]
-        ax1.legend(handles=handles, loc="best")
-        ax2.set_xticks(x, names, rotation=tilt, ha="right" if tilt else "center")
-        ax1.grid(False, axis="x")
-        ax2.grid(False, axis="x")
-        out.append(
-            (fig, f"Sensitivity of the tool pose to each kinematic parameter ({steps}; {n_cfg} random configurations)")
-        )
 
-        by_h = result.score == "|H|"
-        val = t["H"] if by_h else t["E_mean"]
-        fig = Figure(figsize=(min(max(6.0, 0.32 * len(names) + 2.0), 14.0), 3.8), layout="constrained")
-        ax = fig.add_subplot()
-        bar_colors = [_SELECTED_COLOR if s else _OTHER_COLOR for s in t["selected"]]
-        ax.bar(x, np.nan_to_num(val.to_numpy(dtype=float)), color=bar_colors)
-        sel = result.config.get("selection", {})
-        if sel.get("rule") == "threshold":
-            hm = float(sel.get("h_min", 0.0))
-            ax.axhline(hm, color="k", ls="--", lw=0.8, label=f"threshold {hm:g}")
-            if by_h:
-                ax.axhline(-hm, color="k", ls="--", lw=0.8)
-        ax.axhline(0.0, color="k", lw=0.7)
-        ax.set_xticks(x, names, rotation=tilt, ha="right" if tilt else "center")
-        ax.set_ylabel("H = E_mean · P_o(T)" if by_h else "E_mean (per step)")
-        from matplotlib.patches import Patch as _P
+def _influence_figure(result: ScreeningResult) -> tuple[Figure, str]:
+    """Signed ``H`` per parameter (``E_mean`` without drift), selected ones highlighted, the threshold drawn."""
+    from matplotlib.figure import Figure
+    from matplotlib.patches import Patch
 
-        ax.legend(
-            handles=[_P(color=_SELECTED_COLOR, label="selected"), _P(color=_OTHER_COLOR, label="not selected")]
-            + ax.get_legend_handles_labels()[0],
-            loc="best",
-        )
-        ax.grid(False, axis="x")
-        cap = (
-            "Influence H of each parameter at the temperature state (table 4 equivalent), selected in red"
-            if by_h
-            else "No drift known: sensitivity E_mean per parameter, selected in red"
-        )
-        out.append((fig, cap))
+    t = result.table
+    names = list(t["parameter"])
+    x = np.arange(len(names))
+    tilt = _tilt(len(names))
+    by_h = result.score == "|H|"
+    val = t["H"] if by_h else t["E_mean"]
+    fig = Figure(figsize=(_width(len(names)), 3.8), layout="constrained")
+    ax = fig.add_subplot()
+    bar_colors = [_SELECTED_COLOR if s else _OTHER_COLOR for s in t["selected"]]
+    ax.bar(x, np.nan_to_num(val.to_numpy(dtype=float)), color=bar_colors)
+    sel = result.config.get("selection", {})
+    if sel.get("rule") == "threshold":
+        hm = float(sel.get("h_min", 0.0))
+        ax.axhline(hm, color="k", ls="--", lw=0.8, label=f"threshold {hm:g}")
+        if by_h:
+            ax.axhline(-hm, color="k", ls="--", lw=0.8)
+    ax.axhline(0.0, color="k", lw=0.7)
+    ax.set_xticks(x, names, rotation=tilt, ha="right" if tilt else "center")
+    ax.set_ylabel("H = E_mean · P_o(T)" if by_h else "E_mean (per step)")
+    ax.legend(
+        handles=[Patch(color=_SELECTED_COLOR, label="selected"), Patch(color=_OTHER_COLOR, label="not selected")]
+        + ax.get_legend_handles_labels()[0],
+        loc="best",
+    )
+    ax.grid(False, axis="x")
+    cap = (
+        "Influence H of each parameter at the temperature state (table 4 equivalent), selected in red"
+        if by_h
+        else "No drift known: sensitivity E_mean per parameter, selected in red"
+    )
+    return fig, cap
 
-        order = t.sort_values("rank")
-        fig = Figure(figsize=(min(max(6.0, 0.32 * len(names) + 2.0), 14.0), 3.4), layout="constrained")
-        ax = fig.add_subplot()
-        cum = np.cumsum(order["share"].to_numpy())
-        xs = np.arange(len(order))
-        ax.bar(xs, order["share"], color=[_SELECTED_COLOR if s else _OTHER_COLOR for s in order["selected"]])
-        ax.plot(xs, cum, "o-", color="k", ms=3, label="cumulative share")
-        if sel.get("rule") == "share":
-            ax.axhline(float(sel.get("share", 1.0)), color="k", ls="--", lw=0.8, label="share rule")
-        ax.set_xticks(xs, list(order["parameter"]), rotation=tilt, ha="right" if tilt else "center")
-        ax.set_ylabel(f"share of Σ {result.score}")
-        ax.set_ylim(0, 1.05)
-        ax.legend(loc="center right")
-        ax.grid(False, axis="x")
-        out.append((fig, f"Share of the total {result.score} by rank; selected parameters in red"))
-    return out
+
+def _cumulative_share_figure(result: ScreeningResult) -> tuple[Figure, str]:
+    """The share of the total score per parameter by rank and its cumulative sum, selected ones highlighted."""
+    from matplotlib.figure import Figure
+
+    t = result.table
+    tilt = _tilt(len(t))
+    sel = result.config.get("selection", {})
+    order = t.sort_values("rank")
+    fig = Figure(figsize=(_width(len(t)), 3.4), layout="constrained")
+    ax = fig.add_subplot()
+    cum = np.cumsum(order["share"].to_numpy())
+    xs = np.arange(len(order))
+    ax.bar(xs, order["share"], color=[_SELECTED_COLOR if s else _OTHER_COLOR for s in order["selected"]])
+    ax.plot(xs, cum, "o-", color="k", ms=3, label="cumulative share")
+    if sel.get("rule") == "share":
+        ax.axhline(float(sel.get("share", 1.0)), color="k", ls="--", lw=0.8, label="share rule")
+    ax.set_xticks(xs, list(order["parameter"]), rotation=tilt, ha="right" if tilt else "center")
+    ax.set_ylabel(f"share of Σ {result.score}")
+    ax.set_ylim(0, 1.05)
+    ax.legend(loc="center right")
+    ax.grid(False, axis="x")
+    return fig, f"Share of the total {result.score} by rank; selected parameters in red"
 
 
 def write_screening(result: ScreeningResult, directory: str | Path) -> list[Path]:
