@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import fnmatch
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -293,27 +294,7 @@ def _search(
     remaining = list(library) + weight
     groups = np.repeat(np.asarray(cal.pose_id).astype(str), fit.d)
     for _ in range(cfg.max_steps):
-        Q = _basis(fit.J_w)
-        scored: list[tuple[Score, Candidate, np.ndarray, tuple[str, ...]]] = []
-        for cand in remaining:
-            Z, params = regressor(cand, fit, rows, data)
-            sc, Uk = score_candidate(cand, Z, Q, fit, cfg, log_thr)
-            if sc.status == "unidentifiable":
-                unident.setdefault(cand.key, sc.absorbed_share)
-            scored.append((sc, cand, Uk, params))
-        _leave_to_cv(scored)
-        passing = sorted((s for s in scored if s[0].passes), key=lambda s: s[0].log10_p)
-        chosen = None
-        for sc, cand, Uk, params in passing:
-            if cfg.cv_folds >= 2:
-                sc.cv_gain = cross_validation_gain(fit, Uk, groups, cfg.cv_folds, cfg.seed)
-                if sc.cv_gain <= 0:
-                    sc.status = "failed cross-validation"
-                    continue
-            sc.status = "accepted"
-            chosen = (cand, params)
-            break
-        scores = [s[0] for s in scored]
+        scores, chosen = _best_candidate(remaining, fit, rows, data, cfg, log_thr, groups, unident)
         if chosen is None:
             steps.append(Step(None, None, fit.rms_mm, fit.rms_mm, fit.rss, fit.rss, fit.dof, scores))
             break
@@ -322,16 +303,7 @@ def _search(
         accepted.append(Accepted(cand, params))
         remaining = [c for c in remaining if c.key != cand.key]
         fit = refit(accepted, fit)
-        dropped: list[str] = []
-        while True:  # backward check: an earlier effect the new one made redundant is dropped
-            weak = [(a, _wald_log10_p(fit, a)) for a in accepted[:-1]]
-            weak = [(a, lp) for a, lp in weak if lp > log_thr]
-            if not weak:
-                break
-            worst = max(weak, key=lambda t: t[1])[0]
-            accepted = [a for a in accepted if a is not worst]
-            dropped.append(worst.cand.key)
-            fit = refit(accepted, fit)
+        accepted, fit, dropped = _backward_check(accepted, fit, log_thr, refit)
         steps.append(
             Step(
                 cand.key, cand.label, before.rms_mm, fit.rms_mm, before.rss, fit.rss, fit.dof, scores, dropped,
@@ -381,6 +353,58 @@ def _search(
         wall_time_s=time.perf_counter() - t0,
         extra={"cv": grown, "parametric": parametric},
     )
+
+
+def _best_candidate(
+    remaining: list[Candidate],
+    fit: Fit,
+    rows: np.ndarray,
+    data: FitData,
+    cfg: DiscoveryConfig,
+    log_thr: float,
+    groups: np.ndarray,
+    unident: dict[str, float],
+) -> tuple[list[Score], tuple[Candidate, tuple[str, ...]] | None]:
+    """One forward step: every remaining candidate scored against ``fit`` (the unidentifiable ones noted in
+    ``unident``), and the most significant one that also lowers the pose-grouped cross-validated error, or None."""
+    Q = _basis(fit.J_w)
+    scored: list[tuple[Score, Candidate, np.ndarray, tuple[str, ...]]] = []
+    for cand in remaining:
+        Z, params = regressor(cand, fit, rows, data)
+        sc, Uk = score_candidate(cand, Z, Q, fit, cfg, log_thr)
+        if sc.status == "unidentifiable":
+            unident.setdefault(cand.key, sc.absorbed_share)
+        scored.append((sc, cand, Uk, params))
+    _leave_to_cv(scored)
+    passing = sorted((s for s in scored if s[0].passes), key=lambda s: s[0].log10_p)
+    chosen = None
+    for sc, cand, Uk, params in passing:
+        if cfg.cv_folds >= 2:
+            sc.cv_gain = cross_validation_gain(fit, Uk, groups, cfg.cv_folds, cfg.seed)
+            if sc.cv_gain <= 0:
+                sc.status = "failed cross-validation"
+                continue
+        sc.status = "accepted"
+        chosen = (cand, params)
+        break
+    return [s[0] for s in scored], chosen
+
+
+def _backward_check(
+    accepted: list[Accepted], fit: Fit, log_thr: float, refit: Callable[[list[Accepted], Fit | None], Fit]
+) -> tuple[list[Accepted], Fit, list[str]]:
+    """An earlier effect the newest one made redundant (its Wald test no longer passes) is dropped, the least
+    significant first, until every earlier effect passes: ``(accepted, fit, dropped keys)``."""
+    dropped: list[str] = []
+    while True:
+        weak = [(a, _wald_log10_p(fit, a)) for a in accepted[:-1]]
+        weak = [(a, lp) for a, lp in weak if lp > log_thr]
+        if not weak:
+            return accepted, fit, dropped
+        worst = max(weak, key=lambda t: t[1])[0]
+        accepted = [a for a in accepted if a is not worst]
+        dropped.append(worst.cand.key)
+        fit = refit(accepted, fit)
 
 
 def _propose(

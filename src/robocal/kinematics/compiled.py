@@ -313,7 +313,7 @@ def population_positions(
 
 
 @_jit
-def newton(  # noqa: C901, PLR0915
+def newton(  # noqa: C901, PLR0915 (one compiled per-target loop, the twin of ik.solve's numpy steps, kept flat)
     B: np.ndarray,
     axis: np.ndarray,
     joint: np.ndarray,
