@@ -628,19 +628,33 @@ def periodic_tables(
 def layer_gate(q: np.ndarray, centres: np.ndarray, length: float, inside: float) -> np.ndarray:
     """``(m,)`` in [0, 1]: the residual layer's gate at joints ``q (m, n)`` (1 within ``inside`` of the nearest
     centre, a raised cosine to 0 one ``length`` further; :func:`robocal.compensation.signals.layer_gate`)."""
-    m, n = q.shape
+    m = q.shape[0]
     out = np.empty(m)
+    d2 = np.empty(centres.shape[0])
     for r in range(m):
-        best = np.inf
-        for d in range(centres.shape[0]):
-            s = 0.0
-            for j in range(n):
-                x = q[r, j] - centres[d, j]
-                s += x * x
-            best = min(best, s)
-        t = min(max((np.sqrt(best) - inside) / length, 0.0), 1.0)
-        out[r] = 0.5 * (1.0 + np.cos(np.pi * t))
+        out[r] = _gate(_squared_distances(q, r, centres, d2), inside, length)
     return out
+
+
+@_jit
+def _squared_distances(q: np.ndarray, r: int, centres: np.ndarray, d2: np.ndarray) -> float:
+    """``d2[d] = |q[r] - centres[d]|²`` for every centre; returns the smallest."""
+    best = np.inf
+    for d in range(centres.shape[0]):
+        s = 0.0
+        for j in range(q.shape[1]):
+            x = q[r, j] - centres[d, j]
+            s += x * x
+        d2[d] = s
+        best = min(best, s)
+    return best
+
+
+@_jit
+def _gate(best_d2: float, inside: float, length: float) -> float:
+    """The layer's gate at squared distance ``best_d2`` to the nearest centre (raised cosine beyond ``inside``)."""
+    t = min(max((np.sqrt(best_d2) - inside) / length, 0.0), 1.0)
+    return 0.5 * (1.0 + np.cos(np.pi * t))
 
 
 @_jit
@@ -695,24 +709,17 @@ def joint_tables_and_weight(
                 dq[r, j] += acc
     if len(lcols) > 0:
         D = centres.shape[0]
-        f = np.empty(D)
+        d2 = np.empty(D)
         inv = 1.0 / (2.0 * length * length)
         for r in range(m):
-            best = np.inf
-            for d in range(D):
-                s = 0.0
-                for j in range(n):
-                    x = q[r, j] - centres[d, j]
-                    s += x * x
-                best = min(best, s)
-                f[d] = np.exp(-s * inv)
-            t = min(max((np.sqrt(best) - inside) / length, 0.0), 1.0)
-            gate = 0.5 * (1.0 + np.cos(np.pi * t))
+            gate = _gate(_squared_distances(q, r, centres, d2), inside, length)
             if gate == 0.0:
                 continue
+            for d in range(D):
+                d2[d] = np.exp(-d2[d] * inv)  # the kernel features
             for k in range(len(lcols)):
                 acc = 0.0
                 for d in range(D):
-                    acc += f[d] * W[d, k]
+                    acc += d2[d] * W[d, k]
                 dq[r, lcols[k]] += gate * acc
     return dq
