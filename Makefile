@@ -19,12 +19,13 @@ UI_PORT ?= 5000
 help: ## list the targets
 	@grep -E '^[a-zA-Z_-]+:.*?## ' $(MAKEFILE_LIST) | awk 'BEGIN {FS = ":.*?## "}; {printf "  make %-10s %s\n", $$1, $$2}'
 
-$(STAMP): pyproject.toml
+$(STAMP): pyproject.toml requirements.lock
 	@command -v $(PY) >/dev/null || { echo "needs $(PY) on PATH"; exit 1; }
-	@echo "setting up $(VENV): robocal and its tools (~1.2 GB, about 1-2 min; pip shows its progress)"
+	@echo "setting up $(VENV): robocal and its tools, pinned by requirements.lock (~1.9 GB, about 1-3 min; pip shows its progress)"
 	$(PY) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --progress-bar on -e '.[dev]' | grep -v '^Requirement already satisfied' || true
+	$(BIN)/pip install --progress-bar on -r requirements.lock | grep -v '^Requirement already satisfied' || true
+	$(BIN)/pip install --quiet --no-deps -e .
 	@$(BIN)/python -c "import robocal" || { echo "setup failed: see pip's output above"; exit 1; }
 	touch $(STAMP)
 
@@ -46,6 +47,14 @@ lint: $(STAMP) ## ruff and mypy
 	$(BIN)/ruff check src tests stages
 	$(BIN)/ruff format --check src tests stages
 	$(BIN)/mypy
+
+lock: $(STAMP) ## re-pin requirements.lock from pyproject.toml (uv), after changing a dependency; then make setup
+	$(BIN)/uv pip compile pyproject.toml --extra dev --python-version 3.11 --universal --no-header --quiet \
+		-o requirements.lock
+	@echo "requirements.lock re-pinned: commit it; make setup installs exactly it"
+
+repro-check: $(STAMP) ## the default pipeline under two BLAS kernels in fresh copies: same bytes as dvc.lock (~8 min)
+	$(BIN)/pytest -q -m slow tests/pipeline/test_same_bytes.py
 
 params: $(STAMP) ## regenerate params.yaml from conf/ (DVC's Hydra composition)
 	$(BIN)/python -m robocal.pipeline params
@@ -73,4 +82,4 @@ sweep: $(STAMP) ## example sweeps: three noise settings in parallel (joblib), th
 	$(BIN)/python stages/geometric_fit.py -m optimizer=gn,lm
 	@echo "results: reports/sweeps/geometric_fit/; compare the nested runs with: make ui"
 
-.PHONY: help setup run test lint params ui exps compare bench sweep
+.PHONY: help setup run test lint lock repro-check params ui exps compare bench sweep

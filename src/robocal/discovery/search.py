@@ -31,6 +31,7 @@ from robocal.discovery.scoring import Score, Step, regressor
 from robocal.errors import ConfigError
 from robocal.identification.calibrate import CalibrationConfig, fit_data, present_targets
 from robocal.identification.model import FitData
+from robocal.numerics import sorted_tied
 from robocal.optimizers.geometric import calibrate
 from robocal.robot import RobotDescription
 
@@ -376,7 +377,7 @@ def _best_candidate(
             unident.setdefault(cand.key, sc.absorbed_share)
         scored.append((sc, cand, Uk, params))
     _leave_to_cv(scored)
-    passing = sorted((s for s in scored if s[0].passes), key=lambda s: s[0].log10_p)
+    passing = sorted_tied((s for s in scored if s[0].passes), key=lambda s: s[0].log10_p)
     chosen = None
     for sc, cand, Uk, params in passing:
         if cfg.cv_folds >= 2:

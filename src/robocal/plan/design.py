@@ -31,6 +31,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from robocal.numerics import argmax_tied
+
 
 def _logdet(A: np.ndarray) -> np.ndarray:
     sign, ld = np.linalg.slogdet(A)
@@ -235,14 +237,14 @@ def _excursion(st: _State, act: np.ndarray, exc: int, tol: float) -> bool:
     for _ in range(exc):
         g = st.gains(act, +1.0)
         g[st.in_design[act]] = -np.inf
-        j = int(act[int(np.argmax(g))])
+        j = int(act[argmax_tied(g)])
         st.add(j)
         added.append(j)
     removed: list[int] = []
     for _ in range(exc):
         d = np.asarray(st.idx)
         dec = st.gains(d, -1.0)  # <= 0: the removal that raises the criterion least
-        i = int(d[int(np.argmax(dec))])
+        i = int(d[argmax_tied(dec)])
         st.remove(i)
         removed.append(i)
     if set(added) != set(removed) and st.value < before - tol * max(1.0, abs(before)):

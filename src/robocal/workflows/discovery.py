@@ -15,7 +15,7 @@ from robocal.discovery.config import DiscoveryConfig
 from robocal.discovery.search import DiscoveryResult, discover
 from robocal.discovery.summary import summary
 from robocal.discovery.validate import validation_errors
-from robocal.io import write_json
+from robocal.io import as_written, write_json
 from robocal.robot import RobotDescription
 from robocal.status import TargetStatus
 from robocal.workflows import campaign_of, robot_of
@@ -381,7 +381,7 @@ def run(
     why_not = write_product(res, summ, out)
     write_json(out / "discovery.json", summ)
     if report:
-        write_report(res, summ, out / "report.html")
+        write_report(res, as_written(summ), out / "report.html")
     written = ["discovery.json", "calibration.json", *([] if why_not else ["compensation.csv"])]
     not_written = {"compensation.csv": why_not} if why_not else {}
     return {**summ, "written": [*written, *(["report.html"] if report else [])], "not_written": not_written}

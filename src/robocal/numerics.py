@@ -1,0 +1,63 @@
+"""Discrete choices that do not depend on the last bits of a float.
+
+Two candidates whose scores are equal in exact arithmetic (symmetric poses, an effect offered twice under two
+names) differ in floating point only by rounding noise, which changes with the BLAS kernel and the CPU; a plain
+``argmax`` or ``sorted`` then picks one or the other, and a planned pose set or a list of named effects differs
+between machines (issue 30 item 4). Here scores within a relative tolerance of each other count as tied, and a
+tie goes to the lower index (the input order, which the caller keeps deterministic).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable, Sequence
+from typing import TypeVar
+
+import numpy as np
+
+#: Scores closer than this (relative to the largest magnitude among them, and never less than TIE_ATOL) tie.
+#: Rounding noise between BLAS kernels was measured at <= 1e-9 relative on the pipeline's fits; two candidates
+#: whose true scores differ by less than 1e-8 are equally good for any purpose a calibration has.
+TIE_RTOL = 1e-8
+#: Absolute floor of the tie tolerance (scores near zero: a gain of 1e-14 and one of 3e-14 are both zero).
+TIE_ATOL = 1e-12
+
+T = TypeVar("T")
+
+
+def _tolerance(values: np.ndarray) -> float:
+    finite = values[np.isfinite(values)]
+    scale = float(np.max(np.abs(finite))) if finite.size else 0.0
+    return max(TIE_RTOL * scale, TIE_ATOL)
+
+
+def argmax_tied(values: Sequence[float] | np.ndarray) -> int:
+    """Index of the largest value; values within the tie tolerance of the largest go to the lowest index."""
+    v = np.asarray(values, dtype=float)
+    if v.size == 0:
+        raise ValueError("argmax_tied: empty sequence")
+    best = float(np.max(v))
+    if not np.isfinite(best):
+        return int(np.argmax(v))
+    return int(np.flatnonzero(v >= best - _tolerance(v))[0])
+
+
+def sorted_tied(items: Iterable[T], key: Callable[[T], float]) -> list[T]:
+    """``items`` sorted by ``key`` ascending, with keys within the tie tolerance of each other kept in input
+    order: the keys are snapped to a grid of the tolerance, anchored at the smallest key, before a stable sort.
+    Keys differing by less than the tolerance can still fall either side of a grid line, but two keys that are
+    equal in exact arithmetic (differing by rounding noise far below the tolerance) almost never do."""
+    seq = list(items)
+    if not seq:
+        return seq
+    keys = np.array([key(x) for x in seq], dtype=float)
+    finite = np.isfinite(keys)
+    tol = _tolerance(keys)
+    snapped = keys.copy()
+    if finite.any():
+        lo = float(np.min(keys[finite]))
+        snapped[finite] = np.round((keys[finite] - lo) / tol)
+    order = np.argsort(snapped, kind="stable")
+    return [seq[i] for i in order]
+
+
+__all__ = ["TIE_ATOL", "TIE_RTOL", "argmax_tied", "sorted_tied"]

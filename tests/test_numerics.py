@@ -1,0 +1,43 @@
+"""Discrete choices and written floats that do not follow the last bits of a float (issue 30 item 4)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from robocal.io import reproducible, to_json, tracked_float
+from robocal.numerics import argmax_tied, sorted_tied
+
+
+def test_a_tie_up_to_rounding_goes_to_the_first_candidate() -> None:
+    # two scores equal in exact arithmetic, apart by rounding noise in either direction (another BLAS kernel)
+    a = np.array([1.0, 3.0, 3.0 * (1 + 4e-16), 2.0])
+    b = np.array([1.0, 3.0 * (1 + 4e-16), 3.0, 2.0])
+    assert int(np.argmax(a)) != int(np.argmax(b))  # what a plain argmax does
+    assert argmax_tied(a) == argmax_tied(b) == 1
+    assert argmax_tied([0.0, 1.0, 1.0 + 1e-6]) == 2  # a real difference (1e-6 >> 1e-8 relative) still wins
+
+
+def test_sorted_tied_keeps_input_order_among_ties() -> None:
+    items = ["a", "b", "c", "d"]
+    k1 = {"a": -5.0, "b": -5.0 * (1 + 1e-15), "c": -7.0, "d": -1.0}
+    k2 = {"a": -5.0 * (1 + 1e-15), "b": -5.0, "c": -7.0, "d": -1.0}
+    assert sorted_tied(items, k1.__getitem__) == sorted_tied(items, k2.__getitem__) == ["c", "a", "b", "d"]
+    assert sorted_tied([], float) == []
+    with pytest.raises(ValueError, match="empty"):
+        argmax_tied([])
+
+
+def test_tracked_floats_drop_the_noise_and_keep_the_model() -> None:
+    # a numerical leftover at machine precision is zero; noise under the precision does not change the text
+    assert tracked_float(2.87e-16, "leftover") == tracked_float(3.1e-17, "leftover") == 0.0
+    assert tracked_float(-0.0801985299, "log10_p") == tracked_float(-0.0802066528 + 7e-6, "log10_p")
+    assert tracked_float(-0.00148168255, "cv_gain") == tracked_float(-0.00148173, "cv_gain")
+    assert str(tracked_float(-1e-13, "rms_mm")) == "0.0"  # no "-0.0" in a file
+    # a model value keeps its 9 significant digits (a link length to 1e-6 mm, an angle to 1e-9 rad)
+    assert tracked_float(1234.56789123, "value") == 1234.56789
+    with reproducible():
+        text = to_json({"eliminated": [{"leftover": 5.9e-16}], "p": {"value": 0.123456789123}, "rms_mm": 0.01234567})
+    assert json.loads(text) == {"eliminated": [{"leftover": 0.0}], "p": {"value": 0.123456789}, "rms_mm": 0.012346}
