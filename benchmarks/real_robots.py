@@ -3,6 +3,7 @@
     python benchmarks/real_robots.py                       # every dataset in ../shared/data/
     python benchmarks/real_robots.py --data ../shared/data/ur10-ipa
     python benchmarks/real_robots.py --hold-out-range      # also: hold out the top 25 % of joint 2's range
+    python benchmarks/real_robots.py --session ../shared/data/ur10-ipa ../shared/data/ur10-ipa-D [-S key=value]
 
 For each dataset (a folder with poses.csv and robot.yaml, its own description, no link masses unless it has
 them): the held-out validation rows' mean / RMS / max position error of the nominal model (best rigid fit: the
@@ -13,6 +14,12 @@ error with the effect removed) and the cross-validated estimate beside the held-
 ``--hold-out-range [--joint J]``: for joint J (default 2, the shoulder), the calibration keeps the poses in the
 lower 75 % of its range and the validation is the rest (angles the calibration never visited): the extended model
 must be no worse there than the geometric one (its transmission error is zero outside the visited angles).
+
+``--session CAL VAL [VAL ...]``: the session mode (issue 33). Discover on every row of CAL (its split ignored:
+the whole session calibrates), then judge the geometric and the discovered model on each VAL, another session of
+the same robot (another day, tracker placement, region): VAL's tracker registered on VAL's own calibration rows
+(rigid fit, the model frozen), errors on VAL's validation rows; then each named effect left out in turn, which
+says which effects helped there and which hurt. ``-S key=value`` sets a discovery setting (repeatable).
 """
 
 from __future__ import annotations
@@ -28,6 +35,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np
 
 from robocal.data.contract import read_campaign
+from robocal.discovery.config import DiscoveryConfig
 from robocal.discovery.search import discover
 from robocal.discovery.summary import summary
 from robocal.discovery.validate import validation_errors
@@ -103,12 +111,60 @@ def _resplit(camp, split):  # type: ignore[no-untyped-def]
     return replace(camp, split=np.asarray(split))
 
 
+def session(cal_path: Path, val_paths: list[Path], settings: dict) -> None:
+    from robocal.discovery.effects import extended_calibration
+    from robocal.discovery.sessions import session_validation
+    from robocal.identification.calibrate import load_calibration
+
+    robot = load_robot(cal_path / "robot.yaml")
+    camp = read_campaign(cal_path, robot)
+    camp = _resplit(camp, np.full(camp.n_rows, "calibration", dtype=object))
+    t0 = time.perf_counter()
+    res = discover(camp, robot, DiscoveryConfig(**settings) if settings else None)
+    summ = summary(res)
+    cal = load_calibration(extended_calibration(res.final, robot, {}), robot)
+    geo = res.extra["geometric_calibration"]
+    named = [n["key"] for n in summ["named"]]
+    print(f"{cal_path.name} (all {camp.n_rows} rows) -> discovery {time.perf_counter() - t0:.0f} s, "
+          f"fit RMS {summ['rms_after_mm']:.4f} mm, named {named}")  # fmt: skip
+    cv = summ.get("cross_validation", {})
+    if cv:
+        print(f"  cross-validated within the session: mean {cv['cv_mean_position_mm']:.4f} mm")
+    for vp in val_paths:
+        vcamp = read_campaign(vp, load_robot(vp / "robot.yaml"))
+        v = session_validation(cal, vcamp, geo)
+        print(f"  on {vp.name}: {v['n_registration_rows']} rows register the tracker, {v['n_validation_rows']} judge")
+        for label, key in (("geometric", "geometric"), ("discovered (final)", "final")):
+            s = v[key]
+            print(f"    {label:<20} mean {s['mean_position_mm']:.4f}  RMS {s['rms_position_mm']:.4f}  "
+                  f"max {s['max_position_mm']:.4f} mm")  # fmt: skip
+        for k, s in v["without"].items():
+            d = s["mean_position_mm"] - v["final"]["mean_position_mm"]
+            verdict = "helped" if d > 0 else "hurt"
+            print(f"    without {k:<24} mean {s['mean_position_mm']:.4f} mm ({verdict} {abs(d):.4f})")
+        print(f"    helped: {v['helped']}  hurt: {v['hurt']}")
+
+
+def _setting(text: str) -> tuple[str, object]:
+    import yaml
+
+    key, _, value = text.partition("=")
+    return key.strip(), yaml.safe_load(value)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, action="append", help="a dataset folder (default: every one in ../shared)")
     ap.add_argument("--hold-out-range", action="store_true")
     ap.add_argument("--joint", type=int, default=2, help="the joint whose top 25 %% is held out (default 2)")
+    ap.add_argument("--session", nargs="+", type=Path, metavar="DIR", help="CAL VAL [VAL ...]: across sessions")
+    ap.add_argument("-S", dest="settings", action="append", default=[], help="discovery setting key=value")
     args = ap.parse_args(argv)
+    if args.session:
+        if len(args.session) < 2:
+            ap.error("--session needs CAL and at least one VAL folder")
+        session(args.session[0], args.session[1:], dict(map(_setting, args.settings)))
+        return 0
     paths = args.data or sorted(p for p in SHARED.glob("*") if (p / "robot.yaml").exists())
     if not paths:
         print(f"no real datasets under {SHARED}")

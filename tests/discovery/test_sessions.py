@@ -1,0 +1,56 @@
+"""A calibration judged on another session (robocal.discovery.sessions, issue 33 item 2)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from robocal.discovery.sessions import predicted_points, session_validation
+from robocal.errors import DataError
+from robocal.identification.calibrate import validate
+from robocal.kinematics.transforms import homogeneous, rotvec_to_matrix
+from robocal.optimizers.geometric import calibrate
+
+from .conftest import make_campaign
+
+
+def _moved(camp, T):  # type: ignore[no-untyped-def]
+    """The same session seen by a tracker at another placement (every measured point moved rigidly)."""
+    return replace(camp, p_mm=camp.p_mm @ T[:3, :3].T + T[:3, 3])
+
+
+def test_another_tracker_placement_changes_nothing(tmp_path: Path) -> None:
+    camp, robot, _ = make_campaign(tmp_path, "geometric", 11, {}, n_poses=40, n_validation_poses=15)
+    cal = calibrate(camp, robot)
+    # the model's predictions, registered by calibrate's own tracker frame, are validate's figures
+    pred = predicted_points(cal, camp.validation(), ())
+    T = cal.tracker_T_base
+    direct = np.linalg.norm(pred @ T[:3, :3].T + T[:3, 3] - camp.validation().p_mm, axis=1)
+    assert np.mean(direct) == pytest.approx(validate(cal, camp)["mean_position_mm"], rel=1e-9)
+    # a session from another placement: its tracker registered on its own calibration rows, same errors whatever
+    # the placement (the registration is exact for a rigid move; 1e-9 mm is float noise on metre-sized points)
+    here = session_validation(cal, camp, cal)
+    moved = _moved(camp, homogeneous(rotvec_to_matrix(np.array([0.3, -1.2, 2.0])), np.array([2500.0, -800.0, 40.0])))
+    there = session_validation(cal, moved, cal)
+    assert there["final"]["mean_position_mm"] == pytest.approx(here["final"]["mean_position_mm"], abs=1e-9)
+    assert here["n_registration_rows"] == int(np.sum(camp.split == "calibration"))
+    assert here["n_validation_rows"] == int(np.sum(camp.split == "validation"))
+    # the geometric calibration has no effects: nothing to leave out, nothing helped or hurt
+    assert here["without"] == {} and here["helped"] == [] and here["hurt"] == []
+    # registered on the session's own rows, a model near the truth is near the noise (0.015 mm per coordinate:
+    # mean 3-D error ~0.024 mm; 0.05 mm allows the calibration's own error on 15 held-out poses)
+    assert here["final"]["mean_position_mm"] < 0.05
+
+
+def test_a_session_of_unknown_targets_or_too_few_rows_is_refused(tmp_path: Path) -> None:
+    camp, robot, _ = make_campaign(tmp_path, "geometric", 12, {}, n_poses=30, n_validation_poses=5)
+    cal = calibrate(camp, robot)
+    other = replace(camp, target=np.full(camp.n_rows, "SMR9", dtype=object))
+    with pytest.raises(DataError, match="SMR9"):
+        session_validation(cal, other)
+    few = camp.subset(np.flatnonzero(camp.split == "validation")[:2])
+    with pytest.raises(DataError, match="registering a tracker needs >= 3"):
+        session_validation(cal, replace(few, split=np.full(2, "calibration", dtype=object)))
