@@ -37,16 +37,18 @@ SIGNIFICANT_DIGITS = 9
 #: quantity's own uncertainty:
 #: - ``leftover`` (an eliminated parameter's column not explained by the kept ones; 0 in exact arithmetic):
 #:   1e-17..4e-15 -> 12 decimals, i.e. written 0.0 when it is noise.
-#: - ``log10_p`` up to 8e-6 absolute, ``delta_bic`` 1e-8 -> 3 decimals (p to 0.2 %).
-#: - ``cv_gain`` (a difference of cross-validated RMS, mm) up to 1.5e-7 mm -> 5 decimals (10 nm, a thousandth
-#:   of a tracker's noise); any other ``*_mm`` -> 6 decimals (1 nm); ``*_deg`` -> 7 decimals.
+#: - ``log10_p`` up to 8e-6 absolute, ``delta_bic`` 1e-8 -> 2 decimals (p to 2 %; at 3 decimals one of the
+#:   ~100 values a run writes fell on a rounding boundary often enough to matter).
+#: - ``cv_gain`` (a difference of cross-validated RMS, mm) up to 1.5e-7 mm -> 4 decimals (0.1 µm, far below a
+#:   CV gain's own standard error; at 5 decimals a value at -0.009055 flipped between kernels); any other
+#:   ``*_mm`` -> 6 decimals (1 nm); ``*_deg`` -> 7 decimals.
 #: - ``F``, ``excess_share``, ``p_value`` up to 2e-9 relative -> 6 significant digits; ``stderr`` 1e-9 -> 5
 #:   (a standard error is itself known to ~2 digits); correlation ``matrix`` 3.5e-9 -> 6 decimals.
 PRECISION: dict[str, tuple[str, int]] = {
     "leftover": ("dec", 12),
-    "log10_p": ("dec", 3),
-    "delta_bic": ("dec", 3),
-    "cv_gain": ("dec", 5),
+    "log10_p": ("dec", 2),
+    "delta_bic": ("dec", 2),
+    "cv_gain": ("dec", 4),
     "*_mm": ("dec", 6),
     "*_deg": ("dec", 7),
     "F": ("sig", 6),

@@ -14,8 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from robocal.compensation.discovered import DiscoveredEffects
-from robocal.compensation.effects import Signals
+from robocal.compensation.discovered import joint_offsets
 from robocal.data.contract import Campaign
 from robocal.errors import DataError
 from robocal.identification.calibrate import CalibrationResult
@@ -26,8 +25,8 @@ from robocal.metrics import ErrorStats
 
 def predicted_points(cal: CalibrationResult, campaign: Campaign, records: tuple[dict[str, Any], ...]) -> np.ndarray:
     """The target points the model predicts for every row of ``campaign`` in the robot's base frame (m, 3) mm:
-    the joint-level effects ``records`` (a subset of ``cal.effects``) added to the joint angles, the calibrated
-    geometry, the row's target's tool offset."""
+    the joint-level effects ``records`` (a subset of ``cal.effects``) added to the joint angles (evaluated
+    exactly, not from the service's tables), the calibrated geometry, the row's target's tool offset."""
     model = cal.model
     tools = cal.tools
     unknown = sorted(set(campaign.target.astype(str).tolist()) - set(tools))
@@ -38,7 +37,7 @@ def predicted_points(cal: CalibrationResult, campaign: Campaign, records: tuple[
     q = np.asarray(campaign.q, dtype=float)
     if records:
         pay = np.broadcast_to(np.asarray(campaign.payload_kg, dtype=float), (campaign.n_rows,))
-        q = q + DiscoveredEffects(tuple(records), model.robot).offsets(q, Signals(pay, None, None, None))
+        q = q + joint_offsets(list(records), model.robot, q, pay)
     T = fk(model.chain, q, cal.kinematic_errors)
     off = np.stack([tools[str(t)] for t in campaign.target])
     return np.einsum("mij,mj->mi", T[:, :3, :3], off) + T[:, :3, 3]
