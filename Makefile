@@ -21,7 +21,7 @@ help: ## list the targets
 
 $(STAMP): pyproject.toml
 	@command -v $(PY) >/dev/null || { echo "needs $(PY) on PATH"; exit 1; }
-	@echo "setting up $(VENV): robocal and its tools (~1.2 GB, about 1-2 min; pip shows its progress)"
+	@echo "setting up $(VENV): robocal and its tools (~1.9 GB, about 1-2 min; pip shows its progress)"
 	$(PY) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
 	$(BIN)/pip install --progress-bar on -e '.[dev]' | grep -v '^Requirement already satisfied' || true
