@@ -151,7 +151,7 @@ def nominal_ik(prog: Program, cc_nom: Any, limits: np.ndarray, seed: int = 0, n_
         if not ok.any():
             raise ProgramError(
                 f"target {t.name} is not reachable by the nominal robot with {_config_text(prog.dialect, t.config)}"
-                f" ({_unreachable_why(prog.dialect, cc_nom, np.vstack(found), sol.converged.any(), ref)})",
+                f" ({_unreachable_why(prog.dialect, cc_nom, np.vstack(found), bool(sol.converged.any()), ref)})",
                 t.file,
                 t.line,
             )
