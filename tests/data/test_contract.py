@@ -611,6 +611,7 @@ def test_european_csv_gives_the_same_campaign(tmp_path, kr16, sep, encoding):
     a = read_campaign(tmp_path / "us", kr16)
     b = read_campaign(eu, kr16)
     _assert_same_campaign(a, b)
+    pd.testing.assert_frame_equal(a.to_frame(), b.to_frame())
     pd.testing.assert_frame_equal(a.temperature_log, b.temperature_log)
     assert b.p_mm[0, 0] == 1234.5 and list(b.extra["operator"]) == ["Jürgen"] * len(poses)
     assert _hashes(eu) == before
