@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -69,6 +70,25 @@ def test_calibrate_writes_calibration_and_summary(campaign_dir, tmp_path, capsys
     assert np.abs(np.array(cal["tools_mm"]["T1"][:2]) - np.array(truth["tools_mm"]["T1"][:2])).max() < 0.1
     rows = (out / "residuals.csv").read_text().splitlines()
     assert len(rows) == 1 + 40 + 10
+
+
+@pytest.mark.parametrize("report", [False, True])
+def test_calibrate_names_every_file_it_writes(campaign_dir, tmp_path, capsys, monkeypatch, report):
+    """The 'wrote' line names each file the command leaves in --out, and no other (issue 30, item 11)."""
+    import robocal.report.geometric
+
+    class Page:  # the report written as a stand-in page: its content is another test's (10 s saved)
+        def save(self, path):
+            Path(path).write_text("<html></html>")
+
+    monkeypatch.setattr(robocal.report.geometric, "geometric_report", lambda *a, **k: Page())
+    out = tmp_path / "cal"
+    argv = ["calibrate", str(campaign_dir), "--robot", "kr16_2", "--out", str(out)]
+    assert main(argv if report else [*argv, "--no-report"]) == 0
+    wrote = next(line for line in capsys.readouterr().out.splitlines() if line.startswith("wrote "))
+    named = set(re.findall(r"[\w.-]+\.(?:json|csv|html)", wrote))
+    assert named == {p.name for p in out.iterdir()}, wrote
+    assert ("report.html" in named) == report and str(out) in wrote
 
 
 def test_calibrate_overrides_and_split(campaign_dir, tmp_path):

@@ -3,6 +3,7 @@ errors that name the file and line, and the command."""
 
 from __future__ import annotations
 
+import json
 import re
 import sys
 from pathlib import Path
@@ -290,6 +291,28 @@ def test_bad_rapid_names_file_and_line(tmp_path, stmt, msg):
     with pytest.raises(ProgramError, match=re.escape(msg)) as exc:
         read_program(tmp_path / "M.mod")
     assert exc.value.line in (4, 5, 6) and exc.value.file.endswith("M.mod")
+
+
+def test_unreachable_configuration_names_the_confdata_that_works(tmp_path, bundle, cc_nom):
+    """A RAPID target whose confdata the nominal robot cannot take there (cf4 = -1: joint 4 in [-90, 0) deg,
+    where this pose needs 20 deg or a flipped wrist) names the confdata of the solutions found, and the first
+    one named makes the target reachable (issue 30, item 11)."""
+    from robocal.cell.programs.common import abb_confdata
+
+    q = np.deg2rad(Q_DEG[:1])
+    assert abb_confdata(cc_nom, q)[0].tolist() == [0, 0, 0, 0]
+    mod = rapid_module("Cell", cc_nom, q, TOOL, BASE)
+    bad = mod.replace("],[0,0,0,0],[9E", "],[0,-1,0,0],[9E", 1)
+    assert bad != mod
+    (tmp_path / "Cell.mod").write_text(bad)
+    limits = bundle.robot.q_limits
+    with pytest.raises(ProgramError, match=r"not reachable by the nominal robot with confdata \[0,-1,0,0\]") as exc:
+        nominal_ik(read_program(tmp_path / "Cell.mod"), cc_nom, limits, n_seeds=12)  # 12, 48, 192 starts: quick
+    named = re.findall(r"confdata (\[[-\d,]+\])", str(exc.value))[1:]  # after the stated one
+    assert "[0,0,0,0]" in named, str(exc.value)
+    (tmp_path / "Cell.mod").write_text(mod.replace("],[0,0,0,0],[9E", f"],{named[0]},[9E", 1))
+    q_ok = nominal_ik(read_program(tmp_path / "Cell.mod"), cc_nom, limits)
+    assert abb_confdata(cc_nom, q_ok)[0].tolist() == json.loads(named[0])
 
 
 def test_filter_command_end_to_end(tmp_path, bundle, cc_nom, capsys):

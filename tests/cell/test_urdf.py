@@ -182,3 +182,72 @@ def test_urdf_command(tmp_path, capsys):
     T = urdf_fk(urdf, q, "tool0", "base_link", list(robot.joint_names))
     assert np.abs(fk(build_chain(robot), q, cal.kinematic_errors)[:, :3, 3] - T[:, :3, 3]).max() < TOL_MM
     assert main(["urdf", "--robot", ref, "--calibration", str(tmp_path / "nope.json"), "--out", str(tmp_path)]) == 2
+
+
+#: effect records as ``robocal discover`` writes them into calibration.json (a twin with a backlash of joint 3 and
+#: a drifting tracker, seed 9: the records of that run, coefficients rounded)
+DISCOVERED = {
+    "effects": [
+        {
+            "key": "backlash:j3",
+            "effect": "backlash",
+            "joint": 3,
+            "harmonic": None,
+            "signal": "direction",
+            "coefficients": [8.77e-05],
+            "coefficient_names": ["half_band"],
+            "units": ["rad"],
+        }
+    ],
+    "effects_not_compensated": [
+        {
+            "key": "drift",
+            "effect": "drift",
+            "reason": (
+                "a measurement-side effect (the tracker's frame moving): it corrects the figures, never the robot"
+            ),
+        }
+    ],
+}
+
+
+def test_urdf_command_names_what_the_urdf_cannot_carry(tmp_path, capsys):
+    """A discover calibration: the URDF holds its geometry, and the console and the YAML name each discovered
+    effect it cannot hold, with why and where it is compensated (issue 30, item 7: they were dropped silently)."""
+    import json
+
+    import yaml
+
+    import robocal
+    from robocal.cli import main
+
+    ref = f"{DATA / 'ur5_robot.urdf'}#base_link:tool0"
+    robot = robocal.load_robot(ref)
+    sc = robocal.load_scenario("geometric")
+    sc.update(n_poses=30, n_validation_poses=0)
+    robocal.simulate(sc, tmp_path / "camp", seed=7, robot=robot)
+    cal = robocal.calibrate(robocal.read_campaign(tmp_path / "camp", robot), robot)
+    geometric = cal.to_dict()
+    (tmp_path / "geometric.json").write_text(json.dumps(geometric))
+    (tmp_path / "discovered.json").write_text(json.dumps({**geometric, **DISCOVERED}))
+
+    argv = ["urdf", "--robot", ref, "--out"]
+    assert main([*argv, str(tmp_path / "g"), "--calibration", str(tmp_path / "geometric.json")]) == 0
+    out = capsys.readouterr().out
+    assert "the geometry" in out and "NOT in the URDF" not in out
+    meta = yaml.safe_load((tmp_path / "g" / "robot_calibrated.yaml").read_text())
+    assert meta["not_in_urdf"] == [] and "joint's origin" in meta["urdf_carries"]
+
+    assert main([*argv, str(tmp_path / "d"), "--calibration", str(tmp_path / "discovered.json")]) == 0
+    out = capsys.readouterr().out
+    assert "NOT in the URDF" in out and "2 discovered effect(s)" in out, out
+    lines = {line.partition(": ")[0].strip(): line for line in out.splitlines() if line.startswith("  ")}
+    assert set(lines) == {"backlash:j3", "drift"}, out
+    assert "approached from" in lines["backlash:j3"] and "robocal serve" in lines["backlash:j3"]
+    assert "tracker's frame" in lines["drift"] and "compensated by: none" in lines["drift"]
+    meta = yaml.safe_load((tmp_path / "d" / "robot_calibrated.yaml").read_text())
+    assert [(e["key"], e["joint"]) for e in meta["not_in_urdf"]] == [("backlash:j3", 3), ("drift", None)]
+    assert meta["not_in_urdf"][0]["compensated_by"].startswith("robocal serve")
+    # the URDF is the geometry alone: the same file as the geometric calibration's
+    g, d = (tmp_path / x / "robot_calibrated.urdf" for x in "gd")
+    assert g.read_bytes() == d.read_bytes()

@@ -576,3 +576,75 @@ def test_an_id_in_an_error_is_the_id_not_a_numpy_repr(tmp_path, kr16):
     f = write(tmp_path, df)
     err = expect_error(tmp_path, kr16, file=f, row=9, column="q2_deg", match="pose_id 'p03' was measured before")
     assert "np.str_" not in str(err)
+
+
+# ------------------------------------------------------------------------ CSV as a spreadsheet saves it
+
+
+def _european(folder: Path, df: pd.DataFrame, stem: str, sep: str = ";", encoding: str = "cp1252") -> Path:
+    """``df`` as Excel saves "CSV" where the decimal mark is a comma: ``sep`` between columns, decimal commas,
+    the Windows code page."""
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / f"{stem}.csv"
+    df.to_csv(path, index=False, sep=sep, decimal=",", encoding=encoding)
+    return path
+
+
+@pytest.mark.parametrize(("sep", "encoding"), [(";", "cp1252"), ("\t", "utf-8-sig")])
+def test_european_csv_gives_the_same_campaign(tmp_path, kr16, sep, encoding):
+    """Semicolon (or tab) separated, decimal commas, Windows-1252 or UTF-8 with a byte order mark: the same
+    campaign as the comma-separated file (issue 30, item 5: it was "missing required column(s) ... present:
+    ['pose_id;timestamp;target;...']"). Raw files untouched."""
+    poses, temps = _rich(kr16)
+    poses["operator"] = "Jürgen"  # a non-ASCII extra: the code page must be read as such
+    poses["humidity_pct"] = 41.5  # a numeric extra column is converted too
+    poses.loc[0, "x_mm"] = 1234.5  # written below with a thousands point, as a "#.##0,0" cell format does
+    write(tmp_path / "us", poses)
+    write(tmp_path / "us", temps, stem="temperatures")
+    eu = tmp_path / "eu"
+    p = _european(eu, poses, "poses", sep, encoding)
+    _european(eu, temps, "temperatures", sep, encoding)
+    text = p.read_text(encoding=encoding)
+    assert text.startswith(f"pose_id{sep}timestamp{sep}target{sep}q1_deg") and "1234,5" in text
+    p.write_text(text.replace(f"{sep}1234,5{sep}", f"{sep}1.234,5{sep}", 1), encoding=encoding)
+    before = _hashes(eu)
+    a = read_campaign(tmp_path / "us", kr16)
+    b = read_campaign(eu, kr16)
+    _assert_same_campaign(a, b)
+    pd.testing.assert_frame_equal(a.to_frame(), b.to_frame())
+    pd.testing.assert_frame_equal(a.temperature_log, b.temperature_log)
+    assert b.p_mm[0, 0] == 1234.5 and list(b.extra["operator"]) == ["Jürgen"] * len(poses)
+    assert _hashes(eu) == before
+
+
+def test_mixed_decimal_marks_are_one_clear_error(tmp_path, kr16):
+    """Decimal commas and a decimal point in one file: which is meant cannot be told (1.234 may be a thousands
+    point); the error names the file, both cells and how to fix it."""
+    df = good_poses(kr16)
+    p = _european(tmp_path, df, "poses")
+    lines = p.read_text(encoding="cp1252").splitlines()
+    cells = lines[3].split(";")
+    y = lines[0].split(";").index("y_mm")
+    cells[y] = cells[y].replace(",", ".")
+    lines[3] = ";".join(cells)
+    p.write_text("\n".join(lines) + "\n", encoding="cp1252")
+    err = expect_error(tmp_path, kr16, file=p, row=4, column="y_mm", match="mixes decimal commas (row 2, column")
+    assert f"(row 4, column 'y_mm': {cells[y]!r})" in err.reason and "semicolon-separated" in err.reason
+
+
+def test_a_header_with_two_delimiters_is_one_clear_error(tmp_path, kr16):
+    p = write(tmp_path, good_poses(kr16))
+    text = p.read_text()
+    header, rest = text.split("\n", 1)
+    p.write_text(header.replace(",", ";", 3) + "\n" + rest)
+    err = expect_error(tmp_path, kr16, file=p, row=1, column=None, match="the header row has both commas")
+    assert "semicolons (4 columns)" in err.reason
+
+
+def test_a_decimal_comma_in_a_comma_separated_file_is_named(tmp_path, kr16):
+    """A comma-separated file has no decimal commas (a quoted "1,523" may be a thousands comma): the cell is
+    reported as written, not guessed."""
+    df = as_text(good_poses(kr16))
+    df.loc[2, "z_mm"] = "1523,4"
+    f = write(tmp_path, df)
+    expect_error(tmp_path, kr16, file=f, row=4, column="z_mm", match="expected a number, got '1523,4'")

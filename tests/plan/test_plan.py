@@ -183,6 +183,32 @@ def test_exchange_gains_equal_recomputed_criteria(planned):
         np.testing.assert_allclose(st.gains(idx[:3], -1.0), rem, rtol=1e-6)
 
 
+@pytest.mark.parametrize("criterion", ["D", "A"])
+def test_exchange_with_as_many_points_as_candidates(criterion):
+    """n = C leaves nothing to exchange (it crashed with "argmax of an empty sequence", issue 30 item 11);
+    n = C - 1 leaves one candidate outside, so an excursion can add at most one."""
+    F = np.random.default_rng(0).normal(size=(12, 3, 4))
+    e = exchange(F, 12, criterion, np.random.default_rng(1))
+    np.testing.assert_array_equal(e.idx, np.arange(12))
+    assert e.converged and e.n_exchanges == 0
+    assert e.value == pytest.approx(criterion_value(information(F, e.idx), criterion), rel=1e-6)  # ridge 1e-10
+    e = exchange(F, 11, criterion, np.random.default_rng(1))
+    assert len(set(e.idx.tolist())) == 11 and e.converged
+    # the best 11 of 12 is the best of the 12 designs that leave one out
+    best = min(criterion_value(information(F, np.delete(np.arange(12), k)), criterion) for k in range(12))
+    assert e.value == pytest.approx(best, rel=1e-6)
+
+
+def test_plan_with_as_many_poses_as_accepted_candidates(kr16):
+    """n_poses equal to the candidates that satisfy the constraints: every one is planned (issue 30, item 11)."""
+    settings = {**SETTINGS, "n_candidates": 150}
+    n_accepted = build_problem(kr16, PlanConfig.from_mapping(settings)).cand.n
+    assert n_accepted >= 10  # at least the identifiable minimum of the KR 16, so the plan is possible
+    plan = plan_poses(kr16, {**settings, "n_poses": n_accepted}, curve=True)
+    np.testing.assert_array_equal(plan.idx, np.arange(n_accepted))
+    assert plan.curve[-1]["n_poses"] == n_accepted
+
+
 def test_observability_indices_on_known_singular_values():
     U, _ = np.linalg.qr(np.random.default_rng(0).normal(size=(12, 3)))
     s = np.array([4.0, 2.0, 0.5])

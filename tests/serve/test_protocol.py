@@ -74,6 +74,83 @@ def test_pose_target_equals_joint_target(full):
     assert np.abs(np.array(r_p["q_deg"]) - cmd["q_deg"]).max() < 1e-5
 
 
+def _nominal_pose(full, q_deg):
+    from robocal.serve.engine import compile_chain, forward
+
+    p, R, _, _ = forward(compile_chain(full.chain), np.deg2rad([q_deg]), full.tools["T1"])
+    return p[0], R[0]
+
+
+def _lands(full, temps, res) -> float:
+    """How far (mm) the calibrated robot at the reply's corrected joints is from where the nominal controller
+    puts the tool at the reply's nominal joints (tracker frame; payload 0)."""
+    eta = full.eta0 + full.thermal.deta(np.array([[temps[s] for s in full.sensors]]))[0]
+    tool = full.tools["T1"]
+
+    def defl(q):
+        return full.compliance.joint_offsets(q, np.zeros(len(q)), None, None)
+
+    actual = ActualRobot(full.chain, eta, full.tracker_T_base, tool[:3, 3], tool[:3, :3], defl)
+    nominal = ActualRobot(full.chain, np.zeros_like(eta), full.tracker_T_base, tool[:3, 3], tool[:3, :3])
+    p_d, _ = desired_poses(nominal, np.deg2rad([res["q_nominal_deg"]]))
+    p, _, _ = actual.pose(np.deg2rad([res["q_deg"]]))
+    return float(np.linalg.norm(p - p_d))
+
+
+def test_position_mode_takes_a_target_without_orientation(full):
+    """A 3-DoF reflector or a drilling point: xyz only, in mode 'position' (issue 30, item 6: it was "quat_wxyz
+    must be a list of 4 numbers"). Mode 'pose' still needs the orientation and says which mode to use."""
+    svc = Service(full)
+    temps = _temps(full)
+    p0, _ = _nominal_pose(full, Q1)
+    seed = (np.array(Q1) + 3.0).tolist()
+    target = {"xyz_mm": p0.tolist(), "q_seed_deg": seed}
+    r = _ask(svc, {"temperatures": temps, "targets": [target]})
+    assert r["ok"] is False and r["error"]["code"] == "bad_request", r
+    assert "quat_wxyz" in r["error"]["message"] and '"mode": "position"' in r["error"]["message"]
+    r = _ask(svc, {"temperatures": temps, "mode": "position", "targets": [target, {"q_deg": Q2}]})
+    assert r["ok"] and r["n_refused"] == 0, r
+    res = r["results"][0]
+    assert res["status"] == "ok" and "notes" not in res, res
+    # the nominal joints put the tool at the asked position (solver tolerance 1e-4 mm)
+    p_nom, _ = _nominal_pose(full, res["q_nominal_deg"])
+    assert np.linalg.norm(p_nom - p0) < 2e-4
+    # the orientation is free: the position-only solution stays nearer the seed than the full pose Q1 does
+    assert np.abs(np.array(res["q_nominal_deg"]) - seed).sum() < np.abs(np.array(Q1) - seed).sum()
+    # and the corrected joints land the calibrated robot there (solver tolerance 1e-4 mm + reply rounding)
+    assert _lands(full, temps, res) < 2e-4
+    assert res["predicted_error_mm"] > 0.05  # a real correction, not a no-op
+
+
+def test_position_mode_gives_up_an_orientation_the_robot_cannot_take(full):
+    """In mode 'position' an orientation the robot cannot take at the position does not make the target
+    unreachable: it is solved for the position only, with a note; a reachable one is kept as before."""
+    from robocal.kinematics.transforms import matrix_to_quat
+
+    svc = Service(full)
+    temps = _temps(full)
+    p0, R0 = _nominal_pose(full, Q1)
+    # the tool turned a quarter turn about its x axis (not half a turn: the solver's orientation error
+    # vee(E - E^T) / 2 vanishes at 180 deg, so it takes a half-turned tool for the pose itself)
+    turn = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+    bad = {"xyz_mm": p0.tolist(), "quat_wxyz": matrix_to_quat(R0 @ turn).tolist(), "q_seed_deg": Q1}
+    r = _ask(svc, {"temperatures": temps, "targets": [bad]})
+    res = r["results"][0]
+    assert res["status"] == "refused" and "unreachable" in res["reasons"][0], r  # the premise: as a full pose
+    r = _ask(svc, {"temperatures": temps, "mode": "position", "targets": [bad]})
+    res = r["results"][0]
+    assert res["status"] == "ok", res
+    assert any("solved for the position only" in n for n in res["notes"]), res
+    p_nom, _ = _nominal_pose(full, res["q_nominal_deg"])
+    assert np.linalg.norm(p_nom - p0) < 2e-4
+    assert _lands(full, temps, res) < 2e-4
+    # a reachable orientation in mode 'position' is still the nominal IK's full pose (Q1), without a note
+    good = {"xyz_mm": p0.tolist(), "quat_wxyz": matrix_to_quat(R0).tolist(), "q_seed_deg": (np.array(Q1) + 3).tolist()}
+    res = _ask(svc, {"temperatures": temps, "mode": "position", "targets": [good]})["results"][0]
+    assert res["status"] == "ok" and "notes" not in res
+    assert np.abs(np.array(res["q_nominal_deg"]) - Q1).max() < 1e-5  # IK tolerance 1e-4 mm -> ~1e-7 deg
+
+
 def test_refusals_and_flags(full):
     temps = _temps(full)
     svc = Service(full)

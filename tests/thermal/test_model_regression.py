@@ -178,3 +178,37 @@ def test_no_drift_for_pure_noise() -> None:
     )
     # alpha = 1e-3 per test, but the best of ~20 candidate models is tested: allow a few false models in 100
     assert fitted <= 5
+
+
+def test_cross_validation_table_states_its_unit() -> None:
+    """The report's cross-validation table gives the CV errors a unit: mm for a length, degrees for an angle, as
+    every other table of the report (issue 30, item 11: "CV rmse" had none and mixed mm with rad)."""
+    from types import SimpleNamespace
+
+    from robocal.thermal.report import cv_rows, model_cv_row
+
+    x = _warm_up()
+    sensors = ("T_a_C", "T_b_C", "T_c_C")
+    rng = np.random.default_rng(0)
+    v = (2e-6) ** 2
+    y = 6e-5 * x[:, 0] + _noise(rng, len(x), v)
+    ang = fit_parameter("theta6", "angle", x, y, v, sensors, list(sensors), RegressionConfig(), forms=("polynomial",))
+    assert ang.model is not None
+    row = model_cv_row(ang.model)
+    deg = 180.0 / np.pi
+    assert row["unit"] == "deg"
+    assert row["CV rmse"] == pytest.approx(ang.model.stats["cv_rmse"] * deg, rel=1e-12)
+    assert row["'no drift' CV rmse"] == pytest.approx(ang.model.stats["no_drift_cv_rmse"] * deg, rel=1e-12)
+    assert row["next best"].endswith(" deg)")
+    # a parameter without a significant drift (pure noise) gets its row in its own unit too
+    flat = fit_parameter("d1", "length", x, _noise(rng, len(x), 1e-6), 1e-6, sensors, list(sensors), RegressionConfig())
+    assert flat.model is None
+    chain = SimpleNamespace(param_names=("d1", "theta6"), param_kind=("length", "angle"))
+    fit = SimpleNamespace(
+        outcomes={"d1": flat, "theta6": ang}, reference=SimpleNamespace(model=SimpleNamespace(chain=chain))
+    )
+    rows = {r["parameter"]: r for r in cv_rows(fit)}
+    assert rows["d1"]["unit"] == "mm" and rows["theta6"]["unit"] == "deg"
+    null = next(r for r in flat.table if r["model"] == "none")
+    assert rows["d1"]["CV rmse"] == pytest.approx(null["cv_rmse"], rel=1e-12)
+    assert rows["d1"]["next best"].endswith(" mm)")

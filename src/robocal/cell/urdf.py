@@ -23,7 +23,10 @@ because the child frame turns with the corrected axis. The last fixed joint befo
 corrections after the last joint. The calibration's tools are added as fixed frames ``robocal_tool_<name>`` on
 the tip link. Everything else in the original file passes through; the original file is never written.
 A robot that did not come from a URDF (an MD-H table) is written as a fresh URDF with links ``base_link``,
-``link_1`` … ``link_n``, ``flange`` and the tools.
+``link_1`` … ``link_n``, ``flange`` and the tools. A URDF carries the geometry only: the effects a ``robocal
+discover`` calibration holds beyond it (a gear's error, a backlash, a compliance, the residual layer: joint offsets
+that change with the state; measurement-side effects) are listed by name in the YAML under ``not_in_urdf``
+(:func:`not_in_urdf`), with why and where they are compensated instead, never dropped silently.
 """
 
 from __future__ import annotations
@@ -401,11 +404,66 @@ def _calibrated_copy(
     return root, tip
 
 
+#: what the written URDF holds of a calibration
+URDF_CARRIES = (
+    "the geometry: each joint's origin with the identified kinematic errors (one fixed transform per joint) and "
+    "the calibration's tools as fixed frames"
+)
+#: what a discovered joint-level effect's offset changes with, by its signal (robocal.compensation.discovered)
+_CHANGES_WITH = {
+    "angle": "the joint's own angle (a gear's periodic error)",
+    "transmission": "the joint's own angle (a gear's transmission error)",
+    "gravity": "the pose and the payload (the gravity torque)",
+    "torque": "the joint torque the controller reports",
+    "current": "the motor current the controller reports",
+    "direction": "the direction the joint approached from (backlash)",
+    "dictionary": "the commanded joints (a proposed equation)",
+    "weight": "the pose (the arm's own weight)",
+    "layer": "every joint angle (the residual layer)",
+}
+#: where a joint-level effect is compensated instead
+_COMPENSATED_BY = "robocal serve, robocal filter and compensation.csv, from the calibration.json that holds it"
+
+
+def not_in_urdf(effects: Any = (), not_compensated: Any = ()) -> list[dict[str, Any]]:
+    """The discovered effects a URDF cannot carry, each by name with why and where it is compensated instead:
+    ``effects`` the calibration's joint-level effects (:attr:`CalibrationResult.effects`), ``not_compensated``
+    its ``effects_not_compensated`` records (compensated nowhere, for the reason they give)."""
+    out: list[dict[str, Any]] = []
+    for e in effects:
+        changes = _CHANGES_WITH.get(str(e.get("signal")), f"its signal {e.get('signal')!r}")
+        out.append(
+            {
+                "key": str(e["key"]),
+                "effect": str(e.get("effect")),
+                "joint": e.get("joint"),
+                "why": f"a joint offset that changes with {changes}; a URDF joint origin is one fixed transform",
+                "compensated_by": _COMPENSATED_BY,
+            }
+        )
+    for e in not_compensated:
+        out.append(
+            {
+                "key": str(e["key"]),
+                "effect": str(e.get("effect")),
+                "joint": e.get("joint"),
+                "why": str(e.get("reason", "not a property of the robot's geometry")),
+                "compensated_by": "none",
+            }
+        )
+    return out
+
+
 def calibration_yaml(
-    cal: Any, urdf_path: str | Path | None = None, base_link: str | None = None, tip_link: str | None = None
+    cal: Any,
+    urdf_path: str | Path | None = None,
+    base_link: str | None = None,
+    tip_link: str | None = None,
+    not_compensated: Any = (),
 ) -> dict[str, Any]:
     """The calibration as a small mapping for YAML: identified errors (mm / rad) with standard errors, the
-    tracker frame, the tools, the fit's RMS, and where the URDF came from."""
+    tracker frame, the tools, the fit's RMS, where the URDF came from, what the URDF carries (``urdf_carries``)
+    and, by name, the discovered effects it cannot (``not_in_urdf``, :func:`not_in_urdf`)."""
     names = list(cal.model.chain.param_names)
     eta = cal.kinematic_errors
     se = cal.stderr[: len(names)]
@@ -433,6 +491,8 @@ def calibration_yaml(
     rms = cal.fit.get("rms_position_mm") if isinstance(cal.fit, dict) else None
     if rms is not None:
         out["rms_position_mm"] = float(rms)
+    out["urdf_carries"] = URDF_CARRIES
+    out["not_in_urdf"] = not_in_urdf(getattr(cal, "effects", ()), not_compensated)
     return out
 
 
@@ -443,9 +503,11 @@ def export_calibration(
     base_link: str | None = None,
     tip_link: str | None = None,
     name: str = "robot_calibrated",
+    not_compensated: Any = (),
 ) -> tuple[Path, Path]:
-    """Write ``<name>.urdf`` (calibrated kinematics, tools as fixed frames) and ``<name>.yaml`` (the calibration)
-    into ``out_dir``; returns both paths."""
+    """Write ``<name>.urdf`` (calibrated kinematics, tools as fixed frames) and ``<name>.yaml`` (the calibration,
+    with what the URDF cannot carry: :func:`calibration_yaml`) into ``out_dir``; returns both paths.
+    ``not_compensated``: the calibration file's ``effects_not_compensated`` records (a discover calibration)."""
     import yaml
 
     from robocal.io import write_text
@@ -463,6 +525,6 @@ def export_calibration(
     u = write_calibrated_urdf(robot, cal.kinematic_errors, d / f"{name}.urdf", tools, urdf_path, base_link, tip_link)
     y = write_text(
         d / f"{name}.yaml",
-        yaml.safe_dump(calibration_yaml(cal, urdf_path, base_link, tip_link), sort_keys=False),
+        yaml.safe_dump(calibration_yaml(cal, urdf_path, base_link, tip_link, not_compensated), sort_keys=False),
     )
     return u, y

@@ -16,7 +16,9 @@ from robocal.errors import ConfigError
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("data_dir", help="campaign directory in the data contract")
     p.add_argument("--robot", required=True, help="robot name (conf/robot/<name>.yaml) or a YAML path")
-    p.add_argument("--out", required=True, help="output directory: calibration.json, summary.json, report.html")
+    p.add_argument(
+        "--out", required=True, help="output directory: calibration.json, residuals.csv, summary.json, report.html"
+    )
     p.add_argument("--no-report", action="store_true", help="skip the HTML report")
     p.add_argument(
         "overrides",
@@ -92,5 +94,6 @@ def run(args: argparse.Namespace) -> int:
         print(f"robocal calibrate: FAILED: {text}")
     for text in summary.get("warnings", []):  # status "warning": usable with care, exit 0
         print(f"robocal calibrate: WARNING: {text}")
-    print(f"wrote {args.out}/calibration.json and summary.json")
+    written = [*geometric.OUTPUTS, *([] if args.no_report else [geometric.REPORT])]
+    print(f"wrote {', '.join(written)} in {args.out}")
     return 1 if problems else 0

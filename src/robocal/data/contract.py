@@ -6,7 +6,9 @@ the (1-based, header = row 1) row and the column, and what was expected. Nothing
 
 Files
 -----
-``poses.csv`` or ``poses.parquet`` (required) and ``temperatures.csv`` / ``temperatures.parquet`` (optional).
+``poses.csv`` or ``poses.parquet`` (required) and ``temperatures.csv`` / ``temperatures.parquet`` (optional). A CSV
+file may be comma-, semicolon- or tab-separated, with decimal points or (semicolon / tab) decimal commas, as a
+spreadsheet saves it (:mod:`robocal.data.dialect`).
 When both a CSV and a Parquet file exist, the Parquet file is read (it is the exact copy the pipeline's
 ``prepare`` stage writes) only if ``prefer`` says so; by default having both is an error, since it is
 ambiguous which one the user means.
@@ -25,6 +27,7 @@ import pandas as pd
 
 from robocal.config import check_fields, parse, setting
 from robocal.data.columns import JOINT_SIGNALS, POSE_COLUMNS, column_name, columns, known_columns, required_columns
+from robocal.data.dialect import read_csv
 from robocal.errors import DataError
 from robocal.io import display_path
 from robocal.robot import RobotDescription
@@ -249,11 +252,11 @@ def _read_table(path: Path) -> pd.DataFrame:
         if path.suffix == ".parquet":
             df = pd.read_parquet(path)
         else:
-            # everything as text first, so that a bad cell is reported rather than silently coerced
-            df = pd.read_csv(path, dtype=str, keep_default_na=False, skipinitialspace=True)
-            # pandas renames a repeated header ("x_mm", "x_mm.1"): check the header as written
-            header = pd.read_csv(path, header=None, nrows=1, dtype=str, keep_default_na=False, skipinitialspace=True)
-            df.columns = header.iloc[0].tolist()
+            # everything as text first, so that a bad cell is reported rather than silently coerced; the
+            # delimiter and the decimal mark as the file has them (a European spreadsheet's ';' and ',')
+            df = read_csv(path)
+    except DataError:
+        raise
     except Exception as exc:
         raise DataError(f"cannot be read as a table: {exc}", file=path) from None
     df.columns = [str(c).strip() for c in df.columns]

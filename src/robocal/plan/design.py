@@ -176,6 +176,8 @@ def exchange(
     # ridge: 1e-10 of the mean information per scaled parameter of one candidate, times n
     scale = float(np.einsum("crp,crp->", F, F)) / (C * p)
     st = _State(F, np.array(start), criterion, L, ridge=1e-10 * max(scale, 1e-300) * n)
+    if n == C:  # every candidate is in the design: there is nothing to exchange
+        return ExchangeResult(idx=np.arange(C), value=st.value, n_exchanges=0, n_rounds=0, converged=True)
     n_ex = 0
     rounds = 0
     converged = False
@@ -232,6 +234,8 @@ def _excursion(st: _State, act: np.ndarray, exc: int, tol: float) -> bool:
     """Add the ``exc`` best candidates of ``act`` one by one, then remove the ``exc`` design points whose removal
     raises the criterion least; keep the result (True) when it improves the criterion by more than ``tol``
     (relative), else undo it (False)."""
+    if int(np.count_nonzero(~st.in_design[act])) < exc:
+        return False  # fewer of this round's candidates are outside the design than the excursion would add
     before = st.value
     added: list[int] = []
     for _ in range(exc):

@@ -419,7 +419,7 @@ def poses_needed_curve(
     n = len(idx)
     rows = []
     prev = np.searchsorted(sub, idx)
-    for N in _curve_grid(n, pr.n_min, C):
+    for N in _curve_grid(n, pr.n_min, len(sub)):  # a size is planned over the subset: at most its size
         if N == n:
             e_idx = idx
             prev = np.searchsorted(sub, idx)

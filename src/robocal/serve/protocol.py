@@ -128,16 +128,19 @@ class Targets:
     current_A: np.ndarray | None
     tau_Nm: np.ndarray | None
     direction: np.ndarray | None = None
+    #: (m,) which pose targets state an orientation (``quat_wxyz``); None: every one does
+    oriented: np.ndarray | None = None
 
 
 #: a target's optional per-joint signals, in the order they are checked
 TARGET_SIGNALS = ("current_A", "tau_Nm", "dir")
 
 
-def parse_targets(raw: Any, n: int, max_targets: int) -> Targets:
+def parse_targets(raw: Any, n: int, max_targets: int, position: bool = False) -> Targets:
     """``targets``: a non-empty list of ``{"q_deg": [n]}`` or ``{"xyz_mm": [3], "quat_wxyz": [4],
     "q_seed_deg": [n]}``, each optionally with ``current_A`` / ``tau_Nm`` ([n]) and ``dir`` ([n] of -1 / +1, the
-    approach direction of each joint, for a discovered backlash)."""
+    approach direction of each joint, for a discovered backlash). With ``position`` (mode ``position``) a pose
+    target may leave ``quat_wxyz`` out: a position-only target (a 3-DoF reflector, a drilling point)."""
     if not isinstance(raw, list) or not raw:
         raise RequestError("bad_request", "'targets' must be a non-empty list of objects")
     if len(raw) > max_targets:
@@ -147,11 +150,20 @@ def parse_targets(raw: Any, n: int, max_targets: int) -> Targets:
     q = np.zeros((m, n))
     xyz = np.zeros((m, 3))
     quat = np.tile([1.0, 0.0, 0.0, 0.0], (m, 1))
+    oriented = np.ones(m, dtype=bool)
     signals: dict[str, np.ndarray] = {}
     for k, t in enumerate(raw):
         if not isinstance(t, dict):
             raise RequestError("bad_request", f"targets[{k}] must be an object")
         kind[k] = _parse_target(t, k, n, q, xyz, quat)
+        if kind[k] == 1 and "quat_wxyz" not in t:
+            if not position:
+                raise RequestError(
+                    "bad_request",
+                    f"targets[{k}] has no 'quat_wxyz': mode 'pose' matches the full tool pose; ask a position-only "
+                    'target with "mode": "position"',
+                )
+            oriented[k] = False
         for key in TARGET_SIGNALS:
             if key in t:
                 arr = signals.setdefault(key, np.full((m, n), np.nan))
@@ -161,7 +173,7 @@ def parse_targets(raw: Any, n: int, max_targets: int) -> Targets:
     for key in TARGET_SIGNALS:
         if key in signals and np.isnan(signals[key]).any():
             raise RequestError("bad_request", f"'{key}' must be given for every target or for none")
-    return Targets(kind, q, xyz, quat, signals.get("current_A"), signals.get("tau_Nm"), signals.get("dir"))
+    return Targets(kind, q, xyz, quat, signals.get("current_A"), signals.get("tau_Nm"), signals.get("dir"), oriented)
 
 
 def _parse_target(t: dict[str, Any], k: int, n: int, q: np.ndarray, xyz: np.ndarray, quat: np.ndarray) -> int:
@@ -174,11 +186,12 @@ def _parse_target(t: dict[str, Any], k: int, n: int, q: np.ndarray, xyz: np.ndar
         extra = set(t) - {"xyz_mm", "quat_wxyz", "q_seed_deg", *TARGET_SIGNALS}
         kind = 1
         xyz[k] = _vector(t["xyz_mm"], 3, f"targets[{k}].xyz_mm")
-        qu = _vector(t.get("quat_wxyz"), 4, f"targets[{k}].quat_wxyz")
-        norm = float(np.linalg.norm(qu))
-        if not 0.9 < norm < 1.1:
-            raise RequestError("bad_request", f"targets[{k}].quat_wxyz must be a unit quaternion (norm {norm:.3g})")
-        quat[k] = qu / norm
+        if "quat_wxyz" in t:  # without: a position-only target (parse_targets says whether the mode allows it)
+            qu = _vector(t["quat_wxyz"], 4, f"targets[{k}].quat_wxyz")
+            norm = float(np.linalg.norm(qu))
+            if not 0.9 < norm < 1.1:
+                raise RequestError("bad_request", f"targets[{k}].quat_wxyz must be a unit quaternion (norm {norm:.3g})")
+            quat[k] = qu / norm
         q[k] = _vector(t.get("q_seed_deg"), n, f"targets[{k}].q_seed_deg")
     else:
         raise RequestError("bad_request", f"targets[{k}] needs 'q_deg' (joint target) or 'xyz_mm' (pose target)")
@@ -316,13 +329,15 @@ class Service:
         cc, zero_off = self._compiled_and_offsets(bundle, r.temps)
         cc_nom = self._compiled(bundle, None, nominal=True)
         offsets = _joint_offsets(bundle, r.targets, r.payload_kg)
-        q_target, ik_ok = _nominal_joints(cc_nom, r.tool_T, r.targets, cfg.solver)
+        q_target, ik_ok, freed = _nominal_joints(cc_nom, r.tool_T, r.targets, cfg.solver, r.mode == "position")
         c = correct_targets(
             cc, cc_nom, r.tool_T, r.tool_T, q_target, zero_off, offsets, bundle.robot.q_limits,
             bundle.robot.joint_names, orientation=r.mode == "pose", solver=cfg.solver, policy=cfg.safety,
             request_reasons=r.reasons, unreachable=~ik_ok,
         )  # fmt: skip
         results = _target_replies(c, cc_nom, r.tool_T, q_target, r.targets.kind)
+        for k in np.flatnonzero(freed):
+            results[k].setdefault("notes", []).append(FREED_NOTE)
         n_ref = sum(res["status"] == "refused" for res in results)
         n_flag = sum(res["status"] != "refused" and "reasons" in res for res in results)
         self.counters["targets"] += m
@@ -368,10 +383,10 @@ def _parse_request(req: dict[str, Any], bundle: Bundle, cfg: ServiceConfig) -> C
     unknown = sorted(set(req) - set(CORRECT_FIELDS))
     if unknown:
         raise RequestError("bad_request", f"unknown field(s) {unknown}; known: {sorted(CORRECT_FIELDS)}")
-    tg = parse_targets(req.get("targets"), bundle.robot.n_joints, cfg.max_targets)
     mode = req.get("mode", "pose")
     if mode not in ("pose", "position"):
         raise RequestError("bad_request", f"'mode' must be 'pose' or 'position', got {mode!r}")
+    tg = parse_targets(req.get("targets"), bundle.robot.n_joints, cfg.max_targets, position=mode == "position")
     tool_name = req.get("tool", bundle.default_tool)
     if not isinstance(tool_name, str) or tool_name not in bundle.tools:
         raise RequestError("bad_request", f"unknown 'tool' {tool_name!r}; the bundle has {list(bundle.tools)}")
@@ -410,20 +425,46 @@ def _joint_offsets(bundle: Bundle, tg: Targets, payload_kg: float) -> Any:
     return compose(effects, sig)
 
 
+#: the note of a pose target in mode ``position`` whose stated orientation the nominal robot does not reach there
+FREED_NOTE = (
+    "quat_wxyz is not reached at this position from q_seed_deg: solved for the position only (mode 'position'), "
+    "the orientation left free (the joints nearest the seed)"
+)
+
+
 def _nominal_joints(
-    cc_nom: CompiledChain, tool_T: np.ndarray, tg: Targets, solver: SolverConfig
-) -> tuple[np.ndarray, np.ndarray]:
+    cc_nom: CompiledChain, tool_T: np.ndarray, tg: Targets, solver: SolverConfig, position: bool = False
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The joints (m, n) rad the nominal controller uses: a joint target as given, a pose target through the
-    nominal inverse kinematics from its seed; and whether each was reached."""
-    q_target = np.deg2rad(tg.q_deg)
-    ik_ok = np.ones(len(tg.kind), dtype=bool)
-    pose_rows = np.flatnonzero(tg.kind == 1)
-    if len(pose_rows):
-        R_p = quat_to_matrix(tg.quat[pose_rows])
-        ik = solve(cc_nom, tool_T, q_target[pose_rows], tg.xyz_mm[pose_rows], R_p, None, **solver.kwargs())
-        q_target[pose_rows] = ik.q
-        ik_ok[pose_rows] = ik.converged
-    return q_target, ik_ok
+    nominal inverse kinematics from its seed; whether each was reached; and which targets stated an orientation
+    that was given up (see below).
+
+    ``position`` (mode ``position``): a target without ``quat_wxyz``, or whose orientation the nominal robot
+    does not reach at its position from the seed, is solved for the position only from its seed (the Newton
+    steps are least-norm, so the joints, and the orientation with them, stay nearest the seed); the orientation
+    is free in this mode, so it never makes a target unreachable. The last array marks the targets whose stated
+    orientation was given up that way."""
+    seed = np.deg2rad(tg.q_deg)
+    q_target = seed.copy()
+    m = len(tg.kind)
+    ik_ok = np.ones(m, dtype=bool)
+    oriented = np.ones(m, dtype=bool) if tg.oriented is None else tg.oriented
+    pose = tg.kind == 1
+    rows = np.flatnonzero(pose & oriented)
+    if len(rows):
+        R_p = quat_to_matrix(tg.quat[rows])
+        ik = solve(cc_nom, tool_T, seed[rows], tg.xyz_mm[rows], R_p, None, **solver.kwargs())
+        q_target[rows] = ik.q
+        ik_ok[rows] = ik.converged
+    freed = np.zeros(m, dtype=bool)
+    if position:
+        free = np.flatnonzero(pose & ~(oriented & ik_ok))
+        if len(free):
+            ik = solve(cc_nom, tool_T, seed[free], tg.xyz_mm[free], None, None, **solver.kwargs())
+            q_target[free] = ik.q
+            ik_ok[free] = ik.converged
+            freed[free] = oriented[free] & ik.converged
+    return q_target, ik_ok, freed
 
 
 def _target_replies(

@@ -33,7 +33,11 @@ Every request may carry ``"id"`` (string or integer, echoed in the reply) and ``
      "targets": [                               # 1 .. max_targets targets, answered together
         {"q_deg": [q1, ..., qn]},               # joint target (what the nominal controller would use)
         {"xyz_mm": [x, y, z], "quat_wxyz": [w, x, y, z], "q_seed_deg": [...]},
-                                                # tool pose in the robot base frame + IK seed
+                                                # tool pose in the robot base frame + IK seed; in mode
+                                                #   "position" quat_wxyz may be left out (a 3-DoF reflector,
+                                                #   a drilling point with a free tool roll) and an orientation
+                                                #   the robot cannot take there is given up (a note says so):
+                                                #   the nominal joints are the position-only IK's from the seed
         ...],                                   # each may add "current_A": [n] or "tau_Nm": [n], and
                                                 # "dir": [n] of -1/+1 (approach direction; needed when the
                                                 # bundle's calibration holds a discovered backlash)
@@ -51,6 +55,7 @@ Reply to ``correct``::
          "reasons": ["..."],                    # only when flagged or refused
          "notes": ["..."],                      # only where the bundle's residual layer does not apply
                                                 # (outside the calibrated region: parametric correction only)
+                                                # or a stated orientation was given up (mode "position")
          "predicted_error_mm": 0.83,            # |tool position error| uncompensated, mm
          "predicted_error_xyz_mm": [dx, dy, dz],
          "predicted_error_deg": 0.004,          # uncompensated orientation error, deg

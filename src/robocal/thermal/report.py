@@ -166,16 +166,27 @@ def comparison_figures(ev: Mapping[str, Any]) -> list[tuple[Figure, str]]:
     return figs
 
 
-def _alternative(alts: Any) -> str:
+def _unit(kind: str) -> tuple[str, float]:
+    """The table unit of a parameter of ``kind`` and the factor from its model unit (angles in degrees)."""
+    return ("mm", 1.0) if kind == "length" else ("deg", DEG_PER_RAD)
+
+
+def _scaled(v: Any, f: float) -> float | None:
+    return None if v is None else float(v) * f
+
+
+def _alternative(alts: Any, unit: str, f: float) -> str:
     if not alts:
         return "-"
     a = alts[0]
-    return f"{a['model']} (CV {a['cv_rmse']:.3g})"
+    return f"{a['model']} (CV {a['cv_rmse'] * f:.3g} {unit})"
 
 
 def model_cv_row(p: ParameterModel) -> dict[str, Any]:
-    """One row of the cross-validation table from a fitted parameter model's statistics."""
+    """One row of the cross-validation table from a fitted parameter model's statistics (the CV errors in the
+    parameter's unit: mm, or degrees for an angle)."""
     st = p.stats
+    unit, f = _unit(p.kind)
     return {
         "parameter": p.name,
         "form": p.form,
@@ -183,15 +194,18 @@ def model_cv_row(p: ParameterModel) -> dict[str, Any]:
         "order": p.order,
         "candidate sensors": ", ".join(st.get("candidate_sensors", [])) or "-",
         "models compared": st.get("n_candidates"),
-        "CV rmse": st.get("cv_rmse"),
-        "'no drift' CV rmse": st.get("no_drift_cv_rmse"),
+        "unit": unit,
+        "CV rmse": _scaled(st.get("cv_rmse"), f),
+        "'no drift' CV rmse": _scaled(st.get("no_drift_cv_rmse"), f),
         "p vs no drift": st.get("p_value_vs_no_drift"),
-        "next best": _alternative(st.get("cv_alternatives")),
+        "next best": _alternative(st.get("cv_alternatives"), unit, f),
     }
 
 
 def cv_rows(fit: ThermalFit) -> list[dict[str, Any]]:
     """Cross-validation table of every regressed parameter (chosen model or 'none' = no significant drift)."""
+    chain = fit.reference.model.chain
+    kind = dict(zip(chain.param_names, chain.param_kind, strict=True))
     rows = []
     for name, o in fit.outcomes.items():
         if o.model is not None:
@@ -199,6 +213,7 @@ def cv_rows(fit: ThermalFit) -> list[dict[str, Any]]:
             continue
         best = next((r for r in o.table if r["model"] != "none"), None)
         null = next((r for r in o.table if r["model"] == "none"), None)
+        unit, f = _unit(kind[name])
         rows.append(
             {
                 "parameter": name,
@@ -207,10 +222,11 @@ def cv_rows(fit: ThermalFit) -> list[dict[str, Any]]:
                 "order": 0,
                 "candidate sensors": "-",
                 "models compared": len(o.table),
-                "CV rmse": None if null is None else null["cv_rmse"],
-                "'no drift' CV rmse": None if null is None else null["cv_rmse"],
+                "unit": unit,
+                "CV rmse": None if null is None else null["cv_rmse"] * f,
+                "'no drift' CV rmse": None if null is None else null["cv_rmse"] * f,
                 "p vs no drift": o.p_value,
-                "next best": _alternative([best] if best else None),
+                "next best": _alternative([best] if best else None, unit, f),
             }
         )
     if not rows:  # restored fit (load_fit): only the fitted models carry their statistics

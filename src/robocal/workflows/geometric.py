@@ -99,6 +99,11 @@ def status_of(summary: Mapping[str, Any]) -> str:
     return CampaignStatus.WARNING if summary.get("warnings") else CampaignStatus.OK
 
 
+#: the files :func:`run` writes into its output folder, in the order it writes them (``report.html`` last, when asked)
+OUTPUTS = ("calibration.json", "residuals.csv", "summary.json")
+REPORT = "report.html"
+
+
 def run(
     data_dir: str | Path | None,
     robot: str | Path | RobotDescription,

@@ -23,7 +23,8 @@ For each target (in the order the program moves to them):
    in the target's base frame with the configuration data of the corrected joints.
 
 A target the nominal controller cannot reach (no inverse kinematics solution with its configuration) is an
-error naming the file and line, and nothing is written.
+error naming the file and line and the configurations (confdata, or KRL Status/Turn) of the solutions found within
+the joint limits, and nothing is written.
 
 Limits of the inverse kinematics: it is numerical (a damped least-squares phase from up to 3 x 48 starts, then
 the service's Newton), not the controller's closed form, so it finds the solution with the stated configuration
@@ -122,6 +123,7 @@ def nominal_ik(prog: Program, cc_nom: Any, limits: np.ndarray, seed: int = 0, n_
         assert t.T_base_tcp is not None and t.tool is not None and t.base is not None
         T_goal = t.base @ t.T_base_tcp  # robot base -> TCP
         seeds = [s for s in (prev, last_axis) if s is not None]
+        found: list[np.ndarray] = []  # solutions within the limits, whatever their configuration (for the error)
         for attempt in range(3):  # more starts when none lands on the stated configuration
             rand = config_seeds(prog.dialect, t.config, limits, rng, n_seeds * 4**attempt)
             S = np.vstack([*(np.asarray(s)[None] for s in seeds), rand])
@@ -140,20 +142,19 @@ def nominal_ik(prog: Program, cc_nom: Any, limits: np.ndarray, seed: int = 0, n_
                 max_step_rad=0.2,
             )
             qs = sol.q
-            ok = sol.converged & np.all((qs >= limits[:, 0]) & (qs <= limits[:, 1]), axis=1)
-            ok &= config_matches(prog.dialect, cc_nom, qs, t.config)
+            within = sol.converged & np.all((qs >= limits[:, 0]) & (qs <= limits[:, 1]), axis=1)
+            found.append(qs[within])
+            ok = within & config_matches(prog.dialect, cc_nom, qs, t.config)
             if ok.any():
                 break
+        ref = prev if prev is not None else (last_axis if last_axis is not None else np.mean(limits, axis=1))
         if not ok.any():
-            why = "no inverse kinematics solution"
-            if sol.converged.any():
-                why = "no solution with the stated configuration within the joint limits"
             raise ProgramError(
-                f"target {t.name} is not reachable by the nominal robot ({why}; {t.config or 'no configuration'})",
+                f"target {t.name} is not reachable by the nominal robot with {_config_text(prog.dialect, t.config)}"
+                f" ({_unreachable_why(prog.dialect, cc_nom, np.vstack(found), bool(sol.converged.any()), ref)})",
                 t.file,
                 t.line,
             )
-        ref = prev if prev is not None else (last_axis if last_axis is not None else np.mean(limits, axis=1))
         cand = qs[ok]
         best = cand[np.argmin(np.abs(cand - ref).sum(axis=1))]
         p, _, _, _ = forward(cc_nom, best[None], t.tool)
@@ -162,6 +163,32 @@ def nominal_ik(prog: Program, cc_nom: Any, limits: np.ndarray, seed: int = 0, n_
         q[k] = best
         prev = best
     return q
+
+
+def _config_text(dialect: str, config: dict[str, Any]) -> str:
+    """A configuration as the program writes it: RAPID ``confdata [cf1,cf4,cf6,cfx]``, KRL ``S 2, T 35``."""
+    if dialect == "rapid" and config.get("cf") is not None:
+        return "confdata [" + ",".join(str(int(v)) for v in config["cf"]) + "]"
+    parts = [f"{k} {int(config[k])}" for k in ("S", "T") if config.get(k) is not None]
+    return ", ".join(parts) if parts else "no configuration"
+
+
+def _unreachable_why(dialect: str, cc_nom: Any, within: np.ndarray, converged: bool, ref: np.ndarray) -> str:
+    """Why a target has no solution, and the configurations that reach it within the joint limits (the one
+    nearest to ``ref``, the previous target, first), so that the program can be corrected."""
+    if not len(within):
+        if converged:
+            return "every inverse kinematics solution found is outside the joint limits"
+        return "no inverse kinematics solution"
+    order = np.argsort(np.abs(within - ref).sum(axis=1), kind="stable")
+    texts = list(dict.fromkeys(_config_text(dialect, written_config(dialect, cc_nom, q, {})) for q in within[order]))
+    more = f" or {len(texts) - 4} more" if len(texts) > 4 else ""
+    return (
+        "no solution with the stated configuration within the joint limits; it is reached with "
+        + " or ".join(texts[:4])
+        + more
+        + (" (the nearest first)" if len(texts) > 1 else "")
+    )
 
 
 def _damped_ik(cc: Any, tool: np.ndarray, q0: np.ndarray, T_goal: np.ndarray, iters: int = 80) -> np.ndarray:
