@@ -111,25 +111,45 @@ def _resplit(camp, split):  # type: ignore[no-untyped-def]
     return replace(camp, split=np.asarray(split))
 
 
-def session(cal_path: Path, val_paths: list[Path], settings: dict) -> None:
+def session(cal_path: Path, val_paths: list[Path], settings: dict, keep: Path | None = None) -> None:
+    import json
+
     from robocal.discovery.effects import extended_calibration
     from robocal.discovery.sessions import session_validation
     from robocal.identification.calibrate import load_calibration
+    from robocal.io import to_json, write_text
 
     robot = load_robot(cal_path / "robot.yaml")
-    camp = read_campaign(cal_path, robot)
-    camp = _resplit(camp, np.full(camp.n_rows, "calibration", dtype=object))
-    t0 = time.perf_counter()
-    res = discover(camp, robot, DiscoveryConfig(**settings) if settings else None)
-    summ = summary(res)
-    cal = load_calibration(extended_calibration(res.final, robot, {}), robot)
-    geo = res.extra["geometric_calibration"]
-    named = [n["key"] for n in summ["named"]]
-    print(f"{cal_path.name} (all {camp.n_rows} rows) -> discovery {time.perf_counter() - t0:.0f} s, "
-          f"fit RMS {summ['rms_after_mm']:.4f} mm, named {named}")  # fmt: skip
-    cv = summ.get("cross_validation", {})
-    if cv:
-        print(f"  cross-validated within the session: mean {cv['cv_mean_position_mm']:.4f} mm")
+    saved = keep / "session.json" if keep else None
+    if saved is not None and saved.exists():  # the discovery of an earlier run with the same --keep folder
+        kept = json.loads(saved.read_text())
+        print(f"{cal_path.name}: the discovery kept in {saved} (settings {kept['settings']})")
+    else:
+        camp = read_campaign(cal_path, robot)
+        camp = _resplit(camp, np.full(camp.n_rows, "calibration", dtype=object))
+        t0 = time.perf_counter()
+        res = discover(camp, robot, DiscoveryConfig(**settings) if settings else None)
+        summ = summary(res)
+        geo_dict = res.extra["geometric_calibration"].to_dict()
+        kept = {
+            "settings": settings,
+            "named": [n["key"] for n in summ["named"]],
+            "rms_after_mm": summ["rms_after_mm"],
+            "cv_mean_position_mm": summ.get("cross_validation", {}).get("cv_mean_position_mm"),
+            "calibration": extended_calibration(res.final, robot, {}),
+            "geometric": geo_dict,
+            "n_rows": camp.n_rows,
+            "seconds": time.perf_counter() - t0,
+        }
+        kept = json.loads(to_json(kept))
+        if saved is not None:
+            write_text(saved, to_json(kept))
+    cal = load_calibration(kept["calibration"], robot)
+    geo = load_calibration(kept["geometric"], robot)
+    print(f"{cal_path.name} (all {kept['n_rows']} rows) -> discovery {kept['seconds']:.0f} s, "
+          f"fit RMS {kept['rms_after_mm']:.4f} mm, named {kept['named']}")  # fmt: skip
+    if kept["cv_mean_position_mm"] is not None:
+        print(f"  cross-validated within the session: mean {kept['cv_mean_position_mm']:.4f} mm")
     for vp in val_paths:
         vcamp = read_campaign(vp, load_robot(vp / "robot.yaml"))
         v = session_validation(cal, vcamp, geo)
@@ -159,11 +179,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--joint", type=int, default=2, help="the joint whose top 25 %% is held out (default 2)")
     ap.add_argument("--session", nargs="+", type=Path, metavar="DIR", help="CAL VAL [VAL ...]: across sessions")
     ap.add_argument("-S", dest="settings", action="append", default=[], help="discovery setting key=value")
+    ap.add_argument("--keep", type=Path, help="session mode: keep the discovery here and reuse it on a rerun")
     args = ap.parse_args(argv)
     if args.session:
         if len(args.session) < 2:
             ap.error("--session needs CAL and at least one VAL folder")
-        session(args.session[0], args.session[1:], dict(map(_setting, args.settings)))
+        session(args.session[0], args.session[1:], dict(map(_setting, args.settings)), args.keep)
         return 0
     paths = args.data or sorted(p for p in SHARED.glob("*") if (p / "robot.yaml").exists())
     if not paths:
