@@ -54,3 +54,30 @@ def test_a_session_of_unknown_targets_or_too_few_rows_is_refused(tmp_path: Path)
     few = camp.subset(np.flatnonzero(camp.split == "validation")[:2])
     with pytest.raises(DataError, match="registering a tracker needs >= 3"):
         session_validation(cal, replace(few, split=np.full(2, "calibration", dtype=object)))
+
+
+def test_discover_validate_on_writes_and_prints_the_session(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    import copy
+    import json
+
+    from robocal.cli import main
+    from robocal.sim.twin import load_scenario, simulate
+
+    sc = copy.deepcopy(load_scenario("geometric"))
+    sc.update(n_poses=40, n_validation_poses=12)
+    data = tmp_path / "cell"
+    simulate(sc, data, seed=21)
+    out = tmp_path / "out"
+    rc = main(
+        ["discover", str(data), "--robot", sc["robot"], "--out", str(out), "--no-report", "--validate-on", str(data)]
+    )
+    assert rc == 0
+    sessions = json.loads((out / "sessions.json").read_text())
+    (v,) = sessions.values()
+    disc = json.loads((out / "discovery.json").read_text())["validation"]["final"]
+    # the same session judged as "another": its tracker registered on its calibration rows instead of the fit's
+    # frame, so the figure is close to the within-session one (15 % allows the 6-parameter re-registration)
+    assert v["final"]["mean_position_mm"] == pytest.approx(disc["mean_position_mm"], rel=0.15)
+    assert set(v) >= {"geometric", "final", "without", "helped", "hurt", "n_registration_rows"}
+    printed = capsys.readouterr().out
+    assert "another session" in printed and "sessions.json" in printed

@@ -13,6 +13,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, help="output directory: discovery.json, report.html")
     p.add_argument("--no-report", action="store_true", help="skip the HTML report")
     p.add_argument(
+        "--validate-on",
+        action="append",
+        default=[],
+        metavar="DIR",
+        help="another session of the same robot (campaign folder; repeatable): the models judged there, its tracker "
+        "registered on its own calibration rows, each effect left out in turn (sessions.json)",
+    )
+    p.add_argument(
         "overrides",
         nargs="*",
         help="discovery settings key=value, e.g. noise_mm=0.02 alpha=0.001 'effects=[gear,backlash]' split.method=none",
@@ -24,7 +32,9 @@ def run(args: argparse.Namespace) -> int:
 
     ov = parse_overrides(args.overrides)
     split = ov.pop("split", None)
-    s = discovery.run(args.data_dir, args.robot, args.out, ov, split=split, report=not args.no_report)
+    s = discovery.run(
+        args.data_dir, args.robot, args.out, ov, split=split, report=not args.no_report, sessions=args.validate_on
+    )
     named = ", ".join(
         n["effect"] + (f" j{n['joint']}" if n["joint"] else "") + (f" h{n['harmonic']}" if n["harmonic"] else "")
         for n in s["named"]
@@ -63,6 +73,14 @@ def run(args: argparse.Namespace) -> int:
     if cv and "cv_mean_position_mm" in cv:
         print(f"cross-validated estimate on the calibration poses (pose-grouped): mean "
               f"{cv['cv_mean_position_mm']:.4f} mm, RMS {cv['cv_rms_position_mm']:.4f} mm")  # fmt: skip
+    for where, v in s.get("sessions", {}).items():
+        g, f = v["geometric"], v["final"]
+        print(
+            f"another session {where} ({v['n_registration_rows']} rows register its tracker, "
+            f"{v['n_validation_rows']} judge): mean {g['mean_position_mm']:.4f} mm geometric -> "
+            f"{f['mean_position_mm']:.4f} mm discovered; effects that helped there: {v['helped'] or 'none'}, "
+            f"hurt: {v['hurt'] or 'none'}"
+        )
     shown = {"calibration.json": "calibration.json (the discovered model)"}
     print(f"wrote {args.out}/" + ", ".join(shown.get(f, f) for f in s["written"]))
     for name, why in s["not_written"].items():

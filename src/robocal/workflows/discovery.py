@@ -4,7 +4,7 @@
 from __future__ import annotations
 
 import json
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -367,10 +367,16 @@ def run(
     split: Mapping[str, Any] | None = None,
     campaign: Campaign | None = None,
     report: bool = True,
+    sessions: Sequence[str | Path] = (),
 ) -> dict[str, Any]:
     """Discover the effects in the campaign (``settings``: a :class:`DiscoveryConfig` mapping); write
     ``discovery.json``, the product (:func:`write_product`) and ``report.html`` into ``out_dir``. Returns the
-    summary (``discovery.json``) and ``written``: the files written, ``not_written``: {file: why not}."""
+    summary (``discovery.json``) and ``written``: the files written, ``not_written``: {file: why not}.
+
+    ``sessions``: campaign folders of other sessions of the same robot (another day, tracker placement,
+    region): the geometric and the discovered model are judged on each (its tracker registered on its own
+    calibration rows, :func:`robocal.discovery.sessions.session_validation`), with every effect left out in
+    turn; written as ``sessions.json`` and returned under ``sessions``."""
     rob = robot_of(robot)
     cfg = DiscoveryConfig.from_mapping(settings)
     camp = campaign_of(data_dir, rob, split, campaign)
@@ -384,7 +390,26 @@ def run(
         write_report(res, as_written(summ), out / "report.html")
     written = ["discovery.json", "calibration.json", *([] if why_not else ["compensation.csv"])]
     not_written = {"compensation.csv": why_not} if why_not else {}
-    return {**summ, "written": [*written, *(["report.html"] if report else [])], "not_written": not_written}
+    judged: dict[str, Any] = {}
+    if sessions:
+        from robocal.discovery.sessions import session_validation
+        from robocal.identification.calibrate import load_calibration
+        from robocal.io import display_path
+
+        cal = load_calibration(json.loads((out / "calibration.json").read_text()), rob)
+        geo = res.extra.get("geometric_calibration")
+        for folder in sessions:
+            other = campaign_of(folder, rob, None, None)
+            judged[display_path(folder)] = session_validation(cal, other, geo)
+        write_json(out / "sessions.json", judged)
+        written.append("sessions.json")
+    extra = {"sessions": judged} if judged else {}
+    return {
+        **summ,
+        **extra,
+        "written": [*written, *(["report.html"] if report else [])],
+        "not_written": not_written,
+    }
 
 
 __all__ = ["run", "write_product", "write_report"]
