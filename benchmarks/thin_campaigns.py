@@ -1,0 +1,99 @@
+"""Thin campaigns on the twin: is the held-out error near its cross-validation estimate, with and without the
+prior toward the nominal robot?
+
+For each seed the twin writes the ``thin`` scenario (conf/scenario/thin.yaml: 15 calibration configurations,
+independent validation configurations); ``robocal.calibrate`` fits it with ``prior: off`` and ``prior: auto``
+(:mod:`robocal.identification.thin`). Printed per seed: the validation (held-out) mean 3-D error of both fits,
+the leave-one-configuration-out CV estimate of both (the auto fit's record: with the chosen strength and with
+no prior), the chosen strength, and the ratio held-out / CV estimate. The summary: the mean of each, the
+seeds where the prior's held-out error is within ``--tolerance`` (20 %) of its CV estimate, and where the prior
+beats the un-regularised fit.
+
+    python benchmarks/thin_campaigns.py [--seeds 10] [--scenario thin] [key=value scenario overrides ...]
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+
+import numpy as np
+
+import robocal
+from robocal.commands import parse_overrides
+from robocal.data.contract import SplitConfig, read_campaign
+
+
+def run_seed(scenario: dict, seed: int) -> dict[str, float]:
+    """One twin campaign fitted with and without the prior; the held-out and CV figures (mm)."""
+    rob = robocal.load_robot(scenario["robot"])
+    with tempfile.TemporaryDirectory() as d:
+        robocal.simulate(scenario, d, seed=seed)
+        camp = read_campaign(d, rob, split=SplitConfig.from_mapping({"method": "none"}))
+    out: dict[str, float] = {"seed": seed}
+    for rule in ("off", "auto"):
+        res = robocal.calibrate(camp, rob, robocal.CalibrationConfig.from_mapping({"prior": rule}))
+        out[f"held_{rule}"] = float(robocal.validate(res, camp)["mean_position_mm"])
+        rec = res.fit.get("configurations") or {}
+        prior = rec.get("prior")
+        if rule == "auto":
+            out["configurations"] = rec.get("n", np.nan)
+            out["needed"] = rec.get("needed", np.nan)
+            if isinstance(prior, dict) and "cv_mean_position_mm" in prior:  # strength 0: the CV preferred none
+                out["strength"] = prior["strength"]
+                out["cv_auto"] = prior["cv_mean_position_mm"]
+                out["cv_off"] = prior["cv_mean_position_mm_without_prior"]
+            else:  # not a thin campaign: no prior considered
+                out["strength"] = 0.0
+                out["cv_auto"] = out["cv_off"] = np.nan
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--seeds", type=int, default=10)
+    ap.add_argument("--scenario", default="thin")
+    ap.add_argument("--tolerance", type=float, default=0.2, help="held-out within this share of the CV estimate")
+    ap.add_argument("overrides", nargs="*", help="scenario overrides key=value")
+    args = ap.parse_args(argv)
+    sc = robocal.load_scenario(args.scenario)
+    sc.update(parse_overrides(args.overrides))
+    print(
+        f"scenario {sc.get('name')!r}: robot {sc['robot']}, {sc['n_poses']} calibration configurations x "
+        f"{len(sc['targets'])} target(s), {sc['n_validation_poses']} validation configurations, noise "
+        f"{sc['noise_mm']} mm"
+    )
+    head = "seed  held-out off  CV off   held-out prior  CV prior  strength  held/CV prior  held/CV off"
+    print(head)
+    rows = []
+    for seed in range(args.seeds):
+        r = run_seed(sc, seed)
+        rows.append(r)
+        print(
+            f"{seed:4d}  {r['held_off']:12.4f}  {r['cv_off']:7.4f}  {r['held_auto']:14.4f}  {r['cv_auto']:8.4f}  "
+            f"{r['strength']:8.3g}  {r['held_auto'] / r['cv_auto']:13.2f}  {r['held_off'] / r['cv_off']:11.2f}"
+        )
+
+    def col(k: str) -> np.ndarray:
+        return np.array([r[k] for r in rows], dtype=float)
+
+    ratio = col("held_auto") / col("cv_auto")
+    ratio_off = col("held_off") / col("cv_off")
+    within = np.abs(ratio - 1.0) <= args.tolerance
+    better = col("held_auto") < col("held_off")
+    print(
+        f"mean  {np.nanmean(col('held_off')):12.4f}  {np.nanmean(col('cv_off')):7.4f}  "
+        f"{np.nanmean(col('held_auto')):14.4f}  {np.nanmean(col('cv_auto')):8.4f}"
+    )
+    print(
+        f"prior on in {int(np.sum(col('strength') > 0))} of {len(rows)} seeds; held-out within "
+        f"{args.tolerance:.0%} of the CV estimate in {int(within.sum())} of {len(rows)} (mean |held/CV - 1| "
+        f"{np.nanmean(np.abs(ratio - 1)):.1%}; without the prior {np.nanmean(np.abs(ratio_off - 1)):.1%}); "
+        f"the prior's held-out error below the un-regularised fit's in {int(better.sum())} of {len(rows)} "
+        f"(mean {np.nanmean(col('held_auto')):.4f} vs {np.nanmean(col('held_off')):.4f} mm)"
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
