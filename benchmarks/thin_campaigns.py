@@ -10,26 +10,51 @@ seeds where the prior's held-out error is within ``--tolerance`` (20 %) of its C
 beats the un-regularised fit.
 
     python benchmarks/thin_campaigns.py [--seeds 10] [--scenario thin] [key=value scenario overrides ...]
+    python benchmarks/thin_campaigns.py --real ../shared/data/abb-irb120 --configurations 12 [--seeds 10]
+
+With ``--real`` a real campaign is thinned instead: per seed, that many of its calibration configurations
+(drawn at random) are the calibration, every other row is held out.
 """
 
 from __future__ import annotations
 
 import argparse
 import tempfile
+from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 
 import robocal
 from robocal.commands import parse_overrides
-from robocal.data.contract import SplitConfig, read_campaign
+from robocal.data.contract import Campaign, SplitConfig, read_campaign
+from robocal.identification.thin import configuration_groups
+from robocal.robot import RobotDescription
 
 
-def run_seed(scenario: dict, seed: int) -> dict[str, float]:
-    """One twin campaign fitted with and without the prior; the held-out and CV figures (mm)."""
+def twin_campaign(scenario: dict, seed: int) -> tuple[Campaign, RobotDescription]:
+    """The twin's campaign of ``scenario`` and ``seed`` (its own calibration / validation split)."""
     rob = robocal.load_robot(scenario["robot"])
     with tempfile.TemporaryDirectory() as d:
         robocal.simulate(scenario, d, seed=seed)
-        camp = read_campaign(d, rob, split=SplitConfig.from_mapping({"method": "none"}))
+        return read_campaign(d, rob, split=SplitConfig.from_mapping({"method": "none"})), rob
+
+
+def real_campaign(folder: str, n_configurations: int, seed: int) -> tuple[Campaign, RobotDescription]:
+    """A real campaign thinned: ``n_configurations`` of its calibration configurations drawn at random (seed)
+    stay calibration rows, every other row (the other configurations and the validation rows) is held out."""
+    rob = robocal.load_robot(str(Path(folder) / "robot.yaml"))
+    camp = read_campaign(folder, rob)
+    cal = np.flatnonzero(camp.split == "calibration")
+    n, group = configuration_groups(camp.q[cal])
+    keep = np.random.default_rng(seed).choice(n, size=min(n_configurations, n), replace=False)
+    split = np.full(camp.n_rows, "validation", dtype=object)
+    split[cal[np.isin(group, keep)]] = "calibration"
+    return replace(camp, split=split), rob
+
+
+def run_seed(camp: Campaign, rob: RobotDescription, seed: int) -> dict[str, float]:
+    """One campaign fitted with and without the prior; the held-out and CV figures (mm)."""
     out: dict[str, float] = {"seed": seed}
     for rule in ("off", "auto"):
         res = robocal.calibrate(camp, rob, robocal.CalibrationConfig.from_mapping({"prior": rule}))
@@ -54,20 +79,28 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", type=int, default=10)
     ap.add_argument("--scenario", default="thin")
     ap.add_argument("--tolerance", type=float, default=0.2, help="held-out within this share of the CV estimate")
+    ap.add_argument(
+        "--real", default=None, help="a real campaign folder (with robot.yaml) thinned to --configurations instead"
+    )
+    ap.add_argument("--configurations", type=int, default=12, help="with --real: calibration configurations kept")
     ap.add_argument("overrides", nargs="*", help="scenario overrides key=value")
     args = ap.parse_args(argv)
     sc = robocal.load_scenario(args.scenario)
     sc.update(parse_overrides(args.overrides))
-    print(
-        f"scenario {sc.get('name')!r}: robot {sc['robot']}, {sc['n_poses']} calibration configurations x "
-        f"{len(sc['targets'])} target(s), {sc['n_validation_poses']} validation configurations, noise "
-        f"{sc['noise_mm']} mm"
-    )
+    if args.real:
+        print(f"{args.real}: {args.configurations} calibration configurations drawn per seed, every other row held out")
+    else:
+        print(
+            f"scenario {sc.get('name')!r}: robot {sc['robot']}, {sc['n_poses']} calibration configurations x "
+            f"{len(sc['targets'])} target(s), {sc['n_validation_poses']} validation configurations, noise "
+            f"{sc['noise_mm']} mm"
+        )
     head = "seed  held-out off  CV off   held-out prior  CV prior  strength  held/CV prior  held/CV off"
     print(head)
     rows = []
     for seed in range(args.seeds):
-        r = run_seed(sc, seed)
+        camp, rob = real_campaign(args.real, args.configurations, seed) if args.real else twin_campaign(sc, seed)
+        r = run_seed(camp, rob, seed)
         rows.append(r)
         print(
             f"{seed:4d}  {r['held_off']:12.4f}  {r['cv_off']:7.4f}  {r['held_auto']:14.4f}  {r['cv_auto']:8.4f}  "
