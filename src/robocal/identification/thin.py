@@ -213,18 +213,20 @@ def cross_validate(start: CalibrationStart, strengths: tuple[float, ...] = STREN
     lams = (0.0, *strengths)
     errs: list[list[np.ndarray]] = [[] for _ in lams]
     folds = 0
+    used = res_group >= 0
+    N_all, g_all = A_all[used].T @ A_all[used], A_all[used].T @ b_all[used]
     for g in range(n_cfg):
         held = np.flatnonzero(group == g)
-        train = (res_group >= 0) & (res_group != g)
-        if held.size == 0 or not train.any():
+        out = res_group == g
+        if held.size == 0 or not (used & ~out).any():
             continue
         folds += 1
-        A, b = A_all[train], b_all[train]
-        N, gvec = A.T @ A, A.T @ b
+        # the normal equations of the other configurations: all of them less this one's
+        N, gvec = N_all - A_all[out].T @ A_all[out], g_all - A_all[out].T @ b_all[out]
         for i, lam in enumerate(lams):
             H = N + np.diag(frame_diag + lam * joint_diag)
             try:
-                dz = -np.linalg.solve(H, gvec) if lam > 0 or frame_diag.any() else -np.linalg.lstsq(A, b)[0]
+                dz = -np.linalg.solve(H, gvec)
             except np.linalg.LinAlgError:
                 dz = -np.linalg.lstsq(H, gvec, rcond=None)[0]
             idx = pos[held].reshape(-1)
