@@ -58,7 +58,10 @@ def run_seed(camp: Campaign, rob: RobotDescription, seed: int) -> dict[str, floa
     out: dict[str, float] = {"seed": seed}
     for rule in ("off", "auto"):
         res = robocal.calibrate(camp, rob, robocal.CalibrationConfig.from_mapping({"prior": rule}))
-        out[f"held_{rule}"] = float(robocal.validate(res, camp)["mean_position_mm"])
+        val = robocal.validate(res, camp)
+        out[f"held_{rule}"] = float(val["mean_position_mm"])
+        e = np.linalg.norm(val["errors_mm"][val["kept_rows"]], axis=1)
+        out[f"held_se_{rule}"] = float(np.std(e, ddof=1) / np.sqrt(len(e)))
         rec = res.fit.get("configurations") or {}
         prior = rec.get("prior")
         if rule == "auto":
@@ -67,10 +70,11 @@ def run_seed(camp: Campaign, rob: RobotDescription, seed: int) -> dict[str, floa
             if isinstance(prior, dict) and "cv_mean_position_mm" in prior:  # strength 0: the CV preferred none
                 out["strength"] = prior["strength"]
                 out["cv_auto"] = prior["cv_mean_position_mm"]
+                out["cv_se"] = prior["cv_mean_position_se_mm"]
                 out["cv_off"] = prior["cv_mean_position_mm_without_prior"]
             else:  # not a thin campaign: no prior considered
                 out["strength"] = 0.0
-                out["cv_auto"] = out["cv_off"] = np.nan
+                out["cv_auto"] = out["cv_off"] = out["cv_se"] = np.nan
     return out
 
 
@@ -114,6 +118,9 @@ def main(argv: list[str] | None = None) -> int:
     ratio_off = col("held_off") / col("cv_off")
     within = np.abs(ratio - 1.0) <= args.tolerance
     better = col("held_auto") < col("held_off")
+    # the two estimates' own uncertainty: the CV's over its held-out rows, the validation's over its rows
+    spread = np.sqrt(col("cv_se") ** 2 + col("held_se_auto") ** 2)
+    within_se = np.abs(col("held_auto") - col("cv_auto")) <= 2 * spread
     print(
         f"mean  {np.nanmean(col('held_off')):12.4f}  {np.nanmean(col('cv_off')):7.4f}  "
         f"{np.nanmean(col('held_auto')):14.4f}  {np.nanmean(col('cv_auto')):8.4f}"
@@ -122,6 +129,7 @@ def main(argv: list[str] | None = None) -> int:
         f"prior on in {int(np.sum(col('strength') > 0))} of {len(rows)} seeds; held-out within "
         f"{args.tolerance:.0%} of the CV estimate in {int(within.sum())} of {len(rows)} (mean |held/CV - 1| "
         f"{np.nanmean(np.abs(ratio - 1)):.1%}; without the prior {np.nanmean(np.abs(ratio_off - 1)):.1%}); "
+        f"within 2 standard errors of the two means in {int(within_se.sum())} of {len(rows)}; "
         f"the prior's held-out error below the un-regularised fit's in {int(better.sum())} of {len(rows)} "
         f"(mean {np.nanmean(col('held_auto')):.4f} vs {np.nanmean(col('held_off')):.4f} mm)"
     )

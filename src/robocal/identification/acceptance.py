@@ -100,8 +100,9 @@ def thin_campaign(design: Mapping[str, Any]) -> str:
     prior = design.get("prior")
     if not isinstance(prior, Mapping):
         return f"thin campaign: {text}"
+    se = f" ± {prior['cv_mean_position_se_mm']:g}" if "cv_mean_position_se_mm" in prior else ""
     cv = (
-        f"CV estimate of the held-out mean error {prior['cv_mean_position_mm']:g} mm"
+        f"CV estimate of the held-out mean error {prior['cv_mean_position_mm']:g}{se} mm"
         if "cv_mean_position_mm" in prior
         else ""
     )

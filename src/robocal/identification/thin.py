@@ -183,6 +183,8 @@ class CrossValidation:
     folds: int
     rows: int
     gain_se_mm: np.ndarray  # (s,) standard error of the mean gain over no prior (paired over the held-out rows)
+    se_mm: np.ndarray  # (s,) standard error of each mean (over the held-out rows)
+    without_se_mm: float
 
     @property
     def best(self) -> int:
@@ -235,8 +237,12 @@ def cross_validate(start: CalibrationStart, strengths: tuple[float, ...] = STREN
     flat = [np.concatenate(e) if e else np.full(1, np.nan) for e in errs]
     means = np.array([float(np.mean(e)) for e in flat])
     n_rows = int(flat[0].size)
-    se = np.array([float(np.std(flat[0] - e, ddof=1) / np.sqrt(n_rows)) if n_rows > 1 else np.inf for e in flat])
-    return CrossValidation(np.array(strengths), means[1:], float(means[0]), folds, n_rows, se[1:])
+    root = np.sqrt(n_rows)
+    se = np.array([float(np.std(flat[0] - e, ddof=1) / root) if n_rows > 1 else np.inf for e in flat])
+    se_mean = np.array([float(np.std(e, ddof=1) / root) if n_rows > 1 else np.inf for e in flat])
+    return CrossValidation(
+        np.array(strengths), means[1:], float(means[0]), folds, n_rows, se[1:], se_mean[1:], float(se_mean[0])
+    )
 
 
 def _mm(v: float) -> float:
@@ -279,7 +285,10 @@ def choose_prior(start: CalibrationStart, why: str) -> tuple[Prior | None, dict[
             },
             "center": "nominal joint-level parameters; frames and tools at the nominal model's best rigid fit",
             "cv_folds": cv.folds,
+            "cv_rows": cv.rows,
             "cv_mean_position_mm": _mm(chosen if on else cv.without_mm),
+            # the CV estimate's own standard error (over its held-out rows): few configurations, wide
+            "cv_mean_position_se_mm": _mm(float(cv.se_mm[i]) if on else cv.without_se_mm),
             "cv_mean_position_mm_without_prior": _mm(cv.without_mm),
         }
     )
