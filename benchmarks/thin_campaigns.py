@@ -114,6 +114,9 @@ def main(argv: list[str] | None = None) -> int:
     def col(k: str) -> np.ndarray:
         return np.array([r[k] for r in rows], dtype=float)
 
+    if np.all(np.isnan(col("cv_auto"))):
+        print("not a thin campaign in any seed: no prior considered (fit.configurations has no record)")
+        return 0
     ratio = col("held_auto") / col("cv_auto")
     ratio_off = col("held_off") / col("cv_off")
     within = np.abs(ratio - 1.0) <= args.tolerance
