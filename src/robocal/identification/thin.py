@@ -277,8 +277,8 @@ def choose_prior(start: CalibrationStart, why: str) -> tuple[Prior | None, dict[
             "strength_rule": (
                 "the 'prior' setting"
                 if fixed is not None
-                else "chosen by leave-one-configuration-out cross-validation (the strongest within one standard "
-                "error of the smallest CV error)"
+                else "chosen by leave-one-configuration-out cross-validation: the strongest within one standard "
+                "error of the smallest CV error"
                 if on
                 else "no prior: leave-one-configuration-out cross-validation (one-standard-error rule) prefers none"
             ),
@@ -293,7 +293,7 @@ def choose_prior(start: CalibrationStart, why: str) -> tuple[Prior | None, dict[
             "cv_rows": cv.rows,
             "cv_mean_position_mm": _mm(chosen if on else cv.without_mm),
             # the CV estimate's own standard error (over its held-out rows): few configurations, wide
-            "cv_mean_position_se_mm": _mm(float(cv.se_mm[i]) if on else cv.without_se_mm),
+            "cv_mean_position_se_mm": float(f"{float(cv.se_mm[i]) if on else cv.without_se_mm:.2g}"),
             "cv_mean_position_mm_without_prior": _mm(cv.without_mm),
         }
     )
