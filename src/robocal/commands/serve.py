@@ -2,8 +2,8 @@
 service (protocol: :mod:`robocal.serve.server`). ``robocal serve --model robot-<serial>@production
 [--tracking-uri URI]`` serves the registered version the alias points at and swaps in the next one when the alias
 moves (:class:`robocal.fleet.registry.AliasWatcher`, through the server's reload).
-``robocal serve --make-bundle DIR --calibration FILE [--thermal FILE] [--compliance FILE] --robot NAME`` writes a
-bundle instead."""
+``robocal serve --make-bundle DIR --calibration FILE [--thermal FILE] [--compliance FILE] --robot NAME [--force]``
+writes a bundle instead (a calibration of too few configurations to determine the model only with ``--force``)."""
 
 from __future__ import annotations
 
@@ -43,6 +43,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--calibration", default=None, help="with --make-bundle: calibration.json")
     p.add_argument("--thermal", default=None, help="with --make-bundle: thermal model JSON")
     p.add_argument("--compliance", default=None, help="with --make-bundle: compliance model JSON")
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="with --make-bundle: write it even from a calibration of too few configurations to determine the model",
+    )
     p.add_argument("overrides", nargs="*", help="settings key=value, e.g. safety.max_correction_deg=0.3")
 
 
@@ -77,7 +82,9 @@ def run(args: argparse.Namespace) -> int:
     if args.make_bundle:
         if not args.calibration or not args.robot:
             raise ConfigError("--make-bundle needs --calibration and --robot")
-        out = write_bundle(args.make_bundle, args.robot, args.calibration, args.thermal, args.compliance)
+        out = write_bundle(
+            args.make_bundle, args.robot, args.calibration, args.thermal, args.compliance, force=args.force
+        )
         b = load_bundle(out)
         print(
             f"wrote bundle {b.bundle_id} to {out} (thermal={b.thermal is not None}, "

@@ -6,6 +6,10 @@ the calibrated and the nominal model's validation figures (:class:`robocal.ident
 or its record), and returns a :class:`Verdict`: the *problems* (the calibration must not be used) and the
 *warnings* (usable, with care), each a sentence, in this order:
 
+0. the campaign has too few joint configurations to determine the model (``fit.configurations``, written by
+   :mod:`robocal.identification.thin`): always a problem; a thin campaign (fewer configurations than give
+   ``thin_ratio`` equations per parameter, or one identified with a prior): ``thin`` (a warning by default),
+   saying how many configurations there were, how many the model needs and what was done;
 1. the fit did not converge (stopped on its iteration limit, or not finite): ``not_converged``;
 2. more rows stood out than gross errors can be (the model misses an effect): ``suspects``;
 3. the fit's RMS 3-D error is worse than ``max_rms_ratio`` x its start: always a problem. The baseline is
@@ -39,14 +43,15 @@ class AcceptanceRules:
     """When a calibration is acceptable (module doc).
 
     max_rms_ratio : the fit's RMS may be at most this times its start's (same rows). max_validation_mean_mm : a
-    limit on the validation mean error (mm), None for none. not_converged, suspects : ``problem``, ``warning``
-    or ``ignore``.
+    limit on the validation mean error (mm), None for none. not_converged, suspects, thin : ``problem``,
+    ``warning`` or ``ignore``.
     """
 
     max_rms_ratio: float = setting(1.0, gt=0)
     max_validation_mean_mm: float | None = setting(None, gt=0)
     not_converged: str = setting("warning", choices=LEVELS)
     suspects: str = setting("ignore", choices=LEVELS)
+    thin: str = setting("warning", choices=LEVELS)
 
     @classmethod
     def from_mapping(cls, cfg: Mapping[str, Any] | None, where: str = "acceptance") -> AcceptanceRules:
@@ -74,6 +79,44 @@ def _iterations(n: Any) -> str:
     return f"{n} iteration" + ("" if n == 1 else "s")
 
 
+def too_few_configurations(design: Mapping[str, Any]) -> str:
+    """The problem of a campaign with too few configurations (its ``fit.configurations`` record)."""
+    return (
+        f"too few configurations to determine the model: {design['n']} distinct joint configuration(s) "
+        f"({design['n_rows']} rows) give {design['equations']} equations ({design['equations_rule']}) for the "
+        f"model's {design['model_parameters']} parameters; at least {design['needed']} configurations are needed "
+        f"(more equations than parameters), {design['thin_below']} to determine it well: measure more poses"
+    )
+
+
+def thin_campaign(design: Mapping[str, Any]) -> str:
+    """The warning of a thin campaign, or one identified with a prior: the configurations, what the model needs
+    and what was done (its ``fit.configurations`` record)."""
+    text = (
+        f"{design['n']} configurations ({design['equations']} equations) for the model's "
+        f"{design['model_parameters']} parameters: it needs at least {design['needed']}, {design['thin_below']} to "
+        "be determined well"
+    )
+    prior = design.get("prior")
+    if not isinstance(prior, Mapping):
+        return f"thin campaign: {text}"
+    se = f" ± {prior['cv_mean_position_se_mm']:g}" if "cv_mean_position_se_mm" in prior else ""
+    cv = (
+        f"CV estimate of the held-out mean error {prior['cv_mean_position_mm']:g}{se} mm"
+        if "cv_mean_position_mm" in prior
+        else ""
+    )
+    if float(prior.get("strength") or 0.0) > 0:
+        done = (
+            f"identified with a prior toward the nominal description (strength {prior['strength']:g}, "
+            f"{prior['strength_rule']}; {cv}, {prior['cv_mean_position_mm_without_prior']:g} mm without the prior)"
+        )
+    else:
+        done = f"identified without a prior ({prior['strength_rule']}{'; ' + cv if cv else ''})"
+    head = "thin campaign" if design.get("thin") else f"{prior['why']}"
+    return f"{head}: {text}; {done}"
+
+
 def judge(
     fit: Mapping[str, Any],
     validation: Mapping[str, Any] | None = None,
@@ -83,6 +126,12 @@ def judge(
     """The :class:`Verdict` of a calibration by its fit record and validation figures (module doc)."""
     r = rules or AcceptanceRules()
     found: list[tuple[str, str]] = []  # (level, text) in rule order
+    design = fit.get("configurations")
+    if isinstance(design, Mapping):
+        if not design.get("enough", True):
+            found.append(("problem", too_few_configurations(design)))
+        else:
+            found.append((r.thin, thin_campaign(design)))
     if fit.get("success") is False:
         found.append(
             (

@@ -34,6 +34,9 @@ if TYPE_CHECKING:
 
 
 NOISE_MODELS = ("constant", "u_mm", "distance")
+#: settings written into calibration.json's ``config`` only when not at their default (the thin-campaign prior,
+#: :mod:`robocal.identification.thin`): a calibration made without them keeps its bytes
+WRITTEN_WHEN_SET = ("prior", "prior_mm", "prior_deg", "prior_frame_mm", "prior_frame_deg", "thin_ratio")
 #: the order of the error statistics in the fit record (calibration.json ``fit`` and ``fit.before``)
 FIT_ORDER = ("rms", "mean", "max")
 
@@ -80,6 +83,14 @@ class CalibrationConfig:
         ``u_coverage``), or ``"distance"`` (``noise_mm + noise_mm_per_m · range``, as trackers state it).
     u_coverage : coverage factor of the ``u_mm`` column (2 for a U95 export).
     noise_mm_per_m : distance term of the ``distance`` noise model, mm per metre of tracker range.
+    prior : ``"auto"`` (a prior toward the nominal description when the campaign is thin, fewer configurations
+        than give ``thin_ratio`` equations per model parameter; its strength chosen by leave-one-configuration-out
+        cross-validation), ``"off"``, or a strength (1 = the stated widths; also for a poorly spread campaign):
+        :mod:`robocal.identification.thin`. The gradient optimizers only.
+    prior_mm, prior_deg : the prior's widths (1 sigma) of the joint-level lengths and angles.
+    prior_frame_mm, prior_frame_deg : the (fixed, weak) prior's widths of the tracker frames and tools, around
+        the nominal model's best rigid fit.
+    thin_ratio : equations per model parameter below which a campaign is thin (``fit.configurations``).
     """
 
     noise_mm: float = setting(0.015, gt=0)
@@ -101,6 +112,12 @@ class CalibrationConfig:
     noise_model: str = setting("constant", choices=NOISE_MODELS)
     u_coverage: float = setting(2.0, gt=0)
     noise_mm_per_m: float = setting(0.0, ge=0)
+    prior: str | float = setting("auto", choices=("auto", "off"), gt=0, convert=outlier_rule)
+    prior_mm: float = setting(0.5, gt=0)
+    prior_deg: float = setting(0.05, gt=0)
+    prior_frame_mm: float = setting(10.0, gt=0)
+    prior_frame_deg: float = setting(1.0, gt=0)
+    thin_ratio: float = setting(3.0, gt=0)
 
     @classmethod
     def from_mapping(cls, cfg: Any, section: str = "calibration") -> CalibrationConfig:
@@ -390,7 +407,11 @@ def calibration_record(
             "condition_number": identifiability.condition_number,
         },
         "fit": fit,
-        "config": {k: getattr(config, k) for k in config.__dataclass_fields__},
+        "config": {
+            k: getattr(config, k)
+            for k, f in config.__dataclass_fields__.items()
+            if k not in WRITTEN_WHEN_SET or getattr(config, k) != f.default
+        },
     }
 
 
@@ -704,6 +725,7 @@ class CalibrationStart:
     identifiability: Identifiability
     free: np.ndarray  # sorted identifiable indices
     t0: float  # perf_counter at the start (the fit's wall time counts from here)
+    prior: Any = None  # robocal.identification.thin.Prior: rows added to the least squares (thin campaigns)
 
     @property
     def m(self) -> int:
@@ -812,6 +834,12 @@ class Screened:
     rounds: int
 
 
+def _posterior(lm: FitResult) -> np.ndarray | None:
+    """``(JᵀJ + Λ)⁻¹`` of a fit with a prior (the row test's leverages with the prior), None without one."""
+    v = lm.extra.get("posterior_normal_inverse")
+    return None if v is None else np.asarray(v)
+
+
 def screen_outliers(start: CalibrationStart, lm: FitResult, solve: Solve) -> Screened:
     """Gross errors found and left out by the rule of :mod:`robocal.identification.robust` (``outliers:
     auto``): a row test at the fit; when a row stands out, a robust start (Cauchy IRLS), then ``solve`` on the
@@ -826,7 +854,7 @@ def screen_outliers(start: CalibrationStart, lm: FitResult, solve: Solve) -> Scr
     if cfg.outliers != "auto":
         return Screened(lm, kept, test, suspects, rounds)
     free, weights, rows, fun = start.free, start.weights, start.rows, start.fun
-    test = robust.row_test(lm.residual, lm.jacobian, rows, m, kept, cfg.outlier_alpha)
+    test = robust.row_test(lm.residual, lm.jacobian, rows, m, kept, cfg.outlier_alpha, _posterior(lm))
     screen = robust.robust_screen(lm.residual, rows, m, cfg.outlier_alpha, len(free))
     if test.flagged.any() or screen.any():
         # masking and swamping: restart from an M-estimate, flag from there, then iterate the exact test
@@ -835,13 +863,13 @@ def screen_outliers(start: CalibrationStart, lm: FitResult, solve: Solve) -> Scr
         kept = ~robust.robust_screen(weights * r_rob, rows, m, cfg.outlier_alpha, len(free))
         for rounds in range(1, 8):  # noqa: B007 (reported)
             lm = solve(start, x_rob, kept)
-            test = robust.row_test(lm.residual, lm.jacobian, rows, m, kept, cfg.outlier_alpha)
+            test = robust.row_test(lm.residual, lm.jacobian, rows, m, kept, cfg.outlier_alpha, _posterior(lm))
             if np.array_equal(~test.flagged, kept):
                 break
             kept = ~test.flagged
         else:  # no fixed point in 7 rounds: the last flagged set, fitted and tested once more
             lm = solve(start, x_rob, kept)
-            test = robust.row_test(lm.residual, lm.jacobian, rows, m, kept, cfg.outlier_alpha)
+            test = robust.row_test(lm.residual, lm.jacobian, rows, m, kept, cfg.outlier_alpha, _posterior(lm))
         if (~kept).sum() > cfg.outlier_max_share * m:
             # too many to be blunders: a systematic model error; keep every row and say so
             suspects = describe_outliers(
@@ -849,7 +877,7 @@ def screen_outliers(start: CalibrationStart, lm: FitResult, solve: Solve) -> Scr
             )
             kept = np.ones(m, dtype=bool)
             lm = solve(start, start.x_init, kept)
-            test = robust.row_test(lm.residual, lm.jacobian, rows, m, kept, cfg.outlier_alpha)
+            test = robust.row_test(lm.residual, lm.jacobian, rows, m, kept, cfg.outlier_alpha, _posterior(lm))
             test = robust.RowTest(test.F, test.p_value, np.zeros(m, dtype=bool), test.threshold_F, test.alpha, test.d)
     return Screened(lm, kept, test, suspects, rounds)
 
@@ -973,7 +1001,9 @@ def calibrate_with(
     optimizer (Levenberg-Marquardt by default): the optimizers build on this module, not the other way round.
     """
     cfg = config
-    res = fit_from(calibration_start(campaign, robot, cfg, x0), solve)
+    start = calibration_start(campaign, robot, cfg, x0)
+    res = fit_from(start, solve)
+    res, prior = thin_campaign(start, res, solve)
     poor = res.statistics.get("poorly_determined") or []
     if cfg.poorly_determined == "report" or not poor:
         return res
@@ -989,7 +1019,10 @@ def calibrate_with(
         worst = max(poor, key=lambda p: p["stderr"] / p["bound"])
         held.append(worst["name"])
         records.append({**worst, "action": action})
-        nxt = fit_from(calibration_start(campaign, robot, cfg, x0, held=tuple(held)), solve)
+        nxt_start = calibration_start(campaign, robot, cfg, x0, held=tuple(held))
+        nxt = fit_from(nxt_start if prior is None else replace(nxt_start, prior=prior), solve)
+        if "configurations" in res.statistics:
+            nxt = nxt.with_statistics(configurations=res.statistics["configurations"])
         poor = nxt.statistics.get("poorly_determined") or []
         if len(poor) >= int(nxt.identified.sum()):
             break
@@ -999,6 +1032,38 @@ def calibrate_with(
         for p in (res.statistics.get("poorly_determined") or [])
     ]
     return res.with_statistics(poorly_determined=records + left)
+
+
+def thin_campaign(start: CalibrationStart, res: CalibrationResult, solve: Solve) -> tuple[CalibrationResult, Any]:
+    """The configurations of the campaign against the model's parameters and, for a thin campaign (``prior:
+    auto``; always with a strength given), the fit again with a prior toward the nominal description
+    (:mod:`robocal.identification.thin`; a poorly spread campaign of enough configurations keeps the holding of
+    poorly determined parameters, :func:`calibrate_with`, unless a strength is given). The fit record gets
+    ``configurations`` when the campaign is thin, has too few configurations or the prior is on (a campaign
+    with plenty of configurations keeps its record, and its bytes). Returns the calibration and the prior."""
+    from robocal.identification import thin
+
+    cfg = start.config
+    design = thin.design_of(start)
+    if cfg.prior == "off":
+        why = None
+    elif cfg.prior != "auto":
+        why = "the 'prior' setting"
+    elif design["thin"]:
+        why = (
+            f"thin campaign: {design['n']} configurations give {design['equations']} equations for "
+            f"{design['model_parameters']} parameters, fewer than {cfg.thin_ratio:g} per parameter"
+        )
+    else:
+        why = None
+    prior = None
+    if why is not None and design["enough"]:
+        prior, design["prior"] = thin.choose_prior(start, why)
+    if prior is not None:
+        res = fit_from(replace(start, prior=prior), solve)
+    if design["thin"] or not design["enough"] or prior is not None:
+        res = res.with_statistics(configurations=design)
+    return res, prior
 
 
 def poorly_determined(model: CalibrationModel, stderr: np.ndarray, cfg: CalibrationConfig) -> list[dict[str, Any]]:

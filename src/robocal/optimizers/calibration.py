@@ -342,7 +342,8 @@ def calibration_problem(
 
 class WhitenedResiduals:
     """The whitened residuals ``w r(x)`` and Jacobian ``w J(x)`` of a started calibration on its free parameters
-    ``z`` (the others held at ``x_from``), ``w`` the noise weights with the rows left out weighted zero.
+    ``z`` (the others held at ``x_from``), ``w`` the noise weights with the rows left out weighted zero; with a
+    prior (a thin campaign, :mod:`robocal.identification.thin`) its rows ``w_p (z - z_init)`` follow the data's.
 
     The model gives residuals and Jacobian in one evaluation; the protocol asks for them one at a time: the last
     point's pair is kept, so that a gradient step costs one model evaluation (at ``x_init`` none: the start's).
@@ -355,6 +356,15 @@ class WhitenedResiduals:
         self.weights = start.weights if kept.all() else start.weights * kept[start.rows]
         self._key: bytes | None = None  # the bytes of the last point (cheaper to compare than np.array_equal)
         self._pair: tuple[np.ndarray, np.ndarray] = (np.empty(0), np.empty((0, 0)))
+        # a thin campaign's prior (robocal.identification.thin.Prior): rows w (z - z_init) after the data's
+        prior = start.prior
+        self.prior_w = None if prior is None else np.asarray(prior.rows(start.free), dtype=float)
+        self.z_center = np.asarray(start.x_init, dtype=float)[start.free]
+
+    @property
+    def n_prior(self) -> int:
+        """The prior's rows at the end of the residuals (0 without a prior)."""
+        return 0 if self.prior_w is None else int(self.prior_w.size)
 
     def full(self, z: np.ndarray) -> np.ndarray:
         """The full parameter vector with the free entries ``z``."""
@@ -368,6 +378,12 @@ class WhitenedResiduals:
             r, J = self.fun(self.full(z))
             w = self.weights
             self._pair = (w * r, w[:, None] * J[:, self.free])
+            if self.prior_w is not None:
+                pw = self.prior_w
+                self._pair = (
+                    np.concatenate([self._pair[0], pw * (np.asarray(z, dtype=float) - self.z_center)]),
+                    np.vstack([self._pair[1], np.diag(pw)]),
+                )
             self._key = key
         return self._pair
 

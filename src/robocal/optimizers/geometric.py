@@ -41,7 +41,7 @@ from robocal.identification.calibrate import (
     calibration_start,
     fit_from,
 )
-from robocal.identification.result import FitResult, fit_covariance
+from robocal.identification.result import FitResult, fit_covariance, normal_inverse
 from robocal.metrics import noise_floor as floor_of
 from robocal.metrics import position_keys
 from robocal.optimizers.calibration import (
@@ -213,7 +213,10 @@ def calibration_fit(start: CalibrationStart, wr: WhitenedResiduals, res: FitResu
     x = wr.full(res.x)
     ndata = int(np.count_nonzero(wr.weights))
     cov = res.covariance
-    if cov is not None and ndata != res.ndata:
+    if wr.n_prior:
+        res = posterior(res, wr.n_prior, ndata)
+        cov = res.covariance
+    elif cov is not None and ndata != res.ndata:
         cov = fit_covariance(res.residual, res.jacobian, ndata)
     out = res.evolve(x=x, varied=start.free, names=start.model.names, ndata=ndata, covariance=cov)
     if kept.all():
@@ -221,6 +224,22 @@ def calibration_fit(start: CalibrationStart, wr: WhitenedResiduals, res: FitResu
     r, J = start.fun(x)
     w = start.weights
     return out.evolve(residual=w * r, jacobian=w[:, None] * J[:, start.free], outliers=tuple(np.flatnonzero(~kept)))
+
+
+def posterior(res: FitResult, n_prior: int, ndata: int) -> FitResult:
+    """A fit with a prior's ``n_prior`` rows at the end of its residuals as the calibration's fit: residuals,
+    Jacobian and χ² of the data rows only, and the posterior covariance ``s² (JᵀJ + Λ)⁻¹`` (``Λ`` the prior's
+    rows' ``JᵀJ``; ``s²`` the data's residual variance over ``ndata`` minus the effective number of parameters
+    ``tr(JᵀJ (JᵀJ + Λ)⁻¹)``; 1 when no degree of freedom is left). ``(JᵀJ + Λ)⁻¹`` goes to ``extra`` for the
+    gross-error test's leverages."""
+    n = res.residual.size - n_prior
+    r, J = np.asarray(res.residual[:n]), np.asarray(res.jacobian[:n])
+    inv = normal_inverse(np.asarray(res.jacobian))
+    k_eff = float(np.trace(J.T @ J @ inv))
+    s2 = float(r @ r) / (ndata - k_eff) if ndata > k_eff else 1.0
+    chi2 = float(r @ r)
+    extra = {**res.extra, "posterior_normal_inverse": inv, "effective_parameters": k_eff}
+    return res.evolve(residual=r, jacobian=J, chi2=chi2, cost=0.5 * chi2, covariance=s2 * inv, extra=extra)
 
 
 def solve_with(optimizer: Optimizer) -> Solve:

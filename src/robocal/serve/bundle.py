@@ -40,6 +40,7 @@ from typing import Any
 import numpy as np
 
 from robocal.errors import ConfigError
+from robocal.identification.acceptance import too_few_configurations
 from robocal.identification.calibrate import CalibrationResult, check_robot, load_calibration
 from robocal.io import write_json
 from robocal.kinematics.chain import Chain
@@ -309,8 +310,13 @@ def write_bundle(
     calibration: str | Path,
     thermal: str | Path | None = None,
     compliance: str | Path | None = None,
+    *,
+    force: bool = False,
 ) -> Path:
     """Copy the model files into ``out_dir`` and write the manifest last (atomically) with their sha256.
+
+    A calibration of too few joint configurations to determine the model (its fit record's ``configurations``,
+    :mod:`robocal.identification.thin`) is refused unless ``force``.
 
     robot : a robot name or a YAML file (:func:`robocal.robot.find_robot`); a file, or a name found in the
         current project's ``conf/robot/`` rather than among the packaged robots, is copied as ``robot.yaml`` so
@@ -325,6 +331,12 @@ def write_bundle(
         raise ConfigError(f"cannot read the calibration {cal_path}: {exc}") from None
     if isinstance(cal_data, dict):
         check_robot(cal_data, load_robot(robot if rp is None else rp), f"the calibration {cal_path}")
+        design = (cal_data.get("fit") or {}).get("configurations") if isinstance(cal_data.get("fit"), dict) else None
+        if isinstance(design, dict) and not design.get("enough", True) and not force:
+            raise ConfigError(
+                f"the calibration {cal_path} is not fit to serve: {too_few_configurations(design)}. "
+                "To write the bundle anyway: --force (write_bundle(..., force=True))"
+            )
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     files: dict[str, str] = {}
