@@ -152,17 +152,22 @@ def session(cal_path: Path, val_paths: list[Path], settings: dict, keep: Path | 
         print(f"  cross-validated within the session: mean {kept['cv_mean_position_mm']:.4f} mm")
     for vp in val_paths:
         vcamp = read_campaign(vp, load_robot(vp / "robot.yaml"))
-        v = session_validation(cal, vcamp, geo)
-        print(f"  on {vp.name}: {v['n_registration_rows']} rows register the tracker, {v['n_validation_rows']} judge")
-        for label, key in (("geometric", "geometric"), ("discovered (final)", "final")):
-            s = v[key]
-            print(f"    {label:<20} mean {s['mean_position_mm']:.4f}  RMS {s['rms_position_mm']:.4f}  "
-                  f"max {s['max_position_mm']:.4f} mm")  # fmt: skip
-        for k, s in v["without"].items():
-            d = s["mean_position_mm"] - v["final"]["mean_position_mm"]
-            verdict = "helped" if d > 0 else "hurt"
-            print(f"    without {k:<24} mean {s['mean_position_mm']:.4f} mm ({verdict} {abs(d):.4f})")
-        print(f"    helped: {v['helped']}  hurt: {v['hurt']}")
+        for tool in (False, True):
+            _session_lines(vp.name, session_validation(cal, vcamp, geo, tool=tool))
+
+
+def _session_lines(name: str, v: dict) -> None:
+    print(f"  on {name}: {v['n_registration_rows']} rows register the {v['registered']}, "
+          f"{v['n_validation_rows']} judge")  # fmt: skip
+    for label, key in (("geometric", "geometric"), ("discovered (final)", "final")):
+        s = v[key]
+        print(f"    {label:<20} mean {s['mean_position_mm']:.4f}  RMS {s['rms_position_mm']:.4f}  "
+              f"max {s['max_position_mm']:.4f} mm")  # fmt: skip
+    for k, s in v["without"].items():
+        d = s["mean_position_mm"] - v["final"]["mean_position_mm"]
+        verdict = "helped" if d > 0 else "hurt"
+        print(f"    without {k:<24} mean {s['mean_position_mm']:.4f} mm ({verdict} {abs(d):.4f})")
+    print(f"    helped: {v['helped']}  hurt: {v['hurt']}")
 
 
 def _setting(text: str) -> tuple[str, object]:

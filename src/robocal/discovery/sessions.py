@@ -23,10 +23,12 @@ from robocal.kinematics.transforms import kabsch
 from robocal.metrics import ErrorStats
 
 
-def predicted_points(cal: CalibrationResult, campaign: Campaign, records: tuple[dict[str, Any], ...]) -> np.ndarray:
-    """The target points the model predicts for every row of ``campaign`` in the robot's base frame (m, 3) mm:
-    the joint-level effects ``records`` (a subset of ``cal.effects``) added to the joint angles (evaluated
-    exactly, not from the service's tables), the calibrated geometry, the row's target's tool offset."""
+def predicted_flanges(
+    cal: CalibrationResult, campaign: Campaign, records: tuple[dict[str, Any], ...]
+) -> tuple[np.ndarray, np.ndarray]:
+    """The flange poses the model predicts for every row of ``campaign`` in the robot's base frame (m, 4, 4), the
+    joint-level effects ``records`` (a subset of ``cal.effects``) added to the joint angles (evaluated exactly,
+    not from the service's tables), and each row's tool offset (m, 3) mm from the calibration."""
     model = cal.model
     tools = cal.tools
     unknown = sorted(set(campaign.target.astype(str).tolist()) - set(tools))
@@ -38,21 +40,65 @@ def predicted_points(cal: CalibrationResult, campaign: Campaign, records: tuple[
     if records:
         pay = np.broadcast_to(np.asarray(campaign.payload_kg, dtype=float), (campaign.n_rows,))
         q = q + joint_offsets(list(records), model.robot, q, pay)
-    T = fk(model.chain, q, cal.kinematic_errors)
-    off = np.stack([tools[str(t)] for t in campaign.target])
+    return fk(model.chain, q, cal.kinematic_errors), np.stack([tools[str(t)] for t in campaign.target])
+
+
+def predicted_points(cal: CalibrationResult, campaign: Campaign, records: tuple[dict[str, Any], ...]) -> np.ndarray:
+    """The target points the model predicts for every row of ``campaign`` in the robot's base frame (m, 3) mm
+    (:func:`predicted_flanges` with each row's tool offset)."""
+    T, off = predicted_flanges(cal, campaign, records)
     return np.einsum("mij,mj->mi", T[:, :3, :3], off) + T[:, :3, 3]
 
 
-def _judge(pred: np.ndarray, meas: np.ndarray, reg: np.ndarray, val: np.ndarray) -> tuple[ErrorStats, np.ndarray]:
-    T = kabsch(pred[reg], meas[reg])
-    e = pred[val] @ T[:3, :3].T + T[:3, 3] - meas[val]
-    return ErrorStats.of(e), e
+#: Alternations of tracker registration (Kabsch) and tool offsets (linear least squares) when a new session
+#: re-measures the tool too: the rigid fit's start, as calibrate's registration_iters
+TOOL_ITERS = 30
 
 
-def session_validation(cal: CalibrationResult, campaign: Campaign, geometric: CalibrationResult | None = None) -> dict:
+def _register(
+    T: np.ndarray, off: np.ndarray, targets: np.ndarray, meas: np.ndarray, reg: np.ndarray, tool: bool
+) -> tuple[np.ndarray, np.ndarray]:
+    """The tracker frame (4, 4) and, with ``tool``, each target's offset re-measured on the rows ``reg``: the
+    transform and offsets (m, 3) that bring the model's predictions onto the measured points."""
+    off = off.copy()
+
+    def frame() -> np.ndarray:
+        pts = np.einsum("mij,mj->mi", T[:, :3, :3], off) + T[:, :3, 3]
+        return kabsch(pts[reg], meas[reg])
+
+    X = frame()
+    for _ in range(TOOL_ITERS if tool else 0):
+        for t in np.unique(targets[reg]):
+            rows = reg & (targets == t)
+            A = np.einsum("ij,mjk->mik", X[:3, :3], T[rows, :3, :3]).reshape(-1, 3)
+            b = (meas[rows] - X[:3, 3] - T[rows, :3, 3] @ X[:3, :3].T).reshape(-1)
+            off[targets == t] = np.linalg.lstsq(A, b, rcond=None)[0]
+        X = frame()
+    return X, off
+
+
+def _judge(
+    cal: CalibrationResult,
+    campaign: Campaign,
+    records: tuple[dict[str, Any], ...],
+    reg: np.ndarray,
+    val: np.ndarray,
+    tool: bool,
+) -> ErrorStats:
+    T, off = predicted_flanges(cal, campaign, records)
+    meas = np.asarray(campaign.p_mm, dtype=float)
+    X, off = _register(T, off, np.asarray(campaign.target).astype(str), meas, reg, tool)
+    pts = np.einsum("mij,mj->mi", T[val, :3, :3], off[val]) + T[val, :3, 3]
+    return ErrorStats.of(pts @ X[:3, :3].T + X[:3, 3] - meas[val])
+
+
+def session_validation(
+    cal: CalibrationResult, campaign: Campaign, geometric: CalibrationResult | None = None, tool: bool = False
+) -> dict:
     """``cal`` (a calibration, with or without discovered effects) on another session ``campaign``: the tracker
-    registered on the session's calibration rows (a rigid fit to the model's predictions), errors on its
-    validation rows (or, without a split, on every row: then the figure is a fit, and said so).
+    registered on the session's calibration rows (a rigid fit to the model's predictions; with ``tool`` the
+    tool offsets re-measured too, as after a re-seated tool), errors on its validation rows (or, without a
+    split, on every row: then the figure is a fit, and said so). The robot's model stays as calibrated.
 
     Returns ``{"n_registration_rows", "n_validation_rows", "final": stats, "geometric": stats (when given),
     "without": {effect key: stats with that effect left out}, "helped": [...], "hurt": [...]}``; stats are
@@ -68,10 +114,10 @@ def session_validation(cal: CalibrationResult, campaign: Campaign, geometric: Ca
         raise DataError(
             f"campaign {campaign.source}: {int(reg.sum())} calibration row(s); registering a tracker needs >= 3"
         )
-    meas = np.asarray(campaign.p_mm, dtype=float)
     records = tuple(cal.effects)
-    final, _ = _judge(predicted_points(cal, campaign, records), meas, reg, val)
+    final = _judge(cal, campaign, records, reg, val, tool)
     out: dict[str, Any] = {
+        "registered": "tracker and tool" if tool else "tracker",
         "n_registration_rows": int(reg.sum()),
         "n_validation_rows": int(val.sum()),
         "final": final.to_dict(),
@@ -79,11 +125,11 @@ def session_validation(cal: CalibrationResult, campaign: Campaign, geometric: Ca
     if note:
         out["note"] = note
     if geometric is not None:
-        out["geometric"] = _judge(predicted_points(geometric, campaign, ()), meas, reg, val)[0].to_dict()
+        out["geometric"] = _judge(geometric, campaign, (), reg, val, tool).to_dict()
     without: dict[str, Any] = {}
     for k, rec in enumerate(records):
         rest = records[:k] + records[k + 1 :]
-        without[str(rec["key"])] = _judge(predicted_points(cal, campaign, rest), meas, reg, val)[0].to_dict()
+        without[str(rec["key"])] = _judge(cal, campaign, rest, reg, val, tool).to_dict()
     out["without"] = without
     m = final.mean_mm
     out["helped"] = sorted(k for k, s in without.items() if s["mean_position_mm"] > m)
@@ -91,4 +137,4 @@ def session_validation(cal: CalibrationResult, campaign: Campaign, geometric: Ca
     return out
 
 
-__all__ = ["predicted_points", "session_validation"]
+__all__ = ["predicted_flanges", "predicted_points", "session_validation"]
