@@ -38,6 +38,9 @@ def test_tracked_floats_drop_the_noise_and_keep_the_model() -> None:
     assert str(tracked_float(-1e-13, "rms_mm")) == "0.0"  # no "-0.0" in a file
     # a model value keeps its 9 significant digits (a link length to 1e-6 mm, an angle to 1e-9 rad)
     assert tracked_float(1234.56789123, "value") == 1234.56789
+    # ... at no more than 12 decimals: a small kinematic error's last digit is absolute noise (Sandybridge kernel)
+    assert tracked_float(8.51680062e-06, "alpha4") == tracked_float(8.51680063e-06, "alpha4") == 8.516801e-06
+    assert tracked_float(3e-15, "covariance") == 3e-15  # legitimately tiny quantities keep their digits
     with reproducible():
         text = to_json({"eliminated": [{"leftover": 5.9e-16}], "p": {"value": 0.123456789123}, "rms_mm": 0.01234567})
     assert json.loads(text) == {"eliminated": [{"leftover": 0.0}], "p": {"value": 0.123456789}, "rms_mm": 0.012346}

@@ -27,9 +27,12 @@ from typing import Any
 import numpy as np
 
 #: Significant digits of the floats written in reproducible mode unless :data:`PRECISION` says otherwise: the
-#: model's own values (parameters, frames) converge to far better than 1e-9 relative and did not differ at all
-#: between two OpenBLAS kernels (issue 30 item 4), so they keep 9 digits.
+#: model's own values (parameters, frames) converge to far better than 1e-9 relative, so they keep 9 digits...
 SIGNIFICANT_DIGITS = 9
+#: ... and no more decimals than this: a value's noise is also absolute (a kinematic error of 8.5e-6 rad came out
+#: 8.51680062e-06 vs 8.51680063e-06 under the Sandybridge kernel, 1e-15 rad apart); 1e-12 (rad, mm, deg) is a
+#: picometre at a metre's reach. Quantities that are legitimately smaller say so in :data:`PRECISION`.
+FLOOR_DECIMALS = 12
 #: Precision of the derived statistics whose last digits are noise: key -> ("sig", n) significant digits or
 #: ("dec", n) decimals (noise that is absolute, not relative). A pattern ``*suffix`` matches a key's end.
 #: Measured between the Haswell and Prescott kernels on the default pipeline (69 numbers of 6 850 differed at 9
@@ -57,6 +60,17 @@ PRECISION: dict[str, tuple[str, int]] = {
     "*p_value_vs_no_drift": ("sig", 6),
     "stderr": ("sig", 5),
     "matrix": ("dec", 6),
+    # legitimately tiny: written to their significant digits whatever their size
+    "covariance": ("sig", 9),
+    "ftol": ("sig", 9),
+    "xtol": ("sig", 9),
+    "gtol": ("sig", 9),
+    "alpha": ("sig", 9),
+    "cv_alpha": ("sig", 9),
+    "outlier_alpha": ("sig", 9),
+    "rank_tol": ("sig", 9),
+    "absorbed_tol": ("sig", 9),
+    "min_signal_std": ("sig", 9),
 }
 
 
@@ -91,21 +105,26 @@ def round_float(value: float, digits: int = SIGNIFICANT_DIGITS) -> float:
     return float(f"{value:.{digits}g}")
 
 
-def _precision(key: object) -> tuple[str, int]:
+def _precision(key: object) -> tuple[str, int] | None:
     k = str(key)
     if k in PRECISION:
         return PRECISION[k]
     for pattern, rule in PRECISION.items():
         if pattern.startswith("*") and k.endswith(pattern[1:]):
             return rule
-    return ("sig", SIGNIFICANT_DIGITS)
+    return None
 
 
 def tracked_float(value: float, key: object = None) -> float:
-    """``value`` as a tracked output writes it under ``key`` (:data:`PRECISION`); ``-0.0`` written ``0.0``."""
+    """``value`` as a tracked output writes it under ``key``: by its rule in :data:`PRECISION`, else to
+    :data:`SIGNIFICANT_DIGITS` significant digits and at most :data:`FLOOR_DECIMALS` decimals; ``-0.0`` is
+    written ``0.0``."""
     if not math.isfinite(value):
         return value
-    kind, n = _precision(key)
+    rule = _precision(key)
+    if rule is None:
+        return round_float(round(value, FLOOR_DECIMALS)) + 0.0
+    kind, n = rule
     return (round(value, n) if kind == "dec" else round_float(value, n)) + 0.0
 
 
