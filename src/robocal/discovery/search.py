@@ -243,6 +243,12 @@ def discover(campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig |
         outliers = describe_outliers(cal, ~kept, rr[:, :3], rr[:, 3:] if fit.d == 6 else None, test)
     else:
         outliers = []
+    if "signal" in cfg.effects:
+        from robocal.discovery.logged import record
+
+        logged = record(campaign, robot)
+        if logged is not None:
+            res.extra["logged_signals"] = logged
     res.extra.update(
         outliers=outliers,
         outlier_rounds=rounds,
