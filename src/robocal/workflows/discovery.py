@@ -334,6 +334,9 @@ def write_product(res: DiscoveryResult, summ: dict[str, Any], out: Path) -> str 
     status = np.full(len(idx), TargetStatus.OK, dtype=object)
     reason = np.full(len(idx), "", dtype=object)
     corr_max = np.zeros(len(idx))
+    # the logged signals the model's effects follow, from the campaign's own columns (robocal.discovery.logged)
+    cols = {str(e["column"]) for e in cal.effects if e.get("signal") in ("logged", "logged_frame")}
+    logged = {c: np.asarray(sub.extra[c], dtype=float) for c in cols}
     for t in dict.fromkeys(tgt):
         rows = np.array([k for k, tt in enumerate(tgt) if tt == t])
         r = idx[rows]
@@ -345,6 +348,7 @@ def write_product(res: DiscoveryResult, summ: dict[str, Any], out: Path) -> str 
             None if sub.tau_Nm is None else sub.tau_Nm[r],
             None if sub.current_A is None else sub.current_A[r],
             None if sub.direction is None else sub.direction[r],
+            {k: v[r] for k, v in logged.items()} or None,
         )
         assert comp.status is not None and comp.reasons is not None
         refused = np.array([x == TargetStatus.REFUSED for x in comp.status], dtype=bool)
