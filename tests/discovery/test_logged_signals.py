@@ -81,7 +81,9 @@ def test_null_random_channels_are_not_named_and_joint_functions_not_used(tmp_pat
     assert all(r.startswith("a function of the joint angles") for r in why.values())
     # the random channels were offered: every frame and joint candidate of each is in the library
     lib = {c["key"] for c in s["library"]}
-    assert {f"signal:noise_a:{f}" for f in ("base_rot", "base_trans", "tool_rot", "tool_trans", "j1", "j6")} <= lib
+    assert {
+        f"signal:noise_a:{f}" for f in ("base_rot", "base_trans", "tool_rot", "tool_trans", "scale", "j1", "j6")
+    } <= lib
 
 
 def test_screen_names_each_column_not_used_with_its_reason(tmp_path):

@@ -88,8 +88,9 @@ def effect_records(fit: Fit) -> tuple[list[dict[str, Any]], list[dict[str, Any]]
             elif c.effect in ("drift", "air", "regap"):
                 why = "a measurement-side effect (the tracker's frame moving): it corrects the figures, never the robot"
             elif c.effect == "signal":
-                why = (f"a measurement-side effect (the logged signal {c.extra['column']} is declared on the tracker): "
-                       "it corrects the figures, never the robot")  # fmt: skip
+                what = "the tracker's scale follows" if c.shape == "tracker" else "declared on the tracker:"
+                why = (f"a measurement-side effect ({what} the logged signal {c.extra['column']}): it corrects the "
+                       "figures, never the robot")  # fmt: skip
             elif c.effect == "scale":
                 why = "a measurement-side effect (the tracker's length scale): it corrects the figures, never the robot"
             else:

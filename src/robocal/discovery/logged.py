@@ -19,7 +19,8 @@ Each remaining signal ``s`` (centred on the calibration rows) is offered as the 
   or ``tx, ty, tz`` mm per unit of the signal, in the robot's base axes; on every tracker station);
 * ``signal:<col>:tool_rot`` / ``tool_trans``: the tool (every target alike) rotating / moving on the flange
   (flange axes);
-* ``signal:<col>:j<j>``: a joint offset ``dq_j = c · s`` (rad per unit).
+* ``signal:<col>:j<j>``: a joint offset ``dq_j = c · s`` (rad per unit);
+* ``signal:<col>:scale``: the tracker's length scale following the signal (ppm per unit, measurement side).
 
 The frame effects are ``frame`` candidates (first order, like the parameter drifts: ``dp = G c s`` with ``G`` the
 model's Jacobian of the base or tool frame, :func:`frame_columns`); the joint offsets are ordinary joint effects.
@@ -196,7 +197,7 @@ def signal_candidates(campaign: Campaign, robot: RobotDescription, cfg: Any, out
     """The ``signal`` candidates of the campaign (:mod:`robocal.discovery.candidates`' builder): for every usable
     logged signal, the four frame effects and a joint offset per moving joint; the columns not used go to the
     skipped list with their reason."""
-    from robocal.discovery.candidates import Candidate, SkippedCandidate
+    from robocal.discovery.candidates import PPM, Candidate, SkippedCandidate
 
     used, skipped = screen(campaign, robot)
     for s in skipped:
@@ -225,6 +226,15 @@ def signal_candidates(campaign: Campaign, robot: RobotDescription, cfg: Any, out
                     extra={**info, "frame": frame},
                 )
             )  # fmt: skip
+        out.cands.append(
+            Candidate(
+                f"signal:{sig.name}:scale", "signal", None, None,
+                cause=f"the tracker's length scale follows {sig.name} (the air's refractive index, the tracker's "
+                "own temperature): a measurement-side effect, never sent to the controller", signal=what,
+                shape="tracker", S=S * PPM, coef_names=("ppm",), coef_units=(f"ppm/{unit}",),
+                extra={**info, "frame": None, "side": "measurement", "p_mm": campaign.p_mm},
+            )
+        )  # fmt: skip
         for j in range(robot.n_joints):
             if float(np.ptp(campaign.q[:, j])) < 1e-6:
                 continue

@@ -86,6 +86,8 @@ def _signal_estimates(acc: Accepted, val: np.ndarray, se: np.ndarray) -> dict[st
     unit = (c.extra.get("signal_info") or {}).get("unit") or "unit"
     per_rad = ANGLE_UNITS.get(unit)
     out: dict[str, Any] = {}
+    if c.shape == "tracker":  # the tracker's scale, ppm per unit of the signal
+        return {f"ppm_per_{col}": _est(val[0], se[0], f"ppm/{unit}")}
     for k, n in enumerate(c.coef_names):
         rotation = c.coef_units[k].startswith("rad")
         f = _DEG if rotation else 1.0
@@ -108,6 +110,11 @@ def signal_statement(acc: Accepted, est: dict[str, Any]) -> str:
     c = acc.cand
     col = c.extra["column"]
     frame = c.extra.get("frame")
+    if c.shape == "tracker":
+        e = est[f"ppm_per_{col}"]
+        return f"the tracker's scale changes by {e['value']:.4g} ppm per {e['unit'].split('/', 1)[1]} of {col} " + (
+            f"(± {float(e['stderr']):.2g})" if e["stderr"] is not None else ""
+        )
     subject = {"base_rot": "the base tilts", "base_trans": "the base moves", "tool_rot": "the tool tilts",
                "tool_trans": "the tool moves", None: f"joint {c.joint} turns"}[frame]  # fmt: skip
     parts = []
