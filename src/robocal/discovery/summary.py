@@ -442,6 +442,14 @@ def summary(res: DiscoveryResult, validation: dict[str, Any] | None = None) -> d
             "threshold_log10_p": res.threshold_log10_p,
             "min_excess_share": res.config.min_excess_share,
             "cv_folds": res.config.cv_folds,
+            **(
+                {
+                    "signal_tests": res.extra["signal_tests"],
+                    "signal_threshold_log10_p": res.extra["signal_threshold_log10_p"],
+                }
+                if res.extra.get("signal_tests")
+                else {}
+            ),
         },
         "n_rows": len(res.rows),
         "wall_time_s": res.wall_time_s,
