@@ -217,3 +217,19 @@ def test_compensation_and_the_service_take_the_logged_signal_with_each_target(tm
     for k, res in enumerate(r["results"]):
         if res["status"] != "refused":
             assert np.allclose(res["q_deg"], np.rad2deg(comp.q[k]), atol=1e-5)  # the one compensation path
+
+
+def test_random_channels_leave_the_library_search_unchanged(tmp_path):
+    """The logged signals are a family of their own: random extra columns do not move the library's threshold, so
+    the same effects are named, step by step, as on the campaign without them."""
+    gear = {"gear": {"joint": 4, "harmonics": [{"harmonic": 1, "amplitude_deg": 0.005, "phase_deg": 30.0}]}}
+    cfg = replace(FAST, grow_max_steps=0)
+    camp, robot, _ = make_campaign(tmp_path, "geometric", 41, {**gear, "logged_channels": {"channels": NULL_CHANNELS}})
+    with_channels = summary(discover(camp, robot, cfg))
+    camp0, robot0, _ = make_campaign(tmp_path, "geometric", 41, gear)
+    without = summary(discover(camp0, robot0, cfg))
+    assert [n["key"] for n in with_channels["named"]] == [n["key"] for n in without["named"]] == ["gear:j4:h1"]
+    assert with_channels["selection"]["threshold_log10_p"] == without["selection"]["threshold_log10_p"]
+    assert with_channels["selection"]["signal_tests"] == 2 * 11  # two usable channels, eleven candidates each
+    assert "signal_tests" not in without["selection"]
+    assert with_channels["rms_after_mm"] == pytest.approx(without["rms_after_mm"], rel=1e-9)
