@@ -42,6 +42,14 @@ def compute(ctx: Context) -> Metrics:
         old.unlink()
     frame = camp.to_frame()
     atomic_write(ctx.out / "poses.parquet", lambda p: frame.to_parquet(p, index=False))
+    # the logged signals declared beside the campaign travel with its copy (robocal.logged_signals)
+    if camp.signal_declarations:
+        import yaml
+
+        decl = {"signals": {d.name: d.to_dict() for d in camp.signal_declarations}}
+        atomic_write(ctx.out / "signals.yaml", lambda p: p.write_text(yaml.safe_dump(decl, sort_keys=True)))
+    else:
+        (ctx.out / "signals.yaml").unlink(missing_ok=True)
     if camp.temperature_log is not None:
         log = camp.temperature_log
         tlog = pd.DataFrame(

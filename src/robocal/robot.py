@@ -26,6 +26,8 @@ YAML format (keys not listed are kept in ``extra`` and ignored)::
       - {name: T_j1_C, location: joint, index: 1}
       - {name: T_l4_C, location: link, index: 4}
     T0_C: 24.3                          # reference temperature of the nominal model
+    signals:                            # optional: logged signals (extra numeric columns of poses.csv)
+      incl_x: {unit: mrad, location: base, description: "inclinometer on the stand"}   # robocal.logged_signals
     dynamics:                           # optional, for gravity torques
       source: "how the masses were obtained"
       gravity_mps2: [0, 0, -9.81]       # in the base frame
@@ -46,6 +48,7 @@ import numpy as np
 import yaml
 
 from robocal.errors import ConfigError
+from robocal.logged_signals import SignalDeclaration, parse_declarations
 
 #: The MD-H convention string accepted in robot files.
 MDH = "mdh_rx_tx_rz_tz_ry"
@@ -120,6 +123,7 @@ class RobotDescription:
     payload_com_mm: np.ndarray = field(default_factory=lambda: np.zeros(3))
     gravity: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, -9.81]))
     source: str = ""
+    signals: tuple[SignalDeclaration, ...] = ()
 
     @property
     def n_joints(self) -> int:
@@ -201,6 +205,7 @@ def robot_from_dict(data: dict[str, Any], source: str = "<dict>") -> RobotDescri
         payload_com_mm=payload_com,
         gravity=gravity,
         source=source,
+        signals=parse_declarations(data.get("signals"), source),
     )
 
 

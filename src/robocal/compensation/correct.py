@@ -114,6 +114,25 @@ def beyond_own(
     return np.rad2deg(np.abs(beyond).max(axis=1)), np.sqrt((d * d).sum(axis=1))
 
 
+def _desired(
+    cc_nom: CompiledChain,
+    q: np.ndarray,
+    tool_nominal: np.ndarray,
+    tool_true: np.ndarray,
+    frames: tuple[np.ndarray, np.ndarray] | None,
+    rows: np.ndarray | None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The pose the nominal controller means at ``q``, moved back by the frames of the targets ``rows`` (all when
+    None) when logged signals move the base or the tool (:func:`robocal.compensation.discovered.frame_desired`)."""
+    p, R, _, _ = forward(cc_nom, q, tool_nominal)
+    if frames is None:
+        return p, R
+    from robocal.compensation.discovered import frame_desired
+
+    sel = slice(None) if rows is None else rows
+    return frame_desired((frames[0][sel], frames[1][sel]), tool_true, p, R)
+
+
 def correct_targets(
     cc: CompiledChain,
     cc_nom: CompiledChain,
@@ -129,6 +148,7 @@ def correct_targets(
     policy: SafetyPolicy | None = None,
     request_reasons: Sequence[str] = (),
     unreachable: np.ndarray | None = None,
+    frames: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> Corrected:
     """Correct the targets ``q_target`` (m, n) rad and judge them.
 
@@ -136,7 +156,9 @@ def correct_targets(
     tool_nominal : (4, 4) or (m, 4, 4) the tool on the calibrated flange and the tool the nominal controller
     plans with; zero_off : (n,) the calibrated joint zero offsets (:func:`zero_offsets`); offsets : the
     joint-space effects (:func:`robocal.compensation.effects.compose`), or None; orientation : match the tool
-    orientation too (else the position only). The rest as :meth:`SafetyPolicy.judge`.
+    orientation too (else the position only); frames : ``(A, D)`` (m, 4, 4) each, the base and the tool as
+    logged signals move them (:func:`robocal.compensation.discovered.frame_transforms`): the pose to reach is
+    moved back by them. The rest as :meth:`SafetyPolicy.judge`.
     """
     sv = solver or SolverConfig()
     sf = policy or SafetyPolicy()
@@ -166,7 +188,7 @@ def correct_targets(
     desired = []
     for rows, tn, tt in groups:
         qt = q_target if rows is None else q_target[rows]
-        p_des, R_des, _, _ = forward(cc_nom, qt, tn)
+        p_des, R_des = _desired(cc_nom, qt, tn, tt, frames, rows)
         desired.append(p_des)
         jo: Any = None
         if offsets is not None:

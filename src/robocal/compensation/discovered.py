@@ -23,6 +23,7 @@ The records are written by :mod:`robocal.discovery.effects`; their signals are :
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from functools import cached_property
 from typing import TYPE_CHECKING, Any
@@ -43,7 +44,8 @@ from robocal.robot import RobotDescription
 if TYPE_CHECKING:
     from robocal.compensation.effects import Signals
 
-SIGNALS = ("angle", "gravity", "torque", "current", "direction", "dictionary", "transmission", "weight", "layer")
+SIGNALS = ("angle", "gravity", "torque", "current", "direction", "dictionary", "transmission", "weight", "layer",
+           "logged", "logged_frame")  # fmt: skip
 
 
 def joint_offsets(
@@ -54,11 +56,13 @@ def joint_offsets(
     tau_Nm: np.ndarray | None = None,
     current_A: np.ndarray | None = None,
     direction: np.ndarray | None = None,
+    logged: Mapping[str, np.ndarray] | None = None,
 ) -> np.ndarray:
-    """Joint deflection ``dq (m, n)`` rad of the effects at commanded joints ``q (m, n)`` rad.
+    """Joint deflection ``dq (m, n)`` rad of the effects at commanded joints ``q (m, n)`` rad (an effect of the
+    base or the tool, ``logged_frame``, moves no joint: :func:`frame_transforms`).
 
-    Raises ValueError naming the missing signal when an effect needs torques, currents or directions that are
-    not given.
+    Raises ValueError naming the missing signal when an effect needs torques, currents, directions or a logged
+    signal that are not given.
     """
     q = np.atleast_2d(np.asarray(q, dtype=float))
     m, n = q.shape
@@ -66,10 +70,14 @@ def joint_offsets(
     grav = None
     Yg: np.ndarray | None = None
     for e in effects:
+        kind = e["signal"]
+        if kind == "logged_frame":
+            continue
         j = int(e["joint"]) - 1
         c = np.asarray(e["coefficients"], dtype=float)
-        kind = e["signal"]
-        if kind == "angle":
+        if kind == "logged":
+            S = logged_values(e, logged, m)[:, None]
+        elif kind == "angle":
             S = held_harmonic_signal(q[:, j], int(e["harmonic"]), e.get("held_outside_deg"))
         elif kind == "transmission":
             S = transmission_signal(q[:, j], e)
@@ -124,9 +132,66 @@ LAYER_NOTE = "outside the calibrated region: the residual layer is not applied (
 
 
 def needs(effects: list[dict[str, Any]]) -> set[str]:
-    """The per-target signals the effects need besides the joints: ``tau_Nm``, ``current_A``, ``dir``."""
+    """The per-target signals the effects need besides the joints: ``tau_Nm``, ``current_A``, ``dir``, and
+    ``signal:<column>`` for an effect driven by a logged signal."""
     names = {"torque": "tau_Nm", "current": "current_A", "direction": "dir"}
-    return {names[e["signal"]] for e in effects if e["signal"] in names}
+    out = {names[e["signal"]] for e in effects if e["signal"] in names}
+    return out | {f"signal:{e['column']}" for e in effects if e["signal"] in ("logged", "logged_frame")}
+
+
+def logged_values(e: Mapping[str, Any], logged: Mapping[str, np.ndarray] | None, m: int) -> np.ndarray:
+    """The centred values ``(m,)`` of the logged signal an effect record follows; a ValueError naming the effect
+    and the signal when it is not given (or not one value per target)."""
+    col = str(e["column"])
+    if logged is None or col not in logged:
+        raise ValueError(f"the effect {e['key']} needs the logged signal '{col}' with each target (its value at the "
+                         "moment, as in the campaign's column)")  # fmt: skip
+    v = np.broadcast_to(np.asarray(logged[col], dtype=float), (m,))
+    if not np.all(np.isfinite(v)):
+        raise ValueError(f"the effect {e['key']} needs a finite value of the logged signal '{col}' for every target")
+    return v - float(e["centre"])
+
+
+def _rotation(w: np.ndarray) -> np.ndarray:
+    """Rotation matrices ``(m, 3, 3)`` of rotation vectors ``w (m, 3)``."""
+    from robocal.kinematics.transforms import rotvec_to_matrix
+
+    return np.asarray(rotvec_to_matrix(w))
+
+
+def frame_transforms(
+    effects: list[dict[str, Any]], logged: Mapping[str, np.ndarray] | None, m: int
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """The base and the tool as the logged signals move them (``logged_frame`` records), per target: ``(A (m, 4,
+    4), D (m, 4, 4))`` with the real tool at ``A · base_T_flange(q) · D · flange_T_tool`` — ``A`` the base turned
+    (rotation vector, base axes) and moved about its origin, ``D`` the tool turned and moved on the flange (flange
+    axes); None when no record is a frame effect."""
+    frames = [e for e in effects if e["signal"] == "logged_frame"]
+    if not frames:
+        return None
+    vec = {k: np.zeros((m, 3)) for k in ("base_rot", "base_trans", "tool_rot", "tool_trans")}
+    for e in frames:
+        vec[e["frame"]] += logged_values(e, logged, m)[:, None] * np.asarray(e["coefficients"], dtype=float)[None, :]
+    A = np.tile(np.eye(4), (m, 1, 1))
+    D = np.tile(np.eye(4), (m, 1, 1))
+    A[:, :3, :3], A[:, :3, 3] = _rotation(vec["base_rot"]), vec["base_trans"]
+    D[:, :3, :3], D[:, :3, 3] = _rotation(vec["tool_rot"]), vec["tool_trans"]
+    return A, D
+
+
+def frame_desired(
+    frames: tuple[np.ndarray, np.ndarray], tool_T: np.ndarray, p: np.ndarray, R: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The pose ``(p (m, 3), R (m, 3, 3))`` the calibrated robot's ``base_T_flange(q) · tool_T`` must reach so that
+    the real tool, moved by the frames ``(A, D)`` of :func:`frame_transforms`, lands on the desired ``(p, R)``:
+    ``A⁻¹ · P · tool_T⁻¹ · D⁻¹ · tool_T``."""
+    A, D = frames
+    m = len(p)
+    P = np.tile(np.eye(4), (m, 1, 1))
+    P[:, :3, :3], P[:, :3, 3] = R, p
+    T = np.broadcast_to(np.asarray(tool_T, dtype=float), (m, 4, 4))
+    out = np.linalg.inv(A) @ P @ np.linalg.inv(T) @ np.linalg.inv(D) @ T
+    return out[:, :3, 3], out[:, :3, :3]
 
 
 TWO_PI = 2.0 * np.pi
@@ -211,8 +276,11 @@ class DiscoveredEffects:
         fused = self._fused
         if fused is not None:  # every effect tabulated or a weight effect: one compiled call
             return compiled.joint_tables_and_weight(np.ascontiguousarray(q), *fused)
-        dq = joint_offsets(rest, self.robot, q, s.payload_kg, s.tau_Nm, s.current_A, s.direction) if rest else (
-            np.zeros(q.shape))  # fmt: skip
+        dq = (
+            joint_offsets(rest, self.robot, q, s.payload_kg, s.tau_Nm, s.current_A, s.direction, s.logged)
+            if rest
+            else np.zeros(q.shape)
+        )
         if tables is not None:
             cols, grid, vals, start = tables
             dq[:, cols] += _interp_tables(q, cols, grid, vals, start)
@@ -277,7 +345,7 @@ class DiscoveredEffects:
         (``pi_j = basis (coefficients / scale)``: mass moments over stiffness), as ``(joints, rows pi_j)``.
         rest: the other records, their numeric lists as arrays."""
         single = [e for e in self.records if _tabulated(e)]
-        rest = [e for e in self.records if not _tabulated(e) and e["signal"] != "weight"]
+        rest = [e for e in self.records if not _tabulated(e) and e["signal"] not in ("weight", "logged_frame")]
         per_joint: dict[int, np.ndarray] = {}
         for e in self.records:
             if e["signal"] == "weight":

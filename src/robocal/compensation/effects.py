@@ -17,7 +17,7 @@ the calibration's own correction (:mod:`robocal.compensation.safety`).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol
 
@@ -27,15 +27,22 @@ import numpy as np
 SIGNALS = ("tau_Nm", "current_A", "direction")
 
 
+#: the need of an effect driven by a logged signal (an extra column of the campaign) is ``signal:<column>``
+LOGGED = "signal:"
+
+
 @dataclass(frozen=True)
 class Signals:
     """Per-target signals: ``payload_kg`` (m,); ``tau_Nm`` / ``current_A`` (m, n) as the controller reports
-    them; ``direction`` (m, n) the approach direction (+-1) of each joint. None = not given."""
+    them; ``direction`` (m, n) the approach direction (+-1) of each joint; ``logged`` the logged signals'
+    values (column -> (m,)) an effect discovered on them needs (:mod:`robocal.discovery.logged`). None = not
+    given."""
 
     payload_kg: np.ndarray
     tau_Nm: np.ndarray | None = None
     current_A: np.ndarray | None = None
     direction: np.ndarray | None = None
+    logged: Mapping[str, np.ndarray] | None = None
 
     def rows(self, rows: np.ndarray) -> Signals:
         """The signals of the targets ``rows``."""
@@ -44,10 +51,11 @@ class Signals:
             None if self.tau_Nm is None else self.tau_Nm[rows],
             None if self.current_A is None else self.current_A[rows],
             None if self.direction is None else self.direction[rows],
+            None if self.logged is None else {k: np.asarray(v)[rows] for k, v in self.logged.items()},
         )
 
     def given(self) -> set[str]:
-        return {k for k in SIGNALS if getattr(self, k) is not None}
+        return {k for k in SIGNALS if getattr(self, k) is not None} | {LOGGED + k for k in (self.logged or {})}
 
 
 class JointEffect(Protocol):

@@ -30,6 +30,7 @@ from robocal.data.columns import JOINT_SIGNALS, POSE_COLUMNS, column_name, colum
 from robocal.data.dialect import read_csv
 from robocal.errors import DataError
 from robocal.io import display_path
+from robocal.logged_signals import SignalDeclaration, read_signals_file
 from robocal.robot import RobotDescription
 
 SPLIT_VALUES = ("calibration", "validation")
@@ -87,6 +88,8 @@ class Campaign:
     extra : extra columns (kept, not used); row_number : (m,) the row in the file (header = 1).
     station : (m,) str, the tracker placement of each row (one station ``"S1"`` when the file has none);
     u_mm : (m,) the tracker's stated uncertainty of each point (mm), or None.
+    signal_declarations : the logged signals declared in ``signals.yaml`` beside the campaign
+    (:mod:`robocal.logged_signals`).
     """
 
     source: str
@@ -113,6 +116,7 @@ class Campaign:
     row_number: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
     station: np.ndarray | None = None
     u_mm: np.ndarray | None = None
+    signal_declarations: tuple[SignalDeclaration, ...] = ()
 
     def __post_init__(self) -> None:
         if self.station is None:
@@ -423,6 +427,7 @@ def read_campaign(
         row_number=np.arange(m) + 2,
         station=station,
         u_mm=u_mm,
+        signal_declarations=read_signals_file(folder),
     )
     _check_same_joints(camp, path, columns("q", n))
     tpath = _find(folder, "temperatures", required=False)

@@ -8,6 +8,8 @@ Every candidate adds a few coefficients ``c`` to the calibration model. Three sh
 - ``param``: per-row drift of calibration parameters ``x_i(row) = x_i + S_i(row) · c_i`` (thermal: every
   identifiable parameter follows the temperature signals; drift: the tracker/base frame moves with time).
   Regressor ``J_x[:, :, i] · S_i``. The drift is small, so the extended model adds it to first order.
+- ``frame``: the robot base or the tool rotating / moving in proportion to a logged signal (extra column of the
+  campaign, :mod:`robocal.discovery.logged`), first order like a parameter drift.
 - ``structure``: a kinematic parameter the model leaves out (Hayati ``beta`` on a parallel joint pair).
 - ``tracker``: the tracker's length scale ``p_meas = (1 + s(row)) p_true`` about the tracker head, ``s(row) =
   S(row) · c`` (ppm): regressor ``S(row) p_mm(row)`` on the position residuals (measurement side). A constant
@@ -447,6 +449,14 @@ def _beta_candidates(campaign: Campaign, robot: RobotDescription, cfg: Discovery
         )  # fmt: skip
 
 
+def _signal_candidates(campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig, out: _Library) -> None:
+    """The ``signal`` candidates: every logged signal (extra numeric column) as a driver
+    (:mod:`robocal.discovery.logged`)."""
+    from robocal.discovery.logged import signal_candidates
+
+    signal_candidates(campaign, robot, cfg, out)
+
+
 #: the candidate builder of each library effect (an effect not listed has no candidates of its own here)
 _EFFECT_CANDIDATES: dict[str, Callable[..., None]] = {
     "compliance": _compliance_candidates,
@@ -458,6 +468,7 @@ _EFFECT_CANDIDATES: dict[str, Callable[..., None]] = {
     "air": _air_candidates,
     "scale": _scale_candidates,
     "beta": _beta_candidates,
+    "signal": _signal_candidates,
 }
 
 

@@ -22,6 +22,7 @@ EFFECT_NAMES = (
     "beta",
     "transmission",
     "weight",
+    "signal",
 )
 
 
@@ -34,7 +35,8 @@ class DiscoveryConfig:
     noise_deg : orientation noise per axis (1 sigma) when the campaign has orientations.
     use_orientation : use measured orientations when present (``None`` = when present), as ``calibrate`` does.
     outliers, outlier_alpha : gross errors, as in the geometric calibration (``auto`` / ``off`` / file rows).
-    effects : which effects of the library to try (subset of :data:`EFFECT_NAMES`).
+    effects : which effects of the library to try (subset of :data:`EFFECT_NAMES`); ``signal``: every logged signal
+        (a numeric column of the campaign beyond the contract) as a driver (:mod:`robocal.discovery.logged`).
     gear_harmonics : harmonics of the joint angle tried for the periodic gear error.
     thermal_components : principal components of the temperature log each parameter may follow (thermal).
     alpha : family-wise false-alarm rate of the nested F-test over the library (Bonferroni).

@@ -11,11 +11,12 @@ never applied silently.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from robocal.compensation.discovered import DiscoveredEffects
+from robocal.compensation.discovered import DiscoveredEffects, frame_desired, frame_transforms
 from robocal.discovery.model import Accepted, Fit
 from robocal.identification.calibrate import CalibrationConfig, CalibrationResult, calibration_record
 from robocal.identification.identifiability import Eliminated, Identifiability
@@ -39,6 +40,8 @@ def signal_kind(acc: Accepted) -> str | None:
         return "direction"
     if c.effect == "compliance":
         return str(c.extra.get("source", "gravity"))
+    if c.effect == "signal":
+        return "logged" if c.extra.get("side", "robot") == "robot" else None
     if c.effect == "proposed":
         from robocal.discovery.dictionary import Term
 
@@ -58,6 +61,25 @@ def effect_records(fit: Fit) -> tuple[list[dict[str, Any]], list[dict[str, Any]]
     for acc, sl in zip(model.accepted, model.slices, strict=True):
         c = acc.cand
         kind = signal_kind(acc)
+        if c.shape == "frame" and c.extra.get("side", "robot") == "robot":
+            # the base or the tool following a logged signal: the service and compensation.csv take the signal's
+            # value with each target and correct the pose the robot must reach (robocal.compensation.discovered)
+            joint_level.append(
+                {
+                    "key": c.key,
+                    "effect": c.effect,
+                    "joint": None,
+                    "harmonic": None,
+                    "signal": "logged_frame",
+                    "frame": c.extra["frame"],
+                    "column": c.extra["column"],
+                    "centre": float(c.extra["centre"]),
+                    "coefficients": [float(v) for v in fit.theta[sl]],
+                    "coefficient_names": list(c.coef_names),
+                    "units": list(c.coef_units),
+                }
+            )
+            continue
         if kind is None:
             if c.shape == "structure":
                 continue  # lives in the geometry (beta), already in the calibration
@@ -65,6 +87,10 @@ def effect_records(fit: Fit) -> tuple[list[dict[str, Any]], list[dict[str, Any]]
                 why = "a proposed equation with a term the commanded joints do not give (temperature, time, torque)"
             elif c.effect in ("drift", "air", "regap"):
                 why = "a measurement-side effect (the tracker's frame moving): it corrects the figures, never the robot"
+            elif c.effect == "signal":
+                what = "the tracker's scale follows" if c.shape == "tracker" else "declared on the tracker:"
+                why = (f"a measurement-side effect ({what} the logged signal {c.extra['column']}): it corrects the "
+                       "figures, never the robot")  # fmt: skip
             elif c.effect == "scale":
                 why = "a measurement-side effect (the tracker's length scale): it corrects the figures, never the robot"
             else:
@@ -86,6 +112,8 @@ def effect_records(fit: Fit) -> tuple[list[dict[str, Any]], list[dict[str, Any]]
             rec_terms = {k: c.extra[k] for k in ("basis", "scale", "prior_deg")}
         elif kind == "layer":
             rec_terms = {k: c.extra[k] for k in ("centres_rad", "length_rad", "inside_rad")}
+        elif kind == "logged":
+            rec_terms = {"column": c.extra["column"], "centre": float(c.extra["centre"])}
         joint_level.append(
             {
                 **rec_terms,
@@ -148,6 +176,7 @@ def compensate_targets(
     tau_Nm: np.ndarray | None = None,
     current_A: np.ndarray | None = None,
     direction: np.ndarray | None = None,
+    logged: Mapping[str, np.ndarray] | None = None,
     **newton: Any,
 ) -> tuple[Any, np.ndarray]:
     """Offline compensation with a calibration and its discovered joint-level effects (robot base frame): the
@@ -156,6 +185,9 @@ def compensate_targets(
     Returns the :class:`robocal.compensation.Compensation` (with the one safety policy's status per target) and
     the nominal Cartesian command ``(m, 4, 4)``
     (what the nominal controller must be sent so that its inverse kinematics yields the corrected joints).
+    ``logged``: the logged signals' values per target (column -> (m,)) that effects discovered on them need (a
+    joint offset, or the base or the tool moving with the signal: the pose to reach is moved back by it); a
+    signal an effect needs and that is not given is a ValueError naming it.
     ``newton``: stopping rules of :func:`robocal.compensation.compensate` (``max_iter``, ``tol_mm``, ``tol_rad``)."""
     from robocal.compensation import ActualRobot, compensate, desired_poses, judge_compensation
     from robocal.compensation.effects import Signals, compose, joint_effects
@@ -169,15 +201,21 @@ def compensate_targets(
     pay = np.broadcast_to(np.asarray(payload_kg, dtype=float), (m,))
     records = cal.effects
     effects = joint_effects(None, DiscoveredEffects(records, model.robot) if records else None)
+    sig = Signals(pay, tau_Nm, current_A, direction, logged)
     try:
-        offset = compose(effects, Signals(pay, tau_Nm, current_A, direction))
+        offset = compose(effects, sig)
     except ValueError:  # a signal not given: the effect's own error names it when evaluated
         from robocal.compensation.effects import JointOffsets
 
-        offset = JointOffsets(tuple(effects), Signals(pay, tau_Nm, current_A, direction))
+        offset = JointOffsets(tuple(effects), sig)
+    frames = frame_transforms(list(records), logged, m)
     actual = ActualRobot(model.chain, cal.kinematic_errors, np.eye(4), tool, tool_R, offset)
     nominal = ActualRobot(model.chain, np.zeros(model.chain.n_params), np.eye(4), tool, tool_R)
     p_d, R_d = desired_poses(nominal, q_target)
+    if frames is not None:  # the base or the tool moved by the logged signals: reach the pose that cancels it
+        T_tool0 = np.eye(4)
+        T_tool0[:3, :3], T_tool0[:3, 3] = tool_R, tool
+        p_d, R_d = frame_desired(frames, T_tool0, p_d, R_d)
     comp = compensate(actual, q_target, p_d, R_d, **newton)
     comp.status, comp.reasons = judge_compensation(
         actual, comp, p_d, None, model.robot.q_limits, model.robot.joint_names

@@ -9,7 +9,8 @@ far (a ridge where the candidate has a prior). A candidate is accepted only when
 significant: a one-sided paired t-test over the held-out poses of the per-pose squared-error differences, at
 ``cv_alpha`` divided by the number of candidates and variants tried in that step (Bonferroni), so that on data
 with nothing left to find the selection stops at once (the false-discovery control; ``benchmarks/`` checks it
-on null twins).
+on null twins). The logged signals' candidates (:mod:`robocal.discovery.logged`) are a family of their own at the
+same ``cv_alpha``, as in the F-test search.
 
 Cross-validation is linearised at the current joint fit (like :func:`robocal.discovery.search.
 cross_validation_gain`): each fold refits every free parameter of the current model and the candidate on the
@@ -290,7 +291,7 @@ def grow(
     single: list[tuple[Candidate, list[Variant]]] = [
         (c, [Variant(np.arange(c.S.shape[1]) if c.shape == "joint" else None, None, "")])
         for c in leftovers
-        if c.shape in ("joint", "param", "tracker")
+        if c.shape in ("joint", "param", "tracker", "frame")
     ]
     taken = {a.cand.key for a in accepted}  # the F-test search's weight effects are in ``accepted`` already
     pool = pooled(single + [(c, v) for c, v in physics_candidates(campaign, robot, cfg, rows) if c.key not in taken])
@@ -379,9 +380,13 @@ def _step(
 
     sse0 = cv.group_sse(cv.base_err)
     scores: list[tuple[float, float, Score, list[Candidate], Variant, dict[str, tuple[str, ...]]]] = []
-    n_tests = max(sum(len(v) for _, v in pool), 1)
-    thr = float(np.log10(cfg.cv_alpha / n_tests))
+    # the logged signals are a family of their own at the same cv_alpha (as in the F-test search)
+    n_sig = sum(len(v) for m, v in pool if m[0].effect == "signal")
+    n_tests = max(sum(len(v) for _, v in pool) - n_sig, 1)
+    thr_lib = float(np.log10(cfg.cv_alpha / n_tests))
+    thr_sig = float(np.log10(cfg.cv_alpha / max(n_sig, 1)))
     for members, variants in pool:
+        thr = thr_sig if members[0].effect == "signal" else thr_lib
         regs = [regressor(c, fit, rows, data) for c in members]
         Z_all = np.hstack([z for z, _ in regs])
         drifted = {c.key: prm for c, (_, prm) in zip(members, regs, strict=True)}
@@ -416,6 +421,7 @@ def _step(
         Step(sc.key, f"{sc.label} ({v.label})" if v.label else sc.label, before.rms_mm, fit.rms_mm, before.rss,
              fit.rss, fit.dof, [s[2] for s in scores], [], before.residuals_mm, fit.residuals_mm)
     )  # fmt: skip
+    thr = thr_sig if members[0].effect == "signal" else thr_lib
     record["steps"].append({"key": sc.key, "variant": v.label, "log10_p": lp, "threshold_log10_p": thr,
                             "cv_gain": sc.cv_gain, "members": [c.key for c in chosen]})  # fmt: skip
     taken = {c.key for c in members}

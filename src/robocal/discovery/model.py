@@ -152,6 +152,12 @@ class ExtendedModel:
                 cols = tracker_columns(c, rows, dd)
                 Jv[:, :, sl] = cols
                 rv += np.einsum("mij,j->mi", cols, theta[sl])
+            elif c.shape == "frame":  # the base or the tool following a logged signal (first order)
+                from robocal.discovery.logged import frame_rows
+
+                cols = frame_rows(c, Jx, self.base, x, data.target_index, rows)
+                Jv[:, :, sl] = cols
+                rv += np.einsum("mij,j->mi", cols, theta[sl])
         return rv.ravel(), J, Jx, Jq
 
 

@@ -69,6 +69,11 @@ def regressor(cand: Candidate, fit: Fit, rows: np.ndarray, data: FitData) -> tup
         return Z.reshape(dd * m, -1) * w, params
     if cand.shape == "tracker":
         return tracker_columns(cand, rows, dd).reshape(dd * m, -1) * w, ()
+    if cand.shape == "frame":
+        from robocal.discovery.logged import frame_rows
+
+        x = fit.theta[: fit.model.nb]
+        return frame_rows(cand, fit.Jx, fit.model.base, x, data.target_index, rows).reshape(dd * m, -1) * w, ()
     # structure: the beta column of the robot with that beta free, at the current parameters
     assert cand.joint is not None
     rob = with_beta(fit.model.robot, cand.joint)

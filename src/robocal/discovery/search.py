@@ -244,6 +244,12 @@ def discover(campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig |
         outliers = describe_outliers(cal, ~kept, rr[:, :3], rr[:, 3:] if fit.d == 6 else None, test)
     else:
         outliers = []
+    if "signal" in cfg.effects:
+        from robocal.discovery.logged import record
+
+        logged = record(campaign, robot)
+        if logged is not None:
+            res.extra["logged_signals"] = logged
     res.extra.update(
         outliers=outliers,
         outlier_rounds=rounds,
@@ -287,15 +293,19 @@ def _search(
     # the deflection) is the library's compliance: tested here with it, so that a gear harmonic fitted over less
     # than its period (a smooth trend) cannot stand in for it first; the F-test takes its unpenalised directions
     weight = [variant_candidate(c, v[0]) for c, v in physics_candidates(campaign, robot, cfg, rows, ("weight",))]
-    n_tests = max(len(library) + len(weight), 1)
+    # the logged signals (robocal.discovery.logged) are a family of their own at the same alpha, so that a
+    # campaign's extra columns cannot move the library's threshold: without a signal effect the search is the same
+    n_signal = sum(1 for c in library if c.effect == "signal")
+    n_tests = max(len(library) - n_signal + len(weight), 1)
     log_thr = float(np.log10(cfg.alpha / n_tests))
+    log_thr_signal = float(np.log10(cfg.alpha / max(n_signal, 1)))
     accepted: list[Accepted] = []
     steps: list[Step] = []
     unident: dict[str, float] = {}
     remaining = list(library) + weight
     groups = np.repeat(np.asarray(cal.pose_id).astype(str), fit.d)
     for _ in range(cfg.max_steps):
-        scores, chosen = _best_candidate(remaining, fit, rows, data, cfg, log_thr, groups, unident)
+        scores, chosen = _best_candidate(remaining, fit, rows, data, cfg, log_thr, groups, unident, log_thr_signal)
         if chosen is None:
             steps.append(Step(None, None, fit.rms_mm, fit.rms_mm, fit.rss, fit.rss, fit.dof, scores))
             break
@@ -304,7 +314,7 @@ def _search(
         accepted.append(Accepted(cand, params))
         remaining = [c for c in remaining if c.key != cand.key]
         fit = refit(accepted, fit)
-        accepted, fit, dropped = _backward_check(accepted, fit, log_thr, refit)
+        accepted, fit, dropped = _backward_check(accepted, fit, log_thr, refit, log_thr_signal)
         steps.append(
             Step(
                 cand.key, cand.label, before.rms_mm, fit.rms_mm, before.rss, fit.rss, fit.dof, scores, dropped,
@@ -352,7 +362,12 @@ def _search(
         n_tests=n_tests,
         threshold_log10_p=log_thr,
         wall_time_s=time.perf_counter() - t0,
-        extra={"cv": grown, "parametric": parametric},
+        extra={
+            "cv": grown,
+            "parametric": parametric,
+            "signal_tests": n_signal,
+            "signal_threshold_log10_p": log_thr_signal,
+        },
     )
 
 
@@ -365,6 +380,7 @@ def _best_candidate(
     log_thr: float,
     groups: np.ndarray,
     unident: dict[str, float],
+    log_thr_signal: float | None = None,
 ) -> tuple[list[Score], tuple[Candidate, tuple[str, ...]] | None]:
     """One forward step: every remaining candidate scored against ``fit`` (the unidentifiable ones noted in
     ``unident``), and the most significant one that also lowers the pose-grouped cross-validated error, or None."""
@@ -372,7 +388,8 @@ def _best_candidate(
     scored: list[tuple[Score, Candidate, np.ndarray, tuple[str, ...]]] = []
     for cand in remaining:
         Z, params = regressor(cand, fit, rows, data)
-        sc, Uk = score_candidate(cand, Z, Q, fit, cfg, log_thr)
+        thr = log_thr_signal if log_thr_signal is not None and cand.effect == "signal" else log_thr
+        sc, Uk = score_candidate(cand, Z, Q, fit, cfg, thr)
         if sc.status == "unidentifiable":
             unident.setdefault(cand.key, sc.absorbed_share)
         scored.append((sc, cand, Uk, params))
@@ -392,14 +409,23 @@ def _best_candidate(
 
 
 def _backward_check(
-    accepted: list[Accepted], fit: Fit, log_thr: float, refit: Callable[[list[Accepted], Fit | None], Fit]
+    accepted: list[Accepted],
+    fit: Fit,
+    log_thr: float,
+    refit: Callable[[list[Accepted], Fit | None], Fit],
+    log_thr_signal: float | None = None,
 ) -> tuple[list[Accepted], Fit, list[str]]:
     """An earlier effect the newest one made redundant (its Wald test no longer passes) is dropped, the least
-    significant first, until every earlier effect passes: ``(accepted, fit, dropped keys)``."""
+    significant first, until every earlier effect passes (an effect of a logged signal at its family's threshold
+    ``log_thr_signal``): ``(accepted, fit, dropped keys)``."""
     dropped: list[str] = []
     while True:
         weak = [(a, _wald_log10_p(fit, a)) for a in accepted[:-1]]
-        weak = [(a, lp) for a, lp in weak if lp > log_thr]
+        weak = [
+            (a, lp)
+            for a, lp in weak
+            if lp > (log_thr_signal if log_thr_signal is not None and a.cand.effect == "signal" else log_thr)
+        ]
         if not weak:
             return accepted, fit, dropped
         worst = max(weak, key=lambda t: t[1])[0]

@@ -68,7 +68,70 @@ def estimates(fit: Fit, acc: Accepted) -> dict[str, Any]:
         out[f"{nm}_deg"] = _est(fit.theta[model.index(nm)] * _DEG, fit.stderr(nm) * _DEG, "deg")
     elif c.effect in ("thermal", "drift", "air", "regap"):
         out.update(_drift_estimates(fit, acc, val, se))
+    elif c.effect == "signal":
+        out.update(_signal_estimates(acc, val, se))
     return out
+
+
+#: radians per unit of an angle a logged signal may be declared in (a gain is then dimensionless)
+ANGLE_UNITS = {"rad": 1.0, "mrad": 1e-3, "urad": 1e-6, "µrad": 1e-6, "deg": np.pi / 180.0,
+               "arcsec": np.pi / 648000.0, "arcmin": np.pi / 10800.0}  # fmt: skip
+
+
+def _signal_estimates(acc: Accepted, val: np.ndarray, se: np.ndarray) -> dict[str, Any]:
+    """Estimates of an effect driven by a logged signal: per coefficient in deg (rotations) or mm per unit of
+    the signal, and for a rotation driven by a signal declared as an angle its dimensionless gain."""
+    c = acc.cand
+    col = c.extra["column"]
+    unit = (c.extra.get("signal_info") or {}).get("unit") or "unit"
+    per_rad = ANGLE_UNITS.get(unit)
+    out: dict[str, Any] = {}
+    if c.shape == "tracker":  # the tracker's scale, ppm per unit of the signal
+        return {f"ppm_per_{col}": _est(val[0], se[0], f"ppm/{unit}")}
+    for k, n in enumerate(c.coef_names):
+        rotation = c.coef_units[k].startswith("rad")
+        f = _DEG if rotation else 1.0
+        label = f"{n}_{'deg' if rotation else 'mm'}_per_{col}" if n != "c" else f"dq{c.joint}_deg_per_{col}"
+        out[label] = _est(val[k] * f, se[k] * f, f"{'deg' if rotation else 'mm'}/{unit}")
+        if rotation and per_rad is not None:
+            out[f"{n}_gain" if n != "c" else "gain"] = _est(val[k] / per_rad, se[k] / per_rad,
+                                                              f"rad per rad of {col}")  # fmt: skip
+    return out
+
+
+_AXIS_WORDS = {"rx": "about x", "ry": "about y", "rz": "about z", "tx": "along x", "ty": "along y",
+               "tz": "along z", "c": ""}  # fmt: skip
+
+
+def signal_statement(acc: Accepted, est: dict[str, Any]) -> str:
+    """One sentence for an effect driven by a logged signal (``the base tilts 1.002 × incl_x about x (± 0.004)``):
+    the coefficients more than three standard errors from zero (else the largest), as gains when the signal is an
+    angle."""
+    c = acc.cand
+    col = c.extra["column"]
+    frame = c.extra.get("frame")
+    if c.shape == "tracker":
+        e = est[f"ppm_per_{col}"]
+        return f"the tracker's scale changes by {e['value']:.4g} ppm per {e['unit'].split('/', 1)[1]} of {col} " + (
+            f"(± {float(e['stderr']):.2g})" if e["stderr"] is not None else ""
+        )
+    subject = {"base_rot": "the base tilts", "base_trans": "the base moves", "tool_rot": "the tool tilts",
+               "tool_trans": "the tool moves", None: f"joint {c.joint} turns"}[frame]  # fmt: skip
+    parts = []
+    for n in c.coef_names:
+        gain = est.get(f"{n}_gain" if n != "c" else "gain")
+        key = next(k for k in est if k.startswith((f"{n}_deg_per_", f"{n}_mm_per_", f"dq{c.joint}_deg_per_")))
+        e = gain if gain is not None else est[key]
+        v, s = float(e["value"]), e["stderr"]
+        sig = s is None or abs(v) > 3.0 * float(s)
+        if gain is not None:
+            txt = f"{v:.4g} × {col}"
+        else:
+            txt = f"{v:.4g} {e['unit'].split('/')[0]} per {e['unit'].split('/', 1)[1]} of {col}"
+        txt += (f" {_AXIS_WORDS[n]}" if _AXIS_WORDS[n] else "") + (f" (± {float(s):.2g})" if s is not None else "")
+        parts.append((sig, abs(v) / (float(s) if s else 1.0), txt))
+    shown = [t for sig, _, t in parts if sig] or [max(parts)[2]]
+    return f"{subject} " + ", ".join(shown)
 
 
 def _drift_estimates(fit: Fit, acc: Accepted, val: np.ndarray, se: np.ndarray) -> dict[str, Any]:
@@ -138,6 +201,13 @@ def effect_displacement(fit: Fit, acc: Accepted) -> np.ndarray:
         return fit.Jq[:, :3, c.joint - 1] * (c.S[_rows(fit)] @ th)[:, None]
     if c.shape == "tracker":
         return np.einsum("mij,j->mi", tracker_columns(c, _rows(fit)), th)
+    if c.shape == "frame":
+        from robocal.discovery.logged import frame_rows
+
+        names = model.base.target_names
+        ti = np.array([names.index(t) if t in names else 0 for t in np.asarray(c.extra["target"])[_rows(fit)]])
+        cols = frame_rows(c, fit.Jx, model.base, fit.theta[: model.nb], ti, _rows(fit))
+        return np.einsum("mij,j->mi", cols[:, :3, :], th)
     idx = [model.base.index(p) for p in acc.params]
     cols = fit.Jx[:, :3, idx][:, :, :, None] * c.S[_rows(fit)][:, None, None, :]
     return np.einsum("mij,j->mi", cols.reshape(m, 3, -1), th)
@@ -320,10 +390,13 @@ def summary(res: DiscoveryResult, validation: dict[str, Any] | None = None) -> d
                 "signal": c.signal,
                 "selection": None if sc is None else sc.to_dict(),
                 "rms_of_effect_mm": float(np.sqrt(np.mean(np.sum(effect_displacement(fit, acc) ** 2, axis=1)))),
-                "side": "measurement" if c.effect in MEASUREMENT_SIDE else "robot",
+                "side": "measurement" if c.effect in MEASUREMENT_SIDE else c.extra.get("side", "robot"),
                 "held_out": (res.extra.get("cv") or {}).get("effects", {}).get(c.key),
             }
         )
+        if c.effect == "signal":
+            named[-1]["statement"] = signal_statement(acc, named[-1]["estimates"])
+            named[-1]["logged_signal"] = c.extra["signal_info"]
         if c.effect in ("thermal", "drift", "air", "regap"):
             # the effect at the tool, per measurement state, relative to each pose's first measurement: the
             # quantity with a physical meaning (and a truth on the twin), unlike the per-component coefficients
@@ -369,11 +442,22 @@ def summary(res: DiscoveryResult, validation: dict[str, Any] | None = None) -> d
             "threshold_log10_p": res.threshold_log10_p,
             "min_excess_share": res.config.min_excess_share,
             "cv_folds": res.config.cv_folds,
+            **(
+                {
+                    "signal_tests": res.extra["signal_tests"],
+                    "signal_threshold_log10_p": res.extra["signal_threshold_log10_p"],
+                }
+                if res.extra.get("signal_tests")
+                else {}
+            ),
         },
         "n_rows": len(res.rows),
         "wall_time_s": res.wall_time_s,
         "config": res.config.to_dict(),
     }
+    logged = res.extra.get("logged_signals")
+    if logged is not None:
+        out["logged_signals"] = logged
     if res.unexplained:
         out["unexplained_where"] = locate(res)
     geo = res.extra.get("geometric_calibration")

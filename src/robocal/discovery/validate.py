@@ -67,7 +67,8 @@ def _validate_fit(res: DiscoveryResult, fit: Fit) -> Validation:
         tool_R = {t: R for t, R in zip(base.target_names, base.tool_rotations(x), strict=True)}
     dp = None
     params = [(a, sl) for a, sl in zip(model.accepted, model.slices, strict=True) if a.cand.shape == "param"]
-    if params:
+    frames = [(a, sl) for a, sl in zip(model.accepted, model.slices, strict=True) if a.cand.shape == "frame"]
+    if params or frames:
         # the drift's first-order displacement; a target or station the fit never saw uses the first one's
         ti = np.array([base.target_names.index(t) if t in base.target_names else 0 for t in val.target])
         st_names = [] if val.station is None else list(val.station)
@@ -79,6 +80,10 @@ def _validate_fit(res: DiscoveryResult, fit: Fit) -> Validation:
             idx = [base.index(p) for p in a.params]
             cols = (Jx[:, :, idx][:, :, :, None] * a.cand.S[vrows][:, None, None, :]).reshape(val.n_rows, 3, -1)
             dp += np.einsum("mij,j->mi", cols, fit.theta[sl])
+        for a, sl in frames:  # the base or the tool following a logged signal, at the held-out rows' values
+            from robocal.discovery.logged import frame_rows
+
+            dp += np.einsum("mij,j->mi", frame_rows(a.cand, Jx, base, x, ti, vrows), fit.theta[sl])
     for a, sl in zip(model.accepted, model.slices, strict=True):
         if a.cand.shape == "tracker":  # the tracker's scale of the measured points (measurement side)
             dpt = np.einsum("mij,j->mi", tracker_columns(a.cand, vrows), fit.theta[sl])

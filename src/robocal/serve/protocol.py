@@ -22,7 +22,8 @@ from typing import Any
 import numpy as np
 
 from robocal.compensation.correct import SolverConfig, correct_targets, zero_offsets
-from robocal.compensation.effects import Signals, compose, needs
+from robocal.compensation.discovered import frame_transforms
+from robocal.compensation.effects import LOGGED, Signals, compose, needs
 from robocal.compensation.safety import POLICIES, SafetyPolicy
 from robocal.config import parse, setting
 from robocal.errors import ConfigError
@@ -130,10 +131,13 @@ class Targets:
     direction: np.ndarray | None = None
     #: (m,) which pose targets state an orientation (``quat_wxyz``); None: every one does
     oriented: np.ndarray | None = None
+    logged: dict[str, np.ndarray] | None = None  # the logged signals' values (column -> (m,))
 
 
 #: a target's optional per-joint signals, in the order they are checked
 TARGET_SIGNALS = ("current_A", "tau_Nm", "dir")
+#: a target's optional logged signals (``{"incl_x": 0.012}``), for effects discovered on them
+LOGGED_FIELD = "signals"
 
 
 def parse_targets(raw: Any, n: int, max_targets: int, position: bool = False) -> Targets:
@@ -152,6 +156,7 @@ def parse_targets(raw: Any, n: int, max_targets: int, position: bool = False) ->
     quat = np.tile([1.0, 0.0, 0.0, 0.0], (m, 1))
     oriented = np.ones(m, dtype=bool)
     signals: dict[str, np.ndarray] = {}
+    logged: dict[str, np.ndarray] = {}
     for k, t in enumerate(raw):
         if not isinstance(t, dict):
             raise RequestError("bad_request", f"targets[{k}] must be an object")
@@ -170,20 +175,34 @@ def parse_targets(raw: Any, n: int, max_targets: int, position: bool = False) ->
                 arr[k] = _vector(t[key], n, f"targets[{k}].{key}")
                 if key == "dir" and not np.isin(arr[k], (-1.0, 1.0)).all():
                     raise RequestError("bad_request", f"targets[{k}].dir must hold -1 or +1 per joint")
+        if LOGGED_FIELD in t:
+            _parse_logged(t[LOGGED_FIELD], k, m, logged)
     for key in TARGET_SIGNALS:
         if key in signals and np.isnan(signals[key]).any():
             raise RequestError("bad_request", f"'{key}' must be given for every target or for none")
-    return Targets(kind, q, xyz, quat, signals.get("current_A"), signals.get("tau_Nm"), signals.get("dir"), oriented)
+    for key, v in logged.items():
+        if np.isnan(v).any():
+            raise RequestError("bad_request", f"the logged signal '{key}' must be given for every target or for none")
+    return Targets(kind, q, xyz, quat, signals.get("current_A"), signals.get("tau_Nm"), signals.get("dir"),
+                   oriented, logged or None)  # fmt: skip
+
+
+def _parse_logged(raw: Any, k: int, m: int, logged: dict[str, np.ndarray]) -> None:
+    """``targets[k].signals``: ``{column: value}`` of the logged signals, into ``logged`` (column -> (m,))."""
+    if not isinstance(raw, dict):
+        raise RequestError("bad_request", f"targets[{k}].{LOGGED_FIELD} must be an object {{column: value}}")
+    for name, v in raw.items():
+        logged.setdefault(str(name), np.full(m, np.nan))[k] = _number(v, f"targets[{k}].{LOGGED_FIELD}.{name}")
 
 
 def _parse_target(t: dict[str, Any], k: int, n: int, q: np.ndarray, xyz: np.ndarray, quat: np.ndarray) -> int:
     """Target ``k`` into row ``k`` of ``q`` / ``xyz`` / ``quat``; its kind (0 joints, 1 pose)."""
     if "q_deg" in t:
-        extra = set(t) - {"q_deg", *TARGET_SIGNALS}
+        extra = set(t) - {"q_deg", LOGGED_FIELD, *TARGET_SIGNALS}
         q[k] = _vector(t["q_deg"], n, f"targets[{k}].q_deg")
         kind = 0
     elif "xyz_mm" in t:
-        extra = set(t) - {"xyz_mm", "quat_wxyz", "q_seed_deg", *TARGET_SIGNALS}
+        extra = set(t) - {"xyz_mm", "quat_wxyz", "q_seed_deg", LOGGED_FIELD, *TARGET_SIGNALS}
         kind = 1
         xyz[k] = _vector(t["xyz_mm"], 3, f"targets[{k}].xyz_mm")
         if "quat_wxyz" in t:  # without: a position-only target (parse_targets says whether the mode allows it)
@@ -329,11 +348,13 @@ class Service:
         cc, zero_off = self._compiled_and_offsets(bundle, r.temps)
         cc_nom = self._compiled(bundle, None, nominal=True)
         offsets = _joint_offsets(bundle, r.targets, r.payload_kg)
+        # the base or the tool moving with a logged signal (its value given with each target; checked above)
+        frames = frame_transforms(list(bundle.effects), r.targets.logged, m)
         q_target, ik_ok, freed = _nominal_joints(cc_nom, r.tool_T, r.targets, cfg.solver, r.mode == "position")
         c = correct_targets(
             cc, cc_nom, r.tool_T, r.tool_T, q_target, zero_off, offsets, bundle.robot.q_limits,
             bundle.robot.joint_names, orientation=r.mode == "pose", solver=cfg.solver, policy=cfg.safety,
-            request_reasons=r.reasons, unreachable=~ik_ok,
+            request_reasons=r.reasons, unreachable=~ik_ok, frames=frames,
         )  # fmt: skip
         results = _target_replies(c, cc_nom, r.tool_T, q_target, r.targets.kind)
         for k in np.flatnonzero(freed):
@@ -414,14 +435,17 @@ def _joint_offsets(bundle: Bundle, tg: Targets, payload_kg: float) -> Any:
     effects = bundle.joint_effects()
     if not effects:
         return None
-    sig = Signals(np.full(len(tg.kind), payload_kg), tg.tau_Nm, tg.current_A, tg.direction)
+    sig = Signals(np.full(len(tg.kind), payload_kg), tg.tau_Nm, tg.current_A, tg.direction, tg.logged)
     missing = sorted(needs(effects) - sig.given())
     if missing:
+        shown = [f"{LOGGED_FIELD}.{k[len(LOGGED):]}" if k.startswith(LOGGED) else ("dir" if k == "direction" else k)
+                 for k in missing]  # fmt: skip
         raise RequestError(
             "bad_request",
-            f"the bundle's discovered effects {[e['key'] for e in bundle.effects]} need "
-            f"{['dir' if k == 'direction' else k for k in missing]} with every target",
-        )
+            f"the bundle's discovered effects {[e['key'] for e in bundle.effects]} need {shown} with every target"
+            + (" (the logged signals' values at the moment, as in the campaign's columns)"
+               if any(k.startswith(LOGGED) for k in missing) else ""),
+        )  # fmt: skip
     return compose(effects, sig)
 
 

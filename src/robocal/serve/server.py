@@ -40,7 +40,9 @@ Every request may carry ``"id"`` (string or integer, echoed in the reply) and ``
                                                 #   the nominal joints are the position-only IK's from the seed
         ...],                                   # each may add "current_A": [n] or "tau_Nm": [n], and
                                                 # "dir": [n] of -1/+1 (approach direction; needed when the
-                                                # bundle's calibration holds a discovered backlash)
+                                                # bundle's calibration holds a discovered backlash), and
+                                                # "signals": {"incl_x": 0.012} (the logged signals a discovered
+                                                # effect follows: the base, the tool or a joint moving with them)
     }
 
 A bundle whose calibration was written by ``robocal discover`` applies its joint-level effects (gear,

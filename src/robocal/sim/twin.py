@@ -54,6 +54,7 @@ class Rows:
     columns: dict[str, np.ndarray] = field(default_factory=dict)
     dp_tracker_mm: np.ndarray | None = None  # (m, 3) tracker-frame displacement of the measured points (drift)
     tracker_scale: np.ndarray | None = None  # (m,) the tracker's length-scale error of each row (scale), 1e-6 = 1 ppm
+    base_rotvec: np.ndarray | None = None  # (m, 3) rad: the robot base turned about its origin, base axes (stand)
 
 
 @dataclass
@@ -81,7 +82,7 @@ class Effect(Protocol):
 EFFECTS: dict[str, Callable[[Mapping[str, Any]], Effect]] = {}
 #: Modules that register more effects (thermal warm-up, compliance under payload, tracker drift); imported
 #: on first use so that ``robocal.sim.twin`` itself stays light. A module that does not exist is skipped.
-EFFECT_MODULES = ("robocal.sim.thermal", "robocal.sim.compliance", "robocal.sim.drift")
+EFFECT_MODULES = ("robocal.sim.thermal", "robocal.sim.compliance", "robocal.sim.drift", "robocal.sim.stand")
 
 
 def load_effect_modules() -> dict[str, Callable[[Mapping[str, Any]], Effect]]:
@@ -529,6 +530,13 @@ def _true_points(
         t = cfg.tools_mm[rows.target_index[sel]]
         p[sel] = st.o + st.x * t[:, 0:1] + st.y * t[:, 1:2] + st.z * t[:, 2:3]
         R[sel] = st.R @ tool_R[rows.target_index[sel]]
+    if rows.base_rotvec is not None:  # the base turned about its own origin (a compliant stand): T R(w) T^-1
+        T = cfg.tracker_T_base
+        Rt, t0 = T[:3, :3], T[:3, 3]
+        Rw = rotvec_to_matrix(rows.base_rotvec)
+        pb = (p - t0) @ Rt  # base frame
+        p = np.einsum("ij,mj->mi", Rt, np.einsum("mij,mj->mi", Rw, pb)) + t0
+        R = Rt @ Rw @ Rt.T @ R
     return p, R
 
 
@@ -554,6 +562,10 @@ def _write_campaign(
         write_text(out / "temperatures.csv", "\n".join(tl) + "\n")
     else:
         (out / "temperatures.csv").unlink(missing_ok=True)
+    if truth.get("signals"):  # the logged signals an effect declares (robocal.logged_signals)
+        write_text(out / "signals.yaml", yaml.safe_dump({"signals": truth["signals"]}, sort_keys=True))
+    else:
+        (out / "signals.yaml").unlink(missing_ok=True)
     write_json(out / "truth.json", truth)
     atomic_write(
         out / "scenario.yaml",

@@ -48,7 +48,8 @@ def write_report(res: DiscoveryResult, summ: dict[str, Any], path: Path) -> Path
 def _verdict_section(rep: Report, summ: dict[str, Any]) -> None:
     """What was named, the errors before / after, and warnings (gross errors, the noise used, unexplained)."""
     rep.heading("Verdict")
-    names = [f"{n['effect']}" + (f" joint {n['joint']}" if n["joint"] else "") for n in summ["named"]]
+    names = [n["key"] if n["effect"] == "signal" else f"{n['effect']}" + (f" joint {n['joint']}" if n["joint"] else "")
+             for n in summ["named"]]  # fmt: skip
     rep.kv(
         {
             "named": ", ".join(names) if names else "nothing",
@@ -140,6 +141,13 @@ def _named_section(rep: Report, summ: dict[str, Any]) -> None:
         [{"effect": n["key"], "cause": n["cause"], "signal": n["signal"]} for n in summ["named"]],
         caption="Physical causes and signals",
     )
+    logged = [n for n in summ["named"] if n.get("statement")]
+    if logged:
+        rep.table(
+            [{"effect": n["key"], "what the logged signal does": n["statement"], "side": n["side"]} for n in logged],
+            caption="Effects driven by logged signals (extra columns of the campaign), ± 1 standard error; a "
+            "robot-side one is compensated with the signal's value given with each target",
+        )
     cv = summ.get("cross_validation") or {}
     held = [n for n in summ["named"] if n.get("held_out")]
     if held and "cv_mean_position_mm" in cv:
@@ -281,6 +289,14 @@ def _library_section(rep: Report, summ: dict[str, Any]) -> None:
         rep.table(summ["skipped"], caption="Skipped candidates (signal missing or not varying)")
     if summ["unidentifiable"]:
         rep.table(summ["unidentifiable"], caption="Unidentifiable candidates (absorbed by the model)")
+    logged = summ.get("logged_signals")
+    if logged:
+        if logged["used"]:
+            rep.table(logged["used"], columns=["column", "declared", "unit", "location", "side"],
+                      caption="Logged signals offered as drivers (extra numeric columns of the campaign)")  # fmt: skip
+        if logged["not_used"]:
+            rep.table(logged["not_used"], columns=["column", "reason"],
+                      caption="Extra columns not used as drivers, and why")  # fmt: skip
     rep.paragraph(
         "Reaching the noise floor does not prove the physics: check that the estimates are physically plausible "
         "(e.g. compliance of the right sign and size) before compensating with them."
@@ -334,6 +350,9 @@ def write_product(res: DiscoveryResult, summ: dict[str, Any], out: Path) -> str 
     status = np.full(len(idx), TargetStatus.OK, dtype=object)
     reason = np.full(len(idx), "", dtype=object)
     corr_max = np.zeros(len(idx))
+    # the logged signals the model's effects follow, from the campaign's own columns (robocal.discovery.logged)
+    cols = {str(e["column"]) for e in cal.effects if e.get("signal") in ("logged", "logged_frame")}
+    logged = {c: np.asarray(sub.extra[c], dtype=float) for c in cols}
     for t in dict.fromkeys(tgt):
         rows = np.array([k for k, tt in enumerate(tgt) if tt == t])
         r = idx[rows]
@@ -345,6 +364,7 @@ def write_product(res: DiscoveryResult, summ: dict[str, Any], out: Path) -> str 
             None if sub.tau_Nm is None else sub.tau_Nm[r],
             None if sub.current_A is None else sub.current_A[r],
             None if sub.direction is None else sub.direction[r],
+            {k: v[r] for k, v in logged.items()} or None,
         )
         assert comp.status is not None and comp.reasons is not None
         refused = np.array([x == TargetStatus.REFUSED for x in comp.status], dtype=bool)
