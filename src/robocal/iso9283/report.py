@@ -190,7 +190,8 @@ def write_report(run: IsoRun, path: str | Path) -> Path:
         "standard": "ISO 9283:1998, pose characteristics (clauses 7.2, 7.3, 7.5)",
         "campaign": info["campaign"],
         "calibration": info["calibration"],
-        "frame": "robot base, the tracker registered by the calibration's tracker_T_base",
+        "frame of the figures": run.before.frame.get("figures_frame", "robot base"),
+        "tracker registration": run.before.frame.get("registration"),
         "target (reflector)": run.iso.target,
         **_cube(run),
         "cycles (setting / used per pose)": f"{st.test.cycles} / "
