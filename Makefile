@@ -53,8 +53,8 @@ params: $(STAMP) ## regenerate params.yaml from conf/ (DVC's Hydra composition)
 ui: $(STAMP) ## MLflow UI on http://127.0.0.1:$(UI_PORT) over the repository's mlflow.db (prints the runs table's address)
 	$(BIN)/python -m robocal.tracking ui --port $(UI_PORT)
 
-exps: $(STAMP) ## compare the DVC experiments: the parameters and headline metrics that differ
-	$(BIN)/dvc exp show --no-pager --only-changed --drop '.*/|(robot|scenario)\.(?!name$$)'
+exps: $(STAMP) ## compare the DVC experiments: headline metrics, then what differs (all columns: dvc exp show)
+	@json="$$($(BIN)/dvc exp show --no-pager --json)" && printf '%s' "$$json" | $(BIN)/python -m robocal.exps
 
 compare: $(STAMP) ## the thermal paper's optimizer comparison (~2 min; off in make run): a DVC experiment
 	$(BIN)/dvc exp run -S compare.run=true
