@@ -18,7 +18,19 @@ SRC = Path(__file__).resolve().parents[1] / "src" / "robocal"
 #: lowest first; a package may import its own layer and the layers below it
 LAYERS: list[set[str]] = [
     # foundation: errors, settings, atomic files, MLflow, robot descriptions, the chain, error statistics; the version
-    {"errors", "config", "io", "tracking", "robot", "pipeline", "kinematics", "metrics", "status", "__version__"},
+    {
+        "errors",
+        "config",
+        "io",
+        "tracking",
+        "exps",
+        "robot",
+        "pipeline",
+        "kinematics",
+        "metrics",
+        "status",
+        "__version__",
+    },
     # the data contract
     {"data"},
     # the fit: least squares, FitResult, calibrate; the optimizers; the report helpers every capability uses
