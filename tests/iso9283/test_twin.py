@@ -215,3 +215,23 @@ def test_the_certificate_names_the_frame_of_its_figures(iso_run, tmp_path: Path)
     html = write_report(res, tmp_path / "report.html").read_text(encoding="utf-8")
     assert "frame of the figures" in html and "the robot base its axes define" in html
     assert "circle fits to" in html and "independent of the calibration" in html
+
+
+def test_without_circles_the_calibration_registers_and_says_so(calibrated_cell: dict[str, Path], iso_run) -> None:  # type: ignore[no-untyped-def]
+    """No base_circles.csv: the calibration's tracker_T_base registers the test, and the certificate names that
+    frame. It is the same base within 0.005 mm at the points here: the calibration eliminates joint 1's errors as
+    the base's, so its base is the one the axes define (seed 0: 2.7419 vs 2.7434 mm at P1)."""
+    import shutil
+
+    _, res, out = iso_run
+    plain = out / "test_no_circles"
+    shutil.copytree(out / "test", plain)
+    (plain / "base_circles.csv").unlink()
+    (plain / "after" / "base_circles.csv").unlink()
+    st = IsoSettings.load()
+    res_cal = run_iso9283(plain, "kr16_2", calibrated_cell["calibration"], out / "iso_cal", settings=st, report=False)
+    assert res_cal.before.frame["method"] == "calibration"
+    d = json.loads((out / "iso_cal" / "iso9283.json").read_text())
+    assert d["figures_frame"].startswith("the base frame of the calibration")
+    for a, b in zip(res.before.poses, res_cal.before.poses, strict=True):
+        assert abs(a.AP_p_mm - b.AP_p_mm) < 0.005, (a.pose, a.AP_p_mm, b.AP_p_mm)
