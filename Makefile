@@ -59,14 +59,11 @@ repro-check: $(STAMP) ## the default pipeline under two BLAS kernels in fresh co
 params: $(STAMP) ## regenerate params.yaml from conf/ (DVC's Hydra composition)
 	$(BIN)/python -m robocal.pipeline params
 
-ui: $(STAMP) ## MLflow UI on http://127.0.0.1:$(UI_PORT) over the repository's mlflow.db
-	$(BIN)/python -m robocal.tracking flush
-	@echo "open the runs table: $$($(BIN)/python -m robocal.tracking ui-url --port $(UI_PORT))"
-	$(BIN)/mlflow ui --backend-store-uri "sqlite:///$(CURDIR)/mlflow.db" \
-		--default-artifact-root "$(CURDIR)/mlartifacts" --host 127.0.0.1 --port $(UI_PORT)
+ui: $(STAMP) ## MLflow UI on http://127.0.0.1:$(UI_PORT) over the repository's mlflow.db (prints the runs table's address)
+	$(BIN)/python -m robocal.tracking ui --port $(UI_PORT)
 
-exps: $(STAMP) ## compare the DVC experiments: the parameters and headline metrics that differ
-	$(BIN)/dvc exp show --no-pager --only-changed --drop '.*/|(robot|scenario)\.(?!name$$)'
+exps: $(STAMP) ## compare the DVC experiments: headline metrics, then what differs (all columns: dvc exp show)
+	@json="$$($(BIN)/dvc exp show --no-pager --json)" && printf '%s' "$$json" | $(BIN)/python -m robocal.exps
 
 compare: $(STAMP) ## the thermal paper's optimizer comparison (~2 min; off in make run): a DVC experiment
 	$(BIN)/dvc exp run -S compare.run=true

@@ -44,7 +44,7 @@ LAYERS: list[set[str]] = [
     # many robots over time; ISO 9283 characteristics (both run the twin and the service)
     {"fleet", "iso9283"},
     # the entry points: the public API facade, the CLI commands
-    {"robocal", "commands", "cli"},
+    {"robocal", "commands", "cli", "exps"},
 ]
 
 #: (importer package, imported package) -> why it is allowed for now. Each one is known and to be removed.

@@ -242,14 +242,24 @@ def default_tags(stage: str) -> dict[str, str]:
 
 #: what joins the parts of a run's name: ``<stage> · <campaign> · <experiment>``
 NAME_SEP = " · "
-#: The MLflow run status of a skipped stage: not FINISHED (a green tick, as if it had computed something). KILLED is
-#: MLflow's status for a run that ended without a result (the UI marks it like a failure); the run's name says
-#: ``(skipped)`` and the tags say why: ``robocal.status = skipped`` and ``robocal.skipped = <reason>``.
-SKIPPED_STATUS = "KILLED"
-#: The experiment tag that makes the MLflow UI open an experiment on its runs table (its "model training"
-#: view), not on the GenAI traces view; and the URL query that selects that view.
+#: The MLflow run status of a skipped stage: FINISHED -- the stage ended as it should, having nothing to do (KILLED
+#: showed a red cross, as if it had failed). What says "skipped" is the run's name, ``<stage> (skipped) · ...``, and
+#: its tags: ``robocal.status = skipped`` (a column of the runs table :func:`set_runs_view` opens) and
+#: ``robocal.skipped = <reason>``.
+SKIPPED_STATUS = "FINISHED"
+#: The experiment tag that marks the experiment as classic machine learning (model training), not GenAI. MLflow 3's
+#: UI (3.17) does not choose its view from it: the view is the sidebar's "workflow type", taken from the URL's
+#: ``workflowType`` query, else from the browser's local storage (``mlflow.workflowType``, GenAI until the user
+#: switches) -- so the address ``make ui`` prints carries :data:`RUNS_VIEW_QUERY`.
 EXPERIMENT_KIND = {"mlflow.experimentKind": "custom_model_development"}
 RUNS_VIEW_QUERY = "?workflowType=machine_learning"
+#: The runs table's view (columns, widths, order) is an MLflow "shared view": an experiment tag
+#: ``mlflow.sharedViewState.<key>`` holding the view's JSON, opened by the URL query ``viewStateShareKey=<key>``.
+VIEW_TAG_PREFIX = "mlflow.sharedViewState."
+VIEW_KEY = "robocal-runs"
+#: the run-name column's width (px): ``geometric_fit (skipped) · abb-irb120 · workspace`` in full
+RUN_NAME_WIDTH_PX = 380
+RUN_NAME_COLUMN = "attributes.`Run Name`"
 
 
 def campaign_label(campaign: str | None, scenario: str | None = None) -> str:
@@ -276,9 +286,46 @@ def skipped_title(name: str) -> str:
     return name if stage.endswith("(skipped)") else f"{stage} (skipped){sep}{rest}"
 
 
-def runs_view_url(experiment_id: str, base: str = "http://127.0.0.1:5000") -> str:
-    """The MLflow UI's runs table of an experiment (what ``make ui`` prints)."""
-    return f"{base.rstrip('/')}/#/experiments/{experiment_id}/runs{RUNS_VIEW_QUERY}"
+def runs_view_url(experiment_id: str, base: str = "http://127.0.0.1:5000", view: bool = False) -> str:
+    """The MLflow UI's runs table of an experiment (what ``make ui`` prints); with ``view``, in the columns
+    :func:`set_runs_view` stored."""
+    share = f"&viewStateShareKey={VIEW_KEY}" if view else ""
+    return f"{base.rstrip('/')}/#/experiments/{experiment_id}/runs{RUNS_VIEW_QUERY}{share}"
+
+
+def headline_metrics(root: Path | None = None) -> list[str]:
+    """The stages' headline metrics: the numeric keys of ``reports/metrics/*.json`` (what ``dvc exp show``
+    shows), in the files' order; the stages log them to MLflow under the same names."""
+    keys: list[str] = []
+    for f in sorted((root or repo_root()).glob("reports/metrics/*.json")):
+        try:
+            data = json.loads(f.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            continue
+        if isinstance(data, dict):
+            keys += [param_key(k) for k in numeric_metrics(data) if param_key(k) not in keys]
+    return keys
+
+
+def runs_view_state(metrics: list[str]) -> dict[str, Any]:
+    """The runs table's view: the run name wide enough to read, the status tag and the headline ``metrics`` as
+    columns, newest first (MLflow's view-state keys; columns named ``metrics.`key```, ``tags.`key```)."""
+    columns = ["tags.`robocal.status`", *[f"metrics.`{m}`" for m in metrics]]
+    return {
+        "orderByKey": "attributes.start_time",
+        "orderByAsc": False,
+        "selectedColumns": columns,
+        # the UI applies widths to the columns of columnOrder only
+        "columnOrder": [RUN_NAME_COLUMN, *columns],
+        "columnWidths": {RUN_NAME_COLUMN: RUN_NAME_WIDTH_PX},
+        "runsHiddenMode": "SHOW_ALL",
+    }
+
+
+def set_runs_view(experiment_id: str, metrics: list[str], uri: str | None = None) -> None:
+    """Store :func:`runs_view_state` as the experiment's shared view :data:`VIEW_KEY`."""
+    state = json.dumps(runs_view_state(metrics), sort_keys=True)
+    _client(tracking_uri(uri)).set_experiment_tag(experiment_id, VIEW_TAG_PREFIX + VIEW_KEY, state)
 
 
 def _report(what: str, exc: BaseException) -> None:
@@ -727,6 +774,43 @@ def flush(directory: str | Path | None = None, uri: str | None = None) -> int:
     return written
 
 
+#: How ``make ui`` runs MLflow's server: one web worker (one person looks at the runs; MLflow's default of 4 each
+#: import MLflow) and no job runner (MLflow 3's GenAI jobs: a runner and seven huey consumers, each importing
+#: MLflow again; robocal starts no job). Measured on the 2-core machine under load: the runs table answered after
+#: 138 s with 15 processes and 30 CPU-s, and after 43 s with 2 processes and 10 CPU-s.
+UI_ENV = {"MLFLOW_SERVER_ENABLE_JOB_EXECUTION": "false"}
+UI_WORKERS = 1
+
+
+def ui_command(host: str, port: int, uri: str | None = None) -> list[str]:
+    """The ``mlflow ui`` command ``make ui`` runs over the store ``uri`` (see :data:`UI_ENV`)."""
+    uri = tracking_uri(uri)
+    cmd = [sys.executable, "-m", "mlflow", "ui", "--backend-store-uri", uri, "--host", host, "--port", str(port)]
+    art = artifact_location(uri)
+    if art is not None:
+        cmd += ["--default-artifact-root", art]
+    return [*cmd, "--workers", str(UI_WORKERS)]
+
+
+def serve_ui(host: str, port: int, uri: str | None = None) -> int:
+    """``make ui``: write the pending runs, store the runs table's view, print its address, then become the MLflow
+    server (one MLflow import before the server's own)."""
+    n = flush(uri=uri)
+    exp_id = ensure_store(uri)
+    try:
+        set_runs_view(exp_id, headline_metrics(), uri)
+        view = True
+    except Exception as exc:  # the UI still serves; the table opens in MLflow's default columns
+        _report("storing the runs table's view", exc)
+        view = False
+    print(f"robocal tracking: {n} pending run(s) written")
+    print(f"open the runs table: {runs_view_url(exp_id, f'http://{host}:{port}', view)}", flush=True)
+    os.environ.update(UI_ENV)
+    cmd = ui_command(host, port, uri)
+    os.execv(cmd[0], cmd)
+    return 0  # pragma: no cover (execv does not return)
+
+
 def main(argv: list[str] | None = None) -> int:
     import argparse
 
@@ -736,10 +820,17 @@ def main(argv: list[str] | None = None) -> int:
     f.add_argument("--dir", default=None, help="the pending-runs folder (default: the one of the tracking store)")
     u = sub.add_parser("ui-url", help="print the MLflow UI's address of the runs table (what `make ui` opens)")
     u.add_argument("--port", type=int, default=5000)
+    s = sub.add_parser("ui", help="flush, store the runs table's view, print its address and serve the MLflow UI")
+    s.add_argument("--port", type=int, default=5000)
+    s.add_argument("--host", default="127.0.0.1")
     args = parser.parse_args(argv)
     if args.action == "ui-url":
-        print(runs_view_url(ensure_store(), f"http://127.0.0.1:{args.port}"))
+        exp_id = ensure_store()
+        set_runs_view(exp_id, headline_metrics())
+        print(runs_view_url(exp_id, f"http://127.0.0.1:{args.port}", view=True))
         return 0
+    if args.action == "ui":
+        return serve_ui(args.host, args.port)
     n = flush(args.dir)
     left = [d for d in (Path(args.dir) if args.dir else pending_dir()).glob("*") if d.is_dir()]
     print(f"robocal tracking: {n} pending run(s) written" + (f"; {len(left)} could not be" if left else ""))

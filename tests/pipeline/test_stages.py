@@ -282,8 +282,8 @@ def test_runs_are_named_by_stage_campaign_and_experiment_and_skips_are_not_succe
     common: ModuleType, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """Issue 23, item 11: `<stage> · <campaign> · <exp name>` (own data told apart from the twin's at a glance),
-    and a skipped stage ends KILLED with the tags robocal.status=skipped and robocal.skipped=<reason>, not as a
-    green FINISHED run."""
+    and a skipped stage ends FINISHED (issue 30 item 10: KILLED showed a red cross, as if it had failed), named
+    ``(skipped)`` and tagged robocal.status=skipped, robocal.skipped=<reason>."""
     from mlflow.tracking import MlflowClient
 
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
@@ -309,7 +309,7 @@ def test_runs_are_named_by_stage_campaign_and_experiment_and_skips_are_not_succe
     runs = {r.info.run_name: r for r in client.search_runs([exp.experiment_id])}
     assert sorted(runs) == ["thermal_fit (skipped) · abb-irb120 · workspace", "thermal_fit · twin thermal · warm-start"]
     skipped = runs["thermal_fit (skipped) · abb-irb120 · workspace"]
-    assert skipped.info.status == "KILLED"
+    assert skipped.info.status == "FINISHED"
     assert skipped.data.tags["robocal.status"] == "skipped"
     assert skipped.data.tags["robocal.skipped"] == "the campaign has no temperatures.csv"
     done = runs["thermal_fit · twin thermal · warm-start"]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import multiprocessing as mp
 import sqlite3
 import subprocess
@@ -131,16 +132,47 @@ def test_a_pending_run_reaches_mlflow_with_everything(tmp_path: Path, monkeypatc
 
 
 def test_make_ui_prints_the_runs_table_not_the_genai_view(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """Issue 23, item 11: the UI's start view is GenAI unless the URL asks for the machine-learning workflow; the
-    experiment is tagged so that opening it shows its runs; `make ui` prints that address."""
+    """Issue 23, item 11 and issue 30, item 10: MLflow 3's UI opens in its GenAI view unless the URL asks for the
+    machine-learning workflow; the address also opens the stored view of the runs table (run names in full, the
+    status tag and the headline metrics as columns)."""
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
     monkeypatch.setenv("MLFLOW_TRACKING_URI", uri)
     cmd = [sys.executable, "-m", "robocal.tracking", "ui-url", "--port", "5123"]
     out = subprocess.run(cmd, capture_output=True, text=True, check=True)
     exp_id = tracking.ensure_store(uri)
-    assert out.stdout.strip() == f"http://127.0.0.1:5123/#/experiments/{exp_id}/runs?workflowType=machine_learning"
+    assert out.stdout.strip() == (
+        f"http://127.0.0.1:5123/#/experiments/{exp_id}/runs?workflowType=machine_learning"
+        "&viewStateShareKey=robocal-runs"
+    )
     from mlflow.tracking import MlflowClient
 
     exp = MlflowClient(uri).get_experiment(exp_id)
     assert exp.tags["mlflow.experimentKind"] == "custom_model_development"
-    assert "robocal.tracking ui-url" in (REPO / "Makefile").read_text()
+    view = json.loads(exp.tags["mlflow.sharedViewState.robocal-runs"])
+    assert view["columnWidths"] == {"attributes.`Run Name`": 380}
+    assert view["columnOrder"][0] == "attributes.`Run Name`"  # widths apply to the columns of columnOrder only
+    assert view["selectedColumns"][0] == "tags.`robocal.status`"
+    assert set(tracking.headline_metrics(REPO)) >= {"fit_rms_mm", "val_mean_mm"}  # reports/metrics/*.json
+    assert "metrics.`fit_rms_mm`" in view["selectedColumns"]
+    assert "robocal.tracking ui " in (REPO / "Makefile").read_text()
+
+
+def test_headline_metrics_are_the_numeric_keys_of_the_metrics_files(tmp_path: Path) -> None:
+    (tmp_path / "reports" / "metrics").mkdir(parents=True)
+    (tmp_path / "reports" / "metrics" / "b.json").write_text('{"b": "ok", "rms_mm": 0.1, "n": 3}')
+    (tmp_path / "reports" / "metrics" / "a.json").write_text('{"a": "skipped", "x^2": 1.5, "n": 4}')
+    assert tracking.headline_metrics(tmp_path) == ["x_pow2", "n", "rms_mm"]
+
+
+def test_make_ui_serves_with_one_worker_and_no_job_runner(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Issue 30, item 10: `make ui` answered after ~60 s: MLflow 3's server started 4 web workers and a GenAI job
+    runner with 7 consumers, each importing MLflow, on a 2-core machine."""
+    cmd = tracking.ui_command("127.0.0.1", 5000, f"sqlite:///{tmp_path / 'mlflow.db'}")
+    assert cmd[1:4] == ["-m", "mlflow", "ui"] and cmd[cmd.index("--workers") + 1] == "1"
+    assert cmd[cmd.index("--backend-store-uri") + 1] == f"sqlite:///{tmp_path / 'mlflow.db'}"
+    assert cmd[cmd.index("--default-artifact-root") + 1] == (tmp_path / "mlartifacts").as_uri()
+    from mlflow.environment_variables import MLFLOW_SERVER_ENABLE_JOB_EXECUTION
+
+    for k, v in tracking.UI_ENV.items():
+        monkeypatch.setenv(k, v)
+    assert MLFLOW_SERVER_ENABLE_JOB_EXECUTION.get() is False

@@ -56,6 +56,7 @@ def run(args: argparse.Namespace) -> int:
     from robocal.iso9283.run import run_iso9283
 
     res = run_iso9283(args.campaign, args.robot, args.calibration, args.out, args.after, st, not args.no_report)
+    print(f"frame of the figures: {res.before.frame.get('figures_frame')}")
     for p in res.before.poses:
         a = next((x for x in res.after.poses if x.pose == p.pose), None)
         after = "" if a is None else f"; {res.after_kind} after: AP_p {a.AP_p_mm:.4f} mm, RP_l {a.RP_l_mm:.4f} mm"

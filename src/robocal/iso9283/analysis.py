@@ -117,9 +117,11 @@ class IsoResult:
         return next(p for p in self.poses if p.pose == label)
 
     def to_dict(self) -> dict[str, Any]:
-        """``iso9283.json``: exactly the keys poses, vAP_p_mm, AD_p_mm, RD_l_mm, frame, left_out."""
+        """``iso9283.json``: exactly the keys poses, vAP_p_mm, AD_p_mm, RD_l_mm, frame, left_out and
+        figures_frame (the sentence saying which base frame the figures are in; ``frame`` has the details)."""
         frame = dict(self.frame)
         frame["distance_pair"] = None if self.distance_pair is None else list(self.distance_pair)
+        figures_frame = frame.pop("figures_frame", None)
         return {
             "poses": [p.to_dict() for p in self.poses],
             "vAP_p_mm": dict(self.vAP_p_mm),
@@ -127,6 +129,7 @@ class IsoResult:
             "RD_l_mm": self.RD_l_mm,
             "frame": frame,
             "left_out": list(self.left_out),
+            "figures_frame": figures_frame,
         }
 
 

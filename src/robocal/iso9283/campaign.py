@@ -12,8 +12,9 @@ column, as the contract's):
 A pose is commanded at one place: every row of an ``iso_pose`` has the same ``cmd_*`` (1e-4 mm, 1e-6 of the
 quaternion). One row per (target, ``iso_pose``, ``approach``, ``cycle``).
 
-Registration: the measured points (tracker frame) are taken to the robot base frame by the calibration's
-``tracker_T_base`` (per station when the calibration has several); orientations likewise.
+Registration: the measured points (tracker frame) are taken to the robot base frame by ``tracker_T_base`` when
+one is given (:mod:`robocal.iso9283.base_frame`: the axis circles), else by the calibration's (per station when the
+calibration has several); orientations likewise.
 """
 
 from __future__ import annotations
@@ -86,8 +87,11 @@ def iso_columns_present(camp: Campaign) -> bool:
     return all(c in camp.extra for c in ISO_COLUMNS)
 
 
-def read_iso(camp: Campaign, calibration: CalibrationResult, target: str | None = None) -> IsoCampaign:
-    """The ISO test of ``camp`` (one target) in the base frame registered by ``calibration``."""
+def read_iso(
+    camp: Campaign, calibration: CalibrationResult, target: str | None = None, tracker_T_base: np.ndarray | None = None
+) -> IsoCampaign:
+    """The ISO test of ``camp`` (one target) in the base frame registered by ``tracker_T_base`` (4, 4) when given
+    (one tracker station), else by ``calibration``."""
     f = camp.poses_file
     missing = [c for c in ISO_COLUMNS if c not in camp.extra]
     if missing:
@@ -170,7 +174,7 @@ def read_iso(camp: Campaign, calibration: CalibrationResult, target: str | None 
         seen[key] = k
 
     # registration: tracker frame -> base frame, per station
-    T_tb = _tracker_T_base(camp, calibration, rows)
+    T_tb = _tracker_T_base(camp, calibration, rows, tracker_T_base)
     B = inv_transform(T_tb)  # (k, 4, 4) base_T_tracker
     p_t = camp.p_mm[rows]
     p_b = np.einsum("kij,kj->ki", B[:, :3, :3], p_t) + B[:, :3, 3]
@@ -196,8 +200,13 @@ def read_iso(camp: Campaign, calibration: CalibrationResult, target: str | None 
     return IsoCampaign(test, camp, rows, tname, B, R_meas, R_cmd)
 
 
-def _tracker_T_base(camp: Campaign, cal: CalibrationResult, rows: np.ndarray) -> np.ndarray:
-    """``tracker_T_base`` of every row: the calibration's, or its station's when it has several."""
+def _tracker_T_base(
+    camp: Campaign, cal: CalibrationResult, rows: np.ndarray, given: np.ndarray | None = None
+) -> np.ndarray:
+    """``tracker_T_base`` of every row: ``given`` when given, else the calibration's, or its station's when it has
+    several."""
+    if given is not None:
+        return np.tile(np.asarray(given, dtype=float), (len(rows), 1, 1))
     assert camp.station is not None
     st = camp.station[rows]
     names = tuple(getattr(cal.model, "station_names", ("S1",)))

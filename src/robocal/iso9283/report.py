@@ -126,7 +126,7 @@ def scatter_figure(before: IsoResult, after: IsoResult, after_label: str) -> Fig
 
     poses = before.poses
     k = max(len(poses), 1)
-    fig, axes = plt.subplots(2, k, figsize=(2.3 * k + 0.6, 5.0), squeeze=False)
+    fig, axes = plt.subplots(2, k, figsize=(2.3 * k + 0.6, 5.4), squeeze=False)
     lim = 0.0
     for p in poses:
         lim = max(lim, p.RP_l_mm, float(np.abs(p.deviations_mm).max()) if len(p.deviations_mm) else 0.0)
@@ -152,9 +152,24 @@ def scatter_figure(before: IsoResult, after: IsoResult, after_label: str) -> Fig
             ax.set_ylabel(f"{lab} (µm)")
             if r == 0:
                 ax.set_title(f"{pb.pose} ({pb.n_cycles} cycles)")
-    axes[0, 0].legend(loc="upper left", fontsize=7)
-    fig.tight_layout()
+    # one legend for all panels, above them: inside P1's panel it covered the points and its markers were too small
+    # to tell rings from dots
+    from matplotlib.lines import Line2D
+
+    handles = [
+        Line2D([], [], ls="none", marker="o", ms=8, mfc="none", mec=BEFORE_COLOR, mew=1.2, label="before: a cycle"),
+        Line2D([], [], ls="none", marker="o", ms=5, color=AFTER_COLOR, label=f"{after_label}: a cycle"),
+        Line2D([], [], color=BEFORE_COLOR, lw=1.4, label="RP_l before (circle)"),
+        Line2D([], [], color=AFTER_COLOR, lw=1.4, label=f"RP_l {after_label} (circle)"),
+    ]
+    ncol = 4 if k >= 4 else 2  # one row over five panels, two over fewer
+    fig.legend(handles=handles, loc="upper center", ncol=ncol, fontsize=9, frameon=False, bbox_to_anchor=(0.5, 1.0))
+    fig.tight_layout(rect=(0.0, 0.0, 1.0, LEGEND_TOP[ncol]))
     return fig
+
+
+#: the share of the scatter figure's height left below its legend (one row of four entries, or two rows of two)
+LEGEND_TOP = {4: 0.93, 2: 0.86}
 
 
 def _cube(run: IsoRun) -> dict[str, Any]:
@@ -190,7 +205,8 @@ def write_report(run: IsoRun, path: str | Path) -> Path:
         "standard": "ISO 9283:1998, pose characteristics (clauses 7.2, 7.3, 7.5)",
         "campaign": info["campaign"],
         "calibration": info["calibration"],
-        "frame": "robot base, the tracker registered by the calibration's tracker_T_base",
+        "frame of the figures": run.before.frame.get("figures_frame", "robot base"),
+        "tracker registration": run.before.frame.get("registration"),
         "target (reflector)": run.iso.target,
         **_cube(run),
         "cycles (setting / used per pose)": f"{st.test.cycles} / "

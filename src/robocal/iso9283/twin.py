@@ -20,6 +20,13 @@ What the true robot adds on each visit:
   parameter drift of its temperatures (dAP);
 - the robot's own scatter: ``twin.repeatability_mm`` (1 sigma per base axis), then the tracker noise.
 
+Before the test the tracker measures the reflector while joint 1, then joint 2 turns (``base_circles.csv``): the
+tracker's registration to the robot base by axis circles (:mod:`robocal.iso9283.base_frame`). The truth states the
+uncalibrated error at the points in two frames: ``uncalibrated_AP_p_mm`` in the twin's own base frame (the frame its
+kinematic errors are drawn in: axis 1 tilted, offset and turned in it by the errors of joint 1's parameters) and
+``uncalibrated_AP_p_mm_axes`` in the base frame the true robot's axes define (``tracker_T_base_axes``) -- the one a
+measurement of the robot can find, and the one the certificate states.
+
 With a bundle (``--bundle``) the same test is run again into ``DIR/after``: every commanded joint target corrected
 by the compensation service (:class:`robocal.serve.protocol.Service`, in process: the service's own path, with the
 temperatures when the bundle has a thermal model and the joint directions when it has discovered effects) and
@@ -39,6 +46,8 @@ import yaml
 from robocal.compensation import ActualRobot
 from robocal.errors import ConfigError
 from robocal.io import atomic_write, write_json, write_text
+from robocal.iso9283.base_frame import FILE as BASE_CIRCLES
+from robocal.iso9283.base_frame import axis_frame, fit_circle
 from robocal.iso9283.program import cube_joints, joint_directions
 from robocal.iso9283.settings import AXES, IsoSettings
 from robocal.kinematics.chain import build_chain, propagate
@@ -146,6 +155,11 @@ def _run(st: IsoSettings, sc: dict[str, Any], out: Path, seed: int | None, bundl
     # truth: the uncalibrated robot's error at the points (noise-free barycentre of the first approach)
     first = ap_i == 0
     unc = {labels[k]: float(np.linalg.norm(p_base[first & (pt_i == k)].mean(axis=0) - cmd_p[k])) for k in range(5)}
+    circles, T_axes = _base_circles(st, robot, chain, eta, T_base, tool, q_pts[0], rng, sigma)
+    B_axes = np.linalg.inv(T_axes)
+    p_axes = p_base @ T_base[:3, :3].T + T_base[:3, 3]  # tracker frame, noise-free
+    p_axes = p_axes @ B_axes[:3, :3].T + B_axes[:3, 3]  # the base frame the axes define
+    unc_axes = {labels[k]: float(np.linalg.norm(p_axes[first & (pt_i == k)].mean(axis=0) - cmd_p[k])) for k in range(5)}
     truth["iso9283"] = {
         "points_mm": pts.tolist(),
         "commanded_mm": cmd_p.tolist(),
@@ -158,12 +172,81 @@ def _run(st: IsoSettings, sc: dict[str, Any], out: Path, seed: int | None, bundl
         "backlash_band_deg": {str(k): v for k, v in bands.items()},
         "thermal": thermal is not None,
         "uncalibrated_AP_p_mm": unc,
+        "uncalibrated_AP_p_mm_axes": unc_axes,
+        "tracker_T_base_axes": T_axes.tolist(),
         "compensated_by": None if bundle is None else str(bundle),
     }
 
     _write(out, sc, st, truth, rows, p_meas, R_meas if orientation else None, labels, appr, cyc, ap_i, pt_i,
            cmd_p, cmd_R if orientation else None, tname, thermal, ctx, seed)  # fmt: skip
+    write_text(out / BASE_CIRCLES, circles)
     return truth
+
+
+#: the base registration's circles (``base_circles.csv``): joint 1, then joint 2 turned through +-CIRCLE_HALF_SPAN_DEG
+#: about P1's configuration (clipped to the joint's range), a point every CIRCLE_STEP_DEG (a tracker's continuous
+#: mode), the other joints standing at P1's. The spans and the number of points set how well the axes are found:
+#: with 0.018 mm of scatter per axis, 181 points over 180 deg and 121 over 120 deg put the test points within
+#: ~0.005 mm of where the exact axes put them (13 points over 80 deg: ~0.05 mm).
+CIRCLE_HALF_SPAN_DEG = (90.0, 60.0)
+CIRCLE_STEP_DEG = 1.0
+
+
+def _base_circles(
+    st: IsoSettings,
+    robot: Any,
+    chain: Any,
+    eta: np.ndarray,
+    T_base: np.ndarray,
+    tool: np.ndarray,
+    q0: np.ndarray,
+    rng: Any,
+    noise_mm: float,
+) -> tuple[str, np.ndarray]:
+    """``base_circles.csv`` (:mod:`robocal.iso9283.base_frame`): the reflector measured while joint 1, then joint
+    2 turns, before the test (cold: the true geometry, the robot's scatter and the tracker's noise); and the
+    ``tracker_T_base`` the true robot's axes define (the same construction on the noise-free lines)."""
+    lim = robot.q_limits
+    n = len(q0)
+    qs, axis = [], []
+    for a in (0, 1):
+        half = CIRCLE_HALF_SPAN_DEG[a]
+        k = round(2 * half / CIRCLE_STEP_DEG) + 1
+        ang = np.clip(q0[a] + np.deg2rad(np.linspace(-half, half, k)), lim[a, 0], lim[a, 1])
+        q = np.tile(q0, (k, 1))
+        q[:, a] = ang
+        qs.append(np.deg2rad(np.round(np.rad2deg(q), 6)))
+        axis += [a + 1] * k
+    q_all = np.vstack(qs)
+    m = len(q_all)
+
+    def tracker_points(e: np.ndarray) -> np.ndarray:
+        s = propagate(chain, q_all, e)
+        return (s.o + s.x * tool[0] + s.y * tool[1] + s.z * tool[2]) @ T_base[:3, :3].T + T_base[:3, 3]
+
+    exact = tracker_points(eta)
+    g = rng("iso_base_circles")  # a stream of its own: the test's draws stay as they were
+    meas = exact + g.normal(0.0, st.twin.repeatability_mm, (m, 3)) + g.normal(0.0, noise_mm, (m, 3))
+    ax = np.array(axis)
+    # the frame the true axes define, from the noise-free circles (exact lines), and the nominal one
+    nom_pts = propagate(chain, q_all, np.zeros(chain.n_params))
+    nom = nom_pts.o + nom_pts.x * tool[0] + nom_pts.y * tool[1] + nom_pts.z * tool[2]
+    lines, nlines = [], []
+    for a in (1, 2):
+        c = fit_circle(exact[ax == a], q_all[ax == a, a - 1])
+        cn = fit_circle(nom[ax == a], q_all[ax == a, a - 1])
+        lines.append((c.centre, c.normal))
+        nlines.append((cn.centre, cn.normal))
+    w = np.cross(nlines[0][1], nlines[1][1])
+    offset = abs(float((nlines[1][0] - nlines[0][0]) @ w / np.linalg.norm(w))) > 1.0
+    A_true = axis_frame(lines[0][0], lines[0][1], lines[1][0], lines[1][1], offset)
+    A_nom = axis_frame(nlines[0][0], nlines[0][1], nlines[1][0], nlines[1][1], offset)
+    head = ["axis", *[f"q{j + 1}_deg" for j in range(n)], "x_mm", "y_mm", "z_mm"]
+    lines_csv = [",".join(head)]
+    for k in range(m):
+        vals = [str(axis[k]), *[f"{v:.6f}" for v in np.rad2deg(q_all[k])], *[f"{v:.6f}" for v in meas[k]]]
+        lines_csv.append(",".join(vals))
+    return "\n".join(lines_csv) + "\n", A_true @ np.linalg.inv(A_nom)
 
 
 def _true_cell(

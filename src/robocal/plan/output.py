@@ -216,8 +216,19 @@ def _stderr_section(rep: Any, result: PlanResult) -> None:
 
 
 def _poses_figure(rep: Any, result: PlanResult) -> None:
+    rep.heading("Poses")
+    rep.figure(poses_figure(result), "The first target at the planned poses (robot base frame)")
+
+
+#: at most this many tick intervals per axis of the pose views: an equal-aspect panel stretched to hold the tracker
+#: (metres from the robot) got nine 4-digit labels on 4 cm ("-1500-1000" ran together)
+POSE_VIEW_TICKS = 6
+
+
+def poses_figure(result: PlanResult) -> Any:
     """Top and side views of the first target at the planned poses among the accepted candidates."""
     from matplotlib.figure import Figure
+    from matplotlib.ticker import MaxNLocator
 
     pr = result.problem
     xyz_all = pr.cand.targets_mm[:, 0]
@@ -231,11 +242,12 @@ def _poses_figure(rep: Any, result: PlanResult) -> None:
         ax.scatter([trk[a]], [trk[b]], marker="^", s=60, c="#c44e52", label="tracker")
         ax.set_title(lab)
         ax.set_aspect("equal", adjustable="datalim")
+        for axis in (ax.xaxis, ax.yaxis):
+            axis.set_major_locator(MaxNLocator(nbins=POSE_VIEW_TICKS, steps=[1, 2, 2.5, 5, 10]))
         if k == 0:
             ax.legend(fontsize=7)
     fig.tight_layout()
-    rep.heading("Poses")
-    rep.figure(fig, "The first target at the planned poses (robot base frame)")
+    return fig
 
 
 def _error_map_section(rep: Any, result: PlanResult) -> None:

@@ -440,7 +440,7 @@ def compensation_section(rep: Report, ev: Mapping[str, Any]) -> Report:
     rep.heading("Controller CSV and extrapolation")
     if ext is not None:
         if ext.get("warning"):
-            rep.note("Warning: " + ext["warning"] + ".", kind="warn")
+            rep.note(ext["warning"] + ".", kind="warn")  # the note says "Warning:"
         else:
             rep.paragraph(
                 f"Every validation reading lies within the model's fitted temperature range (margin "
@@ -457,7 +457,7 @@ def compensation_section(rep: Report, ev: Mapping[str, Any]) -> Report:
         )
     if comp is not None:
         if comp.get("warning"):
-            rep.note("Warning: " + comp["warning"] + ".", kind="warn")
+            rep.note(comp["warning"] + ".", kind="warn")
         lim = comp.get("limits", {})
         rep.kv(
             {
