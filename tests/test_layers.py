@@ -29,6 +29,7 @@ LAYERS: list[set[str]] = [
         "metrics",
         "status",
         "numerics",
+        "logged_signals",
         "__version__",
     },
     # the data contract

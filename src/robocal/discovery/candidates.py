@@ -450,11 +450,58 @@ def _beta_candidates(campaign: Campaign, robot: RobotDescription, cfg: Discovery
 
 
 def _signal_candidates(campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig, out: _Library) -> None:
-    """The ``signal`` candidates: every logged signal (extra numeric column) as a driver
-    (:mod:`robocal.discovery.logged`)."""
-    from robocal.discovery.logged import signal_candidates
+    """The ``signal`` candidates: every usable logged signal (extra numeric column, screened by
+    :mod:`robocal.discovery.logged`) as a driver of the four frame effects, the tracker's scale and a joint offset
+    per moving joint; the columns not used go to the skipped list with their reason."""
+    from robocal.discovery.logged import FRAME_WORDS, FRAMES, screen
 
-    signal_candidates(campaign, robot, cfg, out)
+    used, skipped = screen(campaign, robot)
+    for s in skipped:
+        out.skipped.append(SkippedCandidate(f"signal:{s['column']}", "signal", None, s["reason"]))
+    for sig in used:
+        S = (sig.values - sig.centre)[:, None]
+        unit = sig.unit or "unit"
+        what = (
+            f"logged signal {sig.name}"
+            + (f" ({sig.unit})" if sig.unit else "")
+            + ("" if sig.declaration is not None else ", undeclared")
+        )
+        info = {
+            "column": sig.name,
+            "centre": sig.centre,
+            "side": sig.side,
+            "signal_info": sig.to_dict(),
+            "target": campaign.target,
+        }
+        for frame, (names, cu) in FRAMES.items():
+            out.cands.append(
+                Candidate(
+                    f"signal:{sig.name}:{frame}", "signal", None, None,
+                    cause=FRAME_WORDS[frame].format(s=sig.name), signal=what, shape="frame", S=S,
+                    coef_names=names, coef_units=tuple(f"{cu}/{unit}" for _ in names),
+                    extra={**info, "frame": frame},
+                )
+            )  # fmt: skip
+        out.cands.append(
+            Candidate(
+                f"signal:{sig.name}:scale", "signal", None, None,
+                cause=f"the tracker's length scale follows {sig.name} (the air's refractive index, the tracker's "
+                "own temperature): a measurement-side effect, never sent to the controller", signal=what,
+                shape="tracker", S=S * PPM, coef_names=("ppm",), coef_units=(f"ppm/{unit}",),
+                extra={**info, "frame": None, "side": "measurement", "p_mm": campaign.p_mm},
+            )
+        )  # fmt: skip
+        for j in range(robot.n_joints):
+            if float(np.ptp(campaign.q[:, j])) < 1e-6:
+                continue
+            out.cands.append(
+                Candidate(
+                    f"signal:{sig.name}:j{j + 1}", "signal", j + 1, None,
+                    cause=f"the joint-{j + 1} angle is offset in proportion to {sig.name} (an encoder or "
+                    "reducer reading the signal's cause)", signal=what, shape="joint", S=S,
+                    coef_names=("c",), coef_units=(f"rad/{unit}",), extra={**info, "frame": None},
+                )
+            )  # fmt: skip
 
 
 #: the candidate builder of each library effect (an effect not listed has no candidates of its own here)

@@ -55,7 +55,7 @@ FRAMES = {
     "tool_rot": (("rx", "ry", "rz"), "rad"),
     "tool_trans": (("tx", "ty", "tz"), "mm"),
 }
-_FRAME_WORDS = {
+FRAME_WORDS = {
     "base_rot": "the robot base rotates with {s} (a compliant stand or floor tilting, an axis carrying the base)",
     "base_trans": "the robot base moves with {s} (a stand or a carrying axis deflecting)",
     "tool_rot": "the tool rotates on the flange with {s} (a compliant tool or gripper, a loose mount)",
@@ -191,61 +191,6 @@ def screen(campaign: Campaign, robot: RobotDescription) -> tuple[list[LoggedSign
             continue
         used.append(LoggedSignal(name, x, float(x[cal].mean()), d))
     return used, skipped
-
-
-def signal_candidates(campaign: Campaign, robot: RobotDescription, cfg: Any, out: Any) -> None:
-    """The ``signal`` candidates of the campaign (:mod:`robocal.discovery.candidates`' builder): for every usable
-    logged signal, the four frame effects and a joint offset per moving joint; the columns not used go to the
-    skipped list with their reason."""
-    from robocal.discovery.candidates import PPM, Candidate, SkippedCandidate
-
-    used, skipped = screen(campaign, robot)
-    for s in skipped:
-        out.skipped.append(SkippedCandidate(f"signal:{s['column']}", "signal", None, s["reason"]))
-    for sig in used:
-        S = (sig.values - sig.centre)[:, None]
-        unit = sig.unit or "unit"
-        what = (
-            f"logged signal {sig.name}"
-            + (f" ({sig.unit})" if sig.unit else "")
-            + ("" if sig.declaration is not None else ", undeclared")
-        )
-        info = {
-            "column": sig.name,
-            "centre": sig.centre,
-            "side": sig.side,
-            "signal_info": sig.to_dict(),
-            "target": campaign.target,
-        }
-        for frame, (names, cu) in FRAMES.items():
-            out.cands.append(
-                Candidate(
-                    f"signal:{sig.name}:{frame}", "signal", None, None,
-                    cause=_FRAME_WORDS[frame].format(s=sig.name), signal=what, shape="frame", S=S,
-                    coef_names=names, coef_units=tuple(f"{cu}/{unit}" for _ in names),
-                    extra={**info, "frame": frame},
-                )
-            )  # fmt: skip
-        out.cands.append(
-            Candidate(
-                f"signal:{sig.name}:scale", "signal", None, None,
-                cause=f"the tracker's length scale follows {sig.name} (the air's refractive index, the tracker's "
-                "own temperature): a measurement-side effect, never sent to the controller", signal=what,
-                shape="tracker", S=S * PPM, coef_names=("ppm",), coef_units=(f"ppm/{unit}",),
-                extra={**info, "frame": None, "side": "measurement", "p_mm": campaign.p_mm},
-            )
-        )  # fmt: skip
-        for j in range(robot.n_joints):
-            if float(np.ptp(campaign.q[:, j])) < 1e-6:
-                continue
-            out.cands.append(
-                Candidate(
-                    f"signal:{sig.name}:j{j + 1}", "signal", j + 1, None,
-                    cause=f"the joint-{j + 1} angle is offset in proportion to {sig.name} (an encoder or "
-                    "reducer reading the signal's cause)", signal=what, shape="joint", S=S,
-                    coef_names=("c",), coef_units=(f"rad/{unit}",), extra={**info, "frame": None},
-                )
-            )  # fmt: skip
 
 
 def record(campaign: Campaign, robot: RobotDescription) -> dict[str, Any] | None:

@@ -553,11 +553,10 @@ def load_calibration(data: dict[str, Any], robot: RobotDescription) -> Calibrati
 
 
 def _candidate_order(model: CalibrationModel, fixed: set[str]) -> list[int]:
-    """Priority order for keeping parameters: base, tools, then joint-level parameters base -> flange."""
-    order = [i for i, k in enumerate(model.kinds) if k == "base"]
-    order += [i for i, k in enumerate(model.kinds) if k in ("tool", "tool_rot")]
-    order += [i for i, k in enumerate(model.kinds) if k == "kinematic"]
-    return [i for i in order if model.names[i] not in fixed]
+    """Priority order for keeping parameters (:func:`~robocal.identification.identifiability.keep_order`)."""
+    from robocal.identification.identifiability import keep_order
+
+    return keep_order(model.kinds, model.names, fixed)
 
 
 def _resolve_fixed(names: tuple[str, ...], patterns: tuple[str, ...]) -> set[str]:

@@ -10,6 +10,7 @@ finds equals the SVD rank unless parameters are nearly (not exactly) redundant, 
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -161,3 +162,12 @@ def analyse(
         singular_values=sv,
         names=names,
     )
+
+
+def keep_order(kinds: Sequence[str], names: Sequence[str], fixed: set[str] | frozenset[str]) -> list[int]:
+    """Priority order for keeping parameters in the rank analysis: base frames, tools, then joint-level
+    parameters base -> flange; ``fixed`` names left out."""
+    order = [i for i, k in enumerate(kinds) if k == "base"]
+    order += [i for i, k in enumerate(kinds) if k in ("tool", "tool_rot")]
+    order += [i for i, k in enumerate(kinds) if k == "kinematic"]
+    return [i for i in order if names[i] not in fixed]

@@ -35,15 +35,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
-from robocal.identification.identifiability import analyse
+from robocal.identification.identifiability import analyse, keep_order
 from robocal.identification.model import FitData
 
-if TYPE_CHECKING:
-    from robocal.identification.calibrate import CalibrationConfig, CalibrationStart
+#: a :class:`robocal.identification.calibrate.CalibrationStart` (not imported: calibrate imports this module)
+CalibrationStart = Any
 
 __all__ = [
     "SPREAD_CONFIGURATIONS",
@@ -82,8 +82,6 @@ def model_parameters(start: CalibrationStart) -> int:
     """The parameters the calibration model has: the rank of its Jacobian (the calibration's rank test,
     the same candidates and ``rank_tol``) at :data:`SPREAD_CONFIGURATIONS` configurations drawn uniformly in
     90 % of the joint ranges (seed 0), every target measured at each, the stations taken in turn."""
-    from robocal.identification.calibrate import _candidate_order
-
     model, cfg = start.model, start.config
     robot = model.robot
     rng = np.random.default_rng(0)
@@ -100,7 +98,8 @@ def model_parameters(start: CalibrationStart) -> int:
     w = np.full(3 * n * K, 1.0 / cfg.noise_mm)
     if model.orientation:
         w = np.concatenate([w, np.full(3 * n * K, 1.0 / np.deg2rad(cfg.noise_deg))])
-    ident = analyse(J * w[:, None], model.names, _candidate_order(model, set(start.fixed)), rtol=cfg.rank_tol)
+    order = keep_order(model.kinds, model.names, set(start.fixed))
+    ident = analyse(J * w[:, None], model.names, order, rtol=cfg.rank_tol)
     return len(ident.kept)
 
 
@@ -259,7 +258,7 @@ def choose_prior(start: CalibrationStart, why: str) -> tuple[Prior | None, dict[
     """The prior of a thin campaign (``why`` says why) with the strength the
     cross-validation picks (``prior: auto``) or the configured one (a number), and the record of what was done
     (``fit.configurations.prior``); no prior when the CV prefers none, or has fewer than 3 folds."""
-    cfg: CalibrationConfig = start.config
+    cfg = start.config
     fixed = None if cfg.prior == "auto" else float(cfg.prior)
     cv = cross_validate(start, STRENGTHS if fixed is None else (fixed,))
     record: dict[str, Any] = {"why": why}
