@@ -43,6 +43,13 @@ def run(args: argparse.Namespace) -> int:
     from robocal.identification.robust import outlier_line
 
     print(outlier_line(s.get("outliers", []), s.get("n_rows_total")))
+    from robocal.identification.misfit import line
+
+    seen = s.get("systematic_misfit") or (g or {}).get("systematic_misfit") or []
+    if seen:
+        print(
+            line(seen) + ("" if s.get("systematic_misfit") else " [geometric model; the discovered model explains it]")
+        )
     if "validation" in s:
         vg, vd, vf = (s["validation"][k] for k in ("geometric", "discovered", "final"))
         print(

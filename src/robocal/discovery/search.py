@@ -182,7 +182,7 @@ def discover(campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig |
     the configured value or, when the campaign allows a model-free estimate, the larger of the two), and
     "unexplained" is judged against it.
     """
-    from robocal.identification import robust
+    from robocal.identification import misfit, robust
     from robocal.identification.calibrate import describe_outliers, present_stations
 
     cfg = cfg or DiscoveryConfig()
@@ -214,6 +214,7 @@ def discover(campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig |
     res: DiscoveryResult | None = None
     test = None
     rounds = 0
+    systematic: list[dict[str, Any]] = []
     for rounds in range(1, 4):  # noqa: B007 (reported)
         idx = np.flatnonzero(kept)
         res = _search(campaign, robot, cfg, rows_all[idx], data_all.rows(idx), geo, library, skipped, sigma, sigma_rad)
@@ -225,6 +226,14 @@ def discover(campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig |
         test = robust.row_test(
             r * w, J[:, fit.free] * w[:, None], np.repeat(np.arange(m), fit.d), m, kept, ccfg.outlier_alpha
         )
+        systematic = []
+        if test.flagged.sum() >= misfit.MIN_ROWS:
+            # rows that misfit together under one condition are a systematic misfit of the model: kept, named
+            rp = r.reshape(m, fit.d)[:, :3]
+            e2 = np.sum(rp**2, axis=1)
+            scale = float(np.sqrt(np.median(e2[kept]) / stats.chi2.ppf(0.5, 3)))
+            systematic, explained = misfit.find(cal, test.flagged, rp, scale, ccfg.outlier_alpha)
+            test = robust.RowTest(test.F, test.p_value, test.flagged & ~explained, test.threshold_F, test.alpha, test.d)
         if test.flagged.sum() > ccfg.outlier_max_share * m:
             # more rows stand out than gross errors can be: a model error the library cannot name, not blunders
             test = robust.RowTest(test.F, test.p_value, ~kept, test.threshold_F, test.alpha, test.d)
@@ -245,6 +254,7 @@ def discover(campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig |
         outliers = []
     res.extra.update(
         outliers=outliers,
+        systematic_misfit=misfit.public(systematic),
         outlier_rounds=rounds,
         noise=noise,
         sigma_mm=sigma,

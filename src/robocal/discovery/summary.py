@@ -341,6 +341,8 @@ def summary(res: DiscoveryResult, validation: dict[str, Any] | None = None) -> d
         "noise_mm": float(res.extra.get("sigma_mm", res.config.noise_mm)),
         "noise": res.extra.get("noise"),
         "outliers": res.extra.get("outliers", []),
+        # rows that misfit together under one condition against the final model (robocal.identification.misfit)
+        "systematic_misfit": res.extra.get("systematic_misfit", []),
         "n_rows_total": len(res.rows) + len(res.extra.get("outliers", [])),
         "uses_orientation": bool(res.extra.get("uses_orientation", False)),
         "chi2": fit.rss,
@@ -386,6 +388,7 @@ def summary(res: DiscoveryResult, validation: dict[str, Any] | None = None) -> d
             "noise_used_mm": (geo.fit.get("noise") or {}).get("used_mm"),
             "n_rows": int(np.sum(geo.start.kept)) if geo.start is not None else None,
             "outlier_rows": [o["row"] for o in geo.fit.get("outliers", [])],
+            "systematic_misfit": geo.fit.get("systematic_misfit", []),
         }
     cv = res.extra.get("cv") or {}
     if cv:

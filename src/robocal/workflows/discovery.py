@@ -72,6 +72,15 @@ def _verdict_section(rep: Report, summ: dict[str, Any]) -> None:
             ),
             kind="warn",
         )
+    geo_sys = (summ.get("geometric_calibration") or {}).get("systematic_misfit") or []
+    for label, found in (("the final model", summ.get("systematic_misfit") or []), ("the geometric model", geo_sys)):
+        if found:
+            rep.note(
+                f"Systematic misfit against {label} (rows that misfit together under one condition: kept in the fit "
+                "and offered to the search, not gross errors): "
+                + "; ".join(f"{f['n_rows']} rows with {f['condition']}, {f['size_mm']:.3f} mm" for f in found),
+                kind="warn",
+            )
     if summ.get("noise"):
         nz = summ["noise"]
         rep.paragraph(f"Noise used for weights and for 'unexplained': {nz['used_mm']:.4f} mm — {nz['used_because']}.")
