@@ -332,8 +332,44 @@ def finish(
             fit, accepted, _, _ = _step(layer_pool, fit, accepted, cv, rows, data, cfg, steps, record, refit, groups,
                                         what="residual layer")  # fmt: skip
     if cfg.cv_folds >= 2:
-        record.update(contributions(fit, accepted, groups, cfg))
+        fit, accepted, con = held_out_check(fit, accepted, steps, groups, refit, cfg, record)
+        record.update(con)
     return fit, accepted, record
+
+
+def held_out_check(
+    fit: Fit,
+    accepted: list[Accepted],
+    steps: list[Any],
+    groups: np.ndarray,
+    refit: Any,
+    cfg: DiscoveryConfig,
+    record: dict[str, Any],
+) -> tuple[Fit, list[Accepted], dict[str, Any]]:
+    """An effect earns its place by its held-out gain: the pose-grouped cross-validated mean error of the model
+    without it (linearised, :func:`contributions`) minus the model's own must exceed ``cfg.min_held_out_gain``
+    times the model's. The effects that do not are dropped together and the model refitted; repeated until every
+    joint-level effect passes (a :class:`Step` of phase ``held-out`` per round, ``record["dropped_no_gain"]``).
+    Returns the fit, the effects and the final contributions."""
+    dropped = record.setdefault("dropped_no_gain", [])
+    for _ in range(5):
+        con = contributions(fit, accepted, groups, cfg)
+        cv_mean = float(con["cv_mean_position_mm"])
+        thr = cfg.min_held_out_gain * cv_mean
+        gains = {k: float(e["cv_mean_without_mm"]) - cv_mean for k, e in con["effects"].items()}
+        weak = sorted(k for k, g in gains.items() if not g > thr)
+        if not weak:
+            return fit, accepted, con
+        before = fit
+        accepted = [a for a in accepted if a.cand.key not in weak]
+        fit = refit(accepted, fit)
+        dropped += [{"key": k, "held_out_gain_mm": gains[k], "threshold_mm": thr} for k in weak]
+        steps.append(
+            Step(None, f"held-out check: dropped {', '.join(weak)} (held-out gain at most {thr:.2g} mm)",
+                 before.rms_mm, fit.rms_mm, before.rss, fit.rss, fit.dof, [], weak, before.residuals_mm,
+                 fit.residuals_mm, phase="held-out")
+        )  # fmt: skip
+    return fit, accepted, contributions(fit, accepted, groups, cfg)
 
 
 def _prune(
@@ -376,6 +412,7 @@ def _step(
 ) -> tuple[Fit, list[Accepted], Pool, FoldCV]:
     """One step of the selection: score every pool entry, accept the best significant one (refit jointly) or
     record why nothing was accepted (then the same ``fit`` object comes back)."""
+    phase = "layer" if what == "residual layer" else "selection"
 
     sse0 = cv.group_sse(cv.base_err)
     scores: list[tuple[float, float, Score, list[Candidate], Variant, dict[str, tuple[str, ...]]]] = []
@@ -404,7 +441,7 @@ def _step(
     passing = [s for s in scores if s[2].passes]
     if not passing:
         steps.append(Step(None, f"{what}: nothing lowers the held-out error significantly", fit.rms_mm, fit.rms_mm,
-                          fit.rss, fit.rss, fit.dof, [s[2] for s in scores]))  # fmt: skip
+                          fit.rss, fit.rss, fit.dof, [s[2] for s in scores], phase=phase))  # fmt: skip
         return fit, accepted, pool, cv
     _tot, lp, sc, members, v, drifted = passing[0]
     sc.status = "accepted"
@@ -414,7 +451,7 @@ def _step(
     fit = refit(accepted, fit)
     steps.append(
         Step(sc.key, f"{sc.label} ({v.label})" if v.label else sc.label, before.rms_mm, fit.rms_mm, before.rss,
-             fit.rss, fit.dof, [s[2] for s in scores], [], before.residuals_mm, fit.residuals_mm)
+             fit.rss, fit.dof, [s[2] for s in scores], [], before.residuals_mm, fit.residuals_mm, phase=phase)
     )  # fmt: skip
     record["steps"].append({"key": sc.key, "variant": v.label, "log10_p": lp, "threshold_log10_p": thr,
                             "cv_gain": sc.cv_gain, "members": [c.key for c in chosen]})  # fmt: skip

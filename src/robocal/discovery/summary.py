@@ -277,8 +277,12 @@ def locate(res: DiscoveryResult) -> dict[str, Any]:
 
 def _step_dict(k: int, st: Step, res: DiscoveryResult) -> dict[str, Any]:
     cand = next((c for c in res.library if c.key == st.accepted), None)
+    from robocal.discovery.scoring import PHASES
+
     return {
         "step": k,
+        "phase": PHASES.get(st.phase, st.phase),
+        "label": st.label or _stop_text(st),
         "accepted": st.accepted,
         "effect": None if cand is None else cand.effect,
         "joint": None if cand is None else cand.joint,
@@ -291,6 +295,15 @@ def _step_dict(k: int, st: Step, res: DiscoveryResult) -> dict[str, Any]:
         "dropped": st.dropped,
         "candidates": [s.to_dict() for s in sorted(st.scores, key=_score_key)],
     }
+
+
+def _stop_text(st: Step) -> str:
+    """What a step that accepted nothing says: which phase stopped, and why."""
+    if st.phase == "library":
+        return "library F-test search stopped: no candidate passes the F-test, the BIC and the excess share"
+    if st.phase == "held-out":
+        return "held-out check: every effect earns its place"
+    return "stopped"
 
 
 def _score_key(s: Any) -> float:
@@ -341,6 +354,7 @@ def summary(res: DiscoveryResult, validation: dict[str, Any] | None = None) -> d
         "noise_mm": float(res.extra.get("sigma_mm", res.config.noise_mm)),
         "noise": res.extra.get("noise"),
         "outliers": res.extra.get("outliers", []),
+        "outlier_rule": res.extra.get("outlier_rule"),
         # rows that misfit together under one condition against the final model (robocal.identification.misfit)
         "systematic_misfit": res.extra.get("systematic_misfit", []),
         "n_rows_total": len(res.rows) + len(res.extra.get("outliers", [])),
