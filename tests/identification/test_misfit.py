@@ -111,3 +111,22 @@ def test_a_few_scattered_flags_are_not_a_cluster(kr16):
     many[np.argsort(q[:, 1])[-12:]] = True  # the twelve highest: named, on joint 2
     found, explained = misfit.find(camp, many, resid + 0.3 * many[:, None], 0.015, 0.001)
     assert [f["column"] for f in found] == ["q2_deg"] and explained.sum() == 12
+
+
+def test_discovery_sees_the_misfit_and_names_it(above_q2, kr16):
+    """Discovery starts from calibrate's rows (the misfit's rows kept), is offered the misfit as a candidate (the
+    frame steps for the rows with that condition), and reports it: the blunders stay gross errors."""
+    from robocal.discovery.config import DiscoveryConfig
+    from robocal.discovery.search import discover
+    from robocal.discovery.summary import summary
+
+    camp, truth, _df, _sel, _res = above_q2
+    cfg = DiscoveryConfig.from_mapping({"dictionary": False, "layer": False, "grow_max_steps": 0})
+    s = summary(discover(camp, kr16, cfg))
+    geo = s["geometric_calibration"]
+    assert [f["column"] for f in geo["systematic_misfit"]] == ["q2_deg"]
+    assert sorted(o["row"] for o in s["outliers"]) == sorted(g["row"] for g in truth["gross_errors"])
+    named = [n for n in s["named"] if n["effect"] == "misfit"]
+    assert len(named) == 1 and "q2_deg" in named[0]["cause"] and named[0]["side"] == "measurement", s["named"]
+    # with the step modelled, the fit is near the floor and nothing misfits together any more
+    assert s["systematic_misfit"] == [] and s["rms_after_mm"] < 1.5 * s["noise_floor_mm"], s["rms_after_mm"]

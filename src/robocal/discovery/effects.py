@@ -65,6 +65,8 @@ def effect_records(fit: Fit) -> tuple[list[dict[str, Any]], list[dict[str, Any]]
                 why = "a proposed equation with a term the commanded joints do not give (temperature, time, torque)"
             elif c.effect in ("drift", "air", "regap"):
                 why = "a measurement-side effect (the tracker's frame moving): it corrects the figures, never the robot"
+            elif c.effect == "misfit":
+                why = "a systematic misfit of the rows under a condition: it corrects the figures, never the robot"
             elif c.effect == "scale":
                 why = "a measurement-side effect (the tracker's length scale): it corrects the figures, never the robot"
             else:

@@ -28,6 +28,7 @@ from robocal.discovery.config import DiscoveryConfig
 from robocal.discovery.grow import finish, grow, held_out_check, physics_candidates, variant_candidate
 from robocal.discovery.model import Accepted, ExtendedModel, Fit, fit_model
 from robocal.discovery.scoring import Score, Step, regressor
+from robocal.discovery.systematic import misfit_candidates
 from robocal.errors import ConfigError
 from robocal.identification.calibrate import CalibrationConfig, fit_data, present_targets
 from robocal.identification.model import FitData
@@ -208,6 +209,8 @@ def discover(campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig |
     sigma = float(noise["used_mm"])
     sigma_rad = float(np.deg2rad(cfg.noise_deg))
     library, skipped = build_library(campaign, robot, cfg)
+    # a systematic misfit the geometric calibration named is offered to the search (issue 33 item 4)
+    library += misfit_candidates(campaign, geo.fit.get("systematic_misfit") or [])
     assert geo.start is not None  # a fit of calibrate, with its start
     kept = np.asarray(geo.start.kept, dtype=bool).copy()
     m = cal.n_rows

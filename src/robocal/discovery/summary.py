@@ -14,7 +14,7 @@ from robocal.kinematics.chain import fk
 
 _DEG = float(np.rad2deg(1.0))
 #: Effects of the measurement, not of the robot: reported, used in the fit, never sent to the controller.
-MEASUREMENT_SIDE = ("drift", "air", "regap", "scale")
+MEASUREMENT_SIDE = ("drift", "air", "regap", "scale", "misfit")
 
 
 def _est(value: float, se: float, unit: str) -> dict[str, Any]:
@@ -66,7 +66,7 @@ def estimates(fit: Fit, acc: Accepted) -> dict[str, Any]:
     elif c.effect == "beta":
         nm = f"beta{c.joint}"
         out[f"{nm}_deg"] = _est(fit.theta[model.index(nm)] * _DEG, fit.stderr(nm) * _DEG, "deg")
-    elif c.effect in ("thermal", "drift", "air", "regap"):
+    elif c.effect in ("thermal", "drift", "air", "regap", "misfit"):
         out.update(_drift_estimates(fit, acc, val, se))
     return out
 
@@ -84,7 +84,7 @@ def _drift_estimates(fit: Fit, acc: Accepted, val: np.ndarray, se: np.ndarray) -
         unit_p = model.base.units[model.base.index(pname)]
         f = _DEG if unit_p == "rad" else 1.0
         unit = "deg" if unit_p == "rad" else "mm"
-        if sig.startswith("after_gap"):  # a step: the frame's change at the gap
+        if sig.startswith("after_gap") or sig == "in_condition":  # a step: the frame's change at the gap / under it
             out[f"{pname}_{sig}"] = _est(val[k] * f, se[k] * f, unit)
             continue
         per = "h" if sig == "t_h" else f"°C ({sig})"

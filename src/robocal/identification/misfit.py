@@ -72,9 +72,19 @@ class Condition:
         if self.level is not None:
             out["level"] = self.level
         else:
-            out["range"] = [float(f"{self.lo:.6g}"), float(f"{self.hi:.6g}")]
+            # the ends are values of the data (flagged rows'): written whole, so that the condition read back from
+            # the JSON holds on exactly the same rows
+            out["range"] = [float(self.lo), float(self.hi)]  # type: ignore[arg-type]
             out["unit"] = self.unit
         return out
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> Condition:
+        """The condition of a record (:meth:`to_dict`)."""
+        if "level" in d:
+            return cls(str(d["kind"]), str(d["column"]), level=str(d["level"]))
+        lo, hi = d["range"]
+        return cls(str(d["kind"]), str(d["column"]), lo=float(lo), hi=float(hi), unit=str(d.get("unit", "")))
 
 
 def column_values(camp: Campaign, column: str) -> np.ndarray | None:
