@@ -355,9 +355,12 @@ def summary(res: DiscoveryResult, validation: dict[str, Any] | None = None) -> d
         "noise": res.extra.get("noise"),
         "outliers": res.extra.get("outliers", []),
         "outlier_rule": res.extra.get("outlier_rule"),
+        "left_out_poorly_predicted": res.extra.get("left_out_poorly_predicted", []),
         # rows that misfit together under one condition against the final model (robocal.identification.misfit)
         "systematic_misfit": res.extra.get("systematic_misfit", []),
-        "n_rows_total": len(res.rows) + len(res.extra.get("outliers", [])),
+        "n_rows_total": len(res.rows)
+        + len(res.extra.get("outliers", []))
+        + len(res.extra.get("left_out_poorly_predicted", [])),
         "uses_orientation": bool(res.extra.get("uses_orientation", False)),
         "chi2": fit.rss,
         "dof": fit.dof,

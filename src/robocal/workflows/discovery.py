@@ -72,6 +72,13 @@ def _verdict_section(rep: Report, summ: dict[str, Any]) -> None:
             ),
             kind="warn",
         )
+    quiet = summ.get("left_out_poorly_predicted") or []
+    if quiet:
+        rep.note(
+            f"{len(quiet)} calibration row(s) left out of the fit, not gross errors: the final model's leave-one-out "
+            "prediction of them stands out, their error does not stand out from the rows' own scatter: "
+            + ", ".join(f"row {o['row']} ({o['residual_mm']:.3f} mm)" for o in quiet)
+        )
     geo_sys = (summ.get("geometric_calibration") or {}).get("systematic_misfit") or []
     for label, found in (("the final model", summ.get("systematic_misfit") or []), ("the geometric model", geo_sys)):
         if found:
@@ -159,12 +166,16 @@ def _named_section(rep: Report, summ: dict[str, Any]) -> None:
                     "side": n["side"],
                     "held-out mean without it, mm": n["held_out"]["cv_mean_without_mm"],
                     "its contribution, mm": n["held_out"]["cv_mean_without_mm"] - cv["cv_mean_position_mm"],
+                    "held-out gain as fitted, %": 100 * n["held_out"].get("held_out_gain", float("nan")),
                 }
                 for n in held
             ],
             caption=f"Each joint-level effect's own contribution to the held-out error: the pose-grouped "
             f"cross-validated mean error of the final model is {cv['cv_mean_position_mm']:.4f} mm; without the "
-            "effect (linearised) it is the value shown. Robot-side effects go to the controller; "
+            "effect (linearised) it is the value shown. An effect stays only when the held-out RMS error as fitted "
+            "(positions and, with a 6-DoF probe, orientations) rises without it by more than "
+            f"{100 * summ['config']['min_held_out_gain']:g} % (the held-out check): one that turns the tool may "
+            "help the orientations more than the positions. Robot-side effects go to the controller; "
             "measurement-side ones (tracker drift) never do",
         )
 
