@@ -332,7 +332,7 @@ def finish(
             fit, accepted, _, _ = _step(layer_pool, fit, accepted, cv, rows, data, cfg, steps, record, refit, groups,
                                         what="residual layer")  # fmt: skip
     if cfg.cv_folds >= 2:
-        fit, accepted, con = held_out_check(fit, accepted, steps, groups, refit, cfg, record)
+        fit, accepted, con = held_out_check(fit, accepted, steps, groups, refit, cfg, record, final=True)
         record.update(con)
     return fit, accepted, record
 
@@ -345,20 +345,29 @@ def held_out_check(
     refit: Any,
     cfg: DiscoveryConfig,
     record: dict[str, Any],
+    final: bool = False,
 ) -> tuple[Fit, list[Accepted], dict[str, Any]]:
     """An effect earns its place by its held-out gain: the pose-grouped cross-validated RMS error of the model as
     fitted (whitened positions and, with a 6-DoF probe, orientations) without it (linearised,
     :func:`contributions`) must exceed the model's own by more than the share ``cfg.min_held_out_gain``. The
     effects that do not are dropped together and the model refitted; repeated until every joint-level effect
-    passes (a :class:`Step` of phase ``held-out`` per round; ``record["dropped_no_gain"]`` with each one's gain
-    and its position-only gain in mm). Returns the fit, the effects and the final contributions."""
+    passes (a :class:`Step` per round, of phase ``held-out`` for the ``final`` check after the layer and
+    ``held-out parametric`` before it, and for the final check one saying that every effect passes;
+    ``record["dropped_no_gain"]`` with each one's gain and its position-only gain in mm). Returns the fit, the
+    effects and the final contributions."""
     dropped = record.setdefault("dropped_no_gain", [])
     thr = cfg.min_held_out_gain
+    phase = "held-out" if final else "held-out parametric"
     for _ in range(5):
         con = contributions(fit, accepted, groups, cfg)
         gains = {k: float(e["held_out_gain"]) for k, e in con["effects"].items()}
         weak = sorted(k for k, g in gains.items() if not g > thr)
         if not weak:
+            if final and gains:
+                steps.append(
+                    Step(None, f"held-out check: every joint-level effect lowers the held-out error by more than "
+                         f"{thr:.2%}", fit.rms_mm, fit.rms_mm, fit.rss, fit.rss, fit.dof, [], phase=phase)
+                )  # fmt: skip
             return fit, accepted, con
         before = fit
         accepted = [a for a in accepted if a.cand.key not in weak]
@@ -372,7 +381,7 @@ def held_out_check(
         steps.append(
             Step(None, f"held-out check: dropped {', '.join(weak)} (held-out gain at most {thr:.2%})",
                  before.rms_mm, fit.rms_mm, before.rss, fit.rss, fit.dof, [], weak, before.residuals_mm,
-                 fit.residuals_mm, phase="held-out")
+                 fit.residuals_mm, phase=phase)
         )  # fmt: skip
     return fit, accepted, contributions(fit, accepted, groups, cfg)
 

@@ -54,6 +54,7 @@ PHASES = {
     "library": "library F-test search",
     "selection": "cross-validated selection",
     "equations": "proposed equations",
+    "held-out parametric": "held-out check of the parametric model",
     "layer": "residual layer",
     "held-out": "held-out check",
 }

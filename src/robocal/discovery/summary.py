@@ -301,8 +301,6 @@ def _stop_text(st: Step) -> str:
     """What a step that accepted nothing says: which phase stopped, and why."""
     if st.phase == "library":
         return "library F-test search stopped: no candidate passes the F-test, the BIC and the excess share"
-    if st.phase == "held-out":
-        return "held-out check: every effect earns its place"
     return "stopped"
 
 

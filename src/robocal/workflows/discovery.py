@@ -256,7 +256,7 @@ def _steps_section(rep: Report, res: DiscoveryResult, summ: dict[str, Any]) -> N
         took = [s["accepted"] for s in ss if s["accepted"]]
         stop = next((s["label"] for s in ss if not s["accepted"]), None)
         text = f"{k + 1}. {phase}: " + (f"accepted {', '.join(took)}" if took else "accepted nothing")
-        if phase == "held-out check":
+        if phase.startswith("held-out check"):
             text = f"{k + 1}. {phase}: " + "; ".join(s["label"] for s in ss)
         elif stop:
             text += f"; then {stop}"
