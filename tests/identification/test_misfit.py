@@ -130,3 +130,13 @@ def test_discovery_sees_the_misfit_and_names_it(above_q2, kr16):
     assert len(named) == 1 and "q2_deg" in named[0]["cause"] and named[0]["side"] == "measurement", s["named"]
     # with the step modelled, the fit is near the floor and nothing misfits together any more
     assert s["systematic_misfit"] == [] and s["rms_after_mm"] < 1.5 * s["noise_floor_mm"], s["rms_after_mm"]
+
+
+def test_a_systematic_misfit_is_judged_like_suspects(above_q2):
+    """The fleet's rules (a model error is a problem) see the misfit as they saw the suspects it replaces."""
+    from robocal.identification.acceptance import FLEET, AcceptanceRules, judge
+
+    fit = above_q2[-1].fit
+    assert judge(fit).acceptable  # the workflow's default: left to the fit record
+    v = judge(fit, rules=AcceptanceRules.from_mapping(FLEET))
+    assert not v.acceptable and any("q2_deg" in p and "misfit together" in p for p in v.problems), v.problems
