@@ -198,7 +198,7 @@ def test_fk_unchanged_for_one_station(gross):
 
 def test_systematic_misfit_is_not_called_blunders(tmp_path_factory, kr16, monkeypatch):
     """A warm-up the geometric model cannot follow makes many rows stand out: a model error, not gross errors.
-    The rows of the warm-up's first minutes are named as one systematic misfit (a time window from the start),
+    The rows of the warm-up are named as one systematic misfit (a time window from the start),
     kept in the fit, and the rule says so (issue 33 item 4; before, every flagged row was a "suspect")."""
     camp, _ = _campaign(
         tmp_path_factory, kr16, 0, **{k: v for k, v in load_scenario("thermal").items() if k not in ("name", "seed")}
@@ -207,8 +207,8 @@ def test_systematic_misfit_is_not_called_blunders(tmp_path_factory, kr16, monkey
     fit = res.fit
     (s,) = fit["systematic_misfit"]
     assert s["kind"] == "time" and s["range"][0] == 0.0 and s["n_rows"] > 0.1 * fit["n_rows_total"], s
-    # at most two rows of the warm-up's tail, outside the named window, stay flagged (on their own they stand out)
-    assert len(fit["outliers"]) <= 2 and fit["outlier_suspects"] == []
+    # the window grows over the warm-up's fading tail (two rows of 0.11 mm a few minutes later): no gross error
+    assert fit["outliers"] == [] and fit["outlier_suspects"] == [] and fit["n_rows"] == fit["n_rows_total"]
     assert "systematic misfit" in fit["outlier_rule"]
     # without a condition to name (the cluster test's minimum raised beyond them) the flagged rows are too many
     # to be blunders: every row kept, reported as suspects, as before

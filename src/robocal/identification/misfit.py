@@ -12,7 +12,9 @@ with the interval's ends at flagged rows' values. Under the null "the flagged ro
 random rows" the number of flagged rows inside a condition of ``n`` rows is hypergeometric ``(m, K, n)``; a
 condition is significant when its upper-tail p-value is below ``alpha / (conditions tested)`` (Bonferroni) and it
 holds at least :data:`MIN_ROWS` flagged rows. The most significant condition is named; its flagged rows are taken
-off the blunder list and the rest are tested again (at most :data:`MAX_CLUSTERS` conditions).
+off the blunder list and the rest are tested again (at most :data:`MAX_CLUSTERS` conditions). An interval is
+grown to the next flagged rows beyond its ends while they misfit like it (see below) and it stays significant:
+a warm-up's fading tail belongs to the warm-up.
 
 Inside a named condition a row stays a gross error when it stands out from the condition's own scatter: its
 position residual about the condition's median residual, against the larger of the condition's robust scale and
@@ -165,6 +167,36 @@ def _scores(camp: Campaign, pool: np.ndarray, flagged: np.ndarray) -> list[tuple
     return out
 
 
+def _extend(
+    camp: Campaign,
+    cond: Condition,
+    pool: np.ndarray,
+    F: np.ndarray,
+    alike: np.ndarray,
+    N: int,
+    K: int,
+    log_thr: float,
+) -> tuple[Condition, np.ndarray]:
+    """An interval grown, one flagged row at a time on either side, to the next flagged rows that misfit like the
+    cluster (``alike``: not apart from its median residual by its own scatter) while it stays significant (a
+    warm-up's tail, where the misfit fades). Returns the condition and its rows among the ``pool``."""
+    x = np.asarray(column_values(camp, cond.column), dtype=float)
+    lo, hi = float(cond.lo), float(cond.hi)  # type: ignore[arg-type]
+    for side in (-1, 1):
+        out = pool & F & ((x < lo) if side < 0 else (x > hi))
+        for r in np.flatnonzero(out)[np.argsort(-x[out] if side < 0 else x[out], kind="stable")]:  # nearest first
+            if not alike[r]:
+                break
+            nlo, nhi = min(lo, float(x[r])), max(hi, float(x[r]))
+            inside = pool & (x >= nlo) & (x <= nhi)
+            n, k = int(inside.sum()), int((inside & F).sum())
+            if not float(stats.hypergeom.logsf(k - 1, N, K, n) / np.log(10.0)) < log_thr:
+                break
+            lo, hi = nlo, nhi
+    ext = Condition(cond.kind, cond.column, lo=lo, hi=hi, unit=cond.unit)
+    return ext, ext.holds(camp) & pool
+
+
 def find(
     camp: Campaign, flagged: np.ndarray, resid_mm: np.ndarray, scale_mm: float, alpha: float
 ) -> tuple[list[dict[str, Any]], np.ndarray]:
@@ -202,7 +234,13 @@ def find(
         centre = np.median(resid_mm[inside], axis=0)
         dev2 = np.sum((resid_mm - centre) ** 2, axis=1)
         s2 = max(float(np.median(dev2[inside])) / float(stats.chi2.ppf(0.5, 3)), scale_mm**2, 1e-300)
-        apart = members & (stats.chi2.sf(dev2 / s2, 3) < alpha / max(m, 1))
+        alike = stats.chi2.sf(dev2 / s2, 3) >= alpha / max(m, 1)  # rows that do not stand out of the cluster
+        lp_named = float(lp[i])
+        if cond.level is None:
+            cond, inside = _extend(camp, cond, pool, F, alike, N, K, log_thr)
+            members = inside & F
+            lp_named = float(stats.hypergeom.logsf(int(members.sum()) - 1, N, K, int(inside.sum())) / np.log(10.0))
+        apart = members & ~alike
         named = members & ~apart
         if int(named.sum()) < MIN_ROWS:
             break
@@ -217,7 +255,7 @@ def find(
                 "size_mm": round(float(np.linalg.norm(offset)), 4),
                 "offset_mm": [round(float(v), 4) for v in offset],
                 "rms_mm": round(float(np.sqrt(np.mean(np.sum(resid_mm[named] ** 2, axis=1)))), 4),
-                "log10_p": round(float(lp[i]), 2),
+                "log10_p": round(lp_named, 2),
                 "threshold_log10_p": round(log_thr, 2),
                 "n_conditions_tested": len(scored),
                 "rows_left_as_gross_errors": int(apart.sum()),
