@@ -257,9 +257,9 @@ def _steps_section(rep: Report, res: DiscoveryResult, summ: dict[str, Any]) -> N
         stop = next((s["label"] for s in ss if not s["accepted"]), None)
         text = f"{k + 1}. {phase}: " + (f"accepted {', '.join(took)}" if took else "accepted nothing")
         if phase.startswith("held-out check"):
-            text = f"{k + 1}. {phase}: " + "; ".join(s["label"] for s in ss)
+            text = f"{k + 1}. {phase}: " + "; ".join(s["label"].removeprefix("held-out check: ") for s in ss)
         elif stop:
-            text += f"; then {stop}"
+            text += "; then " + stop.removeprefix(phase).lstrip(": ")
         story.append(text)
     rep.paragraph("The search runs in phases, each after the previous one stopped: " + " — ".join(story) + ".")
     rep.table(
