@@ -89,6 +89,10 @@ def run(args: argparse.Namespace) -> int:
     from robocal.identification.robust import outlier_line
 
     print(outlier_line(fit.get("outliers", []), fit.get("n_rows_total")))
+    if fit.get("systematic_misfit"):
+        from robocal.identification import misfit
+
+        print(misfit.line(fit["systematic_misfit"]))
     problems = summary.get("problems", [])
     for text in problems:
         print(f"robocal calibrate: FAILED: {text}")

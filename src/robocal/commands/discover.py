@@ -53,6 +53,20 @@ def run(args: argparse.Namespace) -> int:
     from robocal.identification.robust import outlier_line
 
     print(outlier_line(s.get("outliers", []), s.get("n_rows_total")))
+    quiet = s.get("left_out_poorly_predicted") or []
+    if quiet:
+        print(
+            f"  {len(quiet)} more row(s) left out of the fit, not gross errors (the final model's leave-one-out "
+            "prediction stands out, their error does not stand out from the rows' own scatter): rows "
+            + ", ".join(str(o["row"]) for o in quiet)
+        )
+    from robocal.identification.misfit import line
+
+    seen = s.get("systematic_misfit") or (g or {}).get("systematic_misfit") or []
+    if seen:
+        print(
+            line(seen) + ("" if s.get("systematic_misfit") else " [geometric model; the discovered model explains it]")
+        )
     if "validation" in s:
         vg, vd, vf = (s["validation"][k] for k in ("geometric", "discovered", "final"))
         print(

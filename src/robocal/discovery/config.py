@@ -60,6 +60,10 @@ class DiscoveryConfig:
         deg) when the link masses are unknown (the ``weight`` effect).
     cv_alpha : false-discovery control of the cross-validated selection (:mod:`robocal.discovery.grow`): a
         candidate's held-out gain must pass a one-sided paired t-test over poses at cv_alpha / (candidates tried).
+    min_held_out_gain : an effect earns its place when the pose-grouped cross-validated RMS error as fitted
+        (positions and, with a 6-DoF probe, orientations, whitened) without it exceeds the model's by more than
+        this share (0.001: 0.1 %); the others are dropped, also the residual layer's joints (the held-out check,
+        after the parametric model and after the layer).
     grow_max_steps : at most this many effects are added by the cross-validated selection.
     grow_geometry : ``joint`` (the geometry is refitted with the effects the selection adds) or ``frozen`` (held
         at the model found before the selection: where a windowed effect is off, the model is that one).
@@ -99,6 +103,7 @@ class DiscoveryConfig:
     compliance_prior_deg: float = setting(0.05, gt=0)
     registration_gap_h: float = setting(1.0, gt=0)
     cv_alpha: float = setting(0.01, gt=0, lt=1)
+    min_held_out_gain: float = setting(0.001, ge=0, lt=1)
     grow_max_steps: int = setting(12, ge=0)
     grow_geometry: str = setting("joint", choices=("joint", "frozen"))
     layer: bool = True

@@ -91,6 +91,8 @@ def effect_records(fit: Fit) -> tuple[list[dict[str, Any]], list[dict[str, Any]]
                 what = "the tracker's scale follows" if c.shape == "tracker" else "declared on the tracker:"
                 why = (f"a measurement-side effect ({what} the logged signal {c.extra['column']}): it corrects the "
                        "figures, never the robot")  # fmt: skip
+            elif c.effect == "misfit":
+                why = "a systematic misfit of the rows under a condition: it corrects the figures, never the robot"
             elif c.effect == "scale":
                 why = "a measurement-side effect (the tracker's length scale): it corrects the figures, never the robot"
             else:

@@ -333,8 +333,58 @@ def finish(
             fit, accepted, _, _ = _step(layer_pool, fit, accepted, cv, rows, data, cfg, steps, record, refit, groups,
                                         what="residual layer")  # fmt: skip
     if cfg.cv_folds >= 2:
-        record.update(contributions(fit, accepted, groups, cfg))
+        fit, accepted, con = held_out_check(fit, accepted, steps, groups, refit, cfg, record, final=True)
+        record.update(con)
     return fit, accepted, record
+
+
+def held_out_check(
+    fit: Fit,
+    accepted: list[Accepted],
+    steps: list[Any],
+    groups: np.ndarray,
+    refit: Any,
+    cfg: DiscoveryConfig,
+    record: dict[str, Any],
+    final: bool = False,
+) -> tuple[Fit, list[Accepted], dict[str, Any]]:
+    """An effect earns its place by its held-out gain: the pose-grouped cross-validated RMS error of the model as
+    fitted (whitened positions and, with a 6-DoF probe, orientations) without it (linearised,
+    :func:`contributions`) must exceed the model's own by more than the share ``cfg.min_held_out_gain``. The
+    effects that do not are dropped together and the model refitted; repeated until every joint-level effect
+    passes (a :class:`Step` per round, of phase ``held-out`` for the ``final`` check after the layer and
+    ``held-out parametric`` before it, and for the final check one saying that every effect passes;
+    ``record["dropped_no_gain"]`` with each one's gain and its position-only gain in mm). Returns the fit, the
+    effects and the final contributions."""
+    dropped = record.setdefault("dropped_no_gain", [])
+    thr = cfg.min_held_out_gain
+    phase = "held-out" if final else "held-out parametric"
+    for _ in range(5):
+        con = contributions(fit, accepted, groups, cfg)
+        gains = {k: float(e["held_out_gain"]) for k, e in con["effects"].items()}
+        weak = sorted(k for k, g in gains.items() if not g > thr)
+        if not weak:
+            if final and gains:
+                steps.append(
+                    Step(None, f"held-out check: every joint-level effect lowers the held-out error by more than "
+                         f"{thr:.2%}", fit.rms_mm, fit.rms_mm, fit.rss, fit.rss, fit.dof, [], phase=phase)
+                )  # fmt: skip
+            return fit, accepted, con
+        before = fit
+        accepted = [a for a in accepted if a.cand.key not in weak]
+        fit = refit(accepted, fit)
+        cv_mean = float(con["cv_mean_position_mm"])
+        dropped += [
+            {"key": k, "held_out_gain": gains[k], "threshold": thr,
+             "position_gain_mm": float(con["effects"][k]["cv_mean_without_mm"]) - cv_mean}
+            for k in weak
+        ]  # fmt: skip
+        steps.append(
+            Step(None, f"held-out check: dropped {', '.join(weak)} (held-out gain at most {thr:.2%})",
+                 before.rms_mm, fit.rms_mm, before.rss, fit.rss, fit.dof, [], weak, before.residuals_mm,
+                 fit.residuals_mm, phase=phase)
+        )  # fmt: skip
+    return fit, accepted, contributions(fit, accepted, groups, cfg)
 
 
 def _prune(
@@ -377,6 +427,7 @@ def _step(
 ) -> tuple[Fit, list[Accepted], Pool, FoldCV]:
     """One step of the selection: score every pool entry, accept the best significant one (refit jointly) or
     record why nothing was accepted (then the same ``fit`` object comes back)."""
+    phase = "layer" if what == "residual layer" else "selection"
 
     sse0 = cv.group_sse(cv.base_err)
     scores: list[tuple[float, float, Score, list[Candidate], Variant, dict[str, tuple[str, ...]]]] = []
@@ -409,7 +460,7 @@ def _step(
     passing = [s for s in scores if s[2].passes]
     if not passing:
         steps.append(Step(None, f"{what}: nothing lowers the held-out error significantly", fit.rms_mm, fit.rms_mm,
-                          fit.rss, fit.rss, fit.dof, [s[2] for s in scores]))  # fmt: skip
+                          fit.rss, fit.rss, fit.dof, [s[2] for s in scores], phase=phase))  # fmt: skip
         return fit, accepted, pool, cv
     _tot, lp, sc, members, v, drifted = passing[0]
     sc.status = "accepted"
@@ -419,7 +470,7 @@ def _step(
     fit = refit(accepted, fit)
     steps.append(
         Step(sc.key, f"{sc.label} ({v.label})" if v.label else sc.label, before.rms_mm, fit.rms_mm, before.rss,
-             fit.rss, fit.dof, [s[2] for s in scores], [], before.residuals_mm, fit.residuals_mm)
+             fit.rss, fit.dof, [s[2] for s in scores], [], before.residuals_mm, fit.residuals_mm, phase=phase)
     )  # fmt: skip
     thr = thr_sig if members[0].effect == "signal" else thr_lib
     record["steps"].append({"key": sc.key, "variant": v.label, "log10_p": lp, "threshold_log10_p": thr,
@@ -499,6 +550,9 @@ def contributions(fit: Fit, accepted: list[Accepted], groups: np.ndarray, cfg: D
         out["effects"][a.cand.key] = {
             "cv_mean_without_mm": float(np.mean(e_without)),
             "cv_rms_without_mm": float(np.sqrt(np.mean(e_without**2))),
+            # the relative rise of the held-out RMS as fitted (whitened positions and, with a 6-DoF probe,
+            # orientations) without the effect: the held-out check's gain (an effect that turns the tool shows here)
+            "held_out_gain": float(np.sqrt(np.sum(cvs.base_err**2) / max(float(np.sum(cv.base_err**2)), 1e-300)) - 1),
         }
     return out
 

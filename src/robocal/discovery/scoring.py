@@ -46,6 +46,18 @@ class Step:
     dropped: list[str] = field(default_factory=list)
     residuals_before_mm: np.ndarray | None = None
     residuals_after_mm: np.ndarray | None = None
+    phase: str = ""  # which phase of the search (PHASES) took the step
+
+
+#: The phases of a discovery, in order: each accepts effects one per step until it stops, then the next begins.
+PHASES = {
+    "library": "library F-test search",
+    "selection": "cross-validated selection",
+    "equations": "proposed equations",
+    "held-out parametric": "held-out check of the parametric model",
+    "layer": "residual layer",
+    "held-out": "held-out check",
+}
 
 
 def regressor(cand: Candidate, fit: Fit, rows: np.ndarray, data: FitData) -> tuple[np.ndarray, tuple[str, ...]]:
@@ -95,4 +107,4 @@ def regressor(cand: Candidate, fit: Fit, rows: np.ndarray, data: FitData) -> tup
     return by_row(J[:, [mod.index(f"beta{cand.joint}")]], m, dd) * w, ()
 
 
-__all__ = ["Score", "Step", "regressor"]
+__all__ = ["PHASES", "Score", "Step", "regressor"]

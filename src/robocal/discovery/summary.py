@@ -14,7 +14,7 @@ from robocal.kinematics.chain import fk
 
 _DEG = float(np.rad2deg(1.0))
 #: Effects of the measurement, not of the robot: reported, used in the fit, never sent to the controller.
-MEASUREMENT_SIDE = ("drift", "air", "regap", "scale")
+MEASUREMENT_SIDE = ("drift", "air", "regap", "scale", "misfit")
 
 
 def _est(value: float, se: float, unit: str) -> dict[str, Any]:
@@ -66,7 +66,7 @@ def estimates(fit: Fit, acc: Accepted) -> dict[str, Any]:
     elif c.effect == "beta":
         nm = f"beta{c.joint}"
         out[f"{nm}_deg"] = _est(fit.theta[model.index(nm)] * _DEG, fit.stderr(nm) * _DEG, "deg")
-    elif c.effect in ("thermal", "drift", "air", "regap"):
+    elif c.effect in ("thermal", "drift", "air", "regap", "misfit"):
         out.update(_drift_estimates(fit, acc, val, se))
     elif c.effect == "signal":
         out.update(_signal_estimates(acc, val, se))
@@ -147,7 +147,7 @@ def _drift_estimates(fit: Fit, acc: Accepted, val: np.ndarray, se: np.ndarray) -
         unit_p = model.base.units[model.base.index(pname)]
         f = _DEG if unit_p == "rad" else 1.0
         unit = "deg" if unit_p == "rad" else "mm"
-        if sig.startswith("after_gap"):  # a step: the frame's change at the gap
+        if sig.startswith("after_gap") or sig == "in_condition":  # a step: the frame's change at the gap / under it
             out[f"{pname}_{sig}"] = _est(val[k] * f, se[k] * f, unit)
             continue
         per = "h" if sig == "t_h" else f"°C ({sig})"
@@ -347,8 +347,12 @@ def locate(res: DiscoveryResult) -> dict[str, Any]:
 
 def _step_dict(k: int, st: Step, res: DiscoveryResult) -> dict[str, Any]:
     cand = next((c for c in res.library if c.key == st.accepted), None)
+    from robocal.discovery.scoring import PHASES
+
     return {
         "step": k,
+        "phase": PHASES.get(st.phase, st.phase),
+        "label": st.label or _stop_text(st),
         "accepted": st.accepted,
         "effect": None if cand is None else cand.effect,
         "joint": None if cand is None else cand.joint,
@@ -361,6 +365,13 @@ def _step_dict(k: int, st: Step, res: DiscoveryResult) -> dict[str, Any]:
         "dropped": st.dropped,
         "candidates": [s.to_dict() for s in sorted(st.scores, key=_score_key)],
     }
+
+
+def _stop_text(st: Step) -> str:
+    """What a step that accepted nothing says: which phase stopped, and why."""
+    if st.phase == "library":
+        return "library F-test search stopped: no candidate passes the F-test, the BIC and the excess share"
+    return "stopped"
 
 
 def _score_key(s: Any) -> float:
@@ -414,7 +425,13 @@ def summary(res: DiscoveryResult, validation: dict[str, Any] | None = None) -> d
         "noise_mm": float(res.extra.get("sigma_mm", res.config.noise_mm)),
         "noise": res.extra.get("noise"),
         "outliers": res.extra.get("outliers", []),
-        "n_rows_total": len(res.rows) + len(res.extra.get("outliers", [])),
+        "outlier_rule": res.extra.get("outlier_rule"),
+        "left_out_poorly_predicted": res.extra.get("left_out_poorly_predicted", []),
+        # rows that misfit together under one condition against the final model (robocal.identification.misfit)
+        "systematic_misfit": res.extra.get("systematic_misfit", []),
+        "n_rows_total": len(res.rows)
+        + len(res.extra.get("outliers", []))
+        + len(res.extra.get("left_out_poorly_predicted", [])),
         "uses_orientation": bool(res.extra.get("uses_orientation", False)),
         "chi2": fit.rss,
         "dof": fit.dof,
@@ -470,6 +487,7 @@ def summary(res: DiscoveryResult, validation: dict[str, Any] | None = None) -> d
             "noise_used_mm": (geo.fit.get("noise") or {}).get("used_mm"),
             "n_rows": int(np.sum(geo.start.kept)) if geo.start is not None else None,
             "outlier_rows": [o["row"] for o in geo.fit.get("outliers", [])],
+            "systematic_misfit": geo.fit.get("systematic_misfit", []),
         }
     cv = res.extra.get("cv") or {}
     if cv:

@@ -11,7 +11,8 @@ or its record), and returns a :class:`Verdict`: the *problems* (the calibration 
    ``thin_ratio`` equations per parameter, or one identified with a prior): ``thin`` (a warning by default),
    saying how many configurations there were, how many the model needs and what was done;
 1. the fit did not converge (stopped on its iteration limit, or not finite): ``not_converged``;
-2. more rows stood out than gross errors can be (the model misses an effect): ``suspects``;
+2. more rows stood out than gross errors can be, or rows misfit together under one condition (a systematic
+   misfit): the model misses an effect: ``suspects``;
 3. the fit's RMS 3-D error is worse than ``max_rms_ratio`` x its start: always a problem. The baseline is
    the fit's own "before" (``fit.before``: the nominal kinematics with frames and tools fitted to convergence)
    **on the same kept rows** as the fit's RMS: rows left out as gross errors count in neither;
@@ -143,6 +144,14 @@ def judge(
         )
     if fit.get("outlier_suspects"):
         found.append((r.suspects, "too many rows stand out: the model misses an effect (run robocal discover)"))
+    for f in fit.get("systematic_misfit") or []:  # the same model error, with the condition it lives under
+        found.append(
+            (
+                r.suspects,
+                f"{f['n_rows']} rows with {f['condition']} misfit together by {f['size_mm']:.3f} mm: the model misses "
+                "an effect there (run robocal discover)",
+            )
+        )
     after, before = fit.get("rms_position_mm"), (fit.get("before") or {}).get("rms_position_mm")
     if after is not None and before is not None and not float(after) <= r.max_rms_ratio * float(before):
         times = "" if r.max_rms_ratio == 1.0 else f"{r.max_rms_ratio:g} x "

@@ -12,10 +12,11 @@ from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from scipy import special
+from scipy import special, stats
 
 from robocal.config import parse, setting
 from robocal.errors import ConfigError
+from robocal.identification import misfit
 from robocal.identification.identifiability import Eliminated, Identifiability, analyse
 from robocal.identification.model import CalibrationModel, FitData
 from robocal.identification.solver import FitResult
@@ -831,6 +832,7 @@ class Screened:
     test: Any  # robust.RowTest | None
     suspects: list[dict[str, Any]]
     rounds: int
+    systematic: list[dict[str, Any]] = field(default_factory=list)  # identification.misfit records
 
 
 def _posterior(lm: FitResult) -> np.ndarray | None:
@@ -843,13 +845,15 @@ def screen_outliers(start: CalibrationStart, lm: FitResult, solve: Solve) -> Scr
     """Gross errors found and left out by the rule of :mod:`robocal.identification.robust` (``outliers:
     auto``): a row test at the fit; when a row stands out, a robust start (Cauchy IRLS), then ``solve`` on the
     kept rows and the exact test until the flagged set is stable; more flagged rows than gross errors can be
-    (``outlier_max_share``) are a model error: every row kept, the rows reported as suspects."""
+    (``outlier_max_share``) are a model error: every row kept, the rows reported as suspects. Flagged rows that
+    share a condition (:mod:`robocal.identification.misfit`) are a systematic misfit: kept, and named."""
     from robocal.identification import robust
 
     cfg, m, kept = start.config, start.m, start.kept
     test = None
     rounds = 0
     suspects: list[dict[str, Any]] = []
+    systematic: list[dict[str, Any]] = []
     if cfg.outliers != "auto":
         return Screened(lm, kept, test, suspects, rounds)
     free, weights, rows, fun = start.free, start.weights, start.rows, start.fun
@@ -869,6 +873,17 @@ def screen_outliers(start: CalibrationStart, lm: FitResult, solve: Solve) -> Scr
         else:  # no fixed point in 7 rounds: the last flagged set, fitted and tested once more
             lm = solve(start, x_rob, kept)
             test = robust.row_test(lm.residual, lm.jacobian, rows, m, kept, cfg.outlier_alpha, _posterior(lm))
+        if (~kept).sum() >= misfit.MIN_ROWS:
+            # rows that misfit together under one condition: one systematic misfit, kept in the fit
+            r_pos, _ = _split_resid(lm.residual / weights, m, start.use_rot)
+            e2 = np.sum(r_pos**2, axis=1)
+            scale = float(np.sqrt(np.median(e2[kept]) / stats.chi2.ppf(0.5, 3)))
+            systematic, explained = misfit.find(start.campaign, ~kept, r_pos, scale, cfg.outlier_alpha)
+            if explained.any():
+                kept = kept | explained
+                lm = solve(start, x_rob, kept)
+                test = robust.row_test(lm.residual, lm.jacobian, rows, m, kept, cfg.outlier_alpha, _posterior(lm))
+                test = robust.RowTest(test.F, test.p_value, ~kept, test.threshold_F, test.alpha, test.d)
         if (~kept).sum() > cfg.outlier_max_share * m:
             # too many to be blunders: a systematic model error; keep every row and say so
             suspects = describe_outliers(
@@ -878,7 +893,7 @@ def screen_outliers(start: CalibrationStart, lm: FitResult, solve: Solve) -> Scr
             lm = solve(start, start.x_init, kept)
             test = robust.row_test(lm.residual, lm.jacobian, rows, m, kept, cfg.outlier_alpha, _posterior(lm))
             test = robust.RowTest(test.F, test.p_value, np.zeros(m, dtype=bool), test.threshold_F, test.alpha, test.d)
-    return Screened(lm, kept, test, suspects, rounds)
+    return Screened(lm, kept, test, suspects, rounds, systematic)
 
 
 def calibration_result(start: CalibrationStart, screened: Screened) -> CalibrationResult:
@@ -929,6 +944,8 @@ def calibration_result(start: CalibrationStart, screened: Screened) -> Calibrati
             f"; {len(suspects)} of {m} rows stood out, more than the {cfg.outlier_max_share:.0%} gross errors can "
             "be: the model misses a systematic effect (run robocal discover); no row was left out"
         )
+    if screened.systematic:
+        rule += "; " + misfit.RULE
     chi2_pos = float(np.sum((r_pos[kept] / sig[kept, None]) ** 2))
     dof_pos = max(3 * int(kept.sum()) - k, 1) if not use_rot else max(int(fit["dof"]) // 2, 1)
     fit.update(
@@ -943,6 +960,7 @@ def calibration_result(start: CalibrationStart, screened: Screened) -> Calibrati
             "outliers": outliers,
             "outlier_rule": rule,
             "outlier_suspects": suspects,
+            "systematic_misfit": misfit.public(screened.systematic),
             "n_rows_total": int(m),
             "outlier_rounds": int(screened.rounds),
             "noise": noise_report(cal, kept, chi2_pos, dof_pos, cfg.noise_mm),

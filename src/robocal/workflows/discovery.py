@@ -73,6 +73,22 @@ def _verdict_section(rep: Report, summ: dict[str, Any]) -> None:
             ),
             kind="warn",
         )
+    quiet = summ.get("left_out_poorly_predicted") or []
+    if quiet:
+        rep.note(
+            f"{len(quiet)} calibration row(s) left out of the fit, not gross errors: the final model's leave-one-out "
+            "prediction of them stands out, their error does not stand out from the rows' own scatter: "
+            + ", ".join(f"row {o['row']} ({o['residual_mm']:.3f} mm)" for o in quiet)
+        )
+    geo_sys = (summ.get("geometric_calibration") or {}).get("systematic_misfit") or []
+    for label, found in (("the final model", summ.get("systematic_misfit") or []), ("the geometric model", geo_sys)):
+        if found:
+            rep.note(
+                f"Systematic misfit against {label} (rows that misfit together under one condition: kept in the fit "
+                "and offered to the search, not gross errors): "
+                + "; ".join(f"{f['n_rows']} rows with {f['condition']}, {f['size_mm']:.3f} mm" for f in found),
+                kind="warn",
+            )
     if summ.get("noise"):
         nz = summ["noise"]
         rep.paragraph(f"Noise used for weights and for 'unexplained': {nz['used_mm']:.4f} mm — {nz['used_because']}.")
@@ -158,12 +174,16 @@ def _named_section(rep: Report, summ: dict[str, Any]) -> None:
                     "side": n["side"],
                     "held-out mean without it, mm": n["held_out"]["cv_mean_without_mm"],
                     "its contribution, mm": n["held_out"]["cv_mean_without_mm"] - cv["cv_mean_position_mm"],
+                    "held-out gain as fitted, %": 100 * n["held_out"].get("held_out_gain", float("nan")),
                 }
                 for n in held
             ],
             caption=f"Each joint-level effect's own contribution to the held-out error: the pose-grouped "
             f"cross-validated mean error of the final model is {cv['cv_mean_position_mm']:.4f} mm; without the "
-            "effect (linearised) it is the value shown. Robot-side effects go to the controller; "
+            "effect (linearised) it is the value shown. An effect stays only when the held-out RMS error as fitted "
+            "(positions and, with a 6-DoF probe, orientations) rises without it by more than "
+            f"{100 * summ['config']['min_held_out_gain']:g} % (the held-out check): one that turns the tool may "
+            "help the orientations more than the positions. Robot-side effects go to the controller; "
             "measurement-side ones (tracker drift) never do",
         )
 
@@ -220,65 +240,73 @@ def _proposed_section(rep: Report, res: DiscoveryResult, proposed: list[dict[str
         plt.close(fig)
 
 
+#: candidates shown per step (the accepted one always); the full scores are in discovery.json
+STEP_ROWS = 8
+SCORE_COLUMNS = ("key", "status", "absorbed_share", "dof", "F", "log10_p", "delta_bic", "excess_share", "cv_gain")
+
+
 def _steps_section(rep: Report, res: DiscoveryResult, summ: dict[str, Any]) -> None:
-    """One table per step (the best candidates) with residual plots before / after the accepted effect."""
+    """The search as one story: its phases in order (library F-test search, cross-validated selection, proposed
+    equations, residual layer, held-out check), each with its steps and why it stopped; one table of the best
+    candidates per step; residual figures only before the search and for the final model (per-step figures made
+    the report megabytes; every step's RMS and chi² are in the table)."""
     import matplotlib.pyplot as plt
 
     from robocal.report import plots
 
     camp = res.campaign.subset(res.rows)
     rep.heading("Steps")
+    phases: dict[str, list[dict[str, Any]]] = {}
+    for s in summ["steps"]:
+        phases.setdefault(s["phase"] or "search", []).append(s)
+    story = []
+    for k, (phase, ss) in enumerate(phases.items()):
+        took = [s["accepted"] for s in ss if s["accepted"]]
+        stop = next((s["label"] for s in ss if not s["accepted"]), None)
+        text = f"{k + 1}. {phase}: " + (f"accepted {', '.join(took)}" if took else "accepted nothing")
+        if phase.startswith("held-out check"):
+            text = f"{k + 1}. {phase}: " + "; ".join(s["label"].removeprefix("held-out check: ") for s in ss)
+        elif stop:
+            text += "; then " + stop.removeprefix(phase).lstrip(": ")
+        story.append(text)
+    rep.paragraph("The search runs in phases, each after the previous one stopped: " + " — ".join(story) + ".")
     rep.table(
         [
-            {k: s[k] for k in ("step", "accepted", "rms_before_mm", "rms_after_mm", "chi2_before", "chi2_after")}
+            {k: s[k] for k in ("step", "phase", "label", "rms_before_mm", "rms_after_mm", "chi2_before", "chi2_after")}
             for s in summ["steps"]
         ],
-        caption="One effect accepted per step; everything refitted jointly",
+        caption="Every step, in order: one effect accepted per step (everything refitted jointly), or the phase's stop",
     )
     for k, st in enumerate(res.steps):
-        cands = summ["steps"][k]["candidates"]
-        srows = cands[:8]
+        s = summ["steps"][k]
+        cands = s["candidates"]
+        if not cands:
+            continue
+        srows = cands[:STEP_ROWS]
         # the accepted candidate is always shown, also when eight others have a smaller p
-        srows += [s for s in cands[8:] if st.accepted is not None and s["key"] == st.accepted]
-        rep.heading(f"Step {k + 1}: {st.label or 'stop (no candidate passes)'}", level=3)
+        srows += [c for c in cands[STEP_ROWS:] if st.accepted is not None and c["key"] == st.accepted]
+        rep.heading(f"Step {k + 1} ({s['phase']}): {s['label']}", level=3)
         rep.table(
-            [
-                {
-                    c: s[c]
-                    for c in (
-                        "key",
-                        "status",
-                        "absorbed_share",
-                        "dof",
-                        "F",
-                        "log10_p",
-                        "delta_bic",
-                        "excess_share",
-                        "cv_gain",
-                    )
-                }
-                for s in srows
-            ],
-            caption="Best candidates by log10 p (projected nested F-test). cv_gain (relative drop of the held-out "
-            "error over whole poses) is computed only for a candidate that passes the F-test, the BIC and the "
-            "excess share, in order, until one is accepted; a dash otherwise. The accepted one is always listed",
+            [{c: x[c] for c in SCORE_COLUMNS} for x in srows],
+            caption=f"Best {STEP_ROWS} of {len(cands)} candidates by log10 p (all in discovery.json). In the library "
+            "F-test search cv_gain (relative drop of the held-out error over whole poses) is computed only for a "
+            "candidate that passes the F-test, the BIC and the excess share, in order, until one is accepted; a dash "
+            "otherwise. The accepted one is always listed",
         )
-        if st.residuals_before_mm is not None and st.residuals_after_mm is not None:
-            fig = plots.residuals_vs_joints(camp.q, st.residuals_before_mm, list(res.robot.joint_names))
-            rep.figure(fig, caption=f"Residuals against the joint angles before step {k + 1}")
-            plt.close(fig)
-            fig = plots.residuals_vs_joints(camp.q, st.residuals_after_mm, list(res.robot.joint_names))
-            rep.figure(fig, caption=f"Residuals after step {k + 1} ({st.label})")
-            plt.close(fig)
-            fig = plots.error_histogram(
-                np.linalg.norm(st.residuals_before_mm, axis=1), np.linalg.norm(st.residuals_after_mm, axis=1)
-            )
-            rep.figure(fig, caption=f"3-D residuals before / after step {k + 1}")
-            plt.close(fig)
-    if not res.steps or res.steps[0].accepted is None:
-        fig = plots.residuals_vs_joints(camp.q, res.final.residuals_mm, list(res.robot.joint_names))
-        rep.figure(fig, caption="Residuals of the geometric fit against the joint angles (nothing named)")
+    first = next((st for st in res.steps if st.residuals_before_mm is not None), None)
+    if first is not None and first.residuals_before_mm is not None:
+        fig = plots.residuals_vs_joints(camp.q, first.residuals_before_mm, list(res.robot.joint_names))
+        rep.figure(fig, caption="Residuals against the joint angles before the search (geometric model)", dpi=80)
         plt.close(fig)
+        fig = plots.error_histogram(
+            np.linalg.norm(first.residuals_before_mm, axis=1), np.linalg.norm(res.final.residuals_mm, axis=1)
+        )
+        rep.figure(fig, caption="3-D residuals before the search / with the final model", dpi=80)
+        plt.close(fig)
+    title = "final model" if first is not None else "geometric fit (nothing named)"
+    fig = plots.residuals_vs_joints(camp.q, res.final.residuals_mm, list(res.robot.joint_names))
+    rep.figure(fig, caption=f"Residuals of the {title} against the joint angles", dpi=80)
+    plt.close(fig)
 
 
 def _library_section(rep: Report, summ: dict[str, Any]) -> None:
