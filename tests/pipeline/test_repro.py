@@ -157,8 +157,11 @@ def test_first_repro_runs_every_stage(copy: dict[str, Any]) -> None:
     # the warm-up has temperatures but no payload: compliance_fit has nothing to do; the optimizer comparison is
     # off by default
     # and the campaign is not an ISO 9283 test: iso9283 skips, saying so
+    # the tiny copy calibrates on 12 configurations (each measured at 7 temperatures): thin for the ~30
+    # parameters of the model (fewer than 3 equations per parameter), so the geometric fit warns (issue 30 item 3)
+    thin = {"geometric_fit": "warning"}
     assert status == {
-        s: ("skipped" if s in ("compliance_fit", "compare_optimizers", "iso9283") else "ok") for s in STAGES
+        s: thin.get(s, "skipped" if s in ("compliance_fit", "compare_optimizers", "iso9283") else "ok") for s in STAGES
     }
     val = json.loads((root / "reports/metrics/validate.json").read_text())
     assert val["comp_proposed_mean_mm"] < val["comp_none_mean_mm"], val
