@@ -438,7 +438,7 @@ def _run_hydra(stage: Stage, compute: Compute, root: Path, args: list[str]) -> i
     multirun = any(a in ("-m", "--multirun") for a in args)
     if not multirun:  # a bad override (robot=../cell7/robot.yaml) as one line, not Hydra's report
         try:
-            compose(root, [a for a in args if not a.startswith("-")])
+            apply_robot_file(compose(root, [a for a in args if not a.startswith("-")]), root)
         except ConfigError as exc:
             print(f"stage {stage.name}: error: {exc}", file=sys.stderr)
             return 2
