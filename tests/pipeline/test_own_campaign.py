@@ -49,13 +49,13 @@ def _run(name: str, root: Path, argv: list[str] | None = None) -> int:
     return 0
 
 
-def _campaign(tmp: Path, n_poses: int = 12) -> Path:
+def _campaign(tmp: Path, n_poses: int = 12, orientation: bool = False) -> Path:
     """A small twin campaign of the KR16-2 (geometric scenario) with an air-temperature log: one reading per
     pose, 10 s apart, so one temperature state, not a warm-up."""
     from robocal.sim.twin import load_scenario, simulate
 
     sc = load_scenario("geometric")
-    sc.update(n_poses=n_poses, n_validation_poses=4)
+    sc.update(n_poses=n_poses, n_validation_poses=4, orientation=orientation)
     d = tmp / "my-cell"
     simulate(sc, d, seed=3)
     poses = pd.read_csv(d / "poses.csv")
@@ -142,13 +142,22 @@ def test_the_interim_copy_reads_back_the_campaign_bit_for_bit(tmp_path: Path) ->
     q = np.radians(deg)
     assert np.any(np.radians(np.degrees(q)) != q)  # the plain round trip is not exact
     assert np.array_equal(np.radians(degrees_read_back(q)), q)
-    camp_dir = _campaign(tmp_path)
+    # normalising a quaternion twice is not normalising it once, in the last bit: reading is idempotent
+    from robocal.data.contract import unit_quaternions
+
+    quat = rng.normal(size=(20000, 4))
+    unit = unit_quaternions(quat)
+    assert np.array_equal(unit_quaternions(unit), unit)
+    assert np.any(unit / np.linalg.norm(unit, axis=1)[:, None] != unit)  # the plain division is not
+    camp_dir = _campaign(tmp_path, orientation=True)
     robot = load_robot("kr16_2")
     camp = read_campaign(camp_dir, robot)
+    assert camp.quat is not None
     (tmp_path / "copy").mkdir()
     camp.to_frame().to_parquet(tmp_path / "copy" / "poses.parquet", index=False)
     again = read_campaign(tmp_path / "copy", robot)
     assert np.array_equal(again.q, camp.q) and np.array_equal(again.timestamp_s, camp.timestamp_s)
+    assert again.quat is not None and np.array_equal(again.quat, camp.quat)
 
 
 # ------------------------------------------------------------------------ item 8: a robot file by path

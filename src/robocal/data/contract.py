@@ -517,7 +517,19 @@ def _read_orientation(df: pd.DataFrame, path: Path, quat_norm_tol: float) -> np.
             row=_row(i),
             column=qcols_o[0],
         )
-    return quat / norm[:, None]
+    return unit_quaternions(quat, norm)
+
+
+#: A quaternion whose norm is within this of 1 is a unit quaternion already (a few units in the last place).
+UNIT_NORM_TOL = 8 * float(np.finfo(float).eps)
+
+
+def unit_quaternions(quat: np.ndarray, norm: np.ndarray | None = None) -> np.ndarray:
+    """``quat`` (m, 4) normalised, leaving alone the rows that are unit already (norm within
+    :data:`UNIT_NORM_TOL` of 1). Dividing by the norm is not idempotent in the last bit (a copy of a campaign
+    read back would differ from it); this is: a normalised row is within 1.5 units in the last place of 1."""
+    n = np.linalg.norm(quat, axis=1) if norm is None else norm
+    return np.where((np.abs(n - 1.0) <= UNIT_NORM_TOL)[:, None], quat, quat / n[:, None])
 
 
 def _read_loads(
