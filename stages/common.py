@@ -77,6 +77,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import sys
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -93,7 +94,9 @@ from robocal.io import reproducible, write_json, write_text  # noqa: E402
 from robocal.pipeline import (  # noqa: E402
     PARAMS_FILE,
     STATUS_OK,
+    STATUS_SKIPPED,
     Skipped,
+    apply_robot_file,
     compose,
     get,
     load_params,
@@ -112,6 +115,8 @@ DETAILS_FILE = "all_metrics.json"
 TRACKING_DEFAULTS: dict[str, Any] = {"enabled": True, "experiment": "robocal", "uri": None, "required": False}
 
 
+#: The explicit result a skipped stage writes into its output folder (robocal.pipeline.write_skipped).
+SKIPPED_FILE = "result.json"
 #: The campaign the twin writes (conf/config.yaml's default data.campaign).
 DEFAULT_CAMPAIGN = "data/raw/default"
 
@@ -187,6 +192,15 @@ class Context:
         (:data:`DEFAULT_CAMPAIGN`); the stage must declare ``data.campaign`` among its params."""
         campaign = self.get("data.campaign", types=str)
         return None if self.path(campaign).resolve() == self.path(DEFAULT_CAMPAIGN).resolve() else campaign
+
+    def upstream_skipped(self, out: str | Path) -> str | None:
+        """The reason an upstream stage whose output folder is ``out`` skipped (its ``result.json``), or None
+        when it ran: a stage that needs its results skips too, saying why."""
+        p = self.path(out) / SKIPPED_FILE
+        if not p.is_file():
+            return None
+        result = json.loads(p.read_text(encoding="utf-8"))
+        return str(result.get("reason", "")) if result.get("status") == STATUS_SKIPPED else None
 
     @staticmethod
     def skip(reason: str) -> Skipped:
@@ -275,6 +289,7 @@ def execute(
     Returns everything: ``status`` (and ``reason`` of a skip), details, headline numbers and the times."""
     from robocal.tracking import PendingRun, StageRun
 
+    cfg = apply_robot_file(cfg, root)  # robot_file=<path>: that description is the `robot` every stage reads
     sections = _sections(stage, cfg, "the config" if hydra else PARAMS_FILE)
     tcfg = _tracking(cfg)
     run_name = run_title(stage.name, cfg, run_name)
@@ -288,6 +303,7 @@ def execute(
     if plots is not None:
         plots.mkdir(parents=True, exist_ok=True)
     ctx = Context(stage, root, sections, out, metrics_path, plots, hydra, tracker)
+    (out / SKIPPED_FILE).unlink(missing_ok=True)  # an earlier skip of this folder must not outlive a run
     t0 = time.perf_counter()
     # DVC-tracked outputs (params.yaml mode): same config, same bytes -- no timings in any JSON written,
     # floats rounded (robocal.io.reproducible). Timings go to MLflow and the console.
@@ -359,6 +375,36 @@ def _rel(path: Path, root: Path) -> str:
         return str(path)
 
 
+#: The prepare stage's copy of the user's campaign, and the file saying where it came from.
+INTERIM = "data/interim"
+PREPARE_INFO = "data/interim/prepare.json"
+
+
+def user_message(exc: BaseException, root: Path) -> str:
+    """The error's text with the prepare stage's interim copy (``data/interim/poses.parquet`` ...) replaced by the
+    user's own campaign file: rows and columns are the same (the copy keeps every row in file order), and the
+    user knows their file, not ours."""
+    text = str(exc)
+    info = root / PREPARE_INFO
+    if (INTERIM not in text and str((root / INTERIM).resolve()) not in text) or not info.is_file():
+        return text
+    try:
+        source = json.loads(info.read_text(encoding="utf-8")).get("source")
+    except (OSError, ValueError):
+        return text
+    if not source:
+        return text
+    folder = resolve_path(root, source)
+    for kind in ("poses", "temperatures"):
+        found = [folder / f"{kind}{ext}" for ext in (".csv", ".parquet") if (folder / f"{kind}{ext}").is_file()]
+        mine = str(Path(source) / found[0].name) if found else str(Path(source) / f"{kind}.*")
+        for form in (str((root / INTERIM / f"{kind}.parquet").resolve()), f"{INTERIM}/{kind}.parquet"):
+            text = text.replace(form, mine)
+    for form in (str((root / INTERIM).resolve()), INTERIM):  # the folder itself, not a file in it
+        text = re.sub(re.escape(form) + r"(?![\w/.])", lambda _m: str(source), text)
+    return text
+
+
 def run(stage: Stage, compute: Compute, argv: Sequence[str] | None = None, root: Path | None = None) -> None:
     """Entry point of ``stages/<name>.py``: params.yaml mode without arguments, Hydra mode with them."""
     args = list(sys.argv[1:] if argv is None else argv)
@@ -378,7 +424,7 @@ def run(stage: Stage, compute: Compute, argv: Sequence[str] | None = None, root:
             plots=None if stage.plots is None else root / stage.plots,
         )
     except RobocalError as exc:
-        print(f"stage {stage.name}: error: {exc}", file=sys.stderr)
+        print(f"stage {stage.name}: error: {user_message(exc, root)}", file=sys.stderr)
         sys.exit(2)
 
 
@@ -390,6 +436,12 @@ def _run_hydra(stage: Stage, compute: Compute, root: Path, args: list[str]) -> i
     from robocal import tracking
 
     multirun = any(a in ("-m", "--multirun") for a in args)
+    if not multirun:  # a bad override (robot=../cell7/robot.yaml) as one line, not Hydra's report
+        try:
+            apply_robot_file(compose(root, [a for a in args if not a.startswith("-")]), root)
+        except ConfigError as exc:
+            print(f"stage {stage.name}: error: {exc}", file=sys.stderr)
+            return 2
     parent = None
     if multirun:
         # tracking settings of the sweep: conf/ with the (non-swept) tracking overrides only
@@ -428,7 +480,7 @@ def _run_hydra(stage: Stage, compute: Compute, root: Path, args: list[str]) -> i
                 run_name=run_name,
             )
         except RobocalError as exc:
-            print(f"stage {stage.name}: error: {exc}", file=sys.stderr)
+            print(f"stage {stage.name}: error: {user_message(exc, root)}", file=sys.stderr)
             raise
 
     app = hydra.main(version_base=None, config_path=str(root / "conf"), config_name="config")(job)

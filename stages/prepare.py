@@ -24,6 +24,7 @@ def compute(ctx: Context) -> Metrics:
     import pandas as pd
 
     from robocal.data import SplitConfig, read_campaign
+    from robocal.data.contract import TEMPERATURE_TOLERANCE_S
     from robocal.io import atomic_write, display_path, write_json
     from robocal.pipeline import campaign_dir
     from robocal.robot import robot_from_dict
@@ -35,7 +36,9 @@ def compute(ctx: Context) -> Metrics:
         src,
         robot,
         split=split,
-        temperature_tolerance_s=float(ctx.get("data.temperature_tolerance_s", 900.0, types=(int, float))),
+        temperature_tolerance_s=float(
+            ctx.get("data.temperature_tolerance_s", TEMPERATURE_TOLERANCE_S, types=(int, float))
+        ),
     )
     # stale files of an earlier campaign (e.g. temperatures.parquet) must not survive into this one
     for old in ctx.out.glob("*.parquet"):

@@ -1,8 +1,8 @@
 """screen: sensitivity screening of the kinematic parameters for thermal compensation (Guo et al. 2026, 3.4).
 
 Reads ``robot`` and ``screen`` (``conf/screen/default.yaml``); skips explicitly when the campaign has no
-temperatures (the screening only serves the thermal compensation). Otherwise screens every parameter of the
-robot's chain (robocal.thermal.screening.screen) with the per-state drift of the thermal fit
+temperatures or the thermal fit skipped (the screening only serves the thermal compensation). Otherwise screens
+every parameter of the robot's chain (robocal.thermal.screening.screen) with the per-state drift of the thermal fit
 (``screen.drift_file``, reports/thermal/states.json) or ``screen.drift``, and the tool points of the calibration
 (TOOL_SOURCES) when ``screen.tool_mm`` is null. Writes ``reports/screen/`` (screening.json, whose ``selected``
 list the thermal validation compensates, and ``what_if``: the borderline parameters and which change of the
@@ -23,6 +23,8 @@ STAGE = Stage(
     plots="reports/plots/screen",
 )
 PREPARE = "data/interim/prepare.json"
+#: The thermal fit's output folder (its drift per state, or its skipped result).
+THERMAL = "reports/thermal"
 #: Where the tool points come from when ``screen.tool_mm`` is null, first found: the thermal fit's cold-state
 #: calibration, else the geometric calibration (``tools_mm``); else the flange origin.
 TOOL_SOURCES = ("reports/thermal/reference_calibration.json", "reports/geometric/calibration.json")
@@ -41,6 +43,9 @@ def compute(ctx: Context) -> Metrics | Skipped:
     robot = robot_from_dict(ctx.cfg["robot"], source="params: robot")
     cfg = dict(ctx.cfg["screen"])
     conf = scr.ScreeningConfig.from_mapping(cfg)  # errors name the key before any file is read
+    why = ctx.upstream_skipped(THERMAL)
+    if why is not None and conf.drift is None:  # no drift of the thermal fit to screen
+        return ctx.skip(f"thermal_fit skipped ({why}): the screening serves thermal compensation")
     if conf.tool_mm is None:
         found = [p for p in TOOL_SOURCES if ctx.path(p).is_file()]
         if found:

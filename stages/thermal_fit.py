@@ -1,7 +1,8 @@
 """thermal_fit: temperature-dependent kinematic parameters of the interim campaign (robocal.thermal.fit,
 robocal.workflows.thermal.write_fit).
 
-Reads ``robot`` and ``thermal``; skips explicitly when the campaign has no temperature log. Otherwise: geometric
+Reads ``robot`` and ``thermal``; skips explicitly when the campaign has no temperature log or its calibration rows
+are not a warm-up (fewer than three temperature states: an air-temperature log, say). Otherwise: geometric
 calibration at the cold state of the calibration warm-up, per-state drift of every identifiable parameter by SVD
 (eq. 19-21), per-parameter regression (eq. 5-8, cross-validated) and the traditional model. Writes
 ``reports/thermal/`` (reference_calibration.json, states.json — the screening's drift file —,
@@ -31,12 +32,18 @@ def compute(ctx: Context) -> Metrics | Skipped:
     from robocal.report.html import Report
     from robocal.robot import robot_from_dict
     from robocal.thermal import report as thermal_report
-    from robocal.thermal.fit import ThermalConfig, fit_thermal
+    from robocal.thermal.fit import ThermalConfig, fit_thermal, warm_up_problem
     from robocal.workflows.thermal import write_fit
 
     cfg = ThermalConfig.from_mapping(ctx.cfg["thermal"])
     robot = robot_from_dict(ctx.cfg["robot"], source="params: robot")
     camp = read_campaign(ctx.path(INPUT), robot)
+    problem = warm_up_problem(camp, "calibration", cfg.state_gap_s)
+    if problem is not None:  # e.g. an air-temperature log of an ordinary campaign: nothing to fit, not an error
+        return ctx.skip(
+            f"campaign {prep.get('source', INPUT)}: the temperature log is not a warm-up: {problem}; "
+            "there is no thermal model to fit"
+        )
     fit = fit_thermal(camp, robot, cfg)
     summary = write_fit(fit, ctx.out)
     rep = Report(f"Thermal fit: {robot.name}", subtitle=f"campaign {prep.get('source', '')}")

@@ -1,7 +1,8 @@
 """validate: the validation warm-up compensated four ways (robocal.workflows.thermal.write_validation).
 
 Reads ``robot``, ``thermal`` and ``data`` (only to find a twin's truth.json beside the raw campaign, for the
-oracle row and the closed loop); skips explicitly when the campaign has no temperature log. Takes the thermal
+oracle row and the closed loop); skips explicitly when the campaign has no temperature log, the thermal fit
+skipped or there are no validation rows. Takes the thermal
 fit from ``reports/thermal`` and the screening's ``selected`` set from ``thermal.screening_file`` (without it:
 the parameters with a drift model), fits the proposed model and compares none / traditional / proposed / all
 (table 5, figs. 10 and 12). Writes ``reports/validate/`` (thermal.json, thermal_model.json — the model an online
@@ -41,8 +42,16 @@ def compute(ctx: Context) -> Metrics | Skipped:
     from robocal.workflows.thermal import read_truth, write_validation
 
     cfg = ThermalConfig.from_mapping(ctx.cfg["thermal"])
+    why = ctx.upstream_skipped(FIT)
+    if why is not None:
+        return ctx.skip(f"thermal_fit skipped ({why}): there is no thermal model to validate")
     robot = robot_from_dict(ctx.cfg["robot"], source="params: robot")
     camp = read_campaign(ctx.path(INPUT), robot)
+    if not camp.validation().n_rows:
+        return ctx.skip(
+            f"campaign {prep.get('source', INPUT)} has no validation rows (column 'split'): no second warm-up to "
+            "compensate"
+        )
     fit = load_fit(ctx.path(FIT), camp, robot, cfg)
     scr_path = ctx.path(cfg.screening_file)
     selected, source = choose_selected(fit, None)

@@ -58,17 +58,78 @@ def _compose_omegaconf(root: str | Path, overrides: Sequence[str]) -> Any:
     from hydra import compose as hydra_compose
     from hydra import initialize_config_dir
     from hydra.core.global_hydra import GlobalHydra
+    from hydra.errors import HydraException
     from omegaconf import OmegaConf
+    from omegaconf.errors import OmegaConfBaseException
 
     conf = (Path(root) / CONF_DIR).resolve()
     if not (conf / f"{CONFIG_NAME}.yaml").is_file():
         raise ConfigError(f"no Hydra config {conf / (CONFIG_NAME + '.yaml')}")
     if GlobalHydra.instance().is_initialized():  # e.g. inside a Hydra app
         GlobalHydra.instance().clear()
-    with initialize_config_dir(str(conf), version_base=None):
-        cfg = hydra_compose(config_name=CONFIG_NAME, overrides=list(overrides))
-    OmegaConf.resolve(cfg)
+    try:
+        with initialize_config_dir(str(conf), version_base=None):
+            cfg = hydra_compose(config_name=CONFIG_NAME, overrides=list(overrides))
+        OmegaConf.resolve(cfg)
+    except (HydraException, OmegaConfBaseException) as exc:
+        raise ConfigError(override_error(conf, overrides, exc)) from None
     return cfg
+
+
+def override_error(conf: Path, overrides: Sequence[str], exc: BaseException) -> str:
+    """Hydra's composition error as one line that names the override: an unknown option of a config group
+    (``robot=../cell7/robot.yaml``) lists the group's options and, for ``robot``, says how to give a file by path."""
+    for ov in overrides:
+        key, sep, value = ov.lstrip("+~").partition("=")
+        group = conf / key
+        if not sep or not group.is_dir() or (group / f"{value}.yaml").is_file():
+            continue
+        options = sorted(p.stem for p in group.glob("*.yaml"))
+        hint = f"; a robot description by path is {ROBOT_FILE}={value}" if key == "robot" else ""
+        return f"{ov}: {key!r} has no option {value!r} (conf/{key}/: {', '.join(options)}){hint}"
+    first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+    return f"the configuration (conf/ with overrides {list(overrides)}) does not compose: {first}"
+
+
+#: The top-level key naming a robot description file; when set it replaces the ``robot`` group's content.
+ROBOT_FILE = "robot_file"
+
+
+def apply_robot_file(cfg: Mapping[str, Any], root: str | Path) -> dict[str, Any]:
+    """``cfg`` with ``robot`` replaced by the description in the file ``robot_file`` names (a path relative to the
+    repository root, or absolute), when it names one; the twin's ``scenario.robot``, composed from the robot's
+    name, follows it. The description is checked (:func:`robocal.robot.robot_from_dict`): errors name the file."""
+    out = dict(cfg)
+    value = out.get(ROBOT_FILE)
+    if value is None or value == "":
+        return out
+    if not isinstance(value, str | Path):
+        raise ConfigError(f"The config key '{ROBOT_FILE}' must be a path to a robot YAML. Got {value!r} instead.")
+    from robocal.robot import robot_from_dict
+
+    path = resolve_path(root, value)
+    if not path.is_file():
+        raise ConfigError(
+            f"The config key '{ROBOT_FILE}' points at {str(value)!r}, which is not a file ({path}; a relative path "
+            "is relative to the repository root)"
+        )
+    try:
+        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except yaml.YAMLError as exc:
+        first = str(exc).splitlines()[0] if str(exc) else "invalid"
+        raise ConfigError(f"{ROBOT_FILE} {value}: not valid YAML: {first}") from None
+    if isinstance(data, dict) and "joints" not in data and isinstance(data.get("robot"), dict):
+        data = data["robot"]  # a Hydra group file may nest the description under 'robot:'
+    if isinstance(data, dict):
+        data = {"name": path.stem, **data}
+    robot = robot_from_dict(data, source=f"{ROBOT_FILE} {value}")  # raises naming the file and the key
+    group = out.get("robot")
+    before = group.get("name") if isinstance(group, Mapping) else None
+    out["robot"] = data
+    scenario = out.get("scenario")
+    if isinstance(scenario, Mapping) and scenario.get("robot") == before:  # composed from ${robot.name}
+        out["scenario"] = {**scenario, "robot": robot.name}
+    return out
 
 
 def params_text(root: str | Path, overrides: Sequence[str] = ()) -> str:
@@ -193,11 +254,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("overrides", nargs="*", help="Hydra overrides, e.g. optimizer=gn")
     args = parser.parse_args(argv)
     root = Path(args.root)
-    if args.action == "params":
-        print(f"wrote {write_params(root, args.overrides)}")
-        return 0
+    try:
+        if args.action == "params":
+            params_text(root, args.overrides)  # a composition error as one line before DVC's writer runs
+            print(f"wrote {write_params(root, args.overrides)}")
+            return 0
+        expected = params_text(root, args.overrides)
+    except ConfigError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     current = (root / PARAMS_FILE).read_text(encoding="utf-8") if (root / PARAMS_FILE).is_file() else ""
-    if current != params_text(root, args.overrides):
+    if current != expected:
         print(f"{root / PARAMS_FILE} is out of sync with conf/: run `make params`", file=sys.stderr)
         return 1
     print(f"{root / PARAMS_FILE} is in sync with conf/")

@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+import yaml
 
 from robocal.config import check_fields, parse, setting
 from robocal.data.columns import JOINT_SIGNALS, POSE_COLUMNS, column_name, columns, known_columns, required_columns
@@ -32,6 +33,13 @@ from robocal.errors import DataError
 from robocal.io import display_path
 from robocal.logged_signals import SignalDeclaration, read_signals_file
 from robocal.robot import RobotDescription
+
+#: The one definition of how a campaign is read by default (split, temperature tolerance): also the pipeline's
+#: ``data`` group (conf/config.yaml puts ``pkg://robocal`` on Hydra's search path).
+DEFAULTS_FILE = Path(__file__).with_name("default.yaml")
+_D: dict[str, Any] = yaml.safe_load(DEFAULTS_FILE.read_text(encoding="utf-8"))
+#: A pose takes the nearest earlier temperature reading at most this old (s), by default.
+TEMPERATURE_TOLERANCE_S = float(_D["temperature_tolerance_s"])
 
 SPLIT_VALUES = ("calibration", "validation")
 #: A measured point closer than this to the tracker (the frame's origin) looks like metres: no target can sit
@@ -57,9 +65,9 @@ class SplitConfig:
         validation_fraction : share of pose ids held out. seed : the split's seed.
     """
 
-    method: str = setting("random", choices=("random", "random_pose", "none"))
-    validation_fraction: float = setting(0.2, ge=0, lt=1)
-    seed: int = 0
+    method: str = setting(_D["split"]["method"], choices=("random", "random_pose", "none"))
+    validation_fraction: float = setting(_D["split"]["validation_fraction"], ge=0, lt=1)
+    seed: int = _D["split"]["seed"]
 
     def __post_init__(self) -> None:
         check_fields(self, "split")  # direct construction is checked as a mapping is
@@ -215,7 +223,7 @@ class Campaign:
             "pose_id": [self.pose_id],
             "timestamp": [pd.to_datetime(self.t0) + pd.to_timedelta(self.timestamp_s, unit="s")],
             "target": [self.target],
-            "q": per_column(np.degrees(self.q)),
+            "q": per_column(degrees_read_back(self.q)),
             "p": per_column(self.p_mm),
             "quat": per_column(self.quat),
             "payload": [self.payload_kg],
@@ -366,7 +374,7 @@ def read_campaign(
     robot: RobotDescription,
     split: SplitConfig | Mapping[str, Any] | None = None,
     *,
-    temperature_tolerance_s: float = 900.0,
+    temperature_tolerance_s: float = TEMPERATURE_TOLERANCE_S,
     quat_norm_tol: float = 1e-3,
     limit_tol_deg: float = 1e-6,
 ) -> Campaign:
@@ -517,7 +525,19 @@ def _read_orientation(df: pd.DataFrame, path: Path, quat_norm_tol: float) -> np.
             row=_row(i),
             column=qcols_o[0],
         )
-    return quat / norm[:, None]
+    return unit_quaternions(quat, norm)
+
+
+#: A quaternion whose norm is within this of 1 is a unit quaternion already (a few units in the last place).
+UNIT_NORM_TOL = 8 * float(np.finfo(float).eps)
+
+
+def unit_quaternions(quat: np.ndarray, norm: np.ndarray | None = None) -> np.ndarray:
+    """``quat`` (m, 4) normalised, leaving alone the rows that are unit already (norm within
+    :data:`UNIT_NORM_TOL` of 1). Dividing by the norm is not idempotent in the last bit (a copy of a campaign
+    read back would differ from it); this is: a normalised row is within 1.5 units in the last place of 1."""
+    n = np.linalg.norm(quat, axis=1) if norm is None else norm
+    return np.where((np.abs(n - 1.0) <= UNIT_NORM_TOL)[:, None], quat, quat / n[:, None])
 
 
 def _read_loads(
@@ -639,6 +659,25 @@ def _check_same_joints(camp: Campaign, path: Path, qcols: list[str]) -> None:
             row=int(camp.row_number[i]),
             column=qcols[j],
         )
+
+
+def degrees_read_back(q_rad: np.ndarray) -> np.ndarray:
+    """Joint angles in degrees that :func:`read_campaign` reads back as exactly ``q_rad`` (``np.radians`` of them).
+
+    ``np.degrees`` alone does not: ``radians(degrees(q))`` differs from ``q`` in the last bit for ~5 % of a real
+    campaign's angles, so a copy of a campaign (the pipeline's interim Parquet) was not the campaign, and a
+    discrete choice downstream (a gross error, a named effect) could differ between the copy and the user's file.
+    ``np.radians`` is monotone, so each angle is stepped by one unit in the last place towards its target until
+    it maps onto it; an angle read from a file in degrees always has such a value (the one in the file)."""
+    q = np.asarray(q_rad, dtype=float)
+    d = np.degrees(q)
+    for _ in range(8):  # one or two steps in practice
+        r = np.radians(d)
+        miss = r != q
+        if not miss.any():
+            break
+        d = np.where(miss, np.nextafter(d, np.where(r < q, np.inf, -np.inf)), d)
+    return d
 
 
 def _make_split(pose_id: np.ndarray, cfg: SplitConfig) -> np.ndarray:

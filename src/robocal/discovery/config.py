@@ -1,10 +1,16 @@
-"""Settings of a discovery run (``conf/discovery/default.yaml``)."""
+"""Settings of a discovery run: their defaults are ``default.yaml`` beside this module, defined once.
+
+That file is also the pipeline's ``discovery`` group (``conf/config.yaml`` puts ``pkg://robocal`` on Hydra's search
+path), so ``robocal discover``, ``robocal.discover`` and the ``discover`` stage start from the same settings."""
 
 from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, fields
+from pathlib import Path
 from typing import Any
+
+import yaml
 
 from robocal.config import parse, setting
 from robocal.identification.calibrate import data_rows, outlier_rule
@@ -24,6 +30,15 @@ EFFECT_NAMES = (
     "weight",
     "signal",
 )
+
+
+#: The one definition of the defaults (with why each value), read by :class:`DiscoveryConfig` and by Hydra.
+DEFAULTS_FILE = Path(__file__).with_name("default.yaml")
+_D: dict[str, Any] = yaml.safe_load(DEFAULTS_FILE.read_text(encoding="utf-8"))
+
+
+def _tuple(key: str) -> tuple[Any, ...]:
+    return tuple(_D[key])
 
 
 @dataclass(frozen=True)
@@ -78,46 +93,48 @@ class DiscoveryConfig:
         must be chosen in this share of them).
     """
 
-    noise_mm: float = setting(0.015, gt=0)
-    noise_deg: float = setting(0.01, gt=0)
-    use_orientation: bool | None = None
-    outliers: str | tuple[int, ...] = setting("auto", choices=("auto", "off"), convert=outlier_rule, check=data_rows)
-    outlier_alpha: float = setting(0.001, gt=0, lt=1)
-    effects: tuple[str, ...] = setting(EFFECT_NAMES, choices=EFFECT_NAMES)
-    gear_harmonics: tuple[int, ...] = setting((1, 2), ge=1)
-    thermal_components: int = setting(2, ge=1)
-    alpha: float = setting(0.001, gt=0)
-    min_excess_share: float = setting(0.3, ge=0, lt=1)
-    absorbed_tol: float = setting(1e-3, gt=0)
-    cv_folds: int = setting(5, ge=0, check=lambda k: "must be 0 (off) or >= 2" if k == 1 else None)
-    chi2_alpha: float = setting(0.001, gt=0)
-    max_steps: int = setting(6, ge=0)
-    min_signal_std: float = 1e-9
-    fixed: tuple[str, ...] = ()
-    rank_tol: float = setting(1e-6, gt=0)
-    max_iter: int = 100
-    transmission_orders: tuple[int, ...] = setting((6, 12, 24, 36, 48), ge=1)
-    transmission_prior_deg: tuple[float, ...] = setting((0.002, 0.005), gt=0)
-    transmission_gap_deg: float = setting(2.0, gt=0)
-    transmission_taper_deg: float = setting(2.0, ge=0)
-    compliance_prior_deg: float = setting(0.05, gt=0)
-    registration_gap_h: float = setting(1.0, gt=0)
-    cv_alpha: float = setting(0.01, gt=0, lt=1)
-    min_held_out_gain: float = setting(0.001, ge=0, lt=1)
-    grow_max_steps: int = setting(12, ge=0)
-    grow_geometry: str = setting("joint", choices=("joint", "frozen"))
-    layer: bool = True
-    layer_centres: int = setting(100, ge=4)
-    layer_length_deg: tuple[float, ...] = setting((15.0, 30.0, 60.0), gt=0)
-    layer_prior_deg: tuple[float, ...] = setting((0.002, 0.01), gt=0)
-    seed: int = 0
-    dictionary: bool = True
-    dictionary_harmonics: int = setting(3, ge=1)
-    dictionary_product_harmonics: int = setting(2, ge=1)
-    dictionary_max_terms: int = setting(2, ge=1)
-    dictionary_max_proposals: int = setting(2, ge=0)
-    dictionary_resamples: int = setting(40, ge=1)
-    dictionary_stability: float = setting(0.7, ge=0.5, le=1)
+    noise_mm: float = setting(_D["noise_mm"], gt=0)
+    noise_deg: float = setting(_D["noise_deg"], gt=0)
+    use_orientation: bool | None = _D["use_orientation"]
+    outliers: str | tuple[int, ...] = setting(
+        _D["outliers"], choices=("auto", "off"), convert=outlier_rule, check=data_rows
+    )
+    outlier_alpha: float = setting(_D["outlier_alpha"], gt=0, lt=1)
+    effects: tuple[str, ...] = setting(_tuple("effects"), choices=EFFECT_NAMES)
+    gear_harmonics: tuple[int, ...] = setting(_tuple("gear_harmonics"), ge=1)
+    thermal_components: int = setting(_D["thermal_components"], ge=1)
+    alpha: float = setting(_D["alpha"], gt=0)
+    min_excess_share: float = setting(_D["min_excess_share"], ge=0, lt=1)
+    absorbed_tol: float = setting(_D["absorbed_tol"], gt=0)
+    cv_folds: int = setting(_D["cv_folds"], ge=0, check=lambda k: "must be 0 (off) or >= 2" if k == 1 else None)
+    chi2_alpha: float = setting(_D["chi2_alpha"], gt=0)
+    max_steps: int = setting(_D["max_steps"], ge=0)
+    min_signal_std: float = _D["min_signal_std"]
+    fixed: tuple[str, ...] = _tuple("fixed")
+    rank_tol: float = setting(_D["rank_tol"], gt=0)
+    max_iter: int = _D["max_iter"]
+    transmission_orders: tuple[int, ...] = setting(_tuple("transmission_orders"), ge=1)
+    transmission_prior_deg: tuple[float, ...] = setting(_tuple("transmission_prior_deg"), gt=0)
+    transmission_gap_deg: float = setting(_D["transmission_gap_deg"], gt=0)
+    transmission_taper_deg: float = setting(_D["transmission_taper_deg"], ge=0)
+    compliance_prior_deg: float = setting(_D["compliance_prior_deg"], gt=0)
+    registration_gap_h: float = setting(_D["registration_gap_h"], gt=0)
+    cv_alpha: float = setting(_D["cv_alpha"], gt=0, lt=1)
+    min_held_out_gain: float = setting(_D["min_held_out_gain"], ge=0, lt=1)
+    grow_max_steps: int = setting(_D["grow_max_steps"], ge=0)
+    grow_geometry: str = setting(_D["grow_geometry"], choices=("joint", "frozen"))
+    layer: bool = _D["layer"]
+    layer_centres: int = setting(_D["layer_centres"], ge=4)
+    layer_length_deg: tuple[float, ...] = setting(_tuple("layer_length_deg"), gt=0)
+    layer_prior_deg: tuple[float, ...] = setting(_tuple("layer_prior_deg"), gt=0)
+    seed: int = _D["seed"]
+    dictionary: bool = _D["dictionary"]
+    dictionary_harmonics: int = setting(_D["dictionary_harmonics"], ge=1)
+    dictionary_product_harmonics: int = setting(_D["dictionary_product_harmonics"], ge=1)
+    dictionary_max_terms: int = setting(_D["dictionary_max_terms"], ge=1)
+    dictionary_max_proposals: int = setting(_D["dictionary_max_proposals"], ge=0)
+    dictionary_resamples: int = setting(_D["dictionary_resamples"], ge=1)
+    dictionary_stability: float = setting(_D["dictionary_stability"], ge=0.5, le=1)
 
     @classmethod
     def from_mapping(cls, cfg: Mapping[str, Any] | None) -> DiscoveryConfig:

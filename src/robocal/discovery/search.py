@@ -220,7 +220,7 @@ def discover(campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig |
     rounds = 0
     systematic: list[dict[str, Any]] = []
     loud = np.ones(m, dtype=bool)
-    for rounds in range(1, 4):  # noqa: B007 (reported)
+    for rounds in range(1, 4):
         idx = np.flatnonzero(kept)
         res = _search(campaign, robot, cfg, rows_all[idx], data_all.rows(idx), geo, library, skipped, sigma, sigma_rad)
         if cfg.outliers != "auto":
@@ -230,7 +230,9 @@ def discover(campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig |
             # more rows stand out than gross errors can be: a model error the library cannot name, not blunders
             test = robust.RowTest(test.F, test.p_value, ~kept, test.threshold_F, test.alpha, test.d)
             break
-        if np.array_equal(~test.flagged, kept):
+        if np.array_equal(~test.flagged, kept) or rounds == 3:
+            # converged, or the last round: `kept` stays the set the search ran on, so the rows reported as left
+            # out of the fit are the ones it left out (the UR10 reported 18 of 1 046 out while fitting 1 035)
             break
         kept = ~test.flagged
     assert res is not None
@@ -242,6 +244,12 @@ def discover(campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig |
         outliers = describe_outliers(cal, ~kept, rr[:, :3], rr[:, 3:] if fit.d == 6 else None, None, listed=True)
     elif test is not None:
         outliers = describe_outliers(cal, ~kept & loud, rr[:, :3], rr[:, 3:] if fit.d == 6 else None, test)
+        for o, i in zip(outliers, np.flatnonzero(~kept & loud), strict=True):
+            if not test.flagged[i]:  # left out by the previous round, no longer standing out: say so
+                o["reason"] = (
+                    f"left out by the previous round's test; against the final model F = {test.F[i]:.4g} <= "
+                    f"{test.threshold_F:.4g} (the gross-error rounds did not settle in {rounds})"
+                )
     else:
         outliers = []
     if "signal" in cfg.effects:

@@ -143,16 +143,42 @@ def _warm_up(campaign: Campaign, which: str) -> Campaign:
     return part
 
 
+#: A warm-up: the pose set measured cold and at this many later temperature states at least.
+MIN_LATER_STATES = 2
+
+
+def states_problem(state: np.ndarray, which: str) -> str | None:
+    """Why rows with these temperature states (:func:`robocal.thermal.identify.find_states`) are not a warm-up,
+    or None when they are one."""
+    n_states = int(state.max()) + 1 if len(state) else 0
+    if n_states - 1 >= MIN_LATER_STATES:
+        return None
+    return (
+        f"the {which} rows hold {n_states} temperature state(s); a warm-up needs the pose set measured cold and at "
+        f">= {MIN_LATER_STATES} later states (states are separated by pauses > thermal.state_gap_s or by a pose "
+        "measured again)"
+    )
+
+
+def warm_up_problem(campaign: Campaign, which: str, state_gap_s: float) -> str | None:
+    """Why the campaign's ``which`` rows ("calibration" / "validation") hold no warm-up the thermal workflow can
+    use (no rows, no temperatures, fewer than ``1 + MIN_LATER_STATES`` temperature states), or None when they
+    hold one. A temperature log that is not a warm-up (an air-temperature log of an ordinary campaign) is common:
+    the pipeline's thermal stages skip with this reason; :func:`fit_thermal` raises it."""
+    part = campaign.calibration() if which == "calibration" else campaign.validation()
+    if part.temperatures is None:
+        return "the campaign has no temperature log (temperatures.csv)"
+    if part.n_rows == 0:
+        return f"the campaign has no {which} rows (column 'split')"
+    return states_problem(find_states(part, state_gap_s), which)
+
+
 def check_warm_up(part: Campaign, state: np.ndarray, which: str) -> None:
     if part.temperatures is None:
         raise DataError("the campaign has no temperatures (temperatures.csv)", file=part.source)
-    if int(state.max()) < 2:
-        raise DataError(
-            f"the {which} rows hold {int(state.max()) + 1} temperature state(s); a warm-up needs the pose set measured "
-            f"cold and at >= 2 later states (states are separated by pauses > thermal.state_gap_s)",
-            file=part.poses_file,
-            column="timestamp",
-        )
+    problem = states_problem(state, which)
+    if problem is not None:
+        raise DataError(problem, file=part.poses_file, column="timestamp")
 
 
 def fit_thermal(campaign: Campaign, robot: RobotDescription, cfg: ThermalConfig) -> ThermalFit:
@@ -329,4 +355,5 @@ __all__ = [
     "run_screening",
     "traditional_parameters",
     "validate_thermal",
+    "warm_up_problem",
 ]
