@@ -157,11 +157,8 @@ def test_first_repro_runs_every_stage(copy: dict[str, Any]) -> None:
     # the warm-up has temperatures but no payload: compliance_fit has nothing to do; the optimizer comparison is
     # off by default
     # and the campaign is not an ISO 9283 test: iso9283 skips, saying so
-    # the tiny copy calibrates on 12 configurations (each measured at 7 temperatures): thin for the ~30
-    # parameters of the model (fewer than 3 equations per parameter), so the geometric fit warns (issue 30 item 3)
-    thin = {"geometric_fit": "warning"}
     assert status == {
-        s: thin.get(s, "skipped" if s in ("compliance_fit", "compare_optimizers", "iso9283") else "ok") for s in STAGES
+        s: ("skipped" if s in ("compliance_fit", "compare_optimizers", "iso9283") else "ok") for s in STAGES
     }
     val = json.loads((root / "reports/metrics/validate.json").read_text())
     assert val["comp_proposed_mean_mm"] < val["comp_none_mean_mm"], val
@@ -336,7 +333,9 @@ def test_a_campaign_without_temperatures_skips_the_thermal_stages(copy: dict[str
         assert json.loads((root / f"reports/metrics/{stage}.json").read_text()) == {stage: "skipped"}
         m = json.loads((root / OUT[stage] / "result.json").read_text())
         assert m["status"] == "skipped" and "temperature" in m["reason"], (stage, m)
-    assert json.loads((root / "reports/metrics/geometric_fit.json").read_text())["geometric_fit"] == "ok"
+    # the tiny geometric copy calibrates 12 configurations of one reflector: 36 equations for ~30 parameters,
+    # a thin campaign (fewer than 2 per parameter): it warns and says so (issue 30 item 3)
+    assert json.loads((root / "reports/metrics/geometric_fit.json").read_text())["geometric_fit"] == "warning"
     assert _reproduce(root, targets=NO_TEMPERATURE_TARGETS) == []
 
 

@@ -118,7 +118,7 @@ class CalibrationConfig:
     prior_deg: float = setting(0.05, gt=0)
     prior_frame_mm: float = setting(10.0, gt=0)
     prior_frame_deg: float = setting(1.0, gt=0)
-    thin_ratio: float = setting(3.0, gt=0)
+    thin_ratio: float = setting(2.0, gt=0)
 
     @classmethod
     def from_mapping(cls, cfg: Any, section: str = "calibration") -> CalibrationConfig:

@@ -11,7 +11,7 @@ ranges (a fixed seed), with the campaign's targets and stations. The record (``f
 
 * ``needed``: the fewest configurations that give more equations than parameters (at this campaign's
   equations per configuration). Fewer, and the data cannot determine the model: the calibration fails;
-* ``thin_below``: the configurations that give ``thin_ratio`` (3) equations per parameter. Fewer, and the
+* ``thin_below``: the configurations that give ``thin_ratio`` (2) equations per parameter. Fewer, and the
   fit follows the noise of the few poses (its held-out error is far above its fit RMS): with ``prior: auto``
   the identification is regularised (below).
 

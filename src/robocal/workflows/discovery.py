@@ -415,7 +415,7 @@ def run(
     split: Mapping[str, Any] | None = None,
     campaign: Campaign | None = None,
     report: bool = True,
-    sessions: Sequence[str | Path] = (),
+    sessions: Sequence[str | Path] | None = None,
 ) -> dict[str, Any]:
     """Discover the effects in the campaign (``settings``: a :class:`DiscoveryConfig` mapping); write
     ``discovery.json``, the product (:func:`write_product`) and ``report.html`` into ``out_dir``. Returns the
