@@ -54,7 +54,7 @@ lock: $(STAMP) ## re-pin requirements.lock from pyproject.toml (uv), after chang
 	@echo "requirements.lock re-pinned: commit it; make setup installs exactly it"
 
 repro-check: $(STAMP) ## the default pipeline under two BLAS kernels in fresh copies: same bytes as dvc.lock (~8 min)
-	$(BIN)/pytest -q -m slow tests/pipeline/test_same_bytes.py
+	$(BIN)/pytest -q -m repro tests/pipeline/test_same_bytes.py
 
 params: $(STAMP) ## regenerate params.yaml from conf/ (DVC's Hydra composition)
 	$(BIN)/python -m robocal.pipeline params
