@@ -53,6 +53,9 @@ lock: $(STAMP) ## re-pin requirements.lock from pyproject.toml (uv), after chang
 		-o requirements.lock
 	@echo "requirements.lock re-pinned: commit it; make setup installs exactly it"
 
+e2e: $(STAMP) ## the pipeline end to end in a copy of the repository (dvc repro, dvc exp run; ~5 min; CI runs it)
+	$(BIN)/pytest -q -m e2e
+
 repro-check: $(STAMP) ## the default pipeline under two BLAS kernels in fresh copies: same bytes as dvc.lock (~8 min)
 	$(BIN)/pytest -q -m repro tests/pipeline/test_same_bytes.py
 
@@ -79,4 +82,4 @@ sweep: $(STAMP) ## example sweeps: three noise settings in parallel (joblib), th
 	$(BIN)/python stages/geometric_fit.py -m optimizer=gn,lm
 	@echo "results: reports/sweeps/geometric_fit/; compare the nested runs with: make ui"
 
-.PHONY: help setup run test lint lock repro-check params ui exps compare bench sweep
+.PHONY: help setup run test lint e2e lock repro-check params ui exps compare bench sweep

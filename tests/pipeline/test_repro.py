@@ -31,7 +31,7 @@ REPO = Path(__file__).resolve().parents[2]
 STAGES = list(yaml.safe_load((REPO / "dvc.yaml").read_text())["stages"])
 #: each stage's output folder (its only `outs:` entry)
 OUT = {name: s["outs"][0] for name, s in yaml.safe_load((REPO / "dvc.yaml").read_text())["stages"].items()}
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.e2e]
 
 
 def _git(root: Path, *args: str) -> None:
