@@ -86,7 +86,13 @@ def run(args: argparse.Namespace) -> int:
     cv = s.get("cross_validation")
     if cv and "cv_mean_position_mm" in cv:
         print(f"cross-validated estimate on the calibration poses (pose-grouped): mean "
-              f"{cv['cv_mean_position_mm']:.4f} mm, RMS {cv['cv_rms_position_mm']:.4f} mm")  # fmt: skip
+              f"{cv['cv_mean_position_mm']:.4f} mm, RMS {cv['cv_rms_position_mm']:.4f} mm "
+              "(within this session)")  # fmt: skip
+    if cv and "session_cv" in cv:
+        sc, gc = cv["session_cv"], cv.get("geometric_session_cv") or {}
+        print(f"expected in a new session (each of {len(sc['sessions'])} sessions left out, its tracker registered on "
+              f"its own rows): mean {sc['mean_position_mm']:.4f} mm"
+              + (f" (geometric model {gc['mean_position_mm']:.4f} mm)" if gc else ""))  # fmt: skip
     for where, v in s.get("sessions", {}).items():
         g, f = v["geometric"], v["final"]
         print(

@@ -32,6 +32,7 @@ from robocal.discovery.candidates import Candidate
 from robocal.discovery.config import DiscoveryConfig
 from robocal.discovery.model import Accepted, Fit
 from robocal.discovery.scoring import Score, Step, regressor
+from robocal.discovery.session_cv import Sessions
 from robocal.identification.model import FitData
 from robocal.robot import RobotDescription
 
@@ -97,7 +98,8 @@ def physics_candidates(
                 "angle with many harmonics per revolution (applied only on the angles the calibration visited)",
                 signal=f"sin/cos(h·q{j + 1}), h = {h0}..K", shape="joint", S=S,
                 coef_names=names, coef_units=("rad",) * len(names),
-                extra={"visited_deg": visited, "taper_deg": taper, "harmonics": h.tolist(), "centre": centre.tolist()},
+                extra={"visited_deg": visited, "taper_deg": taper, "gap_deg": gap, "harmonics": h.tolist(),
+                       "centre": centre.tolist()},
             )  # fmt: skip
             H = len(h)
             variants = [
@@ -322,6 +324,7 @@ def finish(
     groups: np.ndarray,
     refit: Any,
     record: dict[str, Any],
+    sessions: Sessions | None = None,
 ) -> tuple[Fit, list[Accepted], dict[str, Any]]:
     """After the parametric model (library, selection, equations): the residual layer when the same
     cross-validated test accepts it, then the cross-validated estimate and each effect's contribution."""
@@ -333,7 +336,8 @@ def finish(
             fit, accepted, _, _ = _step(layer_pool, fit, accepted, cv, rows, data, cfg, steps, record, refit, groups,
                                         what="residual layer")  # fmt: skip
     if cfg.cv_folds >= 2:
-        fit, accepted, con = held_out_check(fit, accepted, steps, groups, refit, cfg, record, final=True)
+        fit, accepted, con = held_out_check(fit, accepted, steps, groups, refit, cfg, record, final=True,
+                                            sessions=sessions)  # fmt: skip
         record.update(con)
     return fit, accepted, record
 
@@ -347,6 +351,7 @@ def held_out_check(
     cfg: DiscoveryConfig,
     record: dict[str, Any],
     final: bool = False,
+    sessions: Sessions | None = None,
 ) -> tuple[Fit, list[Accepted], dict[str, Any]]:
     """An effect earns its place by its held-out gain: the pose-grouped cross-validated RMS error of the model as
     fitted (whitened positions and, with a 6-DoF probe, orientations) without it (linearised,
@@ -355,14 +360,19 @@ def held_out_check(
     passes (a :class:`Step` per round, of phase ``held-out`` for the ``final`` check after the layer and
     ``held-out parametric`` before it, and for the final check one saying that every effect passes;
     ``record["dropped_no_gain"]`` with each one's gain and its position-only gain in mm). Returns the fit, the
-    effects and the final contributions."""
+    effects and the final contributions. With ``sessions`` an effect must also not raise the leave-one-session-out
+    error by more than the same share (``session_gain >= -min_held_out_gain``): one that holds within the
+    session but hurts in the next is dropped too."""
     dropped = record.setdefault("dropped_no_gain", [])
     thr = cfg.min_held_out_gain
     phase = "held-out" if final else "held-out parametric"
     for _ in range(5):
-        con = contributions(fit, accepted, groups, cfg)
+        con = contributions(fit, accepted, groups, cfg, sessions)
         gains = {k: float(e["held_out_gain"]) for k, e in con["effects"].items()}
         weak = sorted(k for k, g in gains.items() if not g > thr)
+        s_gains = {k: float(e["session_gain"]) for k, e in con["effects"].items() if "session_gain" in e}
+        hurts = sorted(k for k, g in s_gains.items() if g < -thr and k not in weak)
+        weak = sorted(weak + hurts)
         if not weak:
             if final and gains:
                 steps.append(
@@ -376,15 +386,18 @@ def held_out_check(
         cv_mean = float(con["cv_mean_position_mm"])
         dropped += [
             {"key": k, "held_out_gain": gains[k], "threshold": thr,
-             "position_gain_mm": float(con["effects"][k]["cv_mean_without_mm"]) - cv_mean}
+             "position_gain_mm": float(con["effects"][k]["cv_mean_without_mm"]) - cv_mean,
+             **({"session_gain": s_gains[k], "hurts_in_new_session": k in hurts} if k in s_gains else {})}
             for k in weak
         ]  # fmt: skip
         steps.append(
-            Step(None, f"held-out check: dropped {', '.join(weak)} (held-out gain at most {thr:.2%})",
+            Step(None, f"held-out check: dropped {', '.join(weak)} (held-out gain at most {thr:.2%}"
+                 + (f"; {', '.join(hurts)}: raise the error in a session left out by more than {thr:.2%}" if hurts
+                    else "") + ")",
                  before.rms_mm, fit.rms_mm, before.rss, fit.rss, fit.dof, [], weak, before.residuals_mm,
                  fit.residuals_mm, phase=phase)
         )  # fmt: skip
-    return fit, accepted, contributions(fit, accepted, groups, cfg)
+    return fit, accepted, contributions(fit, accepted, groups, cfg, sessions)
 
 
 def _prune(
@@ -527,16 +540,23 @@ def layer_candidates(campaign: Campaign, cfg: DiscoveryConfig, rows: np.ndarray)
     return pool
 
 
-def contributions(fit: Fit, accepted: list[Accepted], groups: np.ndarray, cfg: DiscoveryConfig) -> dict[str, Any]:
+def contributions(
+    fit: Fit, accepted: list[Accepted], groups: np.ndarray, cfg: DiscoveryConfig, sessions: Sessions | None = None
+) -> dict[str, Any]:
     """The cross-validated position error (mm) of the final model, and each joint-level effect's own
-    contribution: the held-out error with that effect's coefficients removed from the model (linearised)."""
+    contribution: the held-out error with that effect's coefficients removed from the model (linearised).
+    With ``sessions`` (a campaign of several sessions) the same in leave-one-session-out cross-validation
+    (:mod:`robocal.discovery.session_cv`): ``session_cv`` and each effect's ``session_gain``."""
     cv = FoldCV(fit, groups, max(cfg.cv_folds, 2), cfg.seed)
+    own = sessions.summary(fit) if sessions is not None else None
     e = cv_position_mm(fit, cv.base_err)
     out: dict[str, Any] = {
         "cv_mean_position_mm": float(np.mean(e)),
         "cv_rms_position_mm": float(np.sqrt(np.mean(e**2))),
         "effects": {},
     }
+    if own is not None:
+        out["session_cv"] = {k: v for k, v in own.items() if k != "sse"}
     model = fit.model
     for a, sl in zip(model.accepted, model.slices, strict=True):
         if a.cand.shape != "joint":
@@ -554,6 +574,13 @@ def contributions(fit: Fit, accepted: list[Accepted], groups: np.ndarray, cfg: D
             # orientations) without the effect: the held-out check's gain (an effect that turns the tool shows here)
             "held_out_gain": float(np.sqrt(np.sum(cvs.base_err**2) / max(float(np.sum(cv.base_err**2)), 1e-300)) - 1),
         }
+        if sessions is not None and own is not None:
+            other = sessions.summary(sub)
+            out["effects"][a.cand.key].update(
+                session_mean_without_mm=other["mean_position_mm"],
+                # the same rise in a session the model was not fitted on: negative, the effect hurts there
+                session_gain=float(np.sqrt(other["sse"] / max(own["sse"], 1e-300)) - 1),
+            )
     return out
 
 

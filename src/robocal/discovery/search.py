@@ -23,11 +23,12 @@ import numpy as np
 from scipy import stats
 
 from robocal.data.contract import Campaign
-from robocal.discovery.candidates import Candidate, SkippedCandidate, build_library
+from robocal.discovery.candidates import Candidate, SkippedCandidate, build_library, periodic_window
 from robocal.discovery.config import DiscoveryConfig
 from robocal.discovery.grow import finish, grow, held_out_check, physics_candidates, variant_candidate
 from robocal.discovery.model import Accepted, ExtendedModel, Fit, fit_model
 from robocal.discovery.scoring import Score, Step, regressor
+from robocal.discovery.session_cv import Sessions
 from robocal.discovery.systematic import misfit_candidates
 from robocal.errors import ConfigError
 from robocal.identification.calibrate import CalibrationConfig, fit_data, present_targets
@@ -363,6 +364,11 @@ def _search(
     unident: dict[str, float] = {}
     remaining = list(library) + weight
     groups = np.repeat(np.asarray(cal.pose_id).astype(str), fit.d)
+    # several sessions (tracker stations): the selection is judged in a session left out too (issue 33)
+    sessions = Sessions.of(
+        data.station_index, geo.model.station_names, campaign.q[rows],
+        periodic_window(cfg, max(cfg.transmission_orders))[0],
+    ) if cfg.cv_folds >= 2 else None  # fmt: skip
     for _ in range(cfg.max_steps):
         scores, chosen = _best_candidate(remaining, fit, rows, data, cfg, log_thr, groups, unident, log_thr_signal)
         if chosen is None:
@@ -406,9 +412,11 @@ def _search(
         fit, accepted = _propose(campaign, robot, cfg, rows, data, fit, accepted, steps, groups, refit)
     if cfg.cv_folds >= 2 and accepted:
         # what the parametric model keeps earns its place before the layer is offered (the layer's after it)
-        fit, accepted, _ = held_out_check(fit, accepted, steps, groups, refit, cfg, grown)
+        fit, accepted, _ = held_out_check(fit, accepted, steps, groups, refit, cfg, grown, sessions=sessions)
     parametric = fit
-    fit, accepted, grown = finish(campaign, cfg, rows, data, fit, accepted, steps, groups, refit, grown)
+    fit, accepted, grown = finish(campaign, cfg, rows, data, fit, accepted, steps, groups, refit, grown, sessions)
+    if sessions is not None:
+        grown["geometric_session_cv"] = {k: v for k, v in sessions.summary(geometric).items() if k != "sse"}
     return DiscoveryResult(
         robot=robot,
         config=cfg,

@@ -1,0 +1,150 @@
+"""Leave-one-session-out cross-validation: what a model is worth in a session it was not fitted on (issue 33
+item 2).
+
+Pose-grouped cross-validation (:class:`robocal.discovery.grow.FoldCV`) holds out poses of the session the model
+was fitted in: same tracker placement, same day, the same region of the joints. A plant uses the model in the
+next session. When a campaign holds several sessions (tracker stations: another placement, another day,
+another cell), each session in turn is held out, as a new session would be met:
+
+* the model (geometry, tools, every effect) is refitted on the other sessions: the linearised refit of
+  :class:`~robocal.discovery.grow.FoldCV` (normal equations of the other sessions' rows, the priors included);
+* the held-out session's tracker is registered on its own rows (its six frame parameters fitted to them, the model
+  frozen: a new session always registers its tracker), and its rows' errors are what is left;
+* an effect defined on the joint angles the calibration visited (the transmission error's coverage window,
+  the residual layer's gate) is applied in the held-out session only where the *other* sessions visited:
+  exactly what the service would do with a model fitted without it.
+
+Registering on the rows it is judged on makes the figure a little optimistic (six parameters against three
+equations a row; sessions below :data:`MIN_SESSION_ROWS` rows are not held out), the same for every model
+compared. The first-order refit is the one pose-grouped CV uses.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from robocal.compensation.signals import coverage_weight, layer_features, layer_gate
+from robocal.discovery.model import Fit
+from robocal.discovery.physics import visited_intervals
+
+#: a session is held out only with at least this many rows (its tracker registration: six parameters)
+MIN_SESSION_ROWS = 10
+
+
+@dataclass(frozen=True)
+class Sessions:
+    """The sessions of the fitted rows: ``index (m,)`` into ``names`` (-1: a session too small to hold out),
+    the model's station of each session (``station``), the fitted rows' joint angles ``q (m, n)`` rad."""
+
+    index: np.ndarray
+    names: tuple[str, ...]
+    station: tuple[int, ...]
+    q: np.ndarray
+    gap_deg: float
+
+    @staticmethod
+    def of(
+        station_index: np.ndarray | None, station_names: tuple[str, ...], q: np.ndarray, gap_deg: float
+    ) -> Sessions | None:
+        """The sessions of a fit's rows (``station_index (m,)`` into the model's ``station_names``), or None when
+        fewer than two of them have :data:`MIN_SESSION_ROWS` rows."""
+        if station_index is None:
+            return None
+        st = np.asarray(station_index, dtype=int)
+        big = [s for s in range(len(station_names)) if int(np.sum(st == s)) >= MIN_SESSION_ROWS]
+        if len(big) < 2:
+            return None
+        index = np.full(len(st), -1, dtype=int)
+        for i, s in enumerate(big):
+            index[st == s] = i
+        return Sessions(index, tuple(station_names[s] for s in big), tuple(big), np.asarray(q, dtype=float), gap_deg)
+
+    # ------------------------------------------------------------------------------------------------ errors
+    def _coverage(self, cand: Any, held: np.ndarray) -> np.ndarray | None:
+        """Per held-out row, the share of a windowed effect the service would apply with the model fitted on the
+        other sessions (1 where they visited, 0 far outside); None for an effect without a window."""
+        ex = cand.extra
+        if "visited_deg" in ex and cand.joint is not None:
+            j = int(cand.joint) - 1
+            visited = visited_intervals(self.q[~held, j], float(ex.get("gap_deg", self.gap_deg)))
+            return coverage_weight(self.q[held, j], visited, float(ex["taper_deg"]))
+        if "centres_rad" in ex:
+            ell, inside = float(ex["length_rad"]), float(ex["inside_rad"])
+            _, d_all = layer_features(self.q[held], np.asarray(ex["centres_rad"], dtype=float), ell)
+            g_all = layer_gate(d_all, inside, ell)
+            others = self.q[~held]
+            # the gate of the other sessions' own calibrated region: distance to their nearest pose
+            d_own = np.min(
+                np.stack([layer_features(self.q[held], others[k : k + 2048], ell)[1]
+                          for k in range(0, len(others), 2048)]), axis=0
+            )  # fmt: skip
+            g_own = layer_gate(d_own, inside, ell)
+            return np.where(g_all > 0, np.minimum(g_own / np.maximum(g_all, 1e-300), 1.0), 0.0)
+        return None
+
+    def errors(self, fit: Fit) -> tuple[np.ndarray, np.ndarray]:
+        """Whitened held-out residuals ``(M,)`` of every held-out session's rows (0 on rows of no session) and
+        the mask ``(M,)`` of the residuals held out."""
+        A, r, d = fit.J_w, fit.r_w, fit.d
+        free = fit.free
+        prec = fit.model.prior_precision()[free]
+        th = fit.theta[free]
+        G = A.T @ A
+        b = A.T @ r
+        col = {int(p): i for i, p in enumerate(free)}
+        out = np.zeros_like(r)
+        mask = np.zeros(len(r), dtype=bool)
+        model = fit.model
+        for i, s in enumerate(self.station):
+            held = self.index == i
+            t = np.repeat(held, d)
+            At0, rt0 = A[t], r[t]
+            H = G - At0.T @ At0 + np.diag(prec)
+            g = b - At0.T @ rt0 + prec * th
+            At, rt = At0.copy(), rt0.copy()
+            for a, sl in zip(model.accepted, model.slices, strict=True):
+                if a.cand.shape != "joint":
+                    continue
+                w = self._coverage(a.cand, held)
+                if w is None:
+                    continue
+                cols = [col[p] for p in range(sl.start, sl.stop) if p in col]
+                if not cols:
+                    continue
+                wr = np.repeat(w, d)
+                # the effect as applied with the others' coverage: its share (1 - w) taken out of the prediction
+                rt = rt - (1.0 - wr) * (At[:, cols] @ th[cols])
+                At[:, cols] *= wr[:, None]
+            step = np.linalg.pinv(H, rcond=1e-12, hermitian=True) @ g
+            e = rt - At @ step
+            frame = [col[int(p)] for p in model.base.station_columns(s) if int(p) in col]
+            if frame:
+                F = At[:, frame]
+                e = e - F @ np.linalg.lstsq(F, e, rcond=None)[0]
+            out[t] = e
+            mask |= t
+        return out, mask
+
+    def position_mm(self, fit: Fit, err_w: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        """Held-out 3-D position errors (mm) of the held-out rows."""
+        e = (err_w / fit.weights).reshape(-1, fit.d)[:, :3]
+        return np.asarray(np.linalg.norm(e[mask.reshape(-1, fit.d)[:, 0]], axis=1))
+
+    def summary(self, fit: Fit) -> dict[str, Any]:
+        """``{"sessions", "mean_position_mm", "rms_position_mm", "per_session": {name: mean mm}, "sse"}``."""
+        err, mask = self.errors(fit)
+        e = self.position_mm(fit, err, mask)
+        held = self.index[self.index >= 0]
+        return {
+            "sessions": list(self.names),
+            "mean_position_mm": float(np.mean(e)),
+            "rms_position_mm": float(np.sqrt(np.mean(e**2))),
+            "per_session": {n: float(np.mean(e[held == i])) for i, n in enumerate(self.names)},
+            "sse": float(np.sum(err[mask] ** 2)),
+        }
+
+
+__all__ = ["MIN_SESSION_ROWS", "Sessions"]
