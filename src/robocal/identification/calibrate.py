@@ -37,7 +37,9 @@ if TYPE_CHECKING:
 NOISE_MODELS = ("constant", "u_mm", "distance")
 #: settings written into calibration.json's ``config`` only when not at their default (the thin-campaign prior,
 #: :mod:`robocal.identification.thin`): a calibration made without them keeps its bytes
-WRITTEN_WHEN_SET = ("prior", "prior_mm", "prior_deg", "prior_frame_mm", "prior_frame_deg", "thin_ratio")
+WRITTEN_WHEN_SET = (
+    "prior", "prior_mm", "prior_deg", "prior_frame_mm", "prior_frame_deg", "thin_ratio", "sparse_ratio",
+)  # fmt: skip
 #: the order of the error statistics in the fit record (calibration.json ``fit`` and ``fit.before``)
 FIT_ORDER = ("rms", "mean", "max")
 
@@ -92,6 +94,10 @@ class CalibrationConfig:
     prior_frame_mm, prior_frame_deg : the (fixed, weak) prior's widths of the tracker frames and tools, around
         the nominal model's best rigid fit.
     thin_ratio : equations per model parameter below which a campaign is thin (``fit.configurations``).
+    sparse_ratio : below this many equations per parameter (and not thin) ``prior: auto`` still cross-validates
+        the prior by configuration and takes it only when it *clearly* beats none (its CV error lower by more than
+        two standard errors of the paired difference): few configurations or a poorly spread set whose model is
+        near-singular somewhere the count does not show.
     """
 
     noise_mm: float = setting(0.015, gt=0)
@@ -119,6 +125,7 @@ class CalibrationConfig:
     prior_frame_mm: float = setting(10.0, gt=0)
     prior_frame_deg: float = setting(1.0, gt=0)
     thin_ratio: float = setting(2.0, gt=0)
+    sparse_ratio: float = setting(4.0, gt=0)
 
     @classmethod
     def from_mapping(cls, cfg: Any, section: str = "calibration") -> CalibrationConfig:
@@ -1073,9 +1080,19 @@ def thin_campaign(start: CalibrationStart, res: CalibrationResult, solve: Solve)
         )
     else:
         why = None
+    clear_only = False
+    if why is None and cfg.prior == "auto" and design["enough"] and design["sparse"]:
+        why = (
+            f"few configurations: {design['n']} give {design['equations']} equations for "
+            f"{design['model_parameters']} parameters, fewer than {cfg.sparse_ratio:g} per parameter; the prior "
+            "only where it clearly beats none in cross-validation"
+        )
+        clear_only = True
     prior = None
     if why is not None and design["enough"]:
-        prior, design["prior"] = thin.choose_prior(start, why)
+        prior, rec = thin.choose_prior(start, why, clear_only=clear_only)
+        if not clear_only or prior is not None:
+            design["prior"] = rec
     if prior is not None:
         res = fit_from(replace(start, prior=prior), solve)
     if design["thin"] or not design["enough"] or prior is not None:

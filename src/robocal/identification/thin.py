@@ -116,6 +116,7 @@ def design_of(start: CalibrationStart) -> dict[str, Any]:
     e = n_eq / n_cfg if n_cfg else float(POSE_EQUATIONS)
     needed = math.floor(k / e) + 1
     thin_below = math.ceil(cfg.thin_ratio * k / e)
+    sparse_below = math.ceil(cfg.sparse_ratio * k / e)
     return {
         "n": n_cfg,
         "n_rows": int(kept.sum()),
@@ -133,6 +134,7 @@ def design_of(start: CalibrationStart) -> dict[str, Any]:
         "thin_below": thin_below,
         "enough": bool(n_cfg >= needed),
         "thin": bool(n_cfg < thin_below),
+        "sparse": bool(n_cfg < sparse_below),
     }
 
 
@@ -185,6 +187,7 @@ class CrossValidation:
     rows: int
     se_mm: np.ndarray  # (s,) standard error of each mean (over the held-out rows)
     without_se_mm: float
+    diff_se_mm: np.ndarray  # (s,) standard error of the mean paired difference (prior - none) over the rows
 
     @property
     def best(self) -> int:
@@ -200,6 +203,13 @@ class CrossValidation:
             limit = self.mean_mm[j] + self.se_mm[j]
         ok = np.flatnonzero(self.mean_mm <= limit)
         return int(ok.max()) if ok.size else -1
+
+    def clear(self, n_se: float = 2.0) -> int:
+        """The prior of the smallest CV error when it beats no prior by more than ``n_se`` standard errors of the
+        paired difference (the same held-out rows); -1 otherwise (no prior)."""
+        j = self.best
+        gain = self.without_mm - float(self.mean_mm[j])
+        return j if gain > n_se * float(self.diff_se_mm[j]) else -1
 
 
 def cross_validate(start: CalibrationStart, strengths: tuple[float, ...] = STRENGTHS) -> CrossValidation:
@@ -246,7 +256,8 @@ def cross_validate(start: CalibrationStart, strengths: tuple[float, ...] = STREN
     n_rows = int(flat[0].size)
     root = np.sqrt(n_rows)
     se = np.array([float(np.std(e, ddof=1) / root) if n_rows > 1 else np.inf for e in flat])
-    return CrossValidation(np.array(strengths), means[1:], float(means[0]), folds, n_rows, se[1:], float(se[0]))
+    dse = np.array([float(np.std(e - flat[0], ddof=1) / root) if n_rows > 1 else np.inf for e in flat[1:]])
+    return CrossValidation(np.array(strengths), means[1:], float(means[0]), folds, n_rows, se[1:], float(se[0]), dse)
 
 
 def _mm(v: float) -> float:
@@ -254,10 +265,12 @@ def _mm(v: float) -> float:
     return float(f"{v:.4g}")
 
 
-def choose_prior(start: CalibrationStart, why: str) -> tuple[Prior | None, dict[str, Any]]:
+def choose_prior(start: CalibrationStart, why: str, clear_only: bool = False) -> tuple[Prior | None, dict[str, Any]]:
     """The prior of a thin campaign (``why`` says why) with the strength the
     cross-validation picks (``prior: auto``) or the configured one (a number), and the record of what was done
-    (``fit.configurations.prior``); no prior when the CV prefers none, or has fewer than 3 folds."""
+    (``fit.configurations.prior``); no prior when the CV prefers none, or has fewer than 3 folds. ``clear_only``
+    (a campaign that is not thin but has few configurations): the prior of the smallest CV error, and only when
+    it beats none by more than two standard errors of the paired difference (:meth:`CrossValidation.clear`)."""
     cfg = start.config
     fixed = None if cfg.prior == "auto" else float(cfg.prior)
     cv = cross_validate(start, STRENGTHS if fixed is None else (fixed,))
@@ -266,7 +279,7 @@ def choose_prior(start: CalibrationStart, why: str) -> tuple[Prior | None, dict[
         record["strength"] = 0.0
         record["strength_rule"] = f"no prior: {cv.folds} configuration(s) are too few to cross-validate (3 needed)"
         return None, record
-    i = cv.one_se() if fixed is None else 0
+    i = (cv.clear() if clear_only else cv.one_se()) if fixed is None else 0
     strength = float(cv.strengths[i])
     chosen = float(cv.mean_mm[i])
     on = fixed is not None or i >= 0
@@ -276,6 +289,9 @@ def choose_prior(start: CalibrationStart, why: str) -> tuple[Prior | None, dict[
             "strength_rule": (
                 "the 'prior' setting"
                 if fixed is not None
+                else "chosen by leave-one-configuration-out cross-validation: the smallest CV error, more than two "
+                "standard errors of the paired difference below no prior's"
+                if on and clear_only
                 else "chosen by leave-one-configuration-out cross-validation: the strongest within one standard "
                 "error of the smallest CV error"
                 if on
