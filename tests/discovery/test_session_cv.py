@@ -100,3 +100,12 @@ def test_an_effect_that_hurts_in_a_new_session_is_dropped(two):
     assert "backlash:j3" not in [a.cand.key for a in acc2]
     assert [d["key"] for d in record["dropped_no_gain"]] == ["backlash:j3"]
     assert record["dropped_no_gain"][0]["hurts_in_new_session"] is True
+
+
+def test_the_report_gives_both_figures(two, tmp_path):
+    from robocal.workflows.discovery import write_report
+
+    _, _, res, s = two
+    html = write_report(res, s, tmp_path / "report.html").read_text()
+    assert "Expected in a new session" in html and "Within this session" in html
+    assert "in a new session: its contribution, mm" in html

@@ -166,6 +166,18 @@ def _named_section(rep: Report, summ: dict[str, Any]) -> None:
         )
     cv = summ.get("cross_validation") or {}
     held = [n for n in summ["named"] if n.get("held_out")]
+    sc = cv.get("session_cv")
+    if sc:
+        gc = cv.get("geometric_session_cv") or {}
+        rep.paragraph(
+            f"Expected in a new session: {sc['mean_position_mm']:.4f} mm mean (each of the campaign's "
+            f"{len(sc['sessions'])} sessions ({', '.join(sc['sessions'])}) left out in turn, the model refitted on the "
+            "others and the left-out session's tracker registered on its own rows; the geometric model "
+            f"{gc.get('mean_position_mm', float('nan')):.4f} mm). Within this session (pose-grouped "
+            f"cross-validation): {cv.get('cv_mean_position_mm', float('nan')):.4f} mm. Per session left out: "
+            + ", ".join(f"{k} {v:.4f} mm" for k, v in sc["per_session"].items())
+            + ". An effect that raises the error in a session left out is dropped (the held-out check)."
+        )
     if held and "cv_mean_position_mm" in cv:
         rep.table(
             [
@@ -175,6 +187,14 @@ def _named_section(rep: Report, summ: dict[str, Any]) -> None:
                     "held-out mean without it, mm": n["held_out"]["cv_mean_without_mm"],
                     "its contribution, mm": n["held_out"]["cv_mean_without_mm"] - cv["cv_mean_position_mm"],
                     "held-out gain as fitted, %": 100 * n["held_out"].get("held_out_gain", float("nan")),
+                    **(
+                        {
+                            "in a new session: its contribution, mm": n["held_out"]["session_mean_without_mm"]
+                            - sc["mean_position_mm"]
+                        }
+                        if sc and "session_mean_without_mm" in n["held_out"]
+                        else {}
+                    ),
                 }
                 for n in held
             ],
