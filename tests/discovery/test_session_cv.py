@@ -109,3 +109,27 @@ def test_the_report_gives_both_figures(two, tmp_path):
     html = write_report(res, s, tmp_path / "report.html").read_text()
     assert "Expected in a new session" in html and "Within this session" in html
     assert "in a new session: its contribution, mm" in html
+
+
+def test_a_window_opened_by_the_sessions_leaves_the_fitted_rows_as_they_were():
+    from robocal.compensation.signals import coverage_weight, fourier_signal
+    from robocal.discovery.physics import visited_intervals
+    from robocal.discovery.session_cv import opened_candidate
+
+    q = np.zeros((30, 6))
+    q[:, 1] = np.deg2rad(np.r_[np.linspace(10.0, 40.0, 20), np.linspace(100.0, 140.0, 10)])
+    rows = np.arange(20)  # the calibration visited 10..40 deg
+    h = np.arange(6, 13)
+    visited = visited_intervals(q[rows, 1], 2.0)
+    S = fourier_signal(q[:, 1], h, coverage_weight(q[:, 1], visited, 2.0))
+    centre = S[rows].mean(axis=0)
+    cand = Candidate(
+        "transmission:j2", "transmission", 2, None, cause="", signal="", shape="joint", S=S - centre,
+        coef_names=(), coef_units=(), extra={"visited_deg": visited, "taper_deg": 2.0, "harmonics": h.tolist(),
+                                             "centre": centre.tolist()},
+    )  # fmt: skip
+    assert np.all(cand.S[20:] == -centre)  # outside its window the effect is off (its centre only)
+    op = opened_candidate(cand, q)
+    np.testing.assert_allclose(op.S[rows], cand.S[rows], rtol=0, atol=1e-12)  # the fit is unchanged
+    np.testing.assert_allclose(op.S[20:], fourier_signal(q[20:, 1], h) - centre, atol=1e-12)  # applied beyond
+    assert op.extra["visited_deg"] == [[0.0, 360.0]]

@@ -109,7 +109,8 @@ def effect_records(fit: Fit) -> tuple[list[dict[str, Any]], list[dict[str, Any]]
         if kind == "angle" and c.extra.get("held_outside_deg") is not None:
             rec_terms = {"held_outside_deg": list(c.extra["held_outside_deg"])}
         elif kind == "transmission":
-            rec_terms = {k: c.extra[k] for k in ("harmonics", "visited_deg", "taper_deg", "centre")}
+            rec_terms = {k: c.extra[k] for k in ("harmonics", "visited_deg", "taper_deg", "centre", "window")
+                         if k in c.extra}  # fmt: skip
         elif kind == "weight":
             rec_terms = {k: c.extra[k] for k in ("basis", "scale", "prior_deg")}
         elif kind == "layer":

@@ -335,6 +335,14 @@ def finish(
             cv = FoldCV(fit, groups, cfg.cv_folds, cfg.seed)
             fit, accepted, _, _ = _step(layer_pool, fit, accepted, cv, rows, data, cfg, steps, record, refit, groups,
                                         what="residual layer")  # fmt: skip
+    if sessions is not None:
+        from robocal.discovery.session_cv import open_windows, opened_candidate
+
+        opened, record["windows"] = open_windows(fit, sessions, cfg.min_held_out_gain)
+        if opened:
+            accepted = [Accepted(opened_candidate(a.cand, campaign.q), a.params) if a.cand.key in opened else a
+                        for a in accepted]  # fmt: skip
+            fit = refit(accepted, fit)
     if cfg.cv_folds >= 2:
         fit, accepted, con = held_out_check(fit, accepted, steps, groups, refit, cfg, record, final=True,
                                             sessions=sessions)  # fmt: skip

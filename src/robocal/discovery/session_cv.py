@@ -63,10 +63,13 @@ class Sessions:
         return Sessions(index, tuple(station_names[s] for s in big), tuple(big), np.asarray(q, dtype=float), gap_deg)
 
     # ------------------------------------------------------------------------------------------------ errors
-    def _coverage(self, cand: Any, held: np.ndarray) -> np.ndarray | None:
+    def _coverage(self, cand: Any, held: np.ndarray, opened: frozenset[str] = frozenset()) -> np.ndarray | None:
         """Per held-out row, the share of a windowed effect the service would apply with the model fitted on the
-        other sessions (1 where they visited, 0 far outside); None for an effect without a window."""
+        other sessions (1 where they visited, 0 far outside); None for an effect without a window or one in
+        ``opened`` (applied beyond the angles visited)."""
         ex = cand.extra
+        if cand.key in opened:
+            return None
         if "visited_deg" in ex and cand.joint is not None:
             j = int(cand.joint) - 1
             visited = visited_intervals(self.q[~held, j], float(ex.get("gap_deg", self.gap_deg)))
@@ -85,9 +88,9 @@ class Sessions:
             return np.where(g_all > 0, np.minimum(g_own / np.maximum(g_all, 1e-300), 1.0), 0.0)
         return None
 
-    def errors(self, fit: Fit) -> tuple[np.ndarray, np.ndarray]:
+    def errors(self, fit: Fit, opened: frozenset[str] = frozenset()) -> tuple[np.ndarray, np.ndarray]:
         """Whitened held-out residuals ``(M,)`` of every held-out session's rows (0 on rows of no session) and
-        the mask ``(M,)`` of the residuals held out."""
+        the mask ``(M,)`` of the residuals held out; the effects in ``opened`` applied without their window."""
         A, r, d = fit.J_w, fit.r_w, fit.d
         free = fit.free
         prec = fit.model.prior_precision()[free]
@@ -108,7 +111,7 @@ class Sessions:
             for a, sl in zip(model.accepted, model.slices, strict=True):
                 if a.cand.shape != "joint":
                     continue
-                w = self._coverage(a.cand, held)
+                w = self._coverage(a.cand, held, opened)
                 if w is None:
                     continue
                 cols = [col[p] for p in range(sl.start, sl.stop) if p in col]
@@ -133,9 +136,9 @@ class Sessions:
         e = (err_w / fit.weights).reshape(-1, fit.d)[:, :3]
         return np.asarray(np.linalg.norm(e[mask.reshape(-1, fit.d)[:, 0]], axis=1))
 
-    def summary(self, fit: Fit) -> dict[str, Any]:
+    def summary(self, fit: Fit, opened: frozenset[str] = frozenset()) -> dict[str, Any]:
         """``{"sessions", "mean_position_mm", "rms_position_mm", "per_session": {name: mean mm}, "sse"}``."""
-        err, mask = self.errors(fit)
+        err, mask = self.errors(fit, opened)
         e = self.position_mm(fit, err, mask)
         held = self.index[self.index >= 0]
         return {
@@ -147,4 +150,42 @@ class Sessions:
         }
 
 
-__all__ = ["MIN_SESSION_ROWS", "Sessions"]
+def open_windows(fit: Fit, sessions: Sessions, thr: float) -> tuple[list[str], dict[str, Any]]:
+    """Whether each transmission error holds beyond the joint angles the calibration visited, decided by the
+    sessions (issue 33 item 2: by evidence, not by a fixed rule): the leave-one-session-out error with the effect
+    applied everywhere (its Fourier series continued, fitted on the other sessions) against the same with its
+    window. Returns the effects whose window the evidence opens (the error falls by more than the share ``thr``)
+    and the record ``{key: {"windowed_mm", "applied_everywhere_mm", "opened"}}``."""
+    base = sessions.summary(fit)
+    out: dict[str, Any] = {}
+    opened = []
+    for a in fit.model.accepted:
+        if a.cand.shape != "joint" or "visited_deg" not in a.cand.extra:
+            continue
+        key = a.cand.key
+        o = sessions.summary(fit, frozenset({key}))
+        gain = float(np.sqrt(base["sse"] / max(o["sse"], 1e-300)) - 1)
+        out[key] = {
+            "windowed_mm": base["mean_position_mm"],
+            "applied_everywhere_mm": o["mean_position_mm"],
+            "opened": bool(gain > thr),
+        }
+        if gain > thr:
+            opened.append(key)
+    return opened, out
+
+
+def opened_candidate(cand: Any, q: np.ndarray) -> Any:
+    """A transmission candidate with its window open: the Fourier series of the joint angle on every row ``q
+    (m_all, n)`` rad less the same centre (on the calibration's rows, all inside their window, it is unchanged)."""
+    from dataclasses import replace
+
+    from robocal.compensation.signals import fourier_signal
+
+    assert cand.joint is not None
+    S = fourier_signal(q[:, cand.joint - 1], np.asarray(cand.extra["harmonics"], dtype=int))
+    S = S - np.asarray(cand.extra.get("centre", 0.0), dtype=float)
+    return replace(cand, S=S, extra={**cand.extra, "visited_deg": [[0.0, 360.0]], "window": "opened by the sessions"})
+
+
+__all__ = ["MIN_SESSION_ROWS", "Sessions", "open_windows", "opened_candidate"]
