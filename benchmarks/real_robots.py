@@ -4,6 +4,8 @@
     python benchmarks/real_robots.py --data ../shared/data/ur10-ipa
     python benchmarks/real_robots.py --hold-out-range      # also: hold out the top 25 % of joint 2's range
     python benchmarks/real_robots.py --session ../shared/data/ur10-ipa ../shared/data/ur10-ipa-D [-S key=value]
+    python benchmarks/real_robots.py --session ../shared/data/ur10-ipa,../shared/data/ur10-ipa-C \
+        ../shared/data/ur10-ipa-D
 
 For each dataset (a folder with poses.csv and robot.yaml, its own description, no link masses unless it has
 them): the held-out validation rows' mean / RMS / max position error of the nominal model (best rigid fit: the
@@ -20,6 +22,8 @@ the whole session calibrates), then judge the geometric and the discovered model
 the same robot (another day, tracker placement, region): VAL's tracker registered on VAL's own calibration rows
 (rigid fit, the model frozen), errors on VAL's validation rows; then each named effect left out in turn, which
 says which effects helped there and which hurt. ``-S key=value`` sets a discovery setting (repeatable).
+CAL may be several folders joined by commas: one campaign of several sessions (each folder a tracker station),
+whose discovery judges its effects by leave-one-session-out error too (robocal.discovery.session_cv).
 """
 
 from __future__ import annotations
@@ -119,23 +123,29 @@ def session(cal_path: Path, val_paths: list[Path], settings: dict, keep: Path | 
     from robocal.identification.calibrate import load_calibration
     from robocal.io import to_json, write_text
 
-    robot = load_robot(cal_path / "robot.yaml")
+    parts = [Path(p) for p in str(cal_path).split(",")]
+    robot = load_robot(parts[0] / "robot.yaml")
     saved = keep / "session.json" if keep else None
     if saved is not None and saved.exists():  # the discovery of an earlier run with the same --keep folder
         kept = json.loads(saved.read_text())
-        print(f"{cal_path.name}: the discovery kept in {saved} (settings {kept['settings']})")
+        print(f"{"+".join(p.name for p in parts)}: the discovery kept in {saved} (settings {kept['settings']})")
     else:
-        camp = read_campaign(cal_path, robot)
+        camp = _sessions(parts, robot) if len(parts) > 1 else read_campaign(cal_path, robot)
         camp = _resplit(camp, np.full(camp.n_rows, "calibration", dtype=object))
         t0 = time.perf_counter()
         res = discover(camp, robot, DiscoveryConfig(**settings) if settings else None)
         summ = summary(res)
         geo_dict = res.extra["geometric_calibration"].to_dict()
+        cvr = summ.get("cross_validation", {})
         kept = {
             "settings": settings,
             "named": [n["key"] for n in summ["named"]],
             "rms_after_mm": summ["rms_after_mm"],
-            "cv_mean_position_mm": summ.get("cross_validation", {}).get("cv_mean_position_mm"),
+            "cv_mean_position_mm": cvr.get("cv_mean_position_mm"),
+            "session_cv": cvr.get("session_cv"),
+            "geometric_session_cv": cvr.get("geometric_session_cv"),
+            "dropped": cvr.get("dropped_no_gain"),
+            "windows": cvr.get("windows"),
             "calibration": extended_calibration(res.final, robot, {}),
             "geometric": geo_dict,
             "n_rows": camp.n_rows,
@@ -146,14 +156,43 @@ def session(cal_path: Path, val_paths: list[Path], settings: dict, keep: Path | 
             write_text(saved, to_json(kept))
     cal = load_calibration(kept["calibration"], robot)
     geo = load_calibration(kept["geometric"], robot)
-    print(f"{cal_path.name} (all {kept['n_rows']} rows) -> discovery {kept['seconds']:.0f} s, "
+    print(f"{"+".join(p.name for p in parts)} (all {kept['n_rows']} rows) -> discovery {kept['seconds']:.0f} s, "
           f"fit RMS {kept['rms_after_mm']:.4f} mm, named {kept['named']}")  # fmt: skip
     if kept["cv_mean_position_mm"] is not None:
         print(f"  cross-validated within the session: mean {kept['cv_mean_position_mm']:.4f} mm")
+    if kept.get("session_cv"):
+        sc, gc = kept["session_cv"], kept["geometric_session_cv"] or {}
+        print(f"  expected in a new session (leave-one-session-out over {sc['sessions']}): mean "
+              f"{sc['mean_position_mm']:.4f} mm (geometric {gc.get('mean_position_mm', float('nan')):.4f}); "
+              f"per session {sc['per_session']}")  # fmt: skip
+        for d in kept.get("dropped") or []:
+            if d.get("hurts_in_new_session"):
+                print(f"  dropped {d['key']}: it raised the error in a session left out ({d['session_gain']:+.2%})")
+        for k, w in (kept.get("windows") or {}).items():
+            print(f"  {k}: windowed {w['windowed_mm']:.4f} mm, applied everywhere {w['applied_everywhere_mm']:.4f} mm"
+                  f" in a session left out -> {'window opened' if w['opened'] else 'window kept'}")  # fmt: skip
     for vp in val_paths:
         vcamp = read_campaign(vp, load_robot(vp / "robot.yaml"))
         for tool in (False, True):
             _session_lines(vp.name, session_validation(cal, vcamp, geo, tool=tool))
+
+
+def _sessions(parts: list[Path], robot):  # type: ignore[no-untyped-def]
+    """Several series of one robot as one campaign of several sessions: each folder's rows a tracker station of its
+    own (the folder's name), the columns all of them have."""
+    import tempfile
+
+    import pandas as pd
+
+    frames = []
+    for p in parts:
+        d = pd.read_csv(p / "poses.csv")
+        d["station"] = p.name
+        frames.append(d)
+    cols = [c for c in frames[0].columns if all(c in f.columns for f in frames)]
+    with tempfile.TemporaryDirectory() as tmp:
+        pd.concat([f[cols] for f in frames]).to_csv(Path(tmp) / "poses.csv", index=False)
+        return read_campaign(Path(tmp), robot)
 
 
 def _session_lines(name: str, v: dict) -> None:
