@@ -128,7 +128,7 @@ def session(cal_path: Path, val_paths: list[Path], settings: dict, keep: Path | 
     saved = keep / "session.json" if keep else None
     if saved is not None and saved.exists():  # the discovery of an earlier run with the same --keep folder
         kept = json.loads(saved.read_text())
-        print(f"{"+".join(p.name for p in parts)}: the discovery kept in {saved} (settings {kept['settings']})")
+        print(f"{'+'.join(p.name for p in parts)}: the discovery kept in {saved} (settings {kept['settings']})")
     else:
         camp = _sessions(parts, robot) if len(parts) > 1 else read_campaign(cal_path, robot)
         camp = _resplit(camp, np.full(camp.n_rows, "calibration", dtype=object))
@@ -156,7 +156,7 @@ def session(cal_path: Path, val_paths: list[Path], settings: dict, keep: Path | 
             write_text(saved, to_json(kept))
     cal = load_calibration(kept["calibration"], robot)
     geo = load_calibration(kept["geometric"], robot)
-    print(f"{"+".join(p.name for p in parts)} (all {kept['n_rows']} rows) -> discovery {kept['seconds']:.0f} s, "
+    print(f"{'+'.join(p.name for p in parts)} (all {kept['n_rows']} rows) -> discovery {kept['seconds']:.0f} s, "
           f"fit RMS {kept['rms_after_mm']:.4f} mm, named {kept['named']}")  # fmt: skip
     if kept["cv_mean_position_mm"] is not None:
         print(f"  cross-validated within the session: mean {kept['cv_mean_position_mm']:.4f} mm")
