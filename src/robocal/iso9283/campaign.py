@@ -96,7 +96,7 @@ def read_iso(
     missing = [c for c in ISO_COLUMNS if c not in camp.extra]
     if missing:
         raise DataError(
-            f"missing ISO 9283 column(s) {missing} (iso_pose, cycle, cmd_x_mm, cmd_y_mm, cmd_z_mm; see the README)",
+            f"missing ISO 9283 column(s) {missing} (iso_pose, cycle, cmd_x_mm, cmd_y_mm, cmd_z_mm: docs/iso9283.md)",
             file=f,
             row=1,
             column=missing[0],
