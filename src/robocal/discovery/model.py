@@ -233,11 +233,6 @@ class Fit:
         return (self.r_w / self.weights).reshape(-1, self.d)[:, :3]
 
     @property
-    def residuals_rad(self) -> np.ndarray | None:
-        """Orientation residuals ``(m, 3)`` rad (rotation vectors), or None without orientations."""
-        return (self.r_w / self.weights).reshape(-1, self.d)[:, 3:] if self.d == 6 else None
-
-    @property
     def rms_mm(self) -> float:
         return float(np.sqrt(np.mean(np.sum(self.residuals_mm**2, axis=1))))
 
