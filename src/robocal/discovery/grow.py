@@ -33,6 +33,7 @@ from robocal.discovery.config import DiscoveryConfig
 from robocal.discovery.model import Accepted, Fit
 from robocal.discovery.scoring import Score, Step, regressor
 from robocal.identification.model import FitData
+from robocal.metrics import ErrorStats
 from robocal.robot import RobotDescription
 
 _DEG = float(np.rad2deg(1.0))
@@ -531,10 +532,10 @@ def contributions(fit: Fit, accepted: list[Accepted], groups: np.ndarray, cfg: D
     """The cross-validated position error (mm) of the final model, and each joint-level effect's own
     contribution: the held-out error with that effect's coefficients removed from the model (linearised)."""
     cv = FoldCV(fit, groups, max(cfg.cv_folds, 2), cfg.seed)
-    e = cv_position_mm(fit, cv.base_err)
+    e = ErrorStats.of(cv_position_mm(fit, cv.base_err))
     out: dict[str, Any] = {
-        "cv_mean_position_mm": float(np.mean(e)),
-        "cv_rms_position_mm": float(np.sqrt(np.mean(e**2))),
+        "cv_mean_position_mm": e.mean_mm,
+        "cv_rms_position_mm": e.rms_mm,
         "effects": {},
     }
     model = fit.model
@@ -546,10 +547,10 @@ def contributions(fit: Fit, accepted: list[Accepted], groups: np.ndarray, cfg: D
             continue
         sub = replace_fit_columns(fit, keep)
         cvs = FoldCV(sub, groups, max(cfg.cv_folds, 2), cfg.seed)
-        e_without = cv_position_mm(fit, cvs.base_err)
+        e_without = ErrorStats.of(cv_position_mm(fit, cvs.base_err))
         out["effects"][a.cand.key] = {
-            "cv_mean_without_mm": float(np.mean(e_without)),
-            "cv_rms_without_mm": float(np.sqrt(np.mean(e_without**2))),
+            "cv_mean_without_mm": e_without.mean_mm,
+            "cv_rms_without_mm": e_without.rms_mm,
             # the relative rise of the held-out RMS as fitted (whitened positions and, with a 6-DoF probe,
             # orientations) without the effect: the held-out check's gain (an effect that turns the tool shows here)
             "held_out_gain": float(np.sqrt(np.sum(cvs.base_err**2) / max(float(np.sum(cv.base_err**2)), 1e-300)) - 1),
