@@ -25,13 +25,18 @@ ALLOWED: dict[tuple[str, str], str] = {
     ("__init__.py", "__getattr__"): "the lazy public API: Python calls it",
     ("__init__.py", "__dir__"): "the lazy public API: Python calls it",
     ("cell/urdf.py", "robot_from_ref"): "named by string in robot.URDF_READER",
-    ("sim/twin.py", "TransmissionEffect"): "a twin effect, registered by name (register_effect)",
-    ("sim/twin.py", "BacklashEffect"): "a twin effect, registered by name (register_effect)",
-    ("sim/drift.py", "DriftEffect"): "a twin effect, registered by name (register_effect)",
-    ("sim/drift.py", "ScaleEffect"): "a twin effect, registered by name (register_effect)",
-    ("sim/stand.py", "CompliantStandEffect"): "a twin effect, registered by name (register_effect)",
-    ("sim/stand.py", "LoggedChannelsEffect"): "a twin effect, registered by name (register_effect)",
-    ("fleet/twin.py", "FleetState"): "a twin effect, registered by name (register_effect)",
+    **{
+        effect: "a twin effect, registered by name (register_effect)"
+        for effect in (
+            ("sim/twin.py", "TransmissionEffect"),
+            ("sim/twin.py", "BacklashEffect"),
+            ("sim/drift.py", "DriftEffect"),
+            ("sim/drift.py", "ScaleEffect"),
+            ("sim/stand.py", "CompliantStandEffect"),
+            ("sim/stand.py", "LoggedChannelsEffect"),
+            ("fleet/twin.py", "FleetState"),
+        )
+    },
     **{
         ("fleet/twin.py", f): "a fleet twin setting (conf/fleet/default.yaml), read through the settings parser"
         for f in (

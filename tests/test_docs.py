@@ -13,6 +13,7 @@ between the pages.
 from __future__ import annotations
 
 import argparse
+import os
 import re
 import subprocess
 import sys
@@ -155,3 +156,26 @@ def test_repository_paths_exist() -> None:
                 if REPO_PATH.match(word) and not (REPO / word.rstrip("/")).exists():
                     bad.append(f"{page.name}: {word}")
     assert not bad, "paths the pages name that do not exist:\n" + "\n".join(bad)
+
+
+def test_the_site_builds_offline(tmp_path: Path) -> None:
+    """``make docs``: mkdocs --strict (every page in the nav, every link and API reference resolves) builds the
+    site, and no page loads anything from the network (fonts, scripts, styles)."""
+    pytest.importorskip("mkdocs", reason="mkdocs-material is a dev tool (pyproject.toml, extra dev)")
+    site = tmp_path / "site"
+    out = subprocess.run(
+        [sys.executable, "-m", "mkdocs", "build", "--strict", "--quiet", "--site-dir", str(site)],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+        env={**os.environ, "NO_MKDOCS_2_WARNING": "1"},
+    )
+    assert out.returncode == 0, out.stderr[-3000:]
+    pages = sorted(site.glob("*.html"))
+    assert {p.stem for p in pages} >= {"index", "reference", *(p.stem for p in PAGES[1:])}
+    remote = re.compile(r"<(?:script|link|img)\b[^>]*\b(?:src|href)=\"(?:https?:)?//", re.I)
+    loads = {p.name: remote.findall(p.read_text(encoding="utf-8")) for p in pages}
+    assert not any(loads.values()), {k: v for k, v in loads.items() if v}
+    assert "robocal.data.contract.read_campaign" in (site / "reference.html").read_text(encoding="utf-8")
