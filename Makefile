@@ -59,6 +59,10 @@ e2e: $(STAMP) ## the pipeline end to end in a copy of the repository (dvc repro,
 repro-check: $(STAMP) ## the default pipeline under two BLAS kernels in fresh copies: same bytes as dvc.lock (~8 min)
 	$(BIN)/pytest -q -m repro tests/pipeline/test_same_bytes.py
 
+docs: $(STAMP) ## build the documentation (docs/, API reference from the docstrings) into site/, offline
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --quiet
+	@echo "site: $(CURDIR)/site/index.html"
+
 params: $(STAMP) ## regenerate params.yaml from conf/ (DVC's Hydra composition)
 	$(BIN)/python -m robocal.pipeline params
 
@@ -82,4 +86,4 @@ sweep: $(STAMP) ## example sweeps: three noise settings in parallel (joblib), th
 	$(BIN)/python stages/geometric_fit.py -m optimizer=gn,lm
 	@echo "results: reports/sweeps/geometric_fit/; compare the nested runs with: make ui"
 
-.PHONY: help setup run test lint e2e lock repro-check params ui exps compare bench sweep
+.PHONY: help setup run test lint docs e2e lock repro-check params ui exps compare bench sweep

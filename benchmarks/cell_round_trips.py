@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 import robocal
-from robocal.cell.programs.common import _wrist_centre, elbow_angle, frame, rot_zyx_deg
+from robocal.cell.programs.common import elbow_angle, frame, rot_zyx_deg, wrist_centre
 from robocal.cell.programs.filter import filter_program, nominal_ik, read_program, write_filtered
 from robocal.cell.programs.make import krl_program, rapid_module
 from robocal.io import write_json
@@ -62,7 +62,7 @@ def sample_q(robot: robocal.RobotDescription, m: int, rng: np.random.Generator) 
         # a program taught away from the three singularities (where the service refuses large corrections):
         # |axis 5| >= 30 deg, the elbow >= 20 deg from stretched, the wrist centre >= 15 % of the reach off axis 1
         _, _, U, O = forward(cc, q[None], np.eye(4), record=True)
-        wc = _wrist_centre(U, O)[0]
+        wc = wrist_centre(U, O)[0]
         u1, o1 = U[0, :, 0], O[0, :, 0]
         off_axis1 = np.linalg.norm(np.cross(u1, wc - o1))
         if (

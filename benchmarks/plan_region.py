@@ -28,7 +28,7 @@ import numpy as np
 import yaml
 
 from robocal.commands import parse_overrides
-from robocal.commands.simulate import _merge
+from robocal.commands.simulate import merge_overrides
 from robocal.data.contract import read_campaign
 from robocal.identification.calibrate import CalibrationConfig, validate
 from robocal.optimizers.geometric import calibrate
@@ -76,7 +76,7 @@ def main() -> None:
     robot = load_robot("kr16_2")
     cfg0 = yaml.safe_load((ROOT / "conf" / "plan" / "default.yaml").read_text())
     cfg0.pop("measured_by_twin", None)
-    cfg0 = _merge(cfg0, parse_overrides(args.set))
+    cfg0 = merge_overrides(cfg0, parse_overrides(args.set))
     sc = load_scenario("geometric")
     lim = robot.q_limits + np.deg2rad(5.0) * np.array([1.0, -1.0])
     print(f"plan settings changed: {args.set or 'none (the defaults)'}")

@@ -1,4 +1,4 @@
-"""The README's real-robot table ("Real cells"), computed, not typed.
+"""The real-robot table of docs/results.md ("Real robots: the validation table"), computed, not typed.
 
     python benchmarks/readme_figures.py                                   # every dataset in ../shared/data/
     python benchmarks/readme_figures.py --data ../shared/data/ur10-ipa --data ../shared/data/abb-irb120
@@ -9,7 +9,7 @@ after the discovered final model (the one the service applies) -- exactly what `
 DATA/robot.yaml`` reports, with the shipped defaults (src/robocal/discovery/default.yaml) -- the pose-grouped
 cross-validated estimate on the calibration poses, and the held-out range test (joint 2's top quarter never
 calibrated, validated on: geometric -> final; one more discovery, skipped with ``--no-range``). Prints one
-markdown row per dataset, in the README's columns.
+markdown row per dataset, in the columns of that table.
 """
 
 from __future__ import annotations

@@ -16,7 +16,7 @@ from robocal.cli import main
 from robocal.errors import ConfigError
 from robocal.identification.calibrate import load_calibration
 from robocal.io import write_json
-from robocal.robot import _CONF_ROBOT_DIR, robot_from_dict
+from robocal.robot import SHIPPED_ROBOT_DIR, robot_from_dict
 
 
 @pytest.fixture(scope="module")
@@ -33,7 +33,7 @@ def abb_calibration(tmp_path_factory) -> Path:
 
 
 def _raw(name: str) -> dict:
-    return yaml.safe_load((_CONF_ROBOT_DIR / f"{name}.yaml").read_text())
+    return yaml.safe_load((SHIPPED_ROBOT_DIR / f"{name}.yaml").read_text())
 
 
 def test_calibration_json_records_its_robot(abb_calibration):

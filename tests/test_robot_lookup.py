@@ -13,12 +13,12 @@ import yaml
 import robocal
 from robocal.cli import main
 from robocal.errors import ConfigError
-from robocal.robot import _CONF_ROBOT_DIR, load_robot
+from robocal.robot import SHIPPED_ROBOT_DIR, load_robot
 
 
 def _project(tmp_path: Path, name: str, based_on: str = "abb_irb120", **changes: object) -> Path:
     """A project folder with conf/robot/<name>.yaml (a packaged robot under another name) and a subfolder."""
-    data = yaml.safe_load((_CONF_ROBOT_DIR / f"{based_on}.yaml").read_text())
+    data = yaml.safe_load((SHIPPED_ROBOT_DIR / f"{based_on}.yaml").read_text())
     data.update(name=name, **changes)
     (tmp_path / "proj" / "conf" / "robot").mkdir(parents=True)
     (tmp_path / "proj" / "conf" / "robot" / f"{name}.yaml").write_text(yaml.safe_dump(data, sort_keys=False))
@@ -42,11 +42,11 @@ def test_the_project_comes_before_the_package_and_errors_name_both(tmp_path, mon
     proj = _project(tmp_path, "kr16_2", based_on="kr16_2", T0_C=31.5)  # the project's own kr16_2
     monkeypatch.chdir(proj)
     assert load_robot("kr16_2").T0_C == 31.5
-    assert load_robot("kr16_2", conf_dir=_CONF_ROBOT_DIR).T0_C != 31.5  # an explicit folder: only that one
+    assert load_robot("kr16_2", conf_dir=SHIPPED_ROBOT_DIR).T0_C != 31.5  # an explicit folder: only that one
     with pytest.raises(ConfigError) as exc:
         load_robot("kr99")
     text = str(exc.value)
-    assert "unknown robot 'kr99'" in text and str(proj / "conf" / "robot") in text and str(_CONF_ROBOT_DIR) in text
+    assert "unknown robot 'kr99'" in text and str(proj / "conf" / "robot") in text and str(SHIPPED_ROBOT_DIR) in text
     assert "'abb_irb120'" in text and "'kr16_2'" in text
 
 

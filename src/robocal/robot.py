@@ -7,7 +7,7 @@ radians.
 A robot is found by one lookup order (:func:`find_robot`, used by :func:`load_robot` and so by every command
 and workflow that takes a robot name): a path (a ``.yaml`` / ``.yml`` name or an existing file), then
 ``conf/robot/<name>.yaml`` of the current project (the nearest of the working directory and its parents that
-has a ``conf/robot/`` folder), then the robots shipped with the package (:data:`_CONF_ROBOT_DIR`).
+has a ``conf/robot/`` folder), then the robots shipped with the package (:data:`SHIPPED_ROBOT_DIR`).
 
 YAML format (keys not listed are kept in ``extra`` and ignored)::
 
@@ -56,7 +56,7 @@ MDH = "mdh_rx_tx_rz_tz_ry"
 POE = "poe"
 
 #: The robot descriptions shipped with the package (``conf/robot/*.yaml`` are links to them, for Hydra).
-_CONF_ROBOT_DIR = Path(__file__).resolve().parent / "robots"
+SHIPPED_ROBOT_DIR = Path(__file__).resolve().parent / "robots"
 #: reader of ``*.urdf`` / ``*.urdf#BASE:TIP`` names, "module:function", resolved when a URDF is loaded (as
 #: robocal.serve.bundle.DEFAULT_LOADERS): the pipeline stages build robots from params with robot_from_dict and
 #: never read a URDF, so they do not depend on robocal.cell.urdf
@@ -315,8 +315,8 @@ def robot_dirs(conf_dir: str | Path | None = None) -> list[Path]:
         return [Path(conf_dir)]
     project = project_robot_dir()
     dirs = [] if project is None else [project]
-    if project is None or project.resolve() != _CONF_ROBOT_DIR.resolve():
-        dirs.append(_CONF_ROBOT_DIR)
+    if project is None or project.resolve() != SHIPPED_ROBOT_DIR.resolve():
+        dirs.append(SHIPPED_ROBOT_DIR)
     return dirs
 
 

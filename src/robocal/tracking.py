@@ -334,7 +334,7 @@ def _report(what: str, exc: BaseException) -> None:
         traceback.print_exc()
 
 
-def _retry(fn: Callable[[], T], attempts: int = 4, delay_s: float = 0.25) -> T:
+def retry(fn: Callable[[], T], attempts: int = 4, delay_s: float = 0.25) -> T:
     """Retry transient SQLite contention ("database is locked") from parallel writers."""
     for k in range(attempts):
         try:
@@ -402,7 +402,7 @@ class StageRun:
         if not self.enabled or (self.run_id is None and what != "start run"):
             return None
         try:
-            return _retry(fn)
+            return retry(fn)
         except Exception as exc:
             self.errors.append(f"{what}: {type(exc).__name__}: {exc}")
             _report(what, exc)
@@ -763,7 +763,7 @@ def flush(directory: str | Path | None = None, uri: str | None = None) -> int:
                 break
             for rec in todo:
                 try:
-                    run_id = _retry(functools.partial(_write_record, rec))
+                    run_id = retry(functools.partial(_write_record, rec))
                 except Exception as exc:
                     failed.add(rec.name)
                     _report(f"writing the pending run {rec} to MLflow", exc)

@@ -53,9 +53,9 @@ def test_bad_inputs_name_the_path(fleet_copy, tmp_path):
     with pytest.raises(ConfigError, match=r"missing\.yaml does not exist"):
         read_robot_folder(r)
     # a robot description as a YAML file in the robot folder is fine
-    from robocal.robot import _CONF_ROBOT_DIR
+    from robocal.robot import SHIPPED_ROBOT_DIR
 
-    shutil.copyfile(_CONF_ROBOT_DIR / "kr16_2.yaml", r / "description.yaml")
+    shutil.copyfile(SHIPPED_ROBOT_DIR / "kr16_2.yaml", r / "description.yaml")
     (r / "robot.yaml").write_text("serial: R0001\nrobot: description.yaml\n")
     assert read_robot_folder(r).robot.endswith("description.yaml")
     # a mistyped campaign folder is an error, not a silently dropped campaign

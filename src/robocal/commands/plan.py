@@ -23,7 +23,7 @@ def run(args: argparse.Namespace) -> int:
     import yaml
 
     from robocal.commands import parse_overrides
-    from robocal.commands.simulate import _merge
+    from robocal.commands.simulate import merge_overrides
     from robocal.errors import ConfigError
     from robocal.plan.output import run_plan
 
@@ -31,7 +31,7 @@ def run(args: argparse.Namespace) -> int:
     if not path.exists():
         raise ConfigError(f"plan settings file {path} does not exist")
     cfg = yaml.safe_load(path.read_text()) or {}
-    cfg = _merge(cfg, parse_overrides(args.overrides))
+    cfg = merge_overrides(cfg, parse_overrides(args.overrides))
     if args.n is not None:
         cfg["n_poses"] = args.n
     m = run_plan(args.robot, cfg, args.out, report=False if args.no_report else None)

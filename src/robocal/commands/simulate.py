@@ -22,10 +22,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("overrides", nargs="*", help="scenario overrides key=value (dotted keys nest)")
 
 
-def _merge(base: dict, over: dict) -> dict:
+def merge_overrides(base: dict, over: dict) -> dict:
+    """``over`` on top of ``base`` (a scenario and its key=value overrides), nested mappings merged key by key."""
     out = dict(base)
     for k, v in over.items():
-        out[k] = _merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+        out[k] = merge_overrides(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
     return out
 
 
@@ -38,7 +39,7 @@ def run(args: argparse.Namespace) -> int:
         from robocal.errors import ConfigError
 
         raise ConfigError("--bundle is for 'robocal simulate iso9283' (the compensated ISO test)")
-    sc = _merge(load_scenario(args.scenario), parse_overrides(args.overrides))
+    sc = merge_overrides(load_scenario(args.scenario), parse_overrides(args.overrides))
     truth = simulate(sc, args.out, seed=args.seed)
     print(
         f"wrote campaign {sc.get('name', args.scenario)!r} (robot {truth['robot']}, seed {truth['seed']}) to {args.out}"
@@ -53,7 +54,7 @@ def _iso9283(args: argparse.Namespace) -> int:
 
     ov = parse_overrides(args.overrides)
     st = IsoSettings.load({k: v for k, v in ov.items() if k in SECTIONS})
-    sc = _merge(load_scenario(st.twin.scenario), {k: v for k, v in ov.items() if k not in SECTIONS})
+    sc = merge_overrides(load_scenario(st.twin.scenario), {k: v for k, v in ov.items() if k not in SECTIONS})
     truth = simulate_iso(st, args.out, sc, seed=args.seed, bundle=args.bundle)
     iso = truth["iso9283"]
     print(

@@ -43,7 +43,7 @@ class ColumnGroup:
         return list(self.names)
 
 
-#: the poses file's columns, in the contract's order (README, "Bringing your own data")
+#: the poses file's columns, in the contract's order (README, "Your own data"; docs/own-data.md)
 POSE_COLUMNS: tuple[ColumnGroup, ...] = (
     ColumnGroup("pose_id", ("pose_id",), "text", required=True),
     ColumnGroup("timestamp", ("timestamp",), "time", required=True),

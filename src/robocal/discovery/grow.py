@@ -34,6 +34,7 @@ from robocal.discovery.model import Accepted, Fit
 from robocal.discovery.scoring import Score, Step, regressor
 from robocal.discovery.session_cv import Sessions
 from robocal.identification.model import FitData
+from robocal.metrics import ErrorStats
 from robocal.robot import RobotDescription
 
 _DEG = float(np.rad2deg(1.0))
@@ -557,10 +558,10 @@ def contributions(
     (:mod:`robocal.discovery.session_cv`): ``session_cv`` and each effect's ``session_gain``."""
     cv = FoldCV(fit, groups, max(cfg.cv_folds, 2), cfg.seed)
     own = sessions.summary(fit) if sessions is not None else None
-    e = cv_position_mm(fit, cv.base_err)
+    e = ErrorStats.of(cv_position_mm(fit, cv.base_err))
     out: dict[str, Any] = {
-        "cv_mean_position_mm": float(np.mean(e)),
-        "cv_rms_position_mm": float(np.sqrt(np.mean(e**2))),
+        "cv_mean_position_mm": e.mean_mm,
+        "cv_rms_position_mm": e.rms_mm,
         "effects": {},
     }
     if own is not None:
@@ -574,10 +575,10 @@ def contributions(
             continue
         sub = replace_fit_columns(fit, keep)
         cvs = FoldCV(sub, groups, max(cfg.cv_folds, 2), cfg.seed)
-        e_without = cv_position_mm(fit, cvs.base_err)
+        e_without = ErrorStats.of(cv_position_mm(fit, cvs.base_err))
         out["effects"][a.cand.key] = {
-            "cv_mean_without_mm": float(np.mean(e_without)),
-            "cv_rms_without_mm": float(np.sqrt(np.mean(e_without**2))),
+            "cv_mean_without_mm": e_without.mean_mm,
+            "cv_rms_without_mm": e_without.rms_mm,
             # the relative rise of the held-out RMS as fitted (whitened positions and, with a 6-DoF probe,
             # orientations) without the effect: the held-out check's gain (an effect that turns the tool shows here)
             "held_out_gain": float(np.sqrt(np.sum(cvs.base_err**2) / max(float(np.sum(cv.base_err**2)), 1e-300)) - 1),

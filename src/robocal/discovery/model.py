@@ -19,7 +19,7 @@ from robocal.discovery.candidates import Candidate, with_beta
 from robocal.identification.identifiability import analyse
 from robocal.identification.model import CalibrationModel, FitData
 from robocal.identification.solver import levenberg_marquardt
-from robocal.metrics import noise_floor
+from robocal.metrics import ErrorStats, noise_floor
 from robocal.robot import RobotDescription
 
 
@@ -233,13 +233,8 @@ class Fit:
         return (self.r_w / self.weights).reshape(-1, self.d)[:, :3]
 
     @property
-    def residuals_rad(self) -> np.ndarray | None:
-        """Orientation residuals ``(m, 3)`` rad (rotation vectors), or None without orientations."""
-        return (self.r_w / self.weights).reshape(-1, self.d)[:, 3:] if self.d == 6 else None
-
-    @property
     def rms_mm(self) -> float:
-        return float(np.sqrt(np.mean(np.sum(self.residuals_mm**2, axis=1))))
+        return ErrorStats.of(self.residuals_mm).rms_mm
 
     @property
     def noise_floor_mm(self) -> float:

@@ -13,7 +13,6 @@ chi² test loses power against a two-parameter signal).
 
 from __future__ import annotations
 
-import fnmatch
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -32,6 +31,7 @@ from robocal.discovery.session_cv import Sessions
 from robocal.discovery.systematic import misfit_candidates
 from robocal.errors import ConfigError
 from robocal.identification.calibrate import CalibrationConfig, fit_data, present_targets
+from robocal.identification.identifiability import resolve_fixed
 from robocal.identification.model import FitData
 from robocal.numerics import sorted_tied
 from robocal.optimizers.geometric import calibrate
@@ -65,16 +65,6 @@ class DiscoveryResult:
     @property
     def unexplained(self) -> bool:
         return bool(self.chi2_p_value < self.config.chi2_alpha)
-
-
-def _resolve_fixed(names: tuple[str, ...], patterns: tuple[str, ...]) -> set[str]:
-    out: set[str] = set()
-    for p in patterns:
-        hits = fnmatch.filter(names, p)
-        if not hits:
-            raise ConfigError(f"The 'discovery.fixed' setting names {p!r}, which matches no parameter of {names}")
-        out.update(hits)
-    return out
 
 
 def _basis(J_w: np.ndarray) -> np.ndarray:
@@ -340,7 +330,7 @@ def _search(
     cal = campaign.subset(rows)
     targets = geo.model.target_names
     T_ref = geo.model.T_ref
-    fixed = _resolve_fixed(geo.model.names, cfg.fixed)
+    fixed = resolve_fixed(geo.model.names, cfg.fixed, "discovery.fixed")
 
     def refit(accepted: list[Accepted], prev: Fit | None) -> Fit:
         model = ExtendedModel(robot, targets, T_ref, accepted, like=geo.model)

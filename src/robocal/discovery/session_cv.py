@@ -29,6 +29,7 @@ import numpy as np
 from robocal.compensation.signals import coverage_weight, layer_features, layer_gate
 from robocal.discovery.model import Fit
 from robocal.discovery.physics import visited_intervals
+from robocal.metrics import ErrorStats
 
 #: a session is held out only with at least this many rows (its tracker registration: six parameters)
 MIN_SESSION_ROWS = 10
@@ -141,11 +142,12 @@ class Sessions:
         err, mask = self.errors(fit, opened)
         e = self.position_mm(fit, err, mask)
         held = self.index[self.index >= 0]
+        stats = ErrorStats.of(e)
         return {
             "sessions": list(self.names),
-            "mean_position_mm": float(np.mean(e)),
-            "rms_position_mm": float(np.sqrt(np.mean(e**2))),
-            "per_session": {n: float(np.mean(e[held == i])) for i, n in enumerate(self.names)},
+            "mean_position_mm": stats.mean_mm,
+            "rms_position_mm": stats.rms_mm,
+            "per_session": {n: ErrorStats.of(e[held == i]).mean_mm for i, n in enumerate(self.names)},
             "sse": float(np.sum(err[mask] ** 2)),
         }
 

@@ -11,6 +11,7 @@ from robocal.discovery.model import Accepted, Fit, tracker_columns
 from robocal.discovery.scoring import Step
 from robocal.discovery.search import DiscoveryResult
 from robocal.kinematics.chain import fk
+from robocal.metrics import ErrorStats
 
 _DEG = float(np.rad2deg(1.0))
 #: Effects of the measurement, not of the robot: reported, used in the fit, never sent to the controller.
@@ -400,7 +401,7 @@ def summary(res: DiscoveryResult, validation: dict[str, Any] | None = None) -> d
                 "cause": c.cause,
                 "signal": c.signal,
                 "selection": None if sc is None else sc.to_dict(),
-                "rms_of_effect_mm": float(np.sqrt(np.mean(np.sum(effect_displacement(fit, acc) ** 2, axis=1)))),
+                "rms_of_effect_mm": ErrorStats.of(effect_displacement(fit, acc)).rms_mm,
                 "side": "measurement" if c.effect in MEASUREMENT_SIDE else c.extra.get("side", "robot"),
                 "held_out": (res.extra.get("cv") or {}).get("effects", {}).get(c.key),
             }
@@ -531,6 +532,6 @@ def proposal_dict(res: DiscoveryResult, acc: Accepted) -> dict[str, Any]:
         "terms": terms,
         "reading": c.cause,
         "selection": sel,
-        "rms_of_effect_mm": float(np.sqrt(np.mean(np.sum(effect_displacement(fit, acc) ** 2, axis=1)))),
+        "rms_of_effect_mm": ErrorStats.of(effect_displacement(fit, acc)).rms_mm,
         "compensated_online": applicable,
     }

@@ -112,7 +112,7 @@ def folder_sha256(path: Path) -> str:
 
 def _robot_ref(folder: Path, raw: Any) -> tuple[str, str]:
     """(reference for load_robot, sha256 of the description's bytes)."""
-    from robocal.robot import _CONF_ROBOT_DIR, find_robot
+    from robocal.robot import SHIPPED_ROBOT_DIR, find_robot
 
     if not isinstance(raw, str) or not raw.strip():
         raise ConfigError(f"{folder / ROBOT_FILE}: 'robot' must name a robot description (e.g. kr16_2 or a YAML file)")
@@ -126,7 +126,7 @@ def _robot_ref(folder: Path, raw: Any) -> tuple[str, str]:
     except ConfigError as exc:
         raise ConfigError(f"{folder / ROBOT_FILE}: {exc}") from None
     # a packaged robot stays a name; a project's own is referenced by its path (workers may run elsewhere)
-    ref = raw if p.resolve().parent == _CONF_ROBOT_DIR.resolve() else str(p.resolve())
+    ref = raw if p.resolve().parent == SHIPPED_ROBOT_DIR.resolve() else str(p.resolve())
     return ref, hashlib.sha256(p.read_bytes()).hexdigest()
 
 

@@ -81,10 +81,10 @@ class FleetTracker:
 
         Returns ``{"logged": n, "registered": [versions], "alias_version": v | None}``. MLflow errors are printed
         and collected in :attr:`errors` (tracking never costs results)."""
-        from robocal.tracking import _retry
+        from robocal.tracking import retry
 
         try:  # retried on SQLite contention ("database is locked") when several workers log at once
-            return _retry(lambda: self._track(serial, summaries, Path(out_dir)), attempts=6)
+            return retry(lambda: self._track(serial, summaries, Path(out_dir)), attempts=6)
         except Exception as exc:
             msg = f"{serial}: {type(exc).__name__}: {exc}"
             self.errors.append(msg)

@@ -85,10 +85,6 @@ class TwinSettings:
         return parse(cls, cfg, "fleet.twin")
 
 
-#: the default twin settings, as a mapping
-DEFAULTS: dict[str, Any] = asdict(TwinSettings())
-
-
 @register_effect("fleet_state")
 class FleetState:
     """Twin effect: the true kinematic errors of every row are ``cfg["eta"]`` ({parameter: mm | rad})."""

@@ -4,7 +4,6 @@ validation."""
 
 from __future__ import annotations
 
-import fnmatch
 import re
 import time
 from collections.abc import Callable, Iterator, Mapping
@@ -17,7 +16,7 @@ from scipy import special, stats
 from robocal.config import parse, setting
 from robocal.errors import ConfigError
 from robocal.identification import misfit
-from robocal.identification.identifiability import Eliminated, Identifiability, analyse
+from robocal.identification.identifiability import Eliminated, Identifiability, analyse, keep_order, resolve_fixed
 from robocal.identification.model import CalibrationModel, FitData
 from robocal.identification.solver import FitResult
 from robocal.kinematics.chain import fk
@@ -560,23 +559,6 @@ def load_calibration(data: dict[str, Any], robot: RobotDescription) -> Calibrati
     )
 
 
-def _candidate_order(model: CalibrationModel, fixed: set[str]) -> list[int]:
-    """Priority order for keeping parameters (:func:`~robocal.identification.identifiability.keep_order`)."""
-    from robocal.identification.identifiability import keep_order
-
-    return keep_order(model.kinds, model.names, fixed)
-
-
-def _resolve_fixed(names: tuple[str, ...], patterns: tuple[str, ...]) -> set[str]:
-    out: set[str] = set()
-    for p in patterns:
-        hits = fnmatch.filter(names, p)
-        if not hits:
-            raise ConfigError(f"The 'fixed' calibration setting names {p!r}, which matches no parameter of {names}")
-        out.update(hits)
-    return out
-
-
 def fit_statistics(
     r_pos: np.ndarray,
     cfg: CalibrationConfig,
@@ -791,7 +773,7 @@ def calibration_start(
     if use_rot:
         weights = np.concatenate([weights, np.full(3 * m, 1.0 / np.deg2rad(cfg.noise_deg))])
     rows = robust.row_index(m, 3, use_rot)
-    fixed = _resolve_fixed(model.names, tuple(cfg.fixed)) | set(held)
+    fixed = resolve_fixed(model.names, tuple(cfg.fixed), "calibration.fixed") | set(held)
     kept = _outlier_rows(cal, cfg.outliers) if isinstance(cfg.outliers, tuple) else np.ones(m, dtype=bool)
 
     # the nominal model's best rigid fit: frames and tools to convergence (the true "before")
@@ -805,7 +787,7 @@ def calibration_start(
         rigid = np.zeros(0, dtype=int)
         x = np.asarray(x0, dtype=float).copy()
     r0, J0 = model.residuals_and_jacobian(x, data)
-    ident = analyse(J0 * weights[:, None], model.names, _candidate_order(model, fixed), rtol=cfg.rank_tol)
+    ident = analyse(J0 * weights[:, None], model.names, keep_order(model.kinds, model.names, fixed), rtol=cfg.rank_tol)
     return CalibrationStart(
         campaign=cal,
         config=cfg,

@@ -10,10 +10,13 @@ finds equals the SVD rank unless parameters are nearly (not exactly) redundant, 
 
 from __future__ import annotations
 
+import fnmatch
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from robocal.errors import ConfigError
 
 
 @dataclass(frozen=True)
@@ -162,6 +165,19 @@ def analyse(
         singular_values=sv,
         names=names,
     )
+
+
+def resolve_fixed(names: Sequence[str], patterns: Sequence[str], setting: str) -> set[str]:
+    """The parameter names the shell-style ``patterns`` of the setting ``setting`` (e.g. ``calibration.fixed``)
+    hold at their start (``theta*``, ``a2``); a pattern that matches no name of ``names`` is a :class:`ConfigError`
+    naming the setting and the pattern. The one resolution of calibrate, plan and discovery."""
+    out: set[str] = set()
+    for p in patterns:
+        hits = fnmatch.filter(names, p)
+        if not hits:
+            raise ConfigError(f"The '{setting}' setting names {p!r}, which matches no parameter of {tuple(names)}")
+        out.update(hits)
+    return out
 
 
 def keep_order(kinds: Sequence[str], names: Sequence[str], fixed: set[str] | frozenset[str]) -> list[int]:

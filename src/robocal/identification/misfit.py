@@ -30,6 +30,7 @@ import numpy as np
 from scipy import stats
 
 from robocal.data.contract import Campaign
+from robocal.metrics import ErrorStats
 
 #: a systematic misfit holds at least this many flagged rows (fewer are a few blunders, e.g. the targets of one pose)
 MIN_ROWS = 5
@@ -254,7 +255,7 @@ def find(
                 "n_flagged": K,
                 "size_mm": round(float(np.linalg.norm(offset)), 4),
                 "offset_mm": [round(float(v), 4) for v in offset],
-                "rms_mm": round(float(np.sqrt(np.mean(np.sum(resid_mm[named] ** 2, axis=1)))), 4),
+                "rms_mm": round(ErrorStats.of(resid_mm[named]).rms_mm, 4),
                 "log10_p": round(lp_named, 2),
                 "threshold_log10_p": round(log_thr, 2),
                 "n_conditions_tested": len(scored),

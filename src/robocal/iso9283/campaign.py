@@ -82,11 +82,6 @@ def _number(camp: Campaign, col: str) -> np.ndarray:
     return out
 
 
-def iso_columns_present(camp: Campaign) -> bool:
-    """True when the campaign carries every required ISO column (an ISO test)."""
-    return all(c in camp.extra for c in ISO_COLUMNS)
-
-
 def read_iso(
     camp: Campaign, calibration: CalibrationResult, target: str | None = None, tracker_T_base: np.ndarray | None = None
 ) -> IsoCampaign:
@@ -96,7 +91,7 @@ def read_iso(
     missing = [c for c in ISO_COLUMNS if c not in camp.extra]
     if missing:
         raise DataError(
-            f"missing ISO 9283 column(s) {missing} (iso_pose, cycle, cmd_x_mm, cmd_y_mm, cmd_z_mm; see the README)",
+            f"missing ISO 9283 column(s) {missing} (iso_pose, cycle, cmd_x_mm, cmd_y_mm, cmd_z_mm: docs/iso9283.md)",
             file=f,
             row=1,
             column=missing[0],
@@ -269,4 +264,4 @@ def predicted_after(iso: IsoCampaign, cal: CalibrationResult) -> IsoTest:
     )
 
 
-__all__ = ["CMD_QUAT", "ISO_COLUMNS", "IsoCampaign", "iso_columns_present", "predicted_after", "read_iso"]
+__all__ = ["CMD_QUAT", "ISO_COLUMNS", "IsoCampaign", "predicted_after", "read_iso"]

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from robocal.report.html import Report
-from robocal.report.plots import AFTER_COLOR, BEFORE_COLOR, _styled
+from robocal.report.plots import AFTER_COLOR, BEFORE_COLOR, styled
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -97,7 +97,7 @@ def drift_rows(before: IsoResult, after: IsoResult, after_label: str) -> list[di
     return rows
 
 
-@_styled
+@styled
 def bars_figure(before: IsoResult, after: IsoResult, after_label: str) -> Figure:
     """AP_p and RP_l per pose, before and after, as grouped bars."""
     import matplotlib.pyplot as plt
@@ -119,7 +119,7 @@ def bars_figure(before: IsoResult, after: IsoResult, after_label: str) -> Figure
     return fig
 
 
-@_styled
+@styled
 def scatter_figure(before: IsoResult, after: IsoResult, after_label: str) -> Figure:
     """Each pose's cycles around its barycentre (µm), x-y and x-z of the base frame, with the RP_l circle."""
     import matplotlib.pyplot as plt

@@ -54,7 +54,7 @@ from robocal.kinematics.chain import build_chain, propagate
 from robocal.kinematics.transforms import homogeneous, matrix_from_rpy, matrix_to_quat, rotvec_to_matrix
 from robocal.robot import load_robot
 from robocal.sim.compliance import iso9283_cube_points
-from robocal.sim.twin import Rows, TwinContext, _rng_factory, load_effect_modules, load_scenario
+from robocal.sim.twin import Rows, TwinContext, load_effect_modules, load_scenario, rng_factory
 
 #: twin effects the ISO test reproduces (others would change the test's plan)
 SUPPORTED_EFFECTS = ("backlash", "thermal", "gear", "compliance")
@@ -82,7 +82,7 @@ def _run(st: IsoSettings, sc: dict[str, Any], out: Path, seed: int | None, bundl
     seed = int(sc.get("seed", 0) if seed is None else seed)
     robot = load_robot(sc.get("robot", "kr16_2"))
     chain = build_chain(robot)
-    rng = _rng_factory(seed)
+    rng = rng_factory(seed)
     n, P = robot.n_joints, chain.n_params
 
     eta, T_base, tname, tool, tool_R = _true_cell(sc, chain, rng)

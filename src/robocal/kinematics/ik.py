@@ -77,7 +77,7 @@ def forward(
 
 def rotation_error(R: np.ndarray, R_desired: np.ndarray) -> np.ndarray:
     """Rotation vectors ``(m, 3)`` of ``R R_desired^T`` (rad)."""
-    return _rotvec(R @ np.swapaxes(R_desired, -1, -2))
+    return rotvec(R @ np.swapaxes(R_desired, -1, -2))
 
 
 def _f64(a: np.ndarray) -> np.ndarray:
@@ -104,7 +104,7 @@ def quaternions(R: np.ndarray) -> np.ndarray:
     return matrix_to_quat(R)
 
 
-def _rotvec(E: np.ndarray) -> np.ndarray:
+def rotvec(E: np.ndarray) -> np.ndarray:
     """Rotation vectors of rotations ``E`` (m, 3, 3): :func:`robocal.kinematics.compiled.rotvec` when numba is
     there, else the numpy reference :func:`~robocal.kinematics.transforms.matrix_to_rotvec` (the same steps)."""
     if _compiled.AVAILABLE:
@@ -181,7 +181,7 @@ def _solve_through_joints(
         true.error_before_mm,
         true.error_before_rad,
         p - p_desired,
-        _rotvec(R @ np.swapaxes(R_desired, -1, -2)),
+        rotvec(R @ np.swapaxes(R_desired, -1, -2)),
     )
 
 
@@ -302,7 +302,7 @@ def solve(
     zeros = np.zeros((m, 3))
     if R_desired is None:
         return Solution(q, conv, it, e_p0, zeros, e_p, zeros)
-    return Solution(q, conv, it, e_p0, _rotvec(E0), e_p, _rotvec(E))
+    return Solution(q, conv, it, e_p0, rotvec(E0), e_p, rotvec(E))
 
 
 def _solve_compiled(
@@ -337,7 +337,7 @@ def _solve_compiled(
     zeros3 = np.zeros((len(qs), 3))
     if R_desired is None:
         return Solution(qf, cf, iters, e0, zeros3, e1, zeros3)
-    return Solution(qf, cf, iters, e0, _rotvec(E0f), e1, _rotvec(E1f))
+    return Solution(qf, cf, iters, e0, rotvec(E0f), e1, rotvec(E1f))
 
 
 def _newton_step(

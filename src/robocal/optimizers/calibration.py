@@ -35,6 +35,7 @@ from robocal.errors import ConfigError
 from robocal.identification.calibrate import CalibrationStart
 from robocal.identification.model import CalibrationModel, FitData
 from robocal.kinematics.chain import FIXED, Chain, step
+from robocal.metrics import ErrorStats
 from robocal.optimizers.fastfk import PopulationPositions
 from robocal.optimizers.protocol import Problem, check_real
 
@@ -226,8 +227,7 @@ class CalibrationSearch:
 
     def rms_mm(self, z: np.ndarray) -> float:
         """RMS 3-D position error (mm) of the nonlinear model at the free parameters ``z``."""
-        r = self.nonlinear_residuals(z).reshape(-1, 3)
-        return float(np.sqrt(np.mean(np.sum(r**2, axis=1))))
+        return ErrorStats.of(self.nonlinear_residuals(z).reshape(-1, 3)).rms_mm
 
 
 def search_bounds(

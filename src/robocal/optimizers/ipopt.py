@@ -33,7 +33,7 @@ from robocal.optimizers.protocol import (
     statistics_at,
 )
 
-__all__ = ["Ipopt", "SymbolicResiduals", "cache_info", "clear_cache"]
+__all__ = ["Ipopt", "SymbolicResiduals", "cache_info"]
 
 HESSIANS = ("exact", "limited-memory")
 
@@ -60,12 +60,6 @@ _STATS = {"builds": 0, "hits": 0}
 def cache_info() -> dict[str, int]:
     """Number of ``nlpsol`` builds and cache hits in this process, and the cache size."""
     return {**_STATS, "size": len(_SOLVERS)}
-
-
-def clear_cache() -> None:
-    """Forget every built solver (tests, memory)."""
-    _SOLVERS.clear()
-    _STATS.update(builds=0, hits=0)
 
 
 def _solver(symbolic: SymbolicResiduals, n: int, opts: dict[str, Any]) -> Any:

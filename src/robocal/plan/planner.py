@@ -14,7 +14,6 @@ the same robot, settings and seed give the same plan, byte for byte.
 
 from __future__ import annotations
 
-import fnmatch
 import math
 import time
 from collections.abc import Mapping
@@ -24,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from robocal.errors import ConfigError
-from robocal.identification.identifiability import analyse
+from robocal.identification.identifiability import analyse, keep_order, resolve_fixed
 from robocal.identification.model import CalibrationModel, FitData
 from robocal.kinematics.chain import build_chain
 from robocal.kinematics.transforms import matrix_to_rotvec
@@ -120,24 +119,6 @@ def jacobian_blocks(
             if cfg.orientation:
                 blk[:, 3:] = J[3 * m :].reshape(m, 3, model.n) * w_rot
             blk *= visible[s : s + m, k][:, None, None]
-    return out
-
-
-def _candidate_order(model: CalibrationModel, fixed: set[str]) -> list[int]:
-    # the calibration's priority order: frames, tools, then joint-level parameters base -> flange
-    order = [i for i, k in enumerate(model.kinds) if k == "base"]
-    order += [i for i, k in enumerate(model.kinds) if k in ("tool", "tool_rot")]
-    order += [i for i, k in enumerate(model.kinds) if k == "kinematic"]
-    return [i for i in order if model.names[i] not in fixed]
-
-
-def _fixed(names: tuple[str, ...], patterns: tuple[str, ...]) -> set[str]:
-    out: set[str] = set()
-    for pat in patterns:
-        hits = fnmatch.filter(names, pat)
-        if not hits:
-            raise ConfigError(f"The 'fixed' plan setting names {pat!r}, which matches no parameter of {names}")
-        out.update(hits)
     return out
 
 
@@ -309,8 +290,8 @@ def build_problem(
     sub = np.sort(sub_rng.choice(cand.n, size=min(_IDENT_SUBSET, cand.n), replace=False))
     Js = Jb[sub].reshape(-1, model.n)
     Js = Js[np.any(Js != 0.0, axis=1)]
-    fixed = _fixed(model.names, cfg.fixed)
-    ident = analyse(Js, model.names, _candidate_order(model, fixed), rtol=cfg.rank_tol)
+    fixed = resolve_fixed(model.names, cfg.fixed, "plan.fixed")
+    ident = analyse(Js, model.names, keep_order(model.kinds, model.names, fixed), rtol=cfg.rank_tol)
     kept = np.sort(ident.kept)
     rms = np.sqrt(np.mean(Js[:, kept] ** 2, axis=0))
     scale = 1.0 / np.where(rms > 0, rms, 1.0)

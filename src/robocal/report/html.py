@@ -106,10 +106,6 @@ def _slug(text: str) -> str:
     return f"sec-{s}" if s else "sec"
 
 
-def _is_number(v: object) -> bool:
-    return isinstance(v, int | float | np.integer | np.floating) and not isinstance(v, bool | np.bool_)
-
-
 def _format_cell(v: object, float_fmt: str) -> tuple[str, str]:
     """(escaped text, css class) of one table cell."""
     if v is None:  # no value: a dash, not a blank cell that reads as missing output

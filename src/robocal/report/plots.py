@@ -30,6 +30,7 @@ from robocal.metrics import ErrorStats
 __all__ = [
     "AFTER_COLOR",
     "BEFORE_COLOR",
+    "STYLE",
     "bar_table",
     "convergence",
     "error_histogram",
@@ -37,13 +38,15 @@ __all__ = [
     "parameter_errors",
     "residuals_vs_joints",
     "save_figure",
+    "styled",
     "time_series",
 ]
 
 BEFORE_COLOR = "#c44e52"
 AFTER_COLOR = "#4c72b0"
 _XYZ_COLORS = ("#d62728", "#2ca02c", "#1f77b4")
-_STYLE: dict[Any, Any] = {
+#: the house style of every report figure (matplotlib rc parameters; :func:`styled` applies it)
+STYLE: dict[Any, Any] = {
     "font.size": 10.0,  # figures are shown at ~700-1000 px wide in the reports: 9 pt and below read poorly
     "axes.titlesize": 11.0,
     "axes.labelsize": 10.0,
@@ -65,12 +68,12 @@ P = ParamSpec("P")
 R = TypeVar("R")
 
 
-def _styled(func: Callable[P, R]) -> Callable[P, R]:
+def styled(func: Callable[P, R]) -> Callable[P, R]:
     """Run ``func`` under the house style (artists take their style when created)."""
 
     @wraps(func)
     def wrapper(*args: P.args, **kwargs: P.kwargs) -> R:
-        with plt.rc_context(_STYLE):
+        with plt.rc_context(STYLE):
             return func(*args, **kwargs)
 
     return wrapper
@@ -131,7 +134,7 @@ def _stats(e: np.ndarray) -> str:
 # ---------------------------------------------------------------------------- plots
 
 
-@_styled
+@styled
 def error_per_pose(
     before_mm: Any,
     after_mm: Any,
@@ -181,7 +184,7 @@ def error_per_pose(
     return fig
 
 
-@_styled
+@styled
 def error_histogram(before_mm: Any, after_mm: Any, bins: int = 20, xlabel: str = "3-D position error (mm)") -> Figure:
     """Histograms of the errors before and after calibration, one panel each (their scales differ).
 
@@ -212,7 +215,7 @@ def error_histogram(before_mm: Any, after_mm: Any, bins: int = 20, xlabel: str =
     return fig
 
 
-@_styled
+@styled
 def residuals_vs_joints(q_rad: Any, residual_mm: Any, joint_names: Sequence[str] | None = None) -> Figure:
     """Residuals against each joint angle, one panel per joint (look for trends: unmodelled effects).
 
@@ -281,7 +284,7 @@ def _runs(value: Any, func: str, key: str) -> list[np.ndarray]:
     return runs
 
 
-@_styled
+@styled
 def convergence(
     histories: Mapping[str, Any],
     xlabel: str = "iteration",
@@ -321,7 +324,7 @@ def convergence(
     return fig
 
 
-@_styled
+@styled
 def time_series(t_min: Any, series: Mapping[str, Any], ylabel: str, xlabel: str = "time (min)") -> Figure:
     """Several signals against time on one axis (e.g. temperatures or drift).
 
@@ -350,7 +353,7 @@ def time_series(t_min: Any, series: Mapping[str, Any], ylabel: str, xlabel: str 
     return fig
 
 
-@_styled
+@styled
 def bar_table(
     labels: Sequence[str], values: Mapping[str, Any], ylabel: str, annotate: bool = True, fmt: str = "{:.3g}"
 ) -> Figure:
@@ -393,7 +396,7 @@ def bar_table(
     return fig
 
 
-@_styled
+@styled
 def parameter_errors(
     names: Sequence[str], estimate: Any, stderr: Any, truth: Any = None, xlabel: str = "value", k: float = 1.0
 ) -> Figure:
@@ -472,7 +475,7 @@ def save_figure(fig: Figure, path: str | Path, dpi: int = 150) -> Path:
     return write_bytes(path, buf.getvalue())
 
 
-@_styled
+@styled
 def term_before_after(term: Any, before: Any, after: Any, xlabel: str, ylabel: str) -> Figure:
     """A residual against a proposed term's value, before and after the term is in the model (two panels).
 

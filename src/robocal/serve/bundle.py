@@ -44,7 +44,7 @@ from robocal.identification.acceptance import too_few_configurations
 from robocal.identification.calibrate import CalibrationResult, check_robot, load_calibration
 from robocal.io import write_json
 from robocal.kinematics.chain import Chain
-from robocal.robot import _CONF_ROBOT_DIR, RobotDescription, find_robot, is_robot_path, load_robot
+from robocal.robot import SHIPPED_ROBOT_DIR, RobotDescription, find_robot, is_robot_path, load_robot
 
 FORMAT = "robocal-bundle"
 VERSION = 1
@@ -341,7 +341,7 @@ def write_bundle(
     out.mkdir(parents=True, exist_ok=True)
     files: dict[str, str] = {}
     manifest: dict[str, Any] = {"format": FORMAT, "version": VERSION}
-    if rp is not None and (is_robot_path(robot) or rp.resolve().parent != _CONF_ROBOT_DIR.resolve()):
+    if rp is not None and (is_robot_path(robot) or rp.resolve().parent != SHIPPED_ROBOT_DIR.resolve()):
         shutil.copyfile(rp, out / "robot.yaml")
         manifest["robot"] = "robot.yaml"
         files["robot.yaml"] = "robot.yaml"

@@ -4,11 +4,11 @@ from robocal.kinematics.ik import (
     CompiledChain,
     JointOffset,
     Solution,
-    _rotvec,
     compile_chain,
     forward,
     quaternions,
     rotation_error,
+    rotvec,
     solve,
 )
 
@@ -16,10 +16,10 @@ __all__ = [
     "CompiledChain",
     "JointOffset",
     "Solution",
-    "_rotvec",
     "compile_chain",
     "forward",
     "quaternions",
     "rotation_error",
+    "rotvec",
     "solve",
 ]

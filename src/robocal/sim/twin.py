@@ -229,7 +229,9 @@ def load_scenario(name_or_path: str | Path, conf_dir: str | Path | None = None) 
     return data
 
 
-def _rng_factory(seed: int) -> Callable[[str], np.random.Generator]:
+def rng_factory(seed: int) -> Callable[[str], np.random.Generator]:
+    """One independent, seeded random stream per name: ``rng_factory(seed)("noise")`` is the same generator for
+    the same seed and name, whatever other streams were drawn (the twin's and the ISO test's randomness)."""
     root = np.random.SeedSequence(int(seed))
 
     def make(stream: str) -> np.random.Generator:
@@ -418,7 +420,7 @@ def simulate(
         cfg = ScenarioConfig.from_mapping(scenario, seed)
     robot = robot or load_robot(cfg.robot)
     chain = build_chain(robot)
-    rng = _rng_factory(cfg.seed)
+    rng = rng_factory(cfg.seed)
     g = rng("geometry")  # the true geometric errors
     eta = np.array(
         [g.normal(0, cfg.length_error_mm if k == "length" else cfg.angle_error_rad) for k in chain.param_kind]

@@ -23,6 +23,7 @@ from robocal.errors import ConfigError, DataError
 from robocal.identification.calibrate import CalibrationResult, fit_data
 from robocal.identification.identifiability import Identifiability, analyse
 from robocal.kinematics.transforms import matrix_to_rotvec, quat_to_matrix
+from robocal.metrics import ErrorStats
 
 if TYPE_CHECKING:
     from robocal.data.contract import Campaign
@@ -198,8 +199,8 @@ def identify_states(
         dof += len(Y) - k
         Vw_sum += Vw
         npos = 3 * len(ia)
-        res_rms[s] = float(np.sqrt(np.mean((r[:npos] / w[r_idx[:npos]]) ** 2) * 3))
-        drift_rms[s] = float(np.sqrt(np.mean(dp**2) * 3))
+        res_rms[s] = ErrorStats.of((r[:npos] / w[r_idx[:npos]]).reshape(-1, 3)).rms_mm
+        drift_rms[s] = ErrorStats.of(dp.reshape(-1, 3)).rms_mm
     # whitened residual variance is 2 sigma_w² (two noisy measurements per difference)
     s2 = rss / max(dof, 1) / 2.0
     V = s2 * Vw_sum / max(n_states - 1, 1)

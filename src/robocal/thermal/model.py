@@ -284,14 +284,6 @@ class ThermalModel:
             out[:, self.param_names.index(p.name)] = p.evaluate(x)
         return out
 
-    def deta_from_mapping(self, temperatures: Mapping[str, Any]) -> np.ndarray:
-        """:meth:`deta` from ``{sensor: value or (m,) values}``; every sensor of the model must be given."""
-        missing = [s for s in self.sensors if s not in temperatures]
-        if missing:
-            raise ValueError(f"temperatures for sensor(s) {missing} are missing; the model needs {list(self.sensors)}")
-        cols = [np.atleast_1d(np.asarray(temperatures[s], dtype=float)) for s in self.sensors]
-        return self.deta(np.column_stack(cols))
-
     def out_of_range(self, temperatures: Any, margin_C: float = 0.0) -> np.ndarray:
         """(m, s) bool: readings outside the fitted range (extrapolation) by more than ``margin_C``."""
         T = self._temps(temperatures)

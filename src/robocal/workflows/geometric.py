@@ -52,7 +52,7 @@ START_MIN_MM = 20.0
 def start_limit_mm(campaign: Campaign) -> float:
     """The largest "before" RMS error (mm) a calibration of ``campaign`` may start from (:data:`START_SHARE`)."""
     p = campaign.p_mm
-    size = float(np.sqrt(np.mean(np.sum((p - p.mean(axis=0)) ** 2, axis=1)))) if len(p) else 0.0
+    size = ErrorStats.of(p - p.mean(axis=0)).rms_mm if len(p) else 0.0  # RMS distance to the centroid
     return max(START_MIN_MM, START_SHARE * size)
 
 

@@ -218,7 +218,7 @@ def arm_configuration(cc: Any, q: np.ndarray) -> dict[str, np.ndarray]:
     assert U is not None and O is not None
     u1, u3 = U[:, :, 0], U[:, :, 2]
     o1, o2, o3 = O[:, :, 0], O[:, :, 1], O[:, :, 2]
-    wc = _wrist_centre(U, O)
+    wc = wrist_centre(U, O)
     # "forward" of axis 1: base x turned by q1 about axis 1
     fwd = np.einsum("mij,j->mi", rotvec_to_matrix(u1 * q[:, 0:1]), np.array([1.0, 0.0, 0.0]))
     shoulder = np.einsum("mi,mi->m", wc - o1, fwd) < 0
@@ -236,14 +236,14 @@ def elbow_angle(cc: Any, q: np.ndarray) -> np.ndarray:
     q = np.atleast_2d(q)
     _, _, U, O = forward(cc, q, np.eye(4), record=True)
     assert U is not None and O is not None
-    wc = _wrist_centre(U, O)
+    wc = wrist_centre(U, O)
     a, b, u3 = O[:, :, 2] - O[:, :, 1], wc - O[:, :, 2], U[:, :, 2]
     a = a - np.einsum("mi,mi->m", a, u3)[:, None] * u3
     b = b - np.einsum("mi,mi->m", b, u3)[:, None] * u3
     return np.arctan2(np.einsum("mi,mi->m", np.cross(a, b), u3), np.einsum("mi,mi->m", a, b))
 
 
-def _wrist_centre(U: np.ndarray, O: np.ndarray) -> np.ndarray:
+def wrist_centre(U: np.ndarray, O: np.ndarray) -> np.ndarray:
     """The point of axis 5 nearest to axis 4, (m, 3), from joint axes and origins (m, 3, n)."""
     u4, u5, o4, o5 = U[:, :, 3], U[:, :, 4], O[:, :, 3], O[:, :, 4]
     w = o5 - o4

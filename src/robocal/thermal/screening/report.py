@@ -29,7 +29,7 @@ def _style() -> Any:
     matplotlib.use("Agg")
     from robocal.report import plots
 
-    return matplotlib.rc_context(plots._STYLE)
+    return matplotlib.rc_context(plots.STYLE)
 
 
 def screening_figures(result: ScreeningResult) -> list[tuple[Figure, str]]:
