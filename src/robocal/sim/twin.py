@@ -23,7 +23,7 @@ from typing import Any, Protocol
 import numpy as np
 import yaml
 
-from robocal.data.columns import EXTRA_DECIMALS, POSE_COLUMNS, ColumnGroup, known_columns
+from robocal.data.columns import EXTRA_DECIMALS, POSE_COLUMNS, ColumnGroup, joint_columns, known_columns
 from robocal.errors import ConfigError
 from robocal.io import atomic_write, write_json, write_text
 from robocal.kinematics.chain import Chain, build_chain, propagate
@@ -441,7 +441,7 @@ def simulate(
     sigma_o = np.deg2rad(cfg.noise_deg)
     quat = matrix_to_quat(rotvec_to_matrix(noise.normal(0, sigma_o, (m, 3))) @ R) if cfg.orientation else None
     _gross_errors(cfg.gross_errors, truth, rows, p_meas, rng("gross"), list(cfg.target_names))
-    _write_campaign(Path(out_dir), cfg, rows, p_meas, quat, station_of, ctx.temperature_log, truth)
+    _write_campaign(Path(out_dir), cfg, rows, p_meas, quat, station_of, ctx.temperature_log, truth, robot)
     return truth
 
 
@@ -462,7 +462,12 @@ def _plan(cfg: ScenarioConfig, robot: RobotDescription, n_params: int, rng: np.r
         q_val = drawn[n_cal:] if q_val is None else q_val
         n_cal, n_val = len(q_cal), len(q_val)
         q_all = np.concatenate([q_cal, q_val])
-    q_all = np.deg2rad(np.round(np.rad2deg(q_all), 6))  # what the controller reports, 1e-6 deg
+    if robot.coupling is not None:  # drawn as the controller reports them (inside its limits), then kinematic
+        q_all = robot.to_kinematic(np.deg2rad(np.round(np.rad2deg(q_all), 6)))
+    elif robot.has_prismatic:  # a prismatic joint reports mm (1e-6 mm)
+        q_all = np.where(robot.prismatic, np.round(q_all, 6), np.deg2rad(np.round(np.rad2deg(q_all), 6)))
+    else:
+        q_all = np.deg2rad(np.round(np.rad2deg(q_all), 6))  # what the controller reports, 1e-6 deg
     K = len(cfg.target_names)
     pid = np.repeat(np.array([f"p{k:04d}" for k in range(n_cal + n_val)], dtype=object), K)
     m = len(pid)
@@ -549,10 +554,11 @@ def _write_campaign(
     station_of: np.ndarray | None,
     temperature_log: dict[str, np.ndarray] | None,
     truth: dict[str, Any],
+    robot: RobotDescription | None = None,
 ) -> None:
     """``poses.csv`` (+ ``temperatures.csv``), ``truth.json`` and ``scenario.yaml``, with fixed formats."""
     out.mkdir(parents=True, exist_ok=True)
-    write_text(out / "poses.csv", _poses_csv(cfg, rows, p_meas, quat, station_of))
+    write_text(out / "poses.csv", _poses_csv(cfg, rows, p_meas, quat, station_of, robot))
     if temperature_log is not None:
         log = temperature_log
         names = [k for k in log if k != "t_s"]
@@ -574,12 +580,24 @@ def _write_campaign(
 
 
 def _poses_csv(
-    cfg: ScenarioConfig, rows: Rows, p_meas: np.ndarray, quat: np.ndarray | None, station_of: np.ndarray | None
+    cfg: ScenarioConfig,
+    rows: Rows,
+    p_meas: np.ndarray,
+    quat: np.ndarray | None,
+    station_of: np.ndarray | None,
+    robot: RobotDescription | None = None,
 ) -> str:
     """The poses file, its columns in the contract's order (:data:`robocal.data.columns.POSE_COLUMNS`) in their
     fixed formats; the effects' reported columns (``rows.columns``) at their group's place, columns the
-    contract does not name last."""
+    contract does not name last. The joints as the controller reports them: a prismatic joint in mm, a coupled
+    robot's values before its coupling (:meth:`robocal.robot.RobotDescription.to_reported`)."""
     n = rows.q_cmd.shape[1]
+    q_file = np.rad2deg(rows.q_cmd)
+    prismatic = None
+    if robot is not None and (robot.has_prismatic or robot.coupling is not None):
+        q_rep = robot.to_reported(rows.q_cmd)
+        prismatic = robot.prismatic
+        q_file = np.where(prismatic, q_rep, np.rad2deg(q_rep))
     text: dict[str, list[list[str]] | None] = {
         "pose_id": [list(map(str, rows.pose_id))],
         "timestamp": [[cfg.iso(t) for t in rows.t_s]],
@@ -588,7 +606,7 @@ def _poses_csv(
         "station": None if station_of is None else [list(station_of)],
     }
     numbers: dict[str, np.ndarray | None] = {
-        "q": np.rad2deg(rows.q_cmd).T,
+        "q": q_file.T,
         "p": p_meas.T,
         "quat": None if quat is None else quat.T,
         "payload": rows.payload_kg[None],
@@ -596,7 +614,7 @@ def _poses_csv(
     header: list[str] = []
     cols: list[list[str]] = []
     for group in POSE_COLUMNS:
-        names = group.columns(n)
+        names = joint_columns(prismatic) if group.key == "q" and prismatic is not None else group.columns(n)
         if group.key in text:
             given = text[group.key]
         elif group.key in numbers:
@@ -608,7 +626,7 @@ def _poses_csv(
         if given:
             header += names
             cols += given
-    extra = [c for c in rows.columns if c not in known_columns(n)]
+    extra = [c for c in rows.columns if c not in known_columns(n, prismatic)]
     header += extra
     cols += [_fmt(rows.columns[c], EXTRA_DECIMALS) for c in extra]
     lines = [",".join(header)] + [",".join(r) for r in zip(*cols, strict=True)]
