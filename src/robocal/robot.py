@@ -17,7 +17,8 @@ YAML format (keys not listed are kept in ``extra`` and ignored)::
     joints:                             # one entry per joint, base -> flange (external axes before the arm first)
       - {name: A1, a_mm: 0, alpha_deg: 0, d_mm: 675, theta_offset_deg: 0,
          beta_deg: 0, beta_free: false, q_min_deg: -180, q_max_deg: 180}
-      - {name: E1, type: prismatic, ..., q_min_mm: 0, q_max_mm: 6000}   # a linear axis: value and limits in mm
+      - {name: E1, type: prismatic, role: track, ..., q_min_mm: 0, q_max_mm: 6000}   # a linear axis (mm); its
+                                        # role names its own errors (track:straightness_y, column:bending ...)
     coupling: {3: {2: -1}}              # optional: kinematic q3 = reported q3 - reported q2 (or a named
                                         # convention, e.g. coupling: fanuc_j2j3); see COUPLINGS
     poe:                                # required when convention is poe (MD-H keys then unused)
@@ -150,6 +151,11 @@ class RobotDescription:
     signals: tuple[SignalDeclaration, ...] = ()
     joint_types: tuple[str, ...] = ()
     coupling: np.ndarray | None = None
+    joint_roles: tuple[str, ...] = ()
+
+    def role(self, j: int) -> str:
+        """The role of joint ``j`` (0-based; e.g. ``track``, ``column``): its ``role`` key, else its name."""
+        return self.joint_roles[j] if self.joint_roles and self.joint_roles[j] else self.joint_names[j]
 
     @property
     def n_joints(self) -> int:
@@ -261,6 +267,7 @@ def robot_from_dict(data: dict[str, Any], source: str = "<dict>") -> RobotDescri
         # an all-revolute robot keeps the empty tuple: its description is the one it always was
         joint_types=tuple(types) if PRISMATIC in types else (),
         coupling=coupling,
+        joint_roles=_roles(joints, source),
     )
 
 
@@ -295,6 +302,17 @@ def _joint_table(joints: list[Any], convention: str, source: str) -> tuple[list[
             raise ConfigError(f"{where}: q_min_{unit} ({lo}) must be below q_max_{unit} ({hi})")
         lim.append((lo, hi) if jtype == PRISMATIC else (np.deg2rad(lo), np.deg2rad(hi)))
     return names, a, alpha, d, th, beta, bfree, lim, types
+
+
+def _roles(joints: list[Any], source: str) -> tuple[str, ...]:
+    """Each joint's optional ``role`` (empty tuple when no joint has one)."""
+    roles = []
+    for i, j in enumerate(joints, start=1):
+        r = j.get("role", "") if isinstance(j, dict) else ""
+        if not isinstance(r, str) or (r and not r.replace("_", "").isalnum()):
+            raise ConfigError(f"{source}: joints[{i}]: key 'role' must be a word (e.g. track, column), got {r!r}")
+        roles.append(r)
+    return tuple(roles) if any(roles) else ()
 
 
 def _coefficient(c: Any, where: str) -> float:

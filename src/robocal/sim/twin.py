@@ -55,6 +55,8 @@ class Rows:
     dp_tracker_mm: np.ndarray | None = None  # (m, 3) tracker-frame displacement of the measured points (drift)
     tracker_scale: np.ndarray | None = None  # (m,) the tracker's length-scale error of each row (scale), 1e-6 = 1 ppm
     base_rotvec: np.ndarray | None = None  # (m, 3) rad: the robot base turned about its origin, base axes (stand)
+    # joint (0-based) -> (m, 6): a linear axis's true carriage errors (robocal.kinematics.axes.COMPONENTS)
+    axis_error: dict[int, np.ndarray] | None = None
 
 
 @dataclass
@@ -82,7 +84,13 @@ class Effect(Protocol):
 EFFECTS: dict[str, Callable[[Mapping[str, Any]], Effect]] = {}
 #: Modules that register more effects (thermal warm-up, compliance under payload, tracker drift); imported
 #: on first use so that ``robocal.sim.twin`` itself stays light. A module that does not exist is skipped.
-EFFECT_MODULES = ("robocal.sim.thermal", "robocal.sim.compliance", "robocal.sim.drift", "robocal.sim.stand")
+EFFECT_MODULES = (
+    "robocal.sim.thermal",
+    "robocal.sim.compliance",
+    "robocal.sim.drift",
+    "robocal.sim.stand",
+    "robocal.sim.axes",
+)
 
 
 def load_effect_modules() -> dict[str, Callable[[Mapping[str, Any]], Effect]]:
@@ -525,6 +533,12 @@ def _true_points(
     """True target points (m, 3) and orientations (m, 3, 3) in the tracker frame, grouped by identical drift."""
     m = len(rows.pose_id)
     q_true = rows.q_cmd + rows.dq
+    if rows.axis_error:  # the carriages' errors: pseudo joints of the augmented chain (robocal.kinematics.axes)
+        from robocal.kinematics.axes import augment
+
+        joints = sorted(rows.axis_error)
+        chain = augment(chain, joints)
+        q_true = np.concatenate([q_true, *(rows.axis_error[j] for j in joints)], axis=1)
     p = np.zeros((m, 3))
     R = np.zeros((m, 3, 3))
     keys, inv = np.unique(np.round(rows.deta, 15), axis=0, return_inverse=True)
