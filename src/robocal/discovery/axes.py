@@ -4,10 +4,11 @@ A robot with a linear axis (a prismatic joint: a track, a lifting column) is off
 carriage along the travel (:mod:`robocal.kinematics.axes`): ``<role>:straightness_x``, ``<role>:straightness_y``,
 ``<role>:positioning``, ``<role>:pitch``, ``<role>:yaw``, ``<role>:roll`` (``role`` the joint's ``role`` key, e.g.
 ``track``), each a Legendre series over the travel from the lowest order the kinematic parameters do not hold
-(:data:`robocal.identification.axes.LOWEST_ORDER`) to :data:`ORDER`, and for a column (role ``column``, masses in
-the description) ``column:bending``: the carriage turning about its x and y in proportion to the moment of the
-carried weight, and that compliance growing with the extension. The candidates are offered whenever the robot has
-a linear axis (no setting: a robot without one gets none, and its discovery is unchanged).
+(:data:`robocal.identification.axes.LOWEST_ORDER`) to :data:`robocal.identification.axes.ORDER`; and for a
+column (role ``column``, masses in the description) ``column:bending``: the carriage turning about its x and y
+in proportion to the moment of the carried weight, and that compliance growing with the extension. The
+candidates are offered whenever the robot has a linear axis (no setting: a robot without one gets none, and its
+discovery is unchanged).
 
 Regressor of a coefficient ``k``: the carriage error element's column (the derivative of the point by the element,
 from the chain augmented with the six elements, :func:`robocal.kinematics.axes.augment`) times the coefficient's
@@ -22,13 +23,10 @@ from typing import Any
 import numpy as np
 
 from robocal.data.contract import Campaign
-from robocal.identification.axes import BENDING, KNM, LOWEST_ORDER
+from robocal.identification.axes import BENDING, KNM, LOWEST_ORDER, ORDER
 from robocal.identification.model import CalibrationModel, FitData, _with_base
 from robocal.kinematics.axes import COMPONENTS, UNITS, augment, carried_moment, legendre, travel_coordinate
 from robocal.robot import RobotDescription
-
-#: the highest Legendre order of the travel offered
-ORDER = 3
 
 
 def axis_candidates(

@@ -41,6 +41,8 @@ from robocal.kinematics.axes import COMPONENTS, UNITS, augment, carried_moment, 
 #: the components' lowest fitted Legendre order (lower ones are kinematic parameters: a constant offset of every
 #: component, the linear part of the straightness, which is a tilt of the axis' direction)
 LOWEST_ORDER = {"straightness_x": 2, "straightness_y": 2, "positioning": 1, "pitch": 1, "yaw": 1, "roll": 1}
+#: the highest Legendre order of the travel offered by discovery and designed for by planning
+ORDER = 3
 #: bending rotations: (component, moment axis of the carriage frame)
 BENDING = (("bending_x", "pitch", 0), ("bending_y", "yaw", 1))
 KNM = 1000.0  # N·m per kN·m

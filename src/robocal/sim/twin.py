@@ -276,7 +276,7 @@ def given_poses(value: Any, robot: RobotDescription, key: str) -> np.ndarray | N
         if not path.exists():
             raise ConfigError(f"The '{key}' scenario setting names {str(path)!r}, which does not exist")
         df = pd.read_csv(path)
-        cols = [f"q{j + 1}_deg" for j in range(n)]
+        cols = joint_columns(robot.prismatic)  # q<j>_deg, q<j>_mm for a prismatic joint
         missing = [c for c in cols if c not in df.columns]
         if missing:
             raise ConfigError(f"The '{key}' scenario setting's file {path} lacks the column(s) {missing}")
@@ -292,7 +292,7 @@ def given_poses(value: Any, robot: RobotDescription, key: str) -> np.ndarray | N
         raise ConfigError(
             f"The '{key}' scenario setting must give {n} finite joint angles (deg) per pose. Got shape {arr.shape}."
         )
-    q = np.deg2rad(arr)
+    q = np.where(robot.prismatic, arr, np.deg2rad(arr)) if robot.has_prismatic else np.deg2rad(arr)  # mm stay mm
     lim = robot.q_limits
     bad = np.flatnonzero(np.any((q < lim[:, 0] - 1e-9) | (q > lim[:, 1] + 1e-9), axis=1))
     if bad.size:
