@@ -133,6 +133,29 @@ def features(robot: Any, q: np.ndarray, payload_kg: np.ndarray, terms: list[Term
     return F
 
 
+def axis_errors(
+    robot: Any, q: np.ndarray, payload_kg: np.ndarray, terms: list[Term] | tuple[Term, ...], coef: np.ndarray
+) -> np.ndarray:
+    """The carriage errors ``(m, 6 · n_axes)`` of coefficients ``coef`` (T,): the pseudo joints' values of the
+    chain :func:`robocal.kinematics.axes.augment` makes for the robot's linear axes, in their order."""
+    n_axes = int(np.count_nonzero(robot.prismatic))
+    E = np.zeros((q.shape[0], 6 * n_axes))
+    F = features(robot, q, payload_kg, list(terms))
+    for t, term in enumerate(terms):
+        E[:, 6 * term.axis_pos + term.slot] += F[:, t] * coef[t]
+    return E
+
+
+def term_named(robot: Any, name: str) -> Term:
+    """The :class:`Term` of a name as :func:`axis_terms` writes it (``track:straightness_y_P2``,
+    ``column:bending_x_ext``); raises :class:`ConfigError` for a name no linear axis of ``robot`` has."""
+    for bend in (False, True):
+        for t in axis_terms(robot, AxisSettings(), AxisSettings().max_order + 6, bend):
+            if t.name == name:
+                return t
+    raise ConfigError(f"no axis error term {name!r} on robot {robot.name!r}")
+
+
 def _prior_sd(term: Term, s: AxisSettings) -> float:
     if term.unit == "mm":
         return s.prior_mm
