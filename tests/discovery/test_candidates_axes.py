@@ -74,3 +74,14 @@ def test_discovery_finds_the_columns_bending_and_lean(tmp_path):
     joint_level, other = effect_records(res.final)
     assert not joint_level
     assert {o["key"] for o in other} == set(keys) and "external axis" in other[0]["reason"]
+
+
+def test_robocal_discover_on_a_track_names_the_axis_errors_and_says_why_no_compensation_csv(tmp_path):
+    from robocal.workflows.discovery import run
+
+    camp, robot, _ = make_campaign(tmp_path, "track", 0, n_poses=40, n_validation_poses=10)
+    out = tmp_path / "disc"
+    summ = run(None, robot, out, {"report": False}, campaign=camp, report=False)
+    assert {n["key"] for n in summ["named"]} == {"track:pitch", "track:straightness_x", "track:straightness_y"}
+    assert (out / "calibration.json").is_file() and not (out / "compensation.csv").exists()
+    assert "external axes" in summ["not_written"]["compensation.csv"]

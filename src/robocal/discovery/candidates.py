@@ -74,6 +74,8 @@ class Candidate:
 
     @property
     def label(self) -> str:
+        if self.effect == "axis":  # a linear axis's error: its name says it (track:straightness_y)
+            return self.key
         out = self.effect
         if self.joint is not None:
             out += f" joint {self.joint}"

@@ -355,6 +355,12 @@ def write_product(res: DiscoveryResult, summ: dict[str, Any], out: Path) -> str 
     cal_dict = extended_calibration(res.final, res.robot, fit_stats)
     write_json(out / "calibration.json", cal_dict)
     cal = load_calibration(json.loads(json.dumps(cal_dict)), res.robot)
+    if res.robot.has_prismatic:
+        (out / "compensation.csv").unlink(missing_ok=True)
+        return (
+            "the robot rides external axes (prismatic joints): the compensation.csv writer (the service's compiled "
+            "chain) takes revolute joints only; robocal.compensation.axes.compensate_axes corrects its targets"
+        )
     camp = res.campaign
     sel = camp.split == "validation" if np.any(camp.split == "validation") else np.ones(camp.n_rows, dtype=bool)
     sub = camp.subset(sel & np.isin(camp.target.astype(str), cal.model.target_names))
