@@ -167,3 +167,14 @@ def test_the_calibration_alone_identifies_every_axis_kinematic_parameter_as_for_
     assert "d1" in eliminated  # the slide's zero offset is the base frame's translation along the track
     assert np.isfinite(base.stderr[[names.index(n) for n in ident]]).all()
     assert validate(base, camp).stats.n > 0
+
+
+def test_robocal_calibrate_on_a_track_reports_the_axis_errors(track, tmp_path):
+    from robocal.workflows.geometric import run
+
+    robot, camp, _, _ = track
+    summ = run(None, robot, tmp_path / "cal", campaign=camp, report=False)
+    ax = summ["axes"]
+    assert ax["order"] == 3 and ax["validation"]["mean_position_mm"] < 1.15 * FLOOR_MEAN_MM
+    assert {t["name"] for t in ax["terms"]} >= {"track:straightness_y_P2", "track:pitch_P1"}
+    assert '"axes"' in (tmp_path / "cal" / "summary.json").read_text()
