@@ -76,12 +76,24 @@ def test_discovery_finds_the_columns_bending_and_lean(tmp_path):
     assert {o["key"] for o in other} == set(keys) and "external axis" in other[0]["reason"]
 
 
-def test_robocal_discover_on_a_track_names_the_axis_errors_and_says_why_no_compensation_csv(tmp_path):
+def test_robocal_discover_on_a_track_names_the_axis_errors_and_compensates_with_the_track_kept(tmp_path):
+    import pandas as pd
+
     from robocal.workflows.discovery import run
 
     camp, robot, _ = make_campaign(tmp_path, "track", 0, n_poses=40, n_validation_poses=10)
     out = tmp_path / "disc"
     summ = run(None, robot, out, {"report": False}, campaign=camp, report=False)
     assert {n["key"] for n in summ["named"]} == {"track:pitch", "track:straightness_x", "track:straightness_y"}
-    assert (out / "calibration.json").is_file() and not (out / "compensation.csv").exists()
-    assert "external axes" in summ["not_written"]["compensation.csv"]
+    assert "compensation.csv" in summ["written"] and not summ["not_written"]
+    comp = pd.read_csv(out / "compensation.csv")
+    assert list(comp.columns[3:5]) == ["q1_mm", "q2_deg"]  # the track in mm
+    ok = comp["status"] == "ok"
+    # a random validation pose may lie near a singular arm configuration (the stretched elbow): refused there,
+    # with its reason, as the service refuses it; the others corrected
+    assert len(comp) == 10 and ok.sum() >= 8
+    assert (comp.loc[~ok, "reason"] == "not converged").all() and (comp.loc[~ok, "applied"] == 0).all()
+    val = camp.validation()
+    e1 = {f"{p}/{t}": q for p, t, q in zip(val.pose_id, val.target, val.q[:, 0], strict=True)}
+    assert np.allclose(comp["q1_mm"], [e1[i] for i in comp["target_id"]], atol=1e-6)  # the track not moved
+    assert (comp.loc[ok, "correction_max_deg"] > 0).all() and (comp.loc[ok, "pred_err_mm"] < 1e-3).all()

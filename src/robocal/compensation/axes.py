@@ -35,6 +35,9 @@ from robocal.robot import RobotDescription
 
 #: a rotation error of 1 rad weighs as much as this many mm of position error in the Newton steps
 ROT_WEIGHT_MM = 1000.0
+#: the largest Newton step of a revolute joint (rad, the service's 3 deg) and of an external axis (mm)
+MAX_STEP_RAD = float(np.deg2rad(3.0))
+MAX_STEP_MM = 50.0
 
 
 @dataclass(frozen=True)
@@ -69,7 +72,7 @@ def compensate_axes(
     axis_fit: AxisFit | None = None,
     move_external: bool = False,
     payload_kg: np.ndarray | float = 0.0,
-    max_iter: int = 20,
+    max_iter: int = 50,
     tol_mm: float = 1e-5,
 ) -> AxisCompensation:
     """Correct joint targets ``q_target`` (m, n) for the calibrated robot on its external axes (module docstring);
@@ -116,7 +119,10 @@ def compensate_axes(
             break
         for i in np.flatnonzero(~converged):
             dq = np.linalg.lstsq(J[i][:, free], -r[i], rcond=None)[0]
-            q[i, free] += dq
+            # steps capped as the service caps them (3 deg; 50 mm on an external axis): near a singular pose a
+            # full Gauss-Newton step overshoots
+            cap = np.where(robot.prismatic[free], MAX_STEP_MM, MAX_STEP_RAD)
+            q[i, free] += dq * min(1.0, float(np.min(cap / np.maximum(np.abs(dq), 1e-300))))
     r, _, _ = pose(q, False)
     return AxisCompensation(
         q_target=q_target,

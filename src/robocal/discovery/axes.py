@@ -127,3 +127,36 @@ def axis_rows(cand: Any, base: CalibrationModel, x: np.ndarray, data: FitData, r
     if d == 6 and W_q is not None:
         out[:, 3:, :] = W_q[:, :, n + slots] * S[:, None, :]
     return out
+
+
+def discovered_axis_fit(fit: Any, robot: RobotDescription, x: np.ndarray) -> Any:
+    """The accepted ``axis`` effects of a discovery fit as an :class:`robocal.identification.axes.AxisFit` (terms
+    named as the identification names them, their coefficients and standard errors, the calibration vector
+    ``x``), for :func:`robocal.compensation.axes.compensate_axes`; None when none was accepted."""
+    from robocal.identification.axes import AxisFit, term_named
+
+    terms, coef, se = [], [], []
+    for acc, sl in zip(fit.model.accepted, fit.model.slices, strict=True):
+        c = acc.cand
+        if c.shape != "axis":
+            continue
+        role = c.extra["role"]
+        for k, name in enumerate(c.coef_names):
+            full = f"{role}:{name}" if c.extra["component"] == "bending" else f"{c.key}_{name}"
+            terms.append(term_named(robot, full))
+            coef.append(float(fit.theta[sl][k]))
+            se.append(float(fit.stderr(acc.coef_names[k])))
+    if not terms:
+        return None
+    return AxisFit(
+        terms=tuple(terms),
+        coef=np.array(coef),
+        stderr=np.array(se),
+        covariance=np.diag(np.square(se)),
+        x=np.asarray(x, dtype=float),
+        order=max((t.order for t in terms if t.feature == "legendre"), default=0),
+        bending=any(t.feature == "moment" for t in terms),
+        cv=(),
+        poorly_determined=(),
+        not_identifiable=(),
+    )
