@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from robocal.cell.programs.axes import filter_krl_axes
-from robocal.cell.programs.common import ProgramError
+from robocal.cell.programs.common import ProgramError, format_number
 from robocal.cell.programs.krl import read_krl
 from robocal.data import read_campaign
 from robocal.identification.axes import axis_errors, fit_axis_errors, term_named
@@ -94,3 +94,40 @@ def test_a_cartesian_target_of_a_robot_on_a_track_is_refused_by_name(track, tmp_
     )
     with pytest.raises(ProgramError, match="target XP1: a Cartesian target of a robot on external axes"):
         filter_krl_axes(folder / "p.src", res)
+
+
+def _module(folder, q):
+    """A RAPID module moving MoveAbsJ to jointtargets ``q`` (track mm as eax_a, arm rad)."""
+    folder.mkdir()
+    lines = ["MODULE trackmod"]
+    for k, row in enumerate(q):
+        rob = ",".join(f"{v:.5f}" for v in np.rad2deg(row[1:]))
+        lines.append(f"  CONST jointtarget jp{k + 1} := [[{rob}],[{row[0]:.4f},9E+09,9E+09,9E+09,9E+09,9E+09]];")
+    lines += ["  PROC main()", *[f"    MoveAbsJ jp{k + 1}, v100, fine, tool0;" for k in range(len(q))]]
+    lines += ["  ENDPROC", "ENDMODULE", ""]
+    (folder / "trackmod.mod").write_text("\n".join(lines))
+    return folder / "trackmod.mod"
+
+
+def test_a_rapid_module_on_a_track_is_filtered_and_lands_on_the_twin(track, tmp_path):
+    from robocal.cell.programs.axes import filter_rapid_axes
+    from robocal.cell.programs.rapid import read_rapid
+
+    robot, truth, res, fit = track
+    q = sample_poses(robot, 10, np.random.default_rng(11), 0.8)
+    q = np.column_stack([np.round(q[:, 0], 4), np.deg2rad(np.round(np.rad2deg(q[:, 1:]), 5))])
+    mod = _module(tmp_path / "prog", q)
+    filter_rapid_axes(mod, res, axis_fit=fit, out_dir=tmp_path / "filtered")
+    new = read_rapid(tmp_path / "filtered" / "trackmod.mod")
+    text = (tmp_path / "filtered" / "trackmod.mod").read_text()
+    q_new = np.array([[q[k, 0], *np.deg2rad(t.q_deg)] for k, t in enumerate(new.targets)])
+    assert all(f"[{v:.4f},9E+09" in text for v in q[:, 0])  # extax as written: the track not moved
+    x = fit.x
+    T = res.model.base_transform(x) @ fk(build_chain(robot), q)
+    p_des = T[:, :3, 3] + T[:, :3, :3] @ res.model.tools(x)[0]
+    after = np.linalg.norm(_true_points(robot, truth, q_new) - p_des, axis=1)
+    before = np.linalg.norm(_true_points(robot, truth, q) - p_des, axis=1)
+    assert before.mean() > 1.0 and after.mean() < 0.03 and after.max() < 0.06, (before.mean(), after)
+    moved = filter_rapid_axes(mod, res, axis_fit=fit, move_external=True)
+    changed = [r for r in moved.rows if r["E1_after"] != r["E1_before"]]
+    assert changed and f"],[{format_number(changed[0]['E1_after'], 4)},9E+09" in moved.texts["trackmod.mod"]

@@ -1,4 +1,5 @@
-"""Filter the axis targets of a KRL program for a robot on external axes (issue 34): ``E6AXIS`` with ``E1``..
+"""Filter the axis targets of a program for a robot on external axes (issue 34): KRL ``E6AXIS`` with ``E1``..,
+RAPID ``jointtarget`` with ``extax``.
 
 A KUKA program for an arm on a track (or a column) holds its joint targets as ``E6AXIS`` aggregates: ``A1``..``A6``
 in degrees and the external axes ``E1``.. in mm (the description's prismatic joints, in chain order, are
@@ -7,9 +8,12 @@ robot and, when given, its axes' own errors along the travel); the arm's values 
 axes' only with ``move_external`` (by default a correction never moves the track: its text is kept as written).
 The program is read with :func:`robocal.cell.programs.krl.read_krl` and written with its renderer, so everything
 else passes through byte for byte; the filtered files go to another folder, the originals are never written.
+An ABB module (:func:`filter_rapid_axes`) the same way: ``jointtarget`` values ``[[robax], [extax]]``, the external
+axes ``eax_a``.. in order (mm), read with :func:`robocal.cell.programs.rapid.read_rapid`.
 
-Cartesian targets (``E6POS``) of such a robot are refused by name (their inverse kinematics with an external axis
-is not built), as are the service and :mod:`robocal.cell.programs.filter` for it (revolute chains only).
+Cartesian targets (``E6POS``, ``robtarget``) of such a robot are refused by name (their inverse kinematics with an
+external axis is not built), as are the service and :mod:`robocal.cell.programs.filter` for it (revolute chains
+only).
 """
 
 from __future__ import annotations
@@ -21,7 +25,10 @@ from typing import Any
 import numpy as np
 
 from robocal.cell.programs.common import ProgramError, apply_edits, format_number
-from robocal.cell.programs.krl import read_krl, render
+from robocal.cell.programs.krl import read_krl
+from robocal.cell.programs.krl import render as render_krl
+from robocal.cell.programs.rapid import read_rapid
+from robocal.cell.programs.rapid import render as render_rapid
 from robocal.compensation.axes import compensate_axes
 from robocal.errors import ConfigError
 from robocal.identification.calibrate import CalibrationResult
@@ -45,6 +52,67 @@ def filter_krl_axes(
 ) -> AxisFilter:
     """Correct every ``E6AXIS`` target of the KRL program ``src`` (module docstring); with ``out_dir`` the
     filtered ``.src``/``.dat`` are written there (it must not be the program's own folder)."""
+    return _filter("krl", src, result, axis_fit, move_external, out_dir)
+
+
+def filter_rapid_axes(
+    mod: str | Path,
+    result: CalibrationResult,
+    axis_fit: Any = None,
+    move_external: bool = False,
+    out_dir: str | Path | None = None,
+) -> AxisFilter:
+    """Correct every ``jointtarget`` of the RAPID module ``mod`` (module docstring); with ``out_dir`` the filtered
+    module is written there."""
+    return _filter("rapid", mod, result, axis_fit, move_external, out_dir)
+
+
+def _external(dialect: str, t: Any, n_ext: int, names: list[str]) -> list[float]:
+    """The external axes' values of an axis target (mm), or a ProgramError naming the one missing."""
+    if dialect == "krl":
+        out = []
+        for i in range(n_ext):
+            if f"e{i + 1}" not in t.data["vals"]:
+                raise ProgramError(f"target {t.name} lacks E{i + 1} ({names[i]})", t.file, t.line)
+            out.append(float(t.data["vals"][f"e{i + 1}"]))
+        return out
+    node = t.data["node"]
+    ext = node.item(1, t.file, t.data["text"], t.name).numbers(t.file, t.data["text"], f"jointtarget {t.name} extax", 6)
+    if any(abs(v) >= 9e8 for v in ext[:n_ext]):
+        raise ProgramError(f"jointtarget {t.name}: extax has no value (9E9) for {names}", t.file, t.line)
+    return ext[:n_ext]
+
+
+def _render(dialect: str, t: Any, arm_deg: np.ndarray, ext_mm: np.ndarray | None) -> str:
+    """The target's text with the arm's new values and (when given) the external axes'."""
+    if dialect == "krl":
+        vals = dict(t.data["vals"])
+        if ext_mm is not None:
+            for i, v in enumerate(ext_mm):
+                vals[f"e{i + 1}"] = format_number(float(v), 4)
+        return render_krl(replace(t, data={**t.data, "vals": vals}), {"q_deg": arm_deg})
+    out = render_rapid(t, {"q_deg": arm_deg})
+    if ext_mm is None:
+        return out
+    node, text = t.data["node"], t.data["text"]
+    en = node.items[1]
+    old = [it.leaf for it in en.items]
+    new = [format_number(float(v), 4) for v in ext_mm] + old[len(ext_mm) :]
+    rob = (node.items or [])[0]
+    shift = len(out) - (node.end - node.start)  # the robax edit changed the length before extax
+    a, b = en.start - node.start + shift, en.end - node.start + shift
+    assert out[a:b] == text[en.start : en.end]
+    return out[:a] + "[" + ",".join(new) + "]" + out[b:] if rob.end <= en.start else out
+
+
+def _filter(
+    dialect: str,
+    src: str | Path,
+    result: CalibrationResult,
+    axis_fit: Any,
+    move_external: bool,
+    out_dir: str | Path | None,
+) -> AxisFilter:
     robot = result.model.robot
     if not robot.has_prismatic:
         raise ConfigError(f"robot {robot.name!r} has no external axis: use robocal filter")
@@ -52,35 +120,26 @@ def filter_krl_axes(
     ext = [j for j in range(robot.n_joints) if robot.prismatic[j]]
     if len(arm) != 6 or len(ext) > 6:
         raise ConfigError(f"{robot.name}: an E6AXIS holds six arm joints and up to six external axes")
-    prog = read_krl(src)
+    prog = read_krl(src) if dialect == "krl" else read_rapid(src)
     q_rep = np.zeros((len(prog.targets), robot.n_joints))
     for k, t in enumerate(prog.targets):
         if t.kind != "axis":
             raise ProgramError(
-                f"target {t.name}: a Cartesian target of a robot on external axes; only E6AXIS targets are "
-                "filtered (their inverse kinematics with an external axis is not built)",
+                f"target {t.name}: a Cartesian target of a robot on external axes; only axis targets (E6AXIS, "
+                "jointtarget) are filtered (their inverse kinematics with an external axis is not built)",
                 t.file,
                 t.line,
             )
         assert t.q_deg is not None
         q_rep[k, arm] = np.deg2rad(t.q_deg)
-        for i, j in enumerate(ext):
-            key = f"e{i + 1}"
-            if key not in t.data["vals"]:
-                raise ProgramError(f"target {t.name} lacks E{i + 1} ({robot.joint_names[j]})", t.file, t.line)
-            q_rep[k, j] = float(t.data["vals"][key])
+        q_rep[k, ext] = _external(dialect, t, len(ext), [robot.joint_names[j] for j in ext])
     q_target = robot.to_kinematic(q_rep)
     comp = compensate_axes(result, q_target, axis_fit=axis_fit, move_external=move_external)
     new_rep = robot.to_reported(comp.q)
     edits: dict[Path, list[tuple[int, int, str]]] = {}
     rows = []
     for k, t in enumerate(prog.targets):
-        vals = dict(t.data["vals"])
-        if move_external:
-            for i, j in enumerate(ext):
-                vals[f"e{i + 1}"] = format_number(float(new_rep[k, j]), 4)
-        shown = replace(t, data={**t.data, "vals": vals})
-        text = render(shown, {"q_deg": np.rad2deg(new_rep[k, arm])})
+        text = _render(dialect, t, np.rad2deg(new_rep[k, arm]), new_rep[k, ext] if move_external else None)
         edits.setdefault(t.file, []).append((t.span[0], t.span[1], text))
         rows.append(
             {
