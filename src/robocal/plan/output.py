@@ -31,7 +31,8 @@ def plan_csv(result: PlanResult) -> str:
     qcols = joint_columns(robot.prismatic) if robot.has_prismatic else [f"q{j + 1}_deg" for j in range(n)]
     header = ["pose_id"] + (["target"] if multi else []) + qcols
     lines = [",".join(header)]
-    qd = np.where(robot.prismatic, result.q, np.rad2deg(result.q)) if robot.has_prismatic else np.rad2deg(result.q)
+    q = result.q if robot.coupling is None else robot.to_reported(result.q)  # the controller's values (coupling)
+    qd = np.where(robot.prismatic, q, np.rad2deg(q)) if robot.has_prismatic else np.rad2deg(q)
     for k, pid in enumerate(result.pose_ids):
         angles = [f"{v:.6f}" for v in qd[k]]
         if multi:

@@ -353,6 +353,8 @@ def build_problem(
         q = np.where(robot.prismatic, np.round(q, 6), np.deg2rad(np.round(np.rad2deg(q), 6)))
     else:
         q = np.deg2rad(np.round(np.rad2deg(q), 6))  # what plan.csv will say, 1e-6 deg
+    if robot.coupling is not None:  # drawn as the controller reports them (its limits), planned as the kinematics
+        q = robot.to_kinematic(q)
     cand = screen(robot, chain, q, cfg)
     if cand.n == 0:
         raise _nothing_left(cand, "candidate")

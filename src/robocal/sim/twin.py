@@ -470,12 +470,12 @@ def _plan(cfg: ScenarioConfig, robot: RobotDescription, n_params: int, rng: np.r
         q_val = drawn[n_cal:] if q_val is None else q_val
         n_cal, n_val = len(q_cal), len(q_val)
         q_all = np.concatenate([q_cal, q_val])
-    if robot.coupling is not None:  # drawn as the controller reports them (inside its limits), then kinematic
-        q_all = robot.to_kinematic(np.deg2rad(np.round(np.rad2deg(q_all), 6)))
-    elif robot.has_prismatic:  # a prismatic joint reports mm (1e-6 mm)
+    if robot.has_prismatic:  # a prismatic joint reports mm (1e-6 mm)
         q_all = np.where(robot.prismatic, np.round(q_all, 6), np.deg2rad(np.round(np.rad2deg(q_all), 6)))
     else:
         q_all = np.deg2rad(np.round(np.rad2deg(q_all), 6))  # what the controller reports, 1e-6 deg
+    if robot.coupling is not None:  # drawn (or given) as the controller reports them, inside its limits
+        q_all = robot.to_kinematic(q_all)
     K = len(cfg.target_names)
     pid = np.repeat(np.array([f"p{k:04d}" for k in range(n_cal + n_val)], dtype=object), K)
     m = len(pid)
