@@ -68,7 +68,7 @@ def test_discovery_finds_the_columns_bending_and_lean(tmp_path):
     assert keys == ["column:bending", "column:pitch", "column:yaw"]
     _within([n for n in s["named"] if n["effect"] == "axis"], truth)
     assert v["final"]["mean_position_mm"] < 1.15 * FLOOR_MEAN_MM < v["geometric"]["mean_position_mm"] / 3
-    # the axis errors are not compensated yet (no external axes in the service): said, not dropped
+    # the axis errors are not in the service's bundle (no external axes there): said in calibration.json, not dropped
     from robocal.discovery.effects import effect_records
 
     joint_level, other = effect_records(res.final)
