@@ -35,8 +35,10 @@ ALLOWED: dict[tuple[str, str], str] = {
             ("sim/stand.py", "CompliantStandEffect"),
             ("sim/stand.py", "LoggedChannelsEffect"),
             ("fleet/twin.py", "FleetState"),
+            ("sim/axes.py", "LinearAxisEffect"),
         )
     },
+    ("compensation/axes.py", "residual_deg"): "a field of the result for the caller: the orientation error left",
     **{
         ("fleet/twin.py", f): "a fleet twin setting (conf/fleet/default.yaml), read through the settings parser"
         for f in (

@@ -14,9 +14,13 @@ YAML format (keys not listed are kept in ``extra`` and ignored)::
     name: kr16_2
     n_joints: 6
     convention: mdh_rx_tx_rz_tz_ry      # or: poe
-    joints:                             # one entry per joint, base -> flange
+    joints:                             # one entry per joint, base -> flange (external axes before the arm first)
       - {name: A1, a_mm: 0, alpha_deg: 0, d_mm: 675, theta_offset_deg: 0,
          beta_deg: 0, beta_free: false, q_min_deg: -180, q_max_deg: 180}
+      - {name: E1, type: prismatic, role: track, ..., q_min_mm: 0, q_max_mm: 6000}   # a linear axis (mm); its
+                                        # role names its own errors (track:straightness_y, column:bending ...)
+    coupling: {3: {2: -1}}              # optional: kinematic q3 = reported q3 - reported q2 (or a named
+                                        # convention, e.g. coupling: fanuc_j2j3); see COUPLINGS
     poe:                                # required when convention is poe (MD-H keys then unused)
       twists:                           # joint axis direction w and a point p_mm on it, base frame, q = 0
         - {w: [0, 0, 1], p_mm: [0, 0, 0]}
@@ -35,7 +39,20 @@ YAML format (keys not listed are kept in ``extra`` and ignored)::
         - {mass_kg: 50, com_mm: [0, 0, 0]}   # centre of mass in that joint's frame
       payload_com_mm: [0, 0, 100]       # payload centre of mass in the flange frame
 
-MD-H link ``i`` transform: ``Rot_x(alpha_i) Trans_x(a_i) Rot_z(q_i + theta_offset_i) Trans_z(d_i) Rot_y(beta_i)``.
+MD-H link ``i`` transform: ``Rot_x(alpha_i) Trans_x(a_i) Rot_z(q_i + theta_offset_i) Trans_z(d_i) Rot_y(beta_i)``;
+for a prismatic joint (``type: prismatic``) the joint value moves along z instead:
+``Rot_x(alpha_i) Trans_x(a_i) Rot_z(theta_offset_i) Trans_z(d_i + q_i) Rot_y(beta_i)``. In POE a prismatic
+joint's twist ``w`` is the direction of its travel (``p_mm`` a point on that line at q = 0).
+
+Joint types and units: a revolute joint's value is an angle (degrees in files, radians inside), a prismatic
+joint's a length (millimetres in files and inside; its campaign column is ``q<j>_mm`` instead of ``q<j>_deg``).
+Axes before the arm (a track, a lifting column, a gantry's axes) are joints of the same chain, listed first.
+
+Coupling: some controllers report a joint relative to another (FANUC's J3 is measured from the horizon, so the
+kinematic J3 is J3 - J2). ``coupling: {k: {j: c, ...}}`` (1-based joint numbers) says the kinematic joint ``k``
+is the reported ``k`` plus ``c`` times the reported ``j``; a name of :data:`COUPLINGS` stands for its mapping.
+The limits are the controller's (on the reported values). The data door (:func:`robocal.data.contract.read_campaign`)
+converts the reported values once, ``q_kinematic = coupling @ q_reported``; inside, every joint value is kinematic.
 """
 
 from __future__ import annotations
@@ -57,6 +74,14 @@ POE = "poe"
 
 #: The robot descriptions shipped with the package (``conf/robot/*.yaml`` are links to them, for Hydra).
 SHIPPED_ROBOT_DIR = Path(__file__).resolve().parent / "robots"
+#: joint types of a description
+REVOLUTE = "revolute"
+PRISMATIC = "prismatic"
+#: named joint couplings (the makers' conventions): kinematic joint -> {reported joint: coefficient}, 1-based
+COUPLINGS: dict[str, dict[int, dict[int, float]]] = {
+    # FANUC: J3 is reported from the horizon, so the forearm's angle relative to the upper arm is J3 - J2
+    "fanuc_j2j3": {3: {2: -1.0}},
+}
 #: reader of ``*.urdf`` / ``*.urdf#BASE:TIP`` names, "module:function", resolved when a URDF is loaded (as
 #: robocal.serve.bundle.DEFAULT_LOADERS): the pipeline stages build robots from params with robot_from_dict and
 #: never read a URDF, so they do not depend on robocal.cell.urdf
@@ -124,10 +149,38 @@ class RobotDescription:
     gravity: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, -9.81]))
     source: str = ""
     signals: tuple[SignalDeclaration, ...] = ()
+    joint_types: tuple[str, ...] = ()
+    coupling: np.ndarray | None = None
+    joint_roles: tuple[str, ...] = ()
+
+    def role(self, j: int) -> str:
+        """The role of joint ``j`` (0-based; e.g. ``track``, ``column``): its ``role`` key, else its name."""
+        return self.joint_roles[j] if self.joint_roles and self.joint_roles[j] else self.joint_names[j]
 
     @property
     def n_joints(self) -> int:
         return len(self.joint_names)
+
+    @property
+    def prismatic(self) -> np.ndarray:
+        """(n,) bool: the joints whose value is a length (mm), not an angle (rad)."""
+        if not self.joint_types:
+            return np.zeros(self.n_joints, dtype=bool)
+        return np.array([t == PRISMATIC for t in self.joint_types], dtype=bool)
+
+    @property
+    def has_prismatic(self) -> bool:
+        return bool(self.prismatic.any())
+
+    def to_kinematic(self, q_reported: np.ndarray) -> np.ndarray:
+        """Reported joint values (..., n) (internal units) to the kinematic ones (the coupling; a copy without)."""
+        q = np.asarray(q_reported, dtype=float)
+        return q.copy() if self.coupling is None else q @ self.coupling.T
+
+    def to_reported(self, q_kinematic: np.ndarray) -> np.ndarray:
+        """The inverse of :meth:`to_kinematic`."""
+        q = np.asarray(q_kinematic, dtype=float)
+        return q.copy() if self.coupling is None else q @ np.linalg.inv(self.coupling).T
 
     @property
     def sensor_names(self) -> tuple[str, ...]:
@@ -179,8 +232,9 @@ def robot_from_dict(data: dict[str, Any], source: str = "<dict>") -> RobotDescri
     convention = str(data.get("convention", MDH))
     if convention not in (MDH, POE):
         raise ConfigError(f"{source}: convention must be {MDH!r} or {POE!r}, got {convention!r}")
-    names, a, alpha, d, th, beta, bfree, lim = _joint_table(joints, convention, source)
+    names, a, alpha, d, th, beta, bfree, lim, types = _joint_table(joints, convention, source)
     poe_w, poe_p, poe_f = _poe_model(data, n, source) if convention == POE else (None, None, None)
+    coupling = _coupling(data.get("coupling"), types, source)
     sensors = _sensors(data, source)
     t0 = data.get("T0_C")
     mass, com, payload_com, gravity = _dynamics(data, n, source)
@@ -206,17 +260,26 @@ def robot_from_dict(data: dict[str, Any], source: str = "<dict>") -> RobotDescri
         gravity=gravity,
         source=source,
         signals=parse_declarations(data.get("signals"), source),
+        # an all-revolute robot keeps the empty tuple: its description is the one it always was
+        joint_types=tuple(types) if PRISMATIC in types else (),
+        coupling=coupling,
+        joint_roles=_roles(joints, source),
     )
 
 
 def _joint_table(joints: list[Any], convention: str, source: str) -> tuple[list[Any], ...]:
-    """Per joint: names, a (mm), alpha, d (mm), theta offset, beta (rad), beta free, limits (rad)."""
-    names, a, alpha, d, th, beta, bfree, lim = [], [], [], [], [], [], [], []
+    """Per joint: names, a (mm), alpha, d (mm), theta offset, beta (rad), beta free, limits (rad, or mm for a
+    prismatic joint), types."""
+    names, a, alpha, d, th, beta, bfree, lim, types = [], [], [], [], [], [], [], [], []
     for i, j in enumerate(joints, start=1):
         where = f"{source}: joints[{i}]"
         if not isinstance(j, dict):
             raise ConfigError(f"{where} must be a mapping")
         names.append(str(j.get("name", f"q{i}")))
+        jtype = str(j.get("type", REVOLUTE))
+        if jtype not in (REVOLUTE, PRISMATIC):
+            raise ConfigError(f"{where}: key 'type' must be {REVOLUTE!r} or {PRISMATIC!r}, got {j.get('type')!r}")
+        types.append(jtype)
         mdh_default = 0.0 if convention == POE else None
         a.append(_num(j, "a_mm", where, mdh_default))
         alpha.append(np.deg2rad(_num(j, "alpha_deg", where, mdh_default)))
@@ -224,11 +287,77 @@ def _joint_table(joints: list[Any], convention: str, source: str) -> tuple[list[
         th.append(np.deg2rad(_num(j, "theta_offset_deg", where, 0.0)))
         beta.append(np.deg2rad(_num(j, "beta_deg", where, 0.0)))
         bfree.append(bool(j.get("beta_free", False)))
-        lo, hi = _num(j, "q_min_deg", where), _num(j, "q_max_deg", where)
+        unit, other = ("mm", "deg") if jtype == PRISMATIC else ("deg", "mm")
+        wrong = [k for k in (f"q_min_{other}", f"q_max_{other}") if k in j]
+        if wrong:
+            raise ConfigError(
+                f"{where}: key {wrong[0]!r} does not fit a {jtype} joint, whose limits are q_min_{unit} / q_max_{unit}"
+            )
+        lo, hi = _num(j, f"q_min_{unit}", where), _num(j, f"q_max_{unit}", where)
         if lo >= hi:
-            raise ConfigError(f"{where}: q_min_deg ({lo}) must be below q_max_deg ({hi})")
-        lim.append((np.deg2rad(lo), np.deg2rad(hi)))
-    return names, a, alpha, d, th, beta, bfree, lim
+            raise ConfigError(f"{where}: q_min_{unit} ({lo}) must be below q_max_{unit} ({hi})")
+        lim.append((lo, hi) if jtype == PRISMATIC else (np.deg2rad(lo), np.deg2rad(hi)))
+    return names, a, alpha, d, th, beta, bfree, lim, types
+
+
+def _roles(joints: list[Any], source: str) -> tuple[str, ...]:
+    """Each joint's optional ``role`` (empty tuple when no joint has one)."""
+    roles = []
+    for i, j in enumerate(joints, start=1):
+        r = j.get("role", "") if isinstance(j, dict) else ""
+        if not isinstance(r, str) or (r and not r.replace("_", "").isalnum()):
+            raise ConfigError(f"{source}: joints[{i}]: key 'role' must be a word (e.g. track, column), got {r!r}")
+        roles.append(r)
+    return tuple(roles) if any(roles) else ()
+
+
+def _coefficient(c: Any, where: str) -> float:
+    try:
+        v = float(c)
+    except (TypeError, ValueError):
+        raise ConfigError(f"{where} must be a number, got {c!r}") from None
+    if not np.isfinite(v):
+        raise ConfigError(f"{where} must be finite, got {c!r}")
+    return v
+
+
+def _coupling(value: Any, types: list[str], source: str) -> np.ndarray | None:
+    """The coupling matrix C (n, n), ``q_kinematic = C q_reported``, of a ``coupling`` key (None without)."""
+    if value is None:
+        return None
+    n = len(types)
+    if isinstance(value, str):
+        if value not in COUPLINGS:
+            raise ConfigError(f"{source}: key 'coupling': unknown convention {value!r}; known: {sorted(COUPLINGS)}")
+        value = COUPLINGS[value]
+    if not isinstance(value, dict):
+        raise ConfigError(f"{source}: key 'coupling' must be a convention name or a mapping {{k: {{j: c}}}}")
+    C = np.eye(n)
+
+    def joint_no(key: Any, where: str) -> int:
+        try:
+            k = int(key)
+        except (TypeError, ValueError):
+            raise ConfigError(f"{where}: {key!r} is not a joint number") from None
+        if not 1 <= k <= n or str(key).strip() != str(k):
+            raise ConfigError(f"{where}: joint {key!r} is not a joint number 1..{n}")
+        return k
+
+    for key, terms in value.items():
+        k = joint_no(key, f"{source}: key 'coupling'")
+        where = f"{source}: key 'coupling.{k}'"
+        if not isinstance(terms, dict) or not terms:
+            raise ConfigError(f"{where} must map reported joints to coefficients, e.g. {{2: -1}}")
+        for jkey, c in terms.items():
+            jj = joint_no(jkey, where)
+            if jj == k:
+                raise ConfigError(f"{where}: a joint cannot be coupled to itself (joint {k})")
+            if types[jj - 1] != types[k - 1]:
+                raise ConfigError(f"{where}: joint {k} ({types[k - 1]}) cannot take joint {jj} ({types[jj - 1]})")
+            C[k - 1, jj - 1] = _coefficient(c, f"{source}: key 'coupling.{k}.{jj}'")
+    if abs(np.linalg.det(C)) < 1e-9:
+        raise ConfigError(f"{source}: key 'coupling' is singular: the reported joints cannot be recovered from it")
+    return C
 
 
 def _poe_model(data: dict[str, Any], n: int, source: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

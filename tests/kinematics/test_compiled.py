@@ -41,11 +41,13 @@ def _case(robot, seed):
     return model, chain, eta, q, tool, T
 
 
-def _close(p, R, T):
-    """Positions to 1e-12 relative (of the ~2 m reach), rotations to 1e-12."""
+def _close(p, R, T, rot_from_points=False):
+    """Positions to 1e-12 relative (of the ~2 m reach), rotations to 1e-12 (``rot_from_points``: rotation columns
+    taken as differences of two points, whose rounding grows with the points' size, 1e-15 of it: a robot on a
+    6 m track has points ~8 m out)."""
     scale = np.abs(T[:, :3, 3]).max()
     assert np.abs(p - T[:, :3, 3]).max() <= 1e-12 * scale
-    assert np.abs(R - T[:, :3, :3]).max() <= 1e-12
+    assert np.abs(R - T[:, :3, :3]).max() <= (max(1e-12, 1e-15 * scale) if rot_from_points else 1e-12)
 
 
 @pytest.mark.parametrize("name", [*ROBOTS, "abb_poe"])
@@ -54,10 +56,14 @@ def test_every_form_of_the_chain_gives_the_same_pose(name, request):
 
     robot = _robot(name, request)
     model, chain, eta, q, tool, T = _case(robot, 7)
-    # numpy folding + the service's numpy FK (chain.step on the folded chain)
-    cc = compile_chain(chain, eta, T_REF)
-    p, R, _, _ = forward(cc, q, tool, record=True)
-    _close(p, R, T)
+    if robot.has_prismatic:  # a track or a column: the folded forms refuse it by name (issue 34, not built yet)
+        with pytest.raises(ValueError, match="joint 1 is prismatic"):
+            compile_chain(chain, eta, T_REF)
+    else:
+        # numpy folding + the service's numpy FK (chain.step on the folded chain)
+        cc = compile_chain(chain, eta, T_REF)
+        p, R, _, _ = forward(cc, q, tool, record=True)
+        _close(p, R, T)
     # the CasADi form (the same element code on CasADi expressions): tool offsets 0, e_x, e_y, e_z give p and R
     from robocal.optimizers.calibration import _casadi_point_function
 
@@ -71,8 +77,8 @@ def test_every_form_of_the_chain_gives_the_same_pose(name, request):
     for k in range(3):
         x[model.n_chain + 3 : model.n_chain + 6] = tool[:3, 3] + tool[:3, k]
         cols.append(np.array([np.asarray(point(x, qk, T0, [0.0, 1.0])).ravel() for qk in q]) - pc)
-    _close(pc, np.stack(cols, -1), T)
-    if not compiled.AVAILABLE:
+    _close(pc, np.stack(cols, -1), T, rot_from_points=True)
+    if not compiled.AVAILABLE or robot.has_prismatic:
         return
     # compiled folding = numpy folding
     B = np.empty((chain.n_joints + 1, 3, 4))
@@ -106,6 +112,10 @@ def test_population_positions_are_the_chain(name, backend, request):
     for i in range(5):
         X[i, : chain.n_params] = _case(robot, 10 + i)[2]
         X[i, model.n_chain :] = rng.normal(0, 100, 6)
+    if robot.has_prismatic:  # the kernel turns joints only: refused, the callers fall back to the model's own method
+        with pytest.raises(ValueError, match="joint 1 must drive exactly one rotation element"):
+            PopulationPositions(model, data, backend=backend)
+        return
     got = PopulationPositions(model, data, backend=backend)(X).reshape(5, -1, 3)
     for i in range(5):
         T = fk(chain, q, X[i, : chain.n_params], T_REF)

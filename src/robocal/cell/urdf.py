@@ -6,8 +6,9 @@ check). The kinematic path from a *base* link to a *tip* link becomes a POE desc
 :mod:`robocal.robot`): for each revolute (or continuous) joint on the path, its axis direction ``w`` and a point
 ``p_mm`` on it in the base frame at q = 0 (the joint frame's origin), the tip link's pose at q = 0 as the flange,
 and the joint limits of the URDF (a continuous joint gets +-360 deg). Fixed joints on the path are folded in.
-Prismatic, floating, planar and mimic joints on the path are refused (the kinematic engine has revolute joints
-only). Lengths: URDF metres become millimetres.
+A prismatic joint becomes a prismatic joint of the description (``type: prismatic``, its travel direction as the
+twist's ``w``, its limits in mm). Floating, planar and mimic joints on the path are refused. Lengths: URDF metres
+become millimetres.
 
 A robot is named ``path/to/robot.urdf`` (base = the URDF's root link, tip = the end of the only actuated path) or
 ``path/to/robot.urdf#BASE:TIP`` (either may be empty: ``robot.urdf#:tool0``); :func:`robocal.robot.load_robot`
@@ -44,8 +45,10 @@ from robocal.kinematics.chain import FIXED, RX, RY, RZ, TZ, Chain
 from robocal.kinematics.transforms import inv_transform, rpy_from_matrix
 from robocal.robot import POE, RobotDescription, robot_from_dict
 
-#: URDF joint types that move
+#: URDF joint types that turn
 _REVOLUTE = ("revolute", "continuous")
+#: URDF joint types robocal models as joints (that move)
+_ACTUATED = (*_REVOLUTE, "prismatic")
 
 
 def split_ref(ref: str | Path) -> tuple[Path, str | None, str | None]:
@@ -121,8 +124,8 @@ def chain_path(urdf: Any, base: str | None, tip: str | None, source: str) -> tup
         path.append(_urdf_joint(j, source))
         link = j.parent
     path.reverse()
-    if not any(j.type in _REVOLUTE for j in path):
-        raise ConfigError(f"{source}: no revolute joint between {base!r} and {tip!r}")
+    if not any(j.type in _ACTUATED for j in path):
+        raise ConfigError(f"{source}: no revolute or prismatic joint between {base!r} and {tip!r}")
     return base, tip, path
 
 
@@ -136,7 +139,7 @@ def _only_actuated_leaf(children: dict[str, list[Any]], base: str, source: str) 
         if not kids:
             leaves.append((n_act, link))
         for j in kids:
-            stack.append((j.child, n_act + (j.type in _REVOLUTE)))
+            stack.append((j.child, n_act + (j.type in _ACTUATED)))
     best = max(n for n, _ in leaves) if leaves else 0
     cands = sorted(link for n, link in leaves if n == best)
     if best == 0 or len(cands) != 1:
@@ -146,12 +149,14 @@ def _only_actuated_leaf(children: dict[str, list[Any]], base: str, source: str) 
 
 def _urdf_joint(j: Any, source: str) -> UrdfJoint:
     """A URDF joint of the chain (mm, its axis and limits), or a ConfigError for a joint robocal cannot model."""
-    if j.type not in (*_REVOLUTE, "fixed"):
-        raise ConfigError(f"{source}: joint {j.name!r} is {j.type}; only revolute, continuous and fixed are supported")
+    if j.type not in (*_ACTUATED, "fixed"):
+        raise ConfigError(
+            f"{source}: joint {j.name!r} is {j.type}; only revolute, continuous, prismatic and fixed are supported"
+        )
     if getattr(j, "mimic", None) is not None:
         raise ConfigError(f"{source}: joint {j.name!r} mimics another joint; not supported")
     axis = np.array([1.0, 0.0, 0.0]) if j.axis is None else np.asarray(j.axis, dtype=float)
-    if j.type in _REVOLUTE and not np.linalg.norm(axis) > 0:
+    if j.type in _ACTUATED and not np.linalg.norm(axis) > 0:
         raise ConfigError(f"{source}: joint {j.name!r} has a zero axis")
     lim = j.limit
     lower = None if lim is None or lim.lower is None else float(lim.lower)
@@ -168,10 +173,18 @@ def robot_dict_from_urdf(path: str | Path, base_link: str | None = None, tip_lin
     entries, twists = [], []
     for j in joints:
         T = T @ j.origin
-        if j.type not in _REVOLUTE:
+        if j.type not in _ACTUATED:
             continue
         w = T[:3, :3] @ (j.axis / np.linalg.norm(j.axis))
         w = w / np.linalg.norm(w)
+        if j.type == "prismatic":
+            if j.lower is None or j.upper is None:
+                raise ConfigError(f"{p}: prismatic joint {j.name!r} has no <limit lower=.. upper=..>")
+            entries.append(
+                {"name": j.name, "type": "prismatic", "q_min_mm": j.lower * 1000.0, "q_max_mm": j.upper * 1000.0}
+            )
+            twists.append({"w": w.tolist(), "p_mm": T[:3, 3].tolist()})
+            continue
         if j.type == "continuous" or j.lower is None or j.upper is None:
             lo, hi = -360.0, 360.0
         else:
@@ -201,11 +214,13 @@ def robot_from_ref(ref: str | Path) -> RobotDescription:
 
 
 def urdf_fk(urdf: Any, q: np.ndarray, frame: str, base: str, joint_names: list[str] | None = None) -> np.ndarray:
-    """yourdfpy's own forward kinematics: ``base_T_frame`` (m, 4, 4) in mm for joints ``q`` (m, n) rad."""
+    """yourdfpy's own forward kinematics: ``base_T_frame`` (m, 4, 4) in mm for joints ``q`` (m, n) rad (a
+    prismatic joint's value in mm)."""
     names = joint_names or list(urdf.actuated_joint_names)
+    scale = np.array([1e-3 if urdf.joint_map[nm].type == "prismatic" else 1.0 for nm in names])
     out = np.empty((len(q), 4, 4))
     for k, qk in enumerate(np.atleast_2d(q)):
-        urdf.update_cfg(dict(zip(names, qk, strict=True)))
+        urdf.update_cfg(dict(zip(names, qk * scale, strict=True)))
         T = np.array(urdf.get_transform(frame, base), dtype=float)
         T[:3, 3] *= 1000.0
         out[k] = T
@@ -232,7 +247,7 @@ def _elem(kind: int, v: float) -> np.ndarray:
 
 def joint_frames(chain: Chain, eta: np.ndarray | None) -> tuple[list[np.ndarray], list[int], np.ndarray]:
     """Chain frames at q = 0: just after each joint element (n, in joint order), the local axis index (0, 1, 2)
-    of each joint element, and the flange (4, 4)."""
+    of each joint element (the axis it turns about, or slides along), and the flange (4, 4)."""
     eta = np.zeros(chain.n_params) if eta is None else np.asarray(eta, dtype=float)
     T = np.eye(4)
     frames: dict[int, np.ndarray] = {}
@@ -247,10 +262,8 @@ def joint_frames(chain: Chain, eta: np.ndarray | None) -> tuple[list[np.ndarray]
         T = T @ _elem(kind, v)
         j = int(chain.joint[e])
         if j >= 0:
-            if kind not in (RX, RY, RZ):
-                raise ConfigError(f"joint {j + 1} is not revolute; URDF output supports revolute joints only")
             frames[j] = T.copy()
-            axes[j] = kind - RX
+            axes[j] = kind - RX if kind in (RX, RY, RZ) else kind
     n = chain.n_joints
     return [frames[j] for j in range(n)], [axes[j] for j in range(n)], T
 
@@ -339,12 +352,13 @@ def _fresh_urdf(robot: RobotDescription, eta: np.ndarray) -> tuple[Any, str]:
     for i in range(robot.n_joints):
         child = f"link_{i + 1}"
         etree.SubElement(root, "link", name=child)
-        jt = etree.SubElement(root, "joint", name=robot.joint_names[i], type="revolute")
+        slide = bool(robot.prismatic[i])
+        jt = etree.SubElement(root, "joint", name=robot.joint_names[i], type="prismatic" if slide else "revolute")
         etree.SubElement(jt, "origin", **_origin_attrs(inv_transform(P) @ frames[i]))
         etree.SubElement(jt, "parent", link=parent)
         etree.SubElement(jt, "child", link=child)
         etree.SubElement(jt, "axis", xyz=" ".join(_fmt(v) for v in axes[i]))
-        lo, hi = robot.q_limits[i]
+        lo, hi = robot.q_limits[i] * (1e-3 if slide else 1.0)  # a prismatic joint's limits in metres
         etree.SubElement(jt, "limit", lower=_fmt(lo), upper=_fmt(hi), effort="0", velocity="0")
         parent, P = child, frames[i]
     etree.SubElement(root, "link", name="flange")
@@ -367,18 +381,18 @@ def _calibrated_copy(
     L = []
     for j in joints:
         T = T @ j.origin
-        if j.type in _REVOLUTE:
+        if j.type in _ACTUATED:
             L.append(T.copy())
     if len(L) != robot.n_joints:
-        raise ConfigError(f"{src}: {len(L)} revolute joints from {base} to {tip}, the robot has {robot.n_joints}")
+        raise ConfigError(f"{src}: {len(L)} moving joints from {base} to {tip}, the robot has {robot.n_joints}")
     frames, _, F_cal = calibrated_link_frames(robot, eta, L)
     new_origin: dict[str, np.ndarray] = {}
     P = np.eye(4)  # calibrated pose of the current parent link
     k = 0
-    last_act = max(i for i, j in enumerate(joints) if j.type in _REVOLUTE)
+    last_act = max(i for i, j in enumerate(joints) if j.type in _ACTUATED)
     fixed_after = [i for i, j in enumerate(joints) if i > last_act]
     for i, j in enumerate(joints):
-        if j.type in _REVOLUTE:
+        if j.type in _ACTUATED:
             new_origin[j.name] = inv_transform(P) @ frames[k]
             P = frames[k]
             k += 1

@@ -93,6 +93,14 @@ def run(args: argparse.Namespace) -> int:
         from robocal.identification import misfit
 
         print(misfit.line(fit["systematic_misfit"]))
+    if "axes" in summary:  # a track's or a column's own errors along the travel (robocal.identification.axes)
+        ax = summary["axes"]
+        terms = sorted({t["name"].rsplit("_P", 1)[0] for t in ax["terms"]})
+        v = ax["validation"]
+        line = f"axes: order {ax['order']} (cross-validated), {len(ax['terms'])} terms of {', '.join(terms) or 'none'}"
+        if v.get("n_rows"):
+            line += f"; validation mean {v['mean_position_mm']:.4f} / max {v['max_position_mm']:.4f} mm"
+        print(line)
     problems = summary.get("problems", [])
     for text in problems:
         print(f"robocal calibrate: FAILED: {text}")

@@ -17,7 +17,8 @@ CSV_COLUMNS = {
     "target_id": "target id (pose id / target name)",
     "status": "ok | flagged | refused (the one safety policy, robocal.compensation.safety)",
     "applied": "1 = the corrected joints below were computed by the compensation; 0 = nominal joints kept",
-    "q<j>_deg": "joint command to send, deg: corrected when applied = 1, else the requested (nominal) joints",
+    "q<j>_deg": "joint command to send, deg: corrected when applied = 1, else the requested (nominal) joints "
+    "(q<j>_mm, mm, for a prismatic joint: a track, a column)",
     "x_mm, y_mm, z_mm": "Cartesian command for the nominal controller (robot base frame, tool point), mm",
     "qw, qx, qy, qz": "orientation of that command (unit quaternion, tool frame in the robot base frame)",
     "pred_err_mm": "predicted position error (mm) of the robot when sent this row",
@@ -42,15 +43,23 @@ def write_controller_csv(
     correction_max_deg: np.ndarray,
     reason: Sequence[str] | np.ndarray,
     extrapolation_C: float = 0.0,
+    prismatic: np.ndarray | None = None,
 ) -> Path:
     """Write ``compensation.csv``: joints ``q`` (m, n) rad to send, their nominal Cartesian command
     ``command_T`` (m, 4, 4), the predicted error when sent that row ``residual_mm`` (m, 3) and, when the
     orientation was matched, ``residual_rad`` (m, 3) (else None: no ``pred_err_deg`` column), the status,
-    whether the correction is applied, the largest joint correction computed (deg) and the reasons."""
+    whether the correction is applied, the largest joint correction computed (deg) and the reasons.
+    ``prismatic`` (n,) bool: joints whose value is a length (a track, a column), written in mm as ``q<j>_mm``."""
     qd = np.rad2deg(np.asarray(q, dtype=float))
     quat = matrix_to_quat(command_T[:, :3, :3])
     n = qd.shape[1]
-    head = ["target_id", "status", "applied", *[f"q{j + 1}_deg" for j in range(n)]]
+    qcols = [f"q{j + 1}_deg" for j in range(n)]
+    if prismatic is not None and np.any(prismatic):
+        from robocal.data.columns import joint_columns
+
+        qd = np.where(prismatic, np.asarray(q, dtype=float), qd)
+        qcols = joint_columns(prismatic)
+    head = ["target_id", "status", "applied", *qcols]
     head += ["x_mm", "y_mm", "z_mm", "qw", "qx", "qy", "qz", "pred_err_mm"]
     if residual_rad is not None:
         head.append("pred_err_deg")

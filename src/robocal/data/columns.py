@@ -9,6 +9,7 @@ copied everywhere.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 #: the placeholder of the (1-based) joint number in a per-joint column's name
@@ -78,11 +79,24 @@ def column_name(key: str) -> str:
     return col
 
 
-def required_columns(n_joints: int) -> list[str]:
-    """Every required column, in the contract's order."""
-    return [c for g in POSE_COLUMNS if g.required for c in g.columns(n_joints)]
+def joint_columns(prismatic: Iterable[bool]) -> list[str]:
+    """The joint value columns of a robot whose joints are prismatic where ``prismatic`` says: ``q<j>_mm`` for a
+    prismatic joint (a length, mm), ``q<j>_deg`` for a revolute one."""
+    return [f"q{j + 1}_mm" if s else COLUMN["q"].names[0].format(j=j + 1) for j, s in enumerate(prismatic)]
 
 
-def known_columns(n_joints: int) -> set[str]:
+def _group_columns(g: ColumnGroup, n_joints: int, prismatic: Iterable[bool] | None) -> list[str]:
+    if g.key == "q" and prismatic is not None:
+        return joint_columns(prismatic)
+    return g.columns(n_joints)
+
+
+def required_columns(n_joints: int, prismatic: Iterable[bool] | None = None) -> list[str]:
+    """Every required column, in the contract's order (``prismatic``: which joints are lengths, see
+    :func:`joint_columns`; all revolute when None)."""
+    return [c for g in POSE_COLUMNS if g.required for c in _group_columns(g, n_joints, prismatic)]
+
+
+def known_columns(n_joints: int, prismatic: Iterable[bool] | None = None) -> set[str]:
     """Every column the contract names for a robot with ``n_joints`` joints (the rest are extra columns)."""
-    return {c for g in POSE_COLUMNS for c in g.columns(n_joints)}
+    return {c for g in POSE_COLUMNS for c in _group_columns(g, n_joints, prismatic)}

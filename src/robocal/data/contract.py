@@ -27,7 +27,15 @@ import pandas as pd
 import yaml
 
 from robocal.config import check_fields, parse, setting
-from robocal.data.columns import JOINT_SIGNALS, POSE_COLUMNS, column_name, columns, known_columns, required_columns
+from robocal.data.columns import (
+    JOINT_SIGNALS,
+    POSE_COLUMNS,
+    column_name,
+    columns,
+    joint_columns,
+    known_columns,
+    required_columns,
+)
 from robocal.data.dialect import read_csv
 from robocal.errors import DataError
 from robocal.io import display_path
@@ -88,7 +96,8 @@ class Campaign:
     t0 : pandas Timestamp of time zero (UTC).
     target : (m,) str; target_names : tuple of the distinct targets in order of appearance;
     target_index : (m,) int into ``target_names``.
-    q : (m, n) rad; p_mm : (m, 3) tracker frame; quat : (m, 4) (w, x, y, z) unit, or None.
+    q : (m, n) rad (mm for a prismatic joint), kinematic (after the robot's coupling);
+    p_mm : (m, 3) tracker frame; quat : (m, 4) (w, x, y, z) unit, or None.
     payload_kg : (m,); tau_Nm, current_A : (m, n) or None; direction : (m, n) of ±1 or None.
     split : (m,) "calibration" / "validation"; split_from_file : bool.
     temperatures : (m, s) °C joined to the poses (nearest earlier reading), or None; sensor_names : (s,).
@@ -98,6 +107,9 @@ class Campaign:
     u_mm : (m,) the tracker's stated uncertainty of each point (mm), or None.
     signal_declarations : the logged signals declared in ``signals.yaml`` beside the campaign
     (:mod:`robocal.logged_signals`).
+    prismatic : (n,) bool, the joints whose value is a length (mm), or None (all revolute);
+    coupling : (n, n) the robot's coupling ``q = coupling @ q_reported`` applied at the door, or None
+    (:mod:`robocal.robot`); :meth:`to_frame` writes the reported values back.
     """
 
     source: str
@@ -125,6 +137,8 @@ class Campaign:
     station: np.ndarray | None = None
     u_mm: np.ndarray | None = None
     signal_declarations: tuple[SignalDeclaration, ...] = ()
+    prismatic: np.ndarray | None = None
+    coupling: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.station is None:
@@ -213,7 +227,8 @@ class Campaign:
         return self.subset(self.split == "validation")
 
     def to_frame(self) -> pd.DataFrame:
-        """The campaign back in contract columns (degrees, ISO timestamps), e.g. for the interim Parquet copy."""
+        """The campaign back in contract columns (degrees, ISO timestamps), e.g. for the interim Parquet copy.
+        Joint values are written as reported (the coupling undone), a prismatic joint's in mm."""
 
         def per_column(a: np.ndarray | None) -> list[np.ndarray] | None:
             return None if a is None else [a[:, k] for k in range(a.shape[1])]
@@ -223,7 +238,7 @@ class Campaign:
             "pose_id": [self.pose_id],
             "timestamp": [pd.to_datetime(self.t0) + pd.to_timedelta(self.timestamp_s, unit="s")],
             "target": [self.target],
-            "q": per_column(degrees_read_back(self.q)),
+            "q": per_column(self._reported_joints()),
             "p": per_column(self.p_mm),
             "quat": per_column(self.quat),
             "payload": [self.payload_kg],
@@ -238,9 +253,19 @@ class Campaign:
         for group in POSE_COLUMNS:
             v = values[group.key]
             if v is not None:
-                cols.update(zip(group.columns(self.n_joints), v, strict=True))
+                names = group.columns(self.n_joints)
+                if group.key == "q" and self.prismatic is not None:
+                    names = joint_columns(self.prismatic)
+                cols.update(zip(names, v, strict=True))
         cols.update(self.extra)
         return pd.DataFrame(cols)
+
+    def _reported_joints(self) -> np.ndarray:
+        """The joint values as the file has them: reported (the coupling undone), degrees or mm."""
+        q = self.q if self.coupling is None else self.q @ np.linalg.inv(self.coupling).T
+        if self.prismatic is None or not self.prismatic.any():
+            return degrees_read_back(q)
+        return np.where(self.prismatic, q, degrees_read_back(q))
 
 
 # ------------------------------------------------------------------------------------------------ reading
@@ -399,14 +424,15 @@ def read_campaign(
     m = len(df)
 
     pid, ts, target = _read_identity(df, path)
-    q_deg = _read_joints(df, robot, path, limit_tol_deg)
+    q_file = _read_joints(df, robot, path, limit_tol_deg)
     p = _read_positions(df, path)
     quat = _read_orientation(df, path, quat_norm_tol)
     payload, tau, cur, direction = _read_loads(df, n, path)
     _check_unique(pid, target, ts, path)
     split_arr, from_file = _read_split(df, pid, split_cfg, path)
     station, u_mm = _read_tracker(df, path)
-    extra = {c: df[c].to_numpy() for c in df.columns if c not in known_columns(n)}
+    prismatic = robot.prismatic if robot.has_prismatic else None
+    extra = {c: df[c].to_numpy() for c in df.columns if c not in known_columns(n, prismatic)}
 
     t0 = ts.min()
     t_s = (ts - t0).dt.total_seconds().to_numpy(dtype=float)
@@ -422,7 +448,9 @@ def read_campaign(
         target=target,
         target_names=names,
         target_index=tindex,
-        q=np.radians(q_deg),
+        # units once, here: degrees to radians (a prismatic joint stays in mm), then the reported values to the
+        # kinematic ones (the robot's coupling)
+        q=robot.to_kinematic(np.where(robot.prismatic, q_file, np.radians(q_file))),
         p_mm=p,
         quat=quat,
         payload_kg=payload,
@@ -436,8 +464,10 @@ def read_campaign(
         station=station,
         u_mm=u_mm,
         signal_declarations=read_signals_file(folder),
+        prismatic=prismatic,
+        coupling=robot.coupling,
     )
-    _check_same_joints(camp, path, columns("q", n))
+    _check_same_joints(camp, path, joint_columns(robot.prismatic))
     tpath = _find(folder, "temperatures", required=False)
     if tpath is not None:
         camp = _join_temperatures(camp, tpath, ts, robot, temperature_tolerance_s)
@@ -447,8 +477,19 @@ def read_campaign(
 def _check_columns(df: pd.DataFrame, robot: RobotDescription, path: Path) -> None:
     """The required columns are there, and no joint column beyond the robot's joints."""
     n = robot.n_joints
-    _require(df, required_columns(n), path)
-    extra_q = [c for c in df.columns if re.fullmatch(r"q(\d+)_deg", c) and int(c[1:-4]) > n]
+    prismatic = robot.prismatic
+    wrong_unit = [c for c in joint_columns(~prismatic) if c in df.columns and c not in joint_columns(prismatic)]
+    if wrong_unit:
+        j = int(wrong_unit[0][1:].split("_")[0])
+        kind = "prismatic (a length, column q{j}_mm)" if prismatic[j - 1] else "revolute (an angle, column q{j}_deg)"
+        raise DataError(
+            f"has column {wrong_unit[0]!r} but joint {j} of robot {robot.name!r} is {kind.format(j=j)}",
+            file=path,
+            row=1,
+            column=wrong_unit[0],
+        )
+    _require(df, required_columns(n, prismatic), path)
+    extra_q = [c for c in df.columns if re.fullmatch(r"q(\d+)_(deg|mm)", c) and int(c[1:].split("_")[0]) > n]
     if extra_q:
         raise DataError(
             f"has joint column(s) {extra_q} but robot {robot.name!r} has {n} joints",
@@ -468,22 +509,27 @@ def _read_identity(df: pd.DataFrame, path: Path) -> tuple[np.ndarray, pd.Series,
 
 
 def _read_joints(df: pd.DataFrame, robot: RobotDescription, path: Path, limit_tol_deg: float) -> np.ndarray:
-    """Joint angles (m, n) in degrees, inside the robot's limits and not radians."""
-    qcols = columns("q", robot.n_joints)
+    """Joint values (m, n) as reported, in degrees (mm for a prismatic joint), inside the robot's limits and not
+    radians."""
+    qcols = joint_columns(robot.prismatic)
+    slide = robot.prismatic
     q_deg = np.column_stack([_numeric(df, c, path) for c in qcols])
-    lim = np.degrees(robot.q_limits)
+    lim = np.where(slide[:, None], robot.q_limits, np.degrees(robot.q_limits))
     for j, c in enumerate(qcols):
         out = (q_deg[:, j] < lim[j, 0] - limit_tol_deg) | (q_deg[:, j] > lim[j, 1] + limit_tol_deg)
         if out.any():
             i = _first(out)
+            what, unit = ("joint position", "mm") if slide[j] else ("joint angle", "deg")
             raise DataError(
-                f"joint angle {q_deg[i, j]:g} deg outside the limits [{lim[j, 0]:g}, {lim[j, 1]:g}] of "
+                f"{what} {q_deg[i, j]:g} {unit} outside the limits [{lim[j, 0]:g}, {lim[j, 1]:g}] of "
                 f"{robot.name!r} ({int(out.sum())} row(s))",
                 file=path,
                 row=_row(i),
                 column=c,
             )
-    _check_not_radians(q_deg, qcols, lim, robot.name, path)
+    rev = ~slide
+    if rev.any():
+        _check_not_radians(q_deg[:, rev], [c for c, r in zip(qcols, rev, strict=True) if r], lim[rev], robot.name, path)
     return q_deg
 
 
@@ -645,7 +691,11 @@ def _check_same_joints(camp: Campaign, path: Path, qcols: list[str]) -> None:
     same = pid[1:] == pid[:-1]
     if not same.any():
         return
-    dq = np.degrees(np.abs(q[1:] - q[:-1]))
+    dq = np.abs(q[1:] - q[:-1])
+    if camp.prismatic is None:
+        dq = np.degrees(dq)
+    else:  # a prismatic joint's value is in mm already (1e-3 mm of rounding)
+        dq = np.where(camp.prismatic, dq, np.degrees(dq))
     bad = same[:, None] & (dq > 1e-3)
     if bad.any():
         k, j = (int(v[0]) for v in np.nonzero(bad))

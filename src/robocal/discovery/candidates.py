@@ -11,6 +11,8 @@ Every candidate adds a few coefficients ``c`` to the calibration model. Three sh
 - ``frame``: the robot base or the tool rotating / moving in proportion to a logged signal (extra column of the
   campaign, :mod:`robocal.discovery.logged`), first order like a parameter drift.
 - ``structure``: a kinematic parameter the model leaves out (Hayati ``beta`` on a parallel joint pair).
+- ``axis``: a linear axis's carriage error along its travel (a track's straightness, a column's bending), first
+  order like a parameter drift: :mod:`robocal.discovery.axes`.
 - ``tracker``: the tracker's length scale ``p_meas = (1 + s(row)) p_true`` about the tracker head, ``s(row) =
   S(row) · c`` (ppm): regressor ``S(row) p_mm(row)`` on the position residuals (measurement side). A constant
   scale is a uniform scale of the robot's lengths and base, which no calibration without a reference length can
@@ -72,6 +74,8 @@ class Candidate:
 
     @property
     def label(self) -> str:
+        if self.effect == "axis":  # a linear axis's error: its name says it (track:straightness_y)
+            return self.key
         out = self.effect
         if self.joint is not None:
             out += f" joint {self.joint}"
@@ -189,6 +193,12 @@ def build_library(
         build = _EFFECT_CANDIDATES.get(effect)
         if build is not None:
             build(campaign, robot, cfg, out)
+    if robot.has_prismatic:  # a track's or a column's own errors along its travel (robocal.discovery.axes)
+        from robocal.discovery.axes import axis_candidates
+
+        specs, skipped = axis_candidates(campaign, robot)
+        out.cands += [Candidate(**k) for k in specs]
+        out.skipped += [SkippedCandidate(*s) for s in skipped]
     return out.cands, out.skipped
 
 

@@ -53,6 +53,14 @@ def signal_kind(acc: Accepted) -> str | None:
     raise ValueError(f"unknown joint-level effect {c.effect!r}")
 
 
+#: why an effect of these families is not compensated (the families not listed: effect_records says)
+_NOT_COMPENSATED = {
+    "axis": "an external axis's own error along its travel (robocal.discovery.axes): the service (robocal serve) "
+    "and its bundle take revolute chains only; compensated in the discovery's compensation.csv and by "
+    "robocal.compensation.axes / robocal.cell.programs.axes",
+}
+
+
 def effect_records(fit: Fit) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
     """The accepted effects of a discovery fit as JSON records: ``(joint_level, not_compensated)``."""
     model = fit.model
@@ -102,6 +110,7 @@ def effect_records(fit: Fit) -> tuple[list[dict[str, Any]], list[dict[str, Any]]
                     + ": it needs the state of the moment, not the commanded joints; "
                     "use the thermal pipeline's model for online compensation"
                 )
+            why = _NOT_COMPENSATED.get(c.effect, why)
             other.append({"key": c.key, "effect": c.effect, "reason": why})
             continue
         assert c.joint is not None

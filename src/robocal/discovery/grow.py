@@ -294,7 +294,7 @@ def grow(
     single: list[tuple[Candidate, list[Variant]]] = [
         (c, [Variant(np.arange(c.S.shape[1]) if c.shape == "joint" else None, None, "")])
         for c in leftovers
-        if c.shape in ("joint", "param", "tracker", "frame")
+        if c.shape in ("joint", "param", "tracker", "frame", "axis")
     ]
     taken = {a.cand.key for a in accepted}  # the F-test search's weight effects are in ``accepted`` already
     pool = pooled(single + [(c, v) for c, v in physics_candidates(campaign, robot, cfg, rows) if c.key not in taken])

@@ -158,6 +158,12 @@ class ExtendedModel:
                 cols = frame_rows(c, Jx, self.base, x, data.target_index, rows)
                 Jv[:, :, sl] = cols
                 rv += np.einsum("mij,j->mi", cols, theta[sl])
+            elif c.shape == "axis":  # a linear axis's carriage error along its travel (first order)
+                from robocal.discovery.axes import axis_rows
+
+                cols = axis_rows(c, self.base, x, d, rows, dd)
+                Jv[:, :, sl] = cols
+                rv += np.einsum("mij,j->mi", cols, theta[sl])
         return rv.ravel(), J, Jx, Jq
 
 

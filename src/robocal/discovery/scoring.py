@@ -81,6 +81,12 @@ def regressor(cand: Candidate, fit: Fit, rows: np.ndarray, data: FitData) -> tup
         return Z.reshape(dd * m, -1) * w, params
     if cand.shape == "tracker":
         return tracker_columns(cand, rows, dd).reshape(dd * m, -1) * w, ()
+    if cand.shape == "axis":
+        from robocal.discovery.axes import axis_rows
+
+        x = fit.theta[: fit.model.nb]
+        d = data.with_q(data.q + fit.model.joint_offsets(fit.theta, rows, 0))
+        return axis_rows(cand, fit.model.base, x, d, rows, dd).reshape(dd * m, -1) * w, ()
     if cand.shape == "frame":
         from robocal.discovery.logged import frame_rows
 

@@ -64,6 +64,10 @@ def estimates(fit: Fit, acc: Accepted) -> dict[str, Any]:
     elif c.effect == "scale":
         for k, (n, u) in enumerate(zip(c.coef_names, c.coef_units, strict=True)):
             out[n] = _est(val[k], se[k], u)
+    elif c.effect == "axis":  # a linear axis's carriage error: mm, or urad (per kN·m for the bending)
+        for k, (n, u) in enumerate(zip(c.coef_names, c.coef_units, strict=True)):
+            f, unit = (1.0, "mm") if u == "mm" else (1e6, "urad" if u == "rad" else "urad/kNm")
+            out[n] = _est(val[k] * f, se[k] * f, unit)
     elif c.effect == "beta":
         nm = f"beta{c.joint}"
         out[f"{nm}_deg"] = _est(fit.theta[model.index(nm)] * _DEG, fit.stderr(nm) * _DEG, "deg")
@@ -202,6 +206,16 @@ def effect_displacement(fit: Fit, acc: Accepted) -> np.ndarray:
         return fit.Jq[:, :3, c.joint - 1] * (c.S[_rows(fit)] @ th)[:, None]
     if c.shape == "tracker":
         return np.einsum("mij,j->mi", tracker_columns(c, _rows(fit)), th)
+    if c.shape == "axis":
+        from robocal.discovery.axes import axis_rows
+        from robocal.identification.model import FitData
+
+        names = model.base.target_names
+        camp_rows = _rows(fit)
+        ti = np.array([names.index(t) if t in names else 0 for t in np.asarray(c.extra["target"])[camp_rows]])
+        d = FitData(c.extra["q"][camp_rows], np.zeros((m, 3)), ti)
+        d = d.with_q(d.q + model.joint_offsets(fit.theta, camp_rows, 0))
+        return np.einsum("mij,j->mi", axis_rows(c, model.base, fit.theta[: model.nb], d, camp_rows, 3), th)
     if c.shape == "frame":
         from robocal.discovery.logged import frame_rows
 

@@ -97,6 +97,16 @@ def _validate_fit(res: DiscoveryResult, fit: Fit) -> Validation:
             from robocal.discovery.logged import frame_rows
 
             dp += np.einsum("mij,j->mi", frame_rows(a.cand, Jx, base, x, ti, vrows), fit.theta[sl])
+    axes = [(a, sl) for a, sl in zip(model.accepted, model.slices, strict=True) if a.cand.shape == "axis"]
+    if axes:  # a linear axis's carriage errors at the held-out rows' positions (robocal.discovery.axes)
+        from robocal.discovery.axes import axis_rows
+
+        ti = np.array([base.target_names.index(t) if t in base.target_names else 0 for t in val.target])
+        st_names = [] if val.station is None else list(val.station)
+        si = np.array([base.station_names.index(s) if s in base.station_names else 0 for s in st_names], dtype=int)
+        vd = FitData(q, val.p_mm, ti, None, si if len(si) else None)
+        dpa = sum(np.einsum("mij,j->mi", axis_rows(a.cand, base, x, vd, vrows, 3), fit.theta[sl]) for a, sl in axes)
+        dp = dpa if dp is None else dp + dpa
     for a, sl in zip(model.accepted, model.slices, strict=True):
         if a.cand.shape == "tracker":  # the tracker's scale of the measured points (measurement side)
             dpt = np.einsum("mij,j->mi", tracker_columns(a.cand, vrows), fit.theta[sl])

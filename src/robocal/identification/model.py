@@ -31,7 +31,7 @@ from robocal.robot import RobotDescription
 BASE_NAMES = ("base_tx", "base_ty", "base_tz", "base_rx", "base_ry", "base_rz")
 
 
-def _with_base(chain: Chain) -> Chain:
+def with_base(chain: Chain) -> Chain:
     """Prepend the six base-correction elements; their parameters follow the kinematic ones."""
     P = chain.n_params
     kinds = (TX, TY, TZ, RX, RY, RZ, *chain.kinds)
@@ -101,7 +101,7 @@ class CalibrationModel:
     ) -> None:
         self.robot = robot
         self.chain = build_chain(robot)
-        self.full_chain = _with_base(self.chain)
+        self.full_chain = with_base(self.chain)
         self.target_names = tuple(target_names)
         self.orientation = bool(orientation)
         self.T_ref = np.eye(4) if T_ref is None else np.asarray(T_ref, dtype=float)

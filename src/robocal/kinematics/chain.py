@@ -5,12 +5,14 @@ Every robot model is compiled to a sequence of elements, each one of ``Trans_x/y
 + eta_k (if the element carries calibration parameter k)``.
 
 - MD-H link i: ``Rot_x(alpha_i) Trans_x(a_i) Rot_z(q_i + theta_i) Trans_z(d_i) [Rot_y(beta_i)]``,
-  parameters ``alpha{i}, a{i}, theta{i}, d{i}`` and ``beta{i}`` where beta is free.
+  parameters ``alpha{i}, a{i}, theta{i}, d{i}`` and ``beta{i}`` where beta is free; a prismatic joint adds its
+  value (mm) to ``Trans_z(d_i + q_i)`` instead (the same parameters: ``d{i}`` is then the slide's zero offset).
 - POE: each joint axis gets a frame at q = 0 (z along the twist axis); the chain is
   ``F_1 Rot_z(q_1 + theta_1) [F_1^-1 F_2] link_errors_1 Rot_z(q_2 + theta_2) ... [F_n^-1 M]``; the link
   errors between joints are six elementary transforms with zero nominal value (``link{i}_tx`` ...
   ``link{i}_rz``): the "local POE" error model, which spans the same error space as perturbing the
-  global twists; the base and tool frames carry the errors before joint 1 and after joint n.
+  global twists; the base and tool frames carry the errors before joint 1 and after joint n. A prismatic
+  joint is ``Trans_z(q_i + d_i)`` along its frame's z (the twist's direction), parameter ``d{i}``.
 
 Forward kinematics and the analytic identification Jacobian are computed by propagating the
 three columns of the rotation and the origin through the elements with broadcasting, so the
@@ -129,13 +131,14 @@ def build_chain(robot: RobotDescription) -> Chain:
     """Compile a robot description (MD-H or POE) into a :class:`Chain`."""
     b = _Builder()
     n = robot.n_joints
+    slide = robot.prismatic
     if robot.is_mdh:
         for i in range(n):
             k = i + 1
             b.add(RX, robot.alpha[i], name=f"alpha{k}")
             b.add(TX, robot.a_mm[i], name=f"a{k}")
-            b.add(RZ, robot.theta_offset[i], joint=i, name=f"theta{k}")
-            b.add(TZ, robot.d_mm[i], name=f"d{k}")
+            b.add(RZ, robot.theta_offset[i], joint=-1 if slide[i] else i, name=f"theta{k}")
+            b.add(TZ, robot.d_mm[i], joint=i if slide[i] else -1, name=f"d{k}")
             if robot.beta_free[i]:
                 b.add(RY, robot.beta[i], name=f"beta{k}")
             elif robot.beta[i] != 0.0:
@@ -159,7 +162,10 @@ def build_chain(robot: RobotDescription) -> Chain:
         if i > 0:
             for kind, suffix in ((TX, "tx"), (TY, "ty"), (TZ, "tz"), (RX, "rx"), (RY, "ry"), (RZ, "rz")):
                 b.add(kind, 0.0, name=f"link{i}_{suffix}")
-        b.add(RZ, robot.theta_offset[i], joint=i, name=f"theta{i + 1}")
+        if slide[i]:
+            b.add(TZ, 0.0, joint=i, name=f"d{i + 1}")
+        else:
+            b.add(RZ, robot.theta_offset[i], joint=i, name=f"theta{i + 1}")
         prev = frames[i]
     b.add(FIXED, T=np.linalg.inv(prev) @ robot.poe_flange0)
     return b.build(n)
@@ -229,7 +235,7 @@ def propagate(
     Parameters
     ----------
     q : ndarray, shape (m, n)
-        Joint angles, rad.
+        Joint values: rad (revolute), mm (prismatic).
     eta : ndarray, shape (P,) or (pop, P), optional
         Kinematic parameter errors added to the nominal element values. With a population the
         outputs gain a leading ``pop`` axis: ``(pop, m, 3)``.
@@ -317,7 +323,10 @@ def fold(chain: Chain, eta: np.ndarray | None = None, T0: np.ndarray | None = No
         j = int(chain.joint[e])
         if j >= 0:
             if kind < RX:
-                raise ValueError(f"joint {j + 1} drives a translation element; only revolute joints are supported")
+                raise ValueError(
+                    f"joint {j + 1} is prismatic: the folded chain (the service's compensation, the compiled "
+                    "population kernel) supports revolute joints only"
+                )
             blocks.append(np.stack(frame, -1))
             joints.append(j)
             axes.append(kind - RX)

@@ -17,7 +17,8 @@ frame as :func:`robocal.kinematics.chain.build_chain` builds it: for MD-H the fr
 elements (``Rot_x Trans_x Rot_z Trans_z [Rot_y]``); for POE the frame on axis ``i`` (z along the axis) right
 after the joint rotation. The payload's centre of mass is in the flange frame.
 
-Everything is vectorised over poses: ``q`` is ``(m, n)`` rad, the result ``(m, n)`` N·m.
+Everything is vectorised over poses: ``q`` is ``(m, n)`` rad, the result ``(m, n)`` N·m. A prismatic joint's
+entry is the load *force* along its axis, ``u_j · sum_{k >= j} m_k g`` (N), its value in mm.
 """
 
 from __future__ import annotations
@@ -134,7 +135,11 @@ def gravity_torques(
     w = np.concatenate([np.broadcast_to(mass, (m, n)), pl[:, None]], axis=1)[..., None] * g  # (m, n + 1, 3)
 
     tau = np.zeros((m, n))
+    slide = robot.prismatic
     for j in range(n):
+        if slide[j]:  # a prismatic joint carries the weight along its axis: a force, N
+            tau[:, j] = np.einsum("mi,mi->m", u[:, j], w[:, j:].sum(axis=1))
+            continue
         r = (c[:, j:] - o[:, j : j + 1]) * MM  # bodies j..n and the payload, metres
         mom = np.cross(r, w[:, j:]).sum(axis=1)  # (m, 3) N·m
         tau[:, j] = np.einsum("mi,mi->m", u[:, j], mom)
@@ -190,7 +195,7 @@ def gravity_regressor(robot: RobotDescription, q: np.ndarray, compiled_ok: bool 
     from robocal.kinematics import compiled  # numba: imported when first needed
 
     q = np.atleast_2d(np.asarray(q, dtype=float))
-    if compiled.AVAILABLE and compiled_ok:
+    if compiled.AVAILABLE and compiled_ok and not robot.has_prismatic:  # the kernel has revolute joints only
         args = regressor_arrays(robot)
         return compiled.gravity_regressor(*args[:5], np.ascontiguousarray(q), *args[5:])
     return _gravity_regressor_numpy(robot, q)
@@ -224,6 +229,11 @@ def _gravity_regressor_numpy(robot: RobotDescription, q: np.ndarray) -> np.ndarr
     # u_j · ((o_i - o_j) x g) = u_j · (o_i x g) - u_j · (o_j x g); u_j · (a x g) for the body axes
     mass = np.einsum("mjk,mik->mji", U, np.cross(Ob, g)) - np.einsum("mjk,mjk->mj", U, np.cross(Oj, g))[:, :, None]
     first = np.einsum("mjk,miak->mjia", U, np.cross(Ab, g))
+    slide = robot.prismatic
+    if slide.any():  # a prismatic joint: the force along its axis, u_j · g per kg carried, none from first moments
+        ug = np.einsum("mjk,k->mj", U, g)
+        mass[:, slide, :] = ug[:, slide, None]
+        first[:, slide] = 0.0
     carried = np.triu(np.ones((n, n), dtype=bool))[None, :, :]  # body i >= joint j
     Y = np.concatenate([(mass * carried)[..., None], first * carried[..., None]], axis=3).reshape(m, n, 4 * n)
     return Y

@@ -139,9 +139,10 @@ def evaluate(robot: RobotDescription, chain: Chain, q: np.ndarray, cfg: PlanConf
     ``visible`` (C, K), ``targets_mm`` (C, K, 3), ``flange_R`` (C, 3, 3), ``sigma_min`` (C,)."""
     C, n = q.shape
     lim = robot.q_limits
-    margin = np.deg2rad(cfg.joint_margin_deg)
+    q_lim = q if robot.coupling is None else robot.to_reported(q)  # the limits are the controller's (reported)
+    margin = np.where(robot.prismatic, 0.0, np.deg2rad(cfg.joint_margin_deg))  # deg: the revolute joints
     fails: dict[str, np.ndarray] = {}
-    fails["joint_limits"] = np.any((q < lim[:, 0] + margin) | (q > lim[:, 1] - margin), axis=1)
+    fails["joint_limits"] = np.any((q_lim < lim[:, 0] + margin) | (q_lim > lim[:, 1] - margin), axis=1)
 
     st = propagate(chain, q, None, None, record=True)
     o = st.o

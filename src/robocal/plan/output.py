@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from robocal.data.columns import joint_columns
 from robocal.io import write_json, write_text
 from robocal.plan.config import PlanConfig
 from robocal.plan.planner import PlanResult, plan_poses, predict
@@ -21,13 +22,17 @@ from robocal.robot import RobotDescription
 
 def plan_csv(result: PlanResult) -> str:
     """``pose_id, [target,] q1_deg … qN_deg``: one row per pose (and per visible target when the tool has
-    several targets); angles with 6 decimals (what the planner evaluated)."""
+    several targets); angles with 6 decimals (what the planner evaluated); a prismatic joint (a track, a column)
+    as ``q<j>_mm`` in mm."""
     cfg = result.problem.config
     n = result.q.shape[1]
     multi = len(cfg.targets) > 1
-    header = ["pose_id"] + (["target"] if multi else []) + [f"q{j + 1}_deg" for j in range(n)]
+    robot = result.problem.robot
+    qcols = joint_columns(robot.prismatic) if robot.has_prismatic else [f"q{j + 1}_deg" for j in range(n)]
+    header = ["pose_id"] + (["target"] if multi else []) + qcols
     lines = [",".join(header)]
-    qd = np.rad2deg(result.q)
+    q = result.q if robot.coupling is None else robot.to_reported(result.q)  # the controller's values (coupling)
+    qd = np.where(robot.prismatic, q, np.rad2deg(q)) if robot.has_prismatic else np.rad2deg(q)
     for k, pid in enumerate(result.pose_ids):
         angles = [f"{v:.6f}" for v in qd[k]]
         if multi:

@@ -5,8 +5,11 @@ Steps: draw candidates in the joint ranges -> refuse what the cell does not allo
 calibration model (:meth:`CalibrationModel.residuals_and_jacobian`, whitened by the tracker noise) -> the
 identifiable parameter set (:func:`robocal.identification.identifiability.analyse`, same priority order and
 rank tolerance as the calibration) -> exchange for the D-, A- or I-optimal design
-(:mod:`robocal.plan.design`) -> predictions: Cramér-Rao standard errors ``σ²(JᵀWJ)⁻¹``, the predicted error
-map over the validation region, and the number of poses needed for a stated accuracy.
+(:mod:`robocal.plan.design`; a robot with a linear axis, a track or a column, has its axis errors along the
+travel in the model too, Legendre orders up to :data:`robocal.identification.axes.ORDER`: the design spreads the
+poses along the travel to determine them, :func:`axis_blocks`) -> predictions: Cramér-Rao standard errors
+``σ²(JᵀWJ)⁻¹``, the predicted error map over the validation region, and the number of poses needed for a
+stated accuracy.
 
 All randomness comes from ``config.seed`` through named child streams of one ``numpy.random.SeedSequence``:
 the same robot, settings and seed give the same plan, byte for byte.
@@ -17,7 +20,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -119,6 +122,53 @@ def jacobian_blocks(
             if cfg.orientation:
                 blk[:, 3:] = J[3 * m :].reshape(m, 3, model.n) * w_rot
             blk *= visible[s : s + m, k][:, None, None]
+    return out
+
+
+def axis_terms_of(robot: RobotDescription) -> list[Any]:
+    """The axis error terms a plan designs for (:mod:`robocal.identification.axes`): every component of every
+    linear axis up to :data:`~robocal.identification.axes.ORDER`, no bending (a property of the load, not of the
+    travel); none for a robot without a linear axis."""
+    from robocal.identification.axes import ORDER, AxisSettings, axis_terms
+
+    return axis_terms(robot, AxisSettings(), ORDER, False) if robot.has_prismatic else []
+
+
+def axis_blocks(
+    model: CalibrationModel, x0: np.ndarray, q: np.ndarray, visible: np.ndarray, cfg: PlanConfig, terms: list[Any]
+) -> np.ndarray:
+    """Whitened identification Jacobian of the axis error terms, per candidate and target, as
+    :func:`jacobian_blocks`: ``(C, K · r_t, T)``; the carriage element's column times the term's feature."""
+    import copy
+
+    from robocal.identification.axes import features
+    from robocal.identification.model import with_base
+    from robocal.kinematics.axes import augment
+
+    C, n = q.shape
+    K = len(cfg.targets)
+    rt = 6 if cfg.orientation else 3
+    out = np.zeros((C, K * rt, len(terms)))
+    if not terms:
+        return out
+    joints = sorted({t.joint for t in terms})
+    aug = copy.copy(model)
+    aug.chain = augment(model.chain, joints)
+    aug.full_chain = with_base(aug.chain)
+    F = features(model.robot, q, np.zeros(C), terms)
+    cols = [n + 6 * t.axis_pos + t.slot for t in terms]
+    qa = np.concatenate([q, np.zeros((C, 6 * len(joints)))], axis=1)
+    for k in range(K):
+        ti = np.full(C, k, dtype=int)
+        p, R = model.predict(x0, q, ti)
+        J_q, W_q = aug.joint_jacobians(
+            x0, FitData(q=qa, p_mm=p, target_index=ti, R_meas=R if cfg.orientation else None)
+        )
+        blk = out[:, k * rt : (k + 1) * rt]
+        blk[:, :3] = J_q[:, :, cols] * F[:, None, :] / cfg.noise_mm
+        if cfg.orientation and W_q is not None:
+            blk[:, 3:] = W_q[:, :, cols] * F[:, None, :] / np.deg2rad(cfg.noise_deg)
+        blk *= visible[:, k][:, None, None]
     return out
 
 
@@ -268,16 +318,24 @@ def region_configurations(robot: RobotDescription, chain: Any, cfg: PlanConfig, 
 
 
 def build_problem(
-    robot: RobotDescription | str | Mapping[str, Any], config: PlanConfig | Mapping[str, Any] | None = None
+    robot: RobotDescription | str | Mapping[str, Any],
+    config: PlanConfig | Mapping[str, Any] | None = None,
+    axis_terms: bool = True,
 ) -> Problem:
-    """Candidates, constraints, Jacobian blocks, identifiable set and region for ``plan_poses``."""
+    """Candidates, constraints, Jacobian blocks, identifiable set and region for ``plan_poses`` (``axis_terms``:
+    a linear axis's errors along its travel in the model, :func:`axis_terms_of`)."""
     cfg = config if isinstance(config, PlanConfig) else PlanConfig.from_mapping(config)
     robot = as_robot(robot)
     t0 = time.perf_counter()
     chain = build_chain(robot)
     limits = sampling_limits(robot, cfg.ranges_deg)
     q = sample_configurations(limits, cfg.n_candidates, rng_stream(cfg.seed, "candidates"))
-    q = np.deg2rad(np.round(np.rad2deg(q), 6))  # what plan.csv will say, 1e-6 deg
+    if robot.has_prismatic:  # a prismatic joint's value in mm: 1e-6 mm
+        q = np.where(robot.prismatic, np.round(q, 6), np.deg2rad(np.round(np.rad2deg(q), 6)))
+    else:
+        q = np.deg2rad(np.round(np.rad2deg(q), 6))  # what plan.csv will say, 1e-6 deg
+    if robot.coupling is not None:  # drawn as the controller reports them (its limits), planned as the kinematics
+        q = robot.to_kinematic(q)
     cand = screen(robot, chain, q, cfg)
     if cand.n == 0:
         raise _nothing_left(cand, "candidate")
@@ -285,13 +343,23 @@ def build_problem(
 
     model, x0 = _model(robot, cfg)
     Jb = jacobian_blocks(model, x0, cand.q, cand.visible, cfg)
+    terms = axis_terms_of(robot) if axis_terms else []
+    all_names, all_units = model.names, model.units
+    if terms:  # the axis errors along the travel, after the calibration's parameters
+        Jb = np.concatenate([Jb, axis_blocks(model, x0, cand.q, cand.visible, cfg, terms)], axis=2)
+        all_names = (*all_names, *(t.name for t in terms))
+        all_units = (*all_units, *(t.unit for t in terms))
+    n_all = len(all_names)
     t2 = time.perf_counter()
     sub_rng = rng_stream(cfg.seed, "identifiability")
     sub = np.sort(sub_rng.choice(cand.n, size=min(_IDENT_SUBSET, cand.n), replace=False))
-    Js = Jb[sub].reshape(-1, model.n)
+    Js = Jb[sub].reshape(-1, n_all)
     Js = Js[np.any(Js != 0.0, axis=1)]
-    fixed = resolve_fixed(model.names, cfg.fixed, "plan.fixed")
-    ident = analyse(Js, model.names, keep_order(model.kinds, model.names, fixed), rtol=cfg.rank_tol)
+    fixed = resolve_fixed(all_names, cfg.fixed, "plan.fixed")
+    order = keep_order(model.kinds, model.names, fixed) + [
+        model.n + k for k in range(len(terms)) if terms[k].name not in fixed
+    ]
+    ident = analyse(Js, all_names, order, rtol=cfg.rank_tol)
     kept = np.sort(ident.kept)
     rms = np.sqrt(np.mean(Js[:, kept] ** 2, axis=0))
     scale = 1.0 / np.where(rms > 0, rms, 1.0)
@@ -303,17 +371,22 @@ def build_problem(
     tv = np.zeros(len(qv), dtype=int)
     pv, _ = model.predict(x0, qv, tv)
     _, Jv = model.residuals_and_jacobian(x0, FitData(q=qv, p_mm=pv, target_index=tv))
-    G = Jv[: 3 * len(qv)].reshape(len(qv), 3, model.n)[:, :, kept] * scale
+    Gv = Jv[: 3 * len(qv)].reshape(len(qv), 3, model.n)
+    if terms:
+        vcfg = replace(cfg, orientation=False, targets=cfg.targets[:1])
+        Ga = axis_blocks(model, x0, qv, np.ones((len(qv), 1), dtype=bool), vcfg, terms) * cfg.noise_mm
+        Gv = np.concatenate([Gv, Ga], axis=2)
+    G = Gv[:, :, kept] * scale
     L = np.einsum("vip,viq->pq", G, G) / len(qv)
     t3 = time.perf_counter()
-    units = tuple("deg" if model.units[i] == "rad" else model.units[i] for i in kept)
+    units = tuple("deg" if all_units[i] == "rad" else all_units[i] for i in kept)
     return Problem(
         robot=robot,
         config=cfg,
         cand=cand,
         F=F,
         scale=scale,
-        names=tuple(model.names[i] for i in kept),
+        names=tuple(all_names[i] for i in kept),
         units=units,
         eliminated=[e.to_dict() for e in ident.eliminated],
         region_q=qv,

@@ -196,6 +196,7 @@ def load_bundle(path: str | Path, loaders: Mapping[str, Loader] | None = None) -
     if not robot_ref:
         raise ConfigError(f"bundle {d}: {MANIFEST} must name the 'robot'")
     robot = load_robot(d / robot_ref if str(robot_ref).endswith((".yaml", ".yml")) else str(robot_ref))
+    _no_external_axes(robot)
     cal = _read_calibration(d, manifest, robot)
     models = _read_models(d, manifest, loaders)
     th = models.get("thermal")
@@ -304,6 +305,18 @@ def _thermal_range_checked(
     return sensors, t_lo, t_hi
 
 
+def _no_external_axes(robot: RobotDescription) -> None:
+    """The service compensates revolute chains only (its compiled chain): a robot on external axes is refused by
+    name, with where its compensation is (issue 34)."""
+    if robot.has_prismatic:
+        axes = [robot.joint_names[j] for j in range(robot.n_joints) if robot.prismatic[j]]
+        raise ConfigError(
+            f"robot {robot.name!r} rides external axes (prismatic joint(s) {axes}): the service compensates revolute "
+            "chains only; robocal.compensation.axes and robocal.cell.programs.axes compensate it, and robocal "
+            "discover's compensation.csv"
+        )
+
+
 def write_bundle(
     out_dir: str | Path,
     robot: str | Path,
@@ -329,8 +342,10 @@ def write_bundle(
         cal_data = json.loads(cal_path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise ConfigError(f"cannot read the calibration {cal_path}: {exc}") from None
+    rob = load_robot(robot if rp is None else rp)
+    _no_external_axes(rob)
     if isinstance(cal_data, dict):
-        check_robot(cal_data, load_robot(robot if rp is None else rp), f"the calibration {cal_path}")
+        check_robot(cal_data, rob, f"the calibration {cal_path}")
         design = (cal_data.get("fit") or {}).get("configurations") if isinstance(cal_data.get("fit"), dict) else None
         if isinstance(design, dict) and not design.get("enough", True) and not force:
             raise ConfigError(

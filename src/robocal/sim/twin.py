@@ -23,7 +23,7 @@ from typing import Any, Protocol
 import numpy as np
 import yaml
 
-from robocal.data.columns import EXTRA_DECIMALS, POSE_COLUMNS, ColumnGroup, known_columns
+from robocal.data.columns import EXTRA_DECIMALS, POSE_COLUMNS, ColumnGroup, joint_columns, known_columns
 from robocal.errors import ConfigError
 from robocal.io import atomic_write, write_json, write_text
 from robocal.kinematics.chain import Chain, build_chain, propagate
@@ -55,6 +55,8 @@ class Rows:
     dp_tracker_mm: np.ndarray | None = None  # (m, 3) tracker-frame displacement of the measured points (drift)
     tracker_scale: np.ndarray | None = None  # (m,) the tracker's length-scale error of each row (scale), 1e-6 = 1 ppm
     base_rotvec: np.ndarray | None = None  # (m, 3) rad: the robot base turned about its origin, base axes (stand)
+    # joint (0-based) -> (m, 6): a linear axis's true carriage errors (robocal.kinematics.axes.COMPONENTS)
+    axis_error: dict[int, np.ndarray] | None = None
 
 
 @dataclass
@@ -82,7 +84,13 @@ class Effect(Protocol):
 EFFECTS: dict[str, Callable[[Mapping[str, Any]], Effect]] = {}
 #: Modules that register more effects (thermal warm-up, compliance under payload, tracker drift); imported
 #: on first use so that ``robocal.sim.twin`` itself stays light. A module that does not exist is skipped.
-EFFECT_MODULES = ("robocal.sim.thermal", "robocal.sim.compliance", "robocal.sim.drift", "robocal.sim.stand")
+EFFECT_MODULES = (
+    "robocal.sim.thermal",
+    "robocal.sim.compliance",
+    "robocal.sim.drift",
+    "robocal.sim.stand",
+    "robocal.sim.axes",
+)
 
 
 def load_effect_modules() -> dict[str, Callable[[Mapping[str, Any]], Effect]]:
@@ -270,7 +278,7 @@ def given_poses(value: Any, robot: RobotDescription, key: str) -> np.ndarray | N
         if not path.exists():
             raise ConfigError(f"The '{key}' scenario setting names {str(path)!r}, which does not exist")
         df = pd.read_csv(path)
-        cols = [f"q{j + 1}_deg" for j in range(n)]
+        cols = joint_columns(robot.prismatic)  # q<j>_deg, q<j>_mm for a prismatic joint
         missing = [c for c in cols if c not in df.columns]
         if missing:
             raise ConfigError(f"The '{key}' scenario setting's file {path} lacks the column(s) {missing}")
@@ -286,7 +294,7 @@ def given_poses(value: Any, robot: RobotDescription, key: str) -> np.ndarray | N
         raise ConfigError(
             f"The '{key}' scenario setting must give {n} finite joint angles (deg) per pose. Got shape {arr.shape}."
         )
-    q = np.deg2rad(arr)
+    q = np.where(robot.prismatic, arr, np.deg2rad(arr)) if robot.has_prismatic else np.deg2rad(arr)  # mm stay mm
     lim = robot.q_limits
     bad = np.flatnonzero(np.any((q < lim[:, 0] - 1e-9) | (q > lim[:, 1] + 1e-9), axis=1))
     if bad.size:
@@ -443,7 +451,7 @@ def simulate(
     sigma_o = np.deg2rad(cfg.noise_deg)
     quat = matrix_to_quat(rotvec_to_matrix(noise.normal(0, sigma_o, (m, 3))) @ R) if cfg.orientation else None
     _gross_errors(cfg.gross_errors, truth, rows, p_meas, rng("gross"), list(cfg.target_names))
-    _write_campaign(Path(out_dir), cfg, rows, p_meas, quat, station_of, ctx.temperature_log, truth)
+    _write_campaign(Path(out_dir), cfg, rows, p_meas, quat, station_of, ctx.temperature_log, truth, robot)
     return truth
 
 
@@ -464,7 +472,12 @@ def _plan(cfg: ScenarioConfig, robot: RobotDescription, n_params: int, rng: np.r
         q_val = drawn[n_cal:] if q_val is None else q_val
         n_cal, n_val = len(q_cal), len(q_val)
         q_all = np.concatenate([q_cal, q_val])
-    q_all = np.deg2rad(np.round(np.rad2deg(q_all), 6))  # what the controller reports, 1e-6 deg
+    if robot.has_prismatic:  # a prismatic joint reports mm (1e-6 mm)
+        q_all = np.where(robot.prismatic, np.round(q_all, 6), np.deg2rad(np.round(np.rad2deg(q_all), 6)))
+    else:
+        q_all = np.deg2rad(np.round(np.rad2deg(q_all), 6))  # what the controller reports, 1e-6 deg
+    if robot.coupling is not None:  # drawn (or given) as the controller reports them, inside its limits
+        q_all = robot.to_kinematic(q_all)
     K = len(cfg.target_names)
     pid = np.repeat(np.array([f"p{k:04d}" for k in range(n_cal + n_val)], dtype=object), K)
     m = len(pid)
@@ -522,6 +535,12 @@ def _true_points(
     """True target points (m, 3) and orientations (m, 3, 3) in the tracker frame, grouped by identical drift."""
     m = len(rows.pose_id)
     q_true = rows.q_cmd + rows.dq
+    if rows.axis_error:  # the carriages' errors: pseudo joints of the augmented chain (robocal.kinematics.axes)
+        from robocal.kinematics.axes import augment
+
+        joints = sorted(rows.axis_error)
+        chain = augment(chain, joints)
+        q_true = np.concatenate([q_true, *(rows.axis_error[j] for j in joints)], axis=1)
     p = np.zeros((m, 3))
     R = np.zeros((m, 3, 3))
     keys, inv = np.unique(np.round(rows.deta, 15), axis=0, return_inverse=True)
@@ -551,10 +570,11 @@ def _write_campaign(
     station_of: np.ndarray | None,
     temperature_log: dict[str, np.ndarray] | None,
     truth: dict[str, Any],
+    robot: RobotDescription | None = None,
 ) -> None:
     """``poses.csv`` (+ ``temperatures.csv``), ``truth.json`` and ``scenario.yaml``, with fixed formats."""
     out.mkdir(parents=True, exist_ok=True)
-    write_text(out / "poses.csv", _poses_csv(cfg, rows, p_meas, quat, station_of))
+    write_text(out / "poses.csv", _poses_csv(cfg, rows, p_meas, quat, station_of, robot))
     if temperature_log is not None:
         log = temperature_log
         names = [k for k in log if k != "t_s"]
@@ -576,12 +596,24 @@ def _write_campaign(
 
 
 def _poses_csv(
-    cfg: ScenarioConfig, rows: Rows, p_meas: np.ndarray, quat: np.ndarray | None, station_of: np.ndarray | None
+    cfg: ScenarioConfig,
+    rows: Rows,
+    p_meas: np.ndarray,
+    quat: np.ndarray | None,
+    station_of: np.ndarray | None,
+    robot: RobotDescription | None = None,
 ) -> str:
     """The poses file, its columns in the contract's order (:data:`robocal.data.columns.POSE_COLUMNS`) in their
     fixed formats; the effects' reported columns (``rows.columns``) at their group's place, columns the
-    contract does not name last."""
+    contract does not name last. The joints as the controller reports them: a prismatic joint in mm, a coupled
+    robot's values before its coupling (:meth:`robocal.robot.RobotDescription.to_reported`)."""
     n = rows.q_cmd.shape[1]
+    q_file = np.rad2deg(rows.q_cmd)
+    prismatic = None
+    if robot is not None and (robot.has_prismatic or robot.coupling is not None):
+        q_rep = robot.to_reported(rows.q_cmd)
+        prismatic = robot.prismatic
+        q_file = np.where(prismatic, q_rep, np.rad2deg(q_rep))
     text: dict[str, list[list[str]] | None] = {
         "pose_id": [list(map(str, rows.pose_id))],
         "timestamp": [[cfg.iso(t) for t in rows.t_s]],
@@ -590,7 +622,7 @@ def _poses_csv(
         "station": None if station_of is None else [list(station_of)],
     }
     numbers: dict[str, np.ndarray | None] = {
-        "q": np.rad2deg(rows.q_cmd).T,
+        "q": q_file.T,
         "p": p_meas.T,
         "quat": None if quat is None else quat.T,
         "payload": rows.payload_kg[None],
@@ -598,7 +630,7 @@ def _poses_csv(
     header: list[str] = []
     cols: list[list[str]] = []
     for group in POSE_COLUMNS:
-        names = group.columns(n)
+        names = joint_columns(prismatic) if group.key == "q" and prismatic is not None else group.columns(n)
         if group.key in text:
             given = text[group.key]
         elif group.key in numbers:
@@ -610,7 +642,7 @@ def _poses_csv(
         if given:
             header += names
             cols += given
-    extra = [c for c in rows.columns if c not in known_columns(n)]
+    extra = [c for c in rows.columns if c not in known_columns(n, prismatic)]
     header += extra
     cols += [_fmt(rows.columns[c], EXTRA_DECIMALS) for c in extra]
     lines = [",".join(header)] + [",".join(r) for r in zip(*cols, strict=True)]

@@ -359,6 +359,43 @@ def _tool_T(cal: Any, target: str) -> np.ndarray:
     return T
 
 
+def _axes_product(
+    res: DiscoveryResult, cal: Any, sub: Campaign, idx: np.ndarray, tgt: list[str], ids: list[str], out: Path
+) -> None:
+    """``compensation.csv`` of a robot on external axes (a track, a column): each pose corrected by
+    :func:`robocal.compensation.axes.compensate_axes` with the discovered axis errors, the external axes kept at
+    their commanded value; refused (nominal joints kept) when it does not converge or leaves the joint limits."""
+    from robocal.compensation.axes import compensate_axes
+    from robocal.compensation.controller_csv import write_controller_csv
+    from robocal.discovery.axes import discovered_axis_fit
+    from robocal.kinematics.chain import fk
+
+    robot = res.robot
+    af = discovered_axis_fit(res.final, robot, cal.x)
+    m = len(idx)
+    qc, cmd, err = np.zeros((m, robot.n_joints)), np.zeros((m, 4, 4)), np.zeros((m, 3))
+    status, reason, corr = [TargetStatus.OK] * m, [""] * m, np.zeros(m)
+    lim = robot.q_limits
+    for t in dict.fromkeys(tgt):
+        rows = np.array([k for k, tt in enumerate(tgt) if tt == t])
+        r = idx[rows]
+        comp = compensate_axes(cal, sub.q[r], t, af, payload_kg=sub.payload_kg[r])
+        cmd[rows] = fk(cal.model.chain, comp.q_target) @ _tool_T(cal, t)
+        inside = np.all((comp.q >= lim[:, 0]) & (comp.q <= lim[:, 1]), axis=1)
+        for k, row in enumerate(rows):
+            ok = bool(comp.converged[k] and inside[k])
+            qc[row] = comp.q[k] if ok else comp.q_target[k]
+            err[row, 0] = comp.residual_mm[k] if ok else comp.error_before_mm[k]
+            corr[row] = float(np.rad2deg(np.abs(comp.q[k] - comp.q_target[k])[~robot.prismatic].max()))
+            if not ok:
+                status[row] = TargetStatus.REFUSED
+                reason[row] = "not converged" if not comp.converged[k] else "the correction leaves the joint limits"
+    applied = np.array([s != TargetStatus.REFUSED for s in status], dtype=bool)
+    write_controller_csv(
+        out / "compensation.csv", ids, qc, cmd, err, None, status, applied, corr, reason, prismatic=robot.prismatic
+    )
+
+
 def write_product(res: DiscoveryResult, summ: dict[str, Any], out: Path) -> str | None:
     """The discovered model as the product: ``calibration.json`` (geometry + joint-level effects, readable by
     ``robocal serve --make-bundle --calibration`` and every reader of a calibration) and ``compensation.csv``
@@ -392,6 +429,9 @@ def write_product(res: DiscoveryResult, summ: dict[str, Any], out: Path) -> str 
         first.setdefault(str(pid), (i, str(t)))
     idx = np.array([i for i, _ in first.values()])
     tgt = [t for _, t in first.values()]
+    if res.robot.has_prismatic:  # a robot on external axes: robocal.compensation.axes (the track not moved)
+        _axes_product(res, cal, sub, idx, tgt, [f"{p}/{t}" for p, t in zip(first, tgt, strict=True)], out)
+        return None
     qc = np.zeros((len(idx), sub.n_joints))
     cmd = np.zeros((len(idx), 4, 4))
     res_mm = np.zeros((len(idx), 3))

@@ -117,7 +117,8 @@ def run(
 ) -> dict[str, Any]:
     """Calibrate the campaign in ``data_dir`` (``settings``: a :class:`CalibrationConfig` mapping); write
     ``calibration.json``, ``summary.json``, ``residuals.csv`` and (optionally) ``report.html`` into ``out_dir``.
-    Returns the summary.
+    Returns the summary. A robot on external axes (a prismatic joint) also gets its axes' errors along the travel
+    fitted on top (:func:`robocal.identification.axes.fit_axis_errors`): ``summary.json`` → ``axes``.
 
     ``optimizer``: an optimizer config (``conf/optimizer/*.yaml``), run by
     :func:`robocal.optimizers.geometric.fit_with_optimizer` (None: Levenberg-Marquardt with ``settings``'
@@ -149,6 +150,10 @@ def run(
     warnings = result_warnings(summary)
     if warnings:  # the key only when there are some (a clean run's summary.json is unchanged)
         summary["warnings"] = warnings
+    if rob.has_prismatic and not summary["problems"]:  # a track's or a column's own errors (issue 34)
+        from robocal.identification.axes import fit_axis_errors
+
+        summary["axes"] = fit_axis_errors(camp, result).record()
     summary["status"] = status_of(summary)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
