@@ -58,8 +58,11 @@ class ExtendedModel:
         T_ref: np.ndarray,
         accepted: list[Accepted],
         like: CalibrationModel | None = None,
+        base_prior: np.ndarray | None = None,
     ) -> None:
-        """``like``: a geometric model whose orientation use, tool frames and tracker stations to copy."""
+        """``like``: a geometric model whose orientation use, tool frames and tracker stations to copy;
+        ``base_prior``: precision ``(nb,)`` of a prior toward nominal (zero) on the geometric parameters, the
+        calibration's on a thin or sparse campaign (:mod:`robocal.identification.thin`), or None."""
         self.robot = robot_with(robot, accepted)
         if like is None:
             self.base = CalibrationModel(self.robot, targets, orientation=False, T_ref=T_ref)
@@ -75,6 +78,7 @@ class ExtendedModel:
             )
         self.accepted = list(accepted)
         self.nb = self.base.n
+        self.base_prior = base_prior
         names = list(self.base.names)
         self.slices: list[slice] = []
         for a in self.accepted:
@@ -91,6 +95,8 @@ class ExtendedModel:
         """``(n,)`` precision ``1 / tau²`` of the Gaussian prior on each parameter (0 = none): an effect with
         many coefficients (``Candidate.extra["prior_rad"]``, rad per coefficient) is fitted as a ridge."""
         out = np.zeros(self.n)
+        if self.base_prior is not None:
+            out[: self.nb] = self.base_prior
         for a, sl in zip(self.accepted, self.slices, strict=True):
             tau = a.cand.extra.get("prior_rad")
             if tau is not None and a.cand.shape == "joint":

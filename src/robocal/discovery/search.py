@@ -313,6 +313,23 @@ def _retest(
     return test, loud, systematic
 
 
+def calibration_prior(geo: Any) -> np.ndarray | None:
+    """The precision ``(n,)`` of the geometric calibration's prior toward the nominal robot on its joint-level
+    parameters (a thin or sparse campaign, :mod:`robocal.identification.thin`: ``strength / width²`` from the
+    fit's ``configurations.prior`` record), for the discovery's joint refits to keep it (issue 33 item 3: the same
+    regularised geometry under the effects); None without a prior. Frames and tools keep none (their prior is a
+    weak bound around the rigid fit, not toward the nominal)."""
+    rec = ((geo.fit or {}).get("configurations") or {}).get("prior") or {}
+    strength = float(rec.get("strength") or 0.0)
+    if strength <= 0.0:
+        return None
+    w = rec["widths"]
+    model = geo.model
+    joint = np.array([k == "kinematic" for k in model.kinds])
+    width = np.where(np.array([u == "mm" for u in model.units]), w["length_mm"], np.deg2rad(w["angle_deg"]))
+    return np.where(joint, strength / width**2, 0.0)
+
+
 def _search(
     campaign: Campaign,
     robot: RobotDescription,
@@ -332,8 +349,10 @@ def _search(
     T_ref = geo.model.T_ref
     fixed = resolve_fixed(geo.model.names, cfg.fixed, "discovery.fixed")
 
+    base_prior = calibration_prior(geo)
+
     def refit(accepted: list[Accepted], prev: Fit | None) -> Fit:
-        model = ExtendedModel(robot, targets, T_ref, accepted, like=geo.model)
+        model = ExtendedModel(robot, targets, T_ref, accepted, like=geo.model, base_prior=base_prior)
         theta0 = model.map_from(prev.model.names, prev.theta) if prev is not None else model.map_from(geo.names, geo.x)
         return fit_model(model, theta0, data, rows, sigma, fixed, cfg.rank_tol, cfg.max_iter, sigma_rad=sigma_rad)
 
@@ -389,7 +408,7 @@ def _search(
                 """The selection's effects on top of the geometry found so far, held (the geometry stays the
                 calibration's, so where a windowed effect is off the model is the geometric one)."""
                 assert prev is not None
-                model = ExtendedModel(robot, targets, T_ref, accepted, like=geo.model)
+                model = ExtendedModel(robot, targets, T_ref, accepted, like=geo.model, base_prior=base_prior)
                 theta0 = model.map_from(prev.model.names, prev.theta)
                 held = fixed | set(model.base.names)
                 return fit_model(model, theta0, data, rows, sigma, held, cfg.rank_tol, cfg.max_iter,
