@@ -79,8 +79,9 @@ class _Hurts:
     def __init__(self, key: str) -> None:
         self.key = key
 
-    def summary(self, fit):
-        has = any(a.cand.key == self.key and np.any(np.isin(fit.free, np.arange(sl.start, sl.stop)))
+    def summary(self, fit, opened=frozenset(), keep=None):
+        free = fit.free if keep is None else fit.free[keep]
+        has = any(a.cand.key == self.key and np.any(np.isin(free, np.arange(sl.start, sl.stop)))
                   for a, sl in zip(fit.model.accepted, fit.model.slices, strict=True))  # fmt: skip
         sse = 2.0 if has else 1.0
         return {"sessions": ["a", "b"], "mean_position_mm": sse, "rms_position_mm": sse, "per_session": {}, "sse": sse}
@@ -133,3 +134,20 @@ def test_a_window_opened_by_the_sessions_leaves_the_fitted_rows_as_they_were():
     np.testing.assert_allclose(op.S[rows], cand.S[rows], rtol=0, atol=1e-12)  # the fit is unchanged
     np.testing.assert_allclose(op.S[20:], fourier_signal(q[20:, 1], h) - centre, atol=1e-12)  # applied beyond
     assert op.extra["visited_deg"] == [[0.0, 360.0]]
+
+
+def test_an_effect_left_out_is_a_slice_of_the_fits_normal_equations(two):
+    from robocal.discovery.grow import replace_fit_columns
+
+    camp, _robot, res, _s = two
+    fit = res.final
+    assert fit.model.base.station_names == ("S1", "S2")
+    index = (np.asarray(camp.station)[res.rows].astype(str) == "S2").astype(int)
+    q = np.asarray(camp.q)[res.rows]
+    sl = fit.model.slices[0]
+    keep = np.array([i for i, p in enumerate(fit.free) if not (sl.start <= p < sl.stop)])
+    a = Sessions(index, ("S1", "S2"), (0, 1), q, 2.0).summary(fit, keep=keep)
+    b = Sessions(index, ("S1", "S2"), (0, 1), q, 2.0).summary(replace_fit_columns(fit, keep))
+    # the same linear algebra in another order: equal to rounding
+    assert a["sse"] == pytest.approx(b["sse"], rel=1e-9)
+    assert a["per_session"] == pytest.approx(b["per_session"], rel=1e-9)

@@ -584,7 +584,7 @@ def contributions(
             "held_out_gain": float(np.sqrt(np.sum(cvs.base_err**2) / max(float(np.sum(cv.base_err**2)), 1e-300)) - 1),
         }
         if sessions is not None and own is not None:
-            other = sessions.summary(sub)
+            other = sessions.summary(fit, keep=keep)  # = sessions.summary(sub), from the fit's normal equations
             out["effects"][a.cand.key].update(
                 session_mean_without_mm=other["mean_position_mm"],
                 # the same rise in a session the model was not fitted on: negative, the effect hurts there

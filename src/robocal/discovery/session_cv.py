@@ -91,15 +91,38 @@ class Sessions:
             return np.where(g_all > 0, np.minimum(g_own / np.maximum(g_all, 1e-300), 1.0), 0.0)
         return None
 
-    def errors(self, fit: Fit, opened: frozenset[str] = frozenset()) -> tuple[np.ndarray, np.ndarray]:
+    def _grams(self, fit: Fit) -> tuple[np.ndarray, np.ndarray, list[tuple[np.ndarray, np.ndarray]]]:
+        """The normal equations of the fit, all rows and each session's (``JᵀJ``, ``Jᵀr``), formed once per fit
+        (every effect left out is a slice of them, :meth:`errors` with ``keep``)."""
+        cache = self.__dict__.setdefault("_cache", {})
+        if cache.get("fit") is not fit:
+            A, r = fit.J_w, fit.r_w
+            per = []
+            for i in range(len(self.station)):
+                t = np.repeat(self.index == i, fit.d)
+                per.append((A[t].T @ A[t], A[t].T @ r[t]))
+            cache.update(fit=fit, G=A.T @ A, b=A.T @ r, per=per)
+        return cache["G"], cache["b"], cache["per"]
+
+    def errors(
+        self, fit: Fit, opened: frozenset[str] = frozenset(), keep: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Whitened held-out residuals ``(M,)`` of every held-out session's rows (0 on rows of no session) and
-        the mask ``(M,)`` of the residuals held out; the effects in ``opened`` applied without their window."""
+        the mask ``(M,)`` of the residuals held out; the effects in ``opened`` applied without their window;
+        ``keep``: only these free parameters (positions in ``fit.free``), the others removed from the model as
+        :func:`robocal.discovery.grow.replace_fit_columns` removes them (first order)."""
         A, r, d = fit.J_w, fit.r_w, fit.d
-        free = fit.free
+        k_all = len(fit.free)
+        keep = np.arange(k_all) if keep is None else np.asarray(keep, dtype=int)
+        drop = np.setdiff1d(np.arange(k_all), keep)
+        free = fit.free[keep]
         prec = fit.model.prior_precision()[free]
-        th = fit.theta[free]
-        G = A.T @ A
-        b = A.T @ r
+        th_all = fit.theta[fit.free]
+        th = th_all[keep]
+        thd = th_all[drop]
+        G0, b0, per = self._grams(fit)
+        G = G0[np.ix_(keep, keep)]
+        b = b0[keep] - G0[np.ix_(keep, drop)] @ thd
         col = {int(p): i for i, p in enumerate(free)}
         out = np.zeros_like(r)
         mask = np.zeros(len(r), dtype=bool)
@@ -107,10 +130,11 @@ class Sessions:
         for i, s in enumerate(self.station):
             held = self.index == i
             t = np.repeat(held, d)
-            At0, rt0 = A[t], r[t]
-            H = G - At0.T @ At0 + np.diag(prec)
-            g = b - At0.T @ rt0 + prec * th
-            At, rt = At0.copy(), rt0.copy()
+            Gs, bs = per[i]
+            H = G - Gs[np.ix_(keep, keep)] + np.diag(prec)
+            g = b - (bs[keep] - Gs[np.ix_(keep, drop)] @ thd) + prec * th
+            At = A[t][:, keep]
+            rt = r[t] - A[t][:, drop] @ thd
             for a, sl in zip(model.accepted, model.slices, strict=True):
                 if a.cand.shape != "joint":
                     continue
@@ -139,9 +163,10 @@ class Sessions:
         e = (err_w / fit.weights).reshape(-1, fit.d)[:, :3]
         return np.asarray(np.linalg.norm(e[mask.reshape(-1, fit.d)[:, 0]], axis=1))
 
-    def summary(self, fit: Fit, opened: frozenset[str] = frozenset()) -> dict[str, Any]:
-        """``{"sessions", "mean_position_mm", "rms_position_mm", "per_session": {name: mean mm}, "sse"}``."""
-        err, mask = self.errors(fit, opened)
+    def summary(self, fit: Fit, opened: frozenset[str] = frozenset(), keep: np.ndarray | None = None) -> dict[str, Any]:
+        """``{"sessions", "mean_position_mm", "rms_position_mm", "per_session": {name: mean mm}, "sse"}``
+        (:meth:`errors`' arguments)."""
+        err, mask = self.errors(fit, opened, keep)
         e = self.position_mm(fit, err, mask)
         held = self.index[self.index >= 0]
         stats = ErrorStats.of(e)
