@@ -99,10 +99,15 @@ def test_screen_names_each_column_not_used_with_its_reason(tmp_path):
         "constant": np.full(m, 3.0),
         "comment": np.array(["x"] * m, dtype=object),
         "skip_me": rng.normal(size=m),
+        # the tracker's stated uncertainty per coordinate (the UR10 series carry std_x_mm ... std_rz_deg): on main
+        # the B + C campaign named "signal:std_y_mm:base_trans", the base moving with the tracker's noise figure
+        "std_y_mm": np.abs(rng.normal(size=m)) * 0.01,
+        "declared_std": rng.normal(size=m),
     }
-    camp = replace(camp, extra=extra, signal_declarations=parse_declarations({"skip_me": {"use": False}}, "test"))
+    decl = parse_declarations({"skip_me": {"use": False}, "declared_std": {"unit": "mm"}}, "test")
+    camp = replace(camp, extra=extra, signal_declarations=decl)
     used, skipped = screen(camp, robot)
-    assert [u.name for u in used] == ["sensor"]
+    assert [u.name for u in used] == ["sensor", "declared_std"]  # declared: offered, whatever its name
     why = {s["column"]: s["reason"] for s in skipped}
     assert why["sensor_copy"].startswith("a copy of the logged signal sensor")
     assert why["distance_mm"].startswith("a function of the measured position")
@@ -110,6 +115,7 @@ def test_screen_names_each_column_not_used_with_its_reason(tmp_path):
     assert why["constant"] == "does not vary over the calibration rows"
     assert why["comment"] == "not numeric"
     assert why["skip_me"] == "declared not to be used (use: false)"
+    assert why["std_y_mm"].startswith("the instrument's stated uncertainty of the measurement")
 
 
 def test_declarations_in_signals_yaml_and_the_robot_description(tmp_path):

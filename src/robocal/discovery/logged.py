@@ -11,7 +11,9 @@ inclinometer, an accelerometer, an external axis position, a load cell, a time c
 * a column that is a function of the measurement itself (the tracker's own distance, angles or coordinates) is
   recognised by regressing it on the measured position (linear, quadratic and spherical terms) and not used: an
   effect driven by it would fit the measurement with itself;
-* a column equal to an earlier usable one (|r| >= :data:`FUNCTION_R2`) is a copy and not used twice.
+* a column equal to an earlier usable one (|r| >= :data:`FUNCTION_R2`) is a copy and not used twice;
+* a column whose name says it is the instrument's stated uncertainty of its reading (``std_x_mm``, ``u_mm``,
+  ``sigma_z``: :func:`uncertainty_column`) is a noise figure, not a cause, and is not used unless declared.
 
 Each remaining signal ``s`` (centred on the calibration rows) is offered as the cause of
 
@@ -31,6 +33,7 @@ selection's own test for the leftovers).
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from typing import Any
 
@@ -137,6 +140,16 @@ def measurement_basis(campaign: Campaign) -> np.ndarray:
                             np.cos(az), el])  # fmt: skip
 
 
+#: names of the columns in which a tracker or total station states the uncertainty of its own reading (a standard
+#: deviation per coordinate or angle, an expanded uncertainty): ``std_x_mm``, ``u_mm``, ``sigma_z``, ``x_std``
+_UNCERTAINTY = re.compile(r"^(std|u|sigma|unc|uncertainty)(_|$)|_(std|sigma|unc|uncertainty)(_|$)", re.IGNORECASE)
+
+
+def uncertainty_column(name: str) -> bool:
+    """Whether a column's name says it is the measurement's own stated uncertainty (:data:`_UNCERTAINTY`)."""
+    return bool(_UNCERTAINTY.search(name))
+
+
 def screen(campaign: Campaign, robot: RobotDescription) -> tuple[list[LoggedSignal], list[dict[str, Any]]]:
     """The campaign's usable logged signals and the extra columns not used, each with the reason."""
     decl = merged(robot.signals, campaign.signal_declarations)
@@ -158,6 +171,10 @@ def screen(campaign: Campaign, robot: RobotDescription) -> tuple[list[LoggedSign
 
         if d is not None and not d.use:
             skip("declared not to be used (use: false)")
+            continue
+        if d is None and uncertainty_column(name):
+            skip("the instrument's stated uncertainty of the measurement (a noise figure, not a cause of an error): "
+                 "declare it in signals.yaml to offer it anyway")  # fmt: skip
             continue
         try:
             x = np.asarray(raw, dtype=float)
