@@ -209,7 +209,7 @@ def test_a_robot_path_given_as_the_group_is_one_line_saying_robot_file(
     with pytest.raises(ConfigError) as info:
         compose(REPO, ["robot=../shared/data/ur10-ipa/robot.yaml"])
     msg = str(info.value)
-    assert "\n" not in msg and "abb_irb120, kr16_2, sr210" in msg
+    assert "\n" not in msg and "(conf/robot/: abb_irb120, kr16_2," in msg and "sr210)" in msg
     assert "robot_file=../shared/data/ur10-ipa/robot.yaml" in msg
     # a Hydra-mode stage run says the same in one line (not Hydra's "Could not find" report)
     assert _run("prepare", REPO, ["robot=../x.yaml"]) == 2
