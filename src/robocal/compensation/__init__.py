@@ -26,11 +26,15 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from robocal.kinematics.chain import Chain, ChainState, propagate
 from robocal.status import TargetStatus
+
+if TYPE_CHECKING:
+    from robocal.kinematics.ik import Solution
 
 
 @dataclass(frozen=True)
@@ -59,35 +63,6 @@ class ActualRobot:
         return p, R, st
 
 
-@dataclass
-class Compensation:
-    """Result of :func:`compensate`.
-
-    q_target : (m, n) the requested joints; q : (m, n) corrected joint targets, rad;
-    converged : (m,) bool; residual_mm : (m, 3) predicted position error after compensation;
-    residual_rad : (m, 3) predicted orientation error (rotation vector);
-    error_before_mm / error_before_rad : the same without compensation; iterations : int; status / reasons :
-    None (the Newton step only: :func:`robocal.compensation.correct.correct` judges and returns a
-    :class:`~robocal.compensation.correct.Corrected`).
-    """
-
-    q_target: np.ndarray
-    q: np.ndarray
-    converged: np.ndarray
-    residual_mm: np.ndarray
-    residual_rad: np.ndarray
-    error_before_mm: np.ndarray
-    error_before_rad: np.ndarray
-    iterations: int
-    status: list[str] | None = None
-    reasons: list[list[str]] | None = None
-
-    @property
-    def correction_rad(self) -> np.ndarray:
-        """Joint corrections ``q - q_target`` (m, n), rad."""
-        return self.q - self.q_target
-
-
 def desired_poses(nominal: ActualRobot, q_target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Tool positions ``(m, 3)`` and rotations ``(m, 3, 3)`` the nominal controller expects at ``q_target``."""
     p, R, _ = nominal.pose(q_target)
@@ -104,8 +79,10 @@ def compensate(
     tol_rad: float = 1e-9,
     max_step_rad: float = 0.05,
     stall: bool = True,
-) -> Compensation:
-    """Joint targets ``q*`` with ``actual.pose(q*) = (p_desired, R_desired)``.
+) -> Solution:
+    """Joint targets ``q*`` with ``actual.pose(q*) = (p_desired, R_desired)``: the Newton step, unjudged (the
+    solver's :class:`~robocal.kinematics.ik.Solution`; :func:`robocal.compensation.correct.correct` judges it and
+    returns the one :class:`~robocal.compensation.correct.Corrected`).
 
     With ``R_desired`` the full 6-D tool pose is matched (6 equations, a square system for a 6-axis
     arm); without it only the tool position (minimum-norm joint correction). ``max_step_rad`` and ``stall``
@@ -134,16 +111,7 @@ def compensate(
 
     sol = solve(cc, tool_T, q0, np.asarray(p_desired, dtype=float), R_desired, offset, max_iter=max_iter,
                 tol_mm=tol_mm, tol_rad=tol_rad, max_step_rad=max_step_rad, stall=stall)  # fmt: skip
-    return Compensation(
-        q_target=q0,
-        q=sol.q,
-        converged=sol.converged,
-        residual_mm=sol.residual_mm,
-        residual_rad=sol.residual_rad,
-        error_before_mm=sol.error_before_mm,
-        error_before_rad=sol.error_before_rad,
-        iterations=sol.iterations,
-    )
+    return sol
 
 
 def _rows_of(fn: Callable[[np.ndarray], np.ndarray], q0: np.ndarray) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
