@@ -1,5 +1,12 @@
-"""Correct a batch of targets, then decide whether each is safe: the code the service's ``correct`` op and the
-program filter both run (one Newton, one joint-offset composer, one safety policy).
+"""Correct a batch of targets, then decide whether each is safe: the one compensation entry point.
+
+:func:`correct` (``robocal.compensate``) takes a calibration or the robot at the moment
+(:class:`~robocal.compensation.ActualRobot`: thermal drift in its parameters), the targets, the joint-space effects
+(compliance, discovered effects: the protocol of :mod:`robocal.compensation.effects`) and the one
+:class:`~robocal.compensation.safety.SafetyPolicy`, and returns one :class:`Corrected`. The service's ``correct``
+op and the program filter run the same steps on the compiled chains of a bundle (:func:`correct_targets`: targets
+grouped by tool). Both bound the correction by what lies beyond the calibration's own (:func:`beyond_own`, its one
+definition, through :func:`bound_measures`).
 
 For joints ``q_target`` the nominal controller would use, the pose it means is the nominal forward kinematics
 with the program's (nominal) tool; the corrected joints put the calibrated robot (its compiled chain, the
@@ -255,10 +262,8 @@ def correct_targets(
             res_mm[rows], res_rad[rows] = sol.residual_mm, sol.residual_rad
     # what the bound sees (SafetyPolicy): the whole correction and error, or, where they exceed it, what is
     # left beyond the calibration's own joint-space correction
-    dq_deg = np.rad2deg(q - q_target)
     excess = np.empty(m)
     rest = np.empty(m)
-    eb_n = np.sqrt((eb_mm * eb_mm).sum(axis=1))
     for (rows, _, tt), p_des in zip(groups, desired, strict=True):
         idx = np.arange(m) if rows is None else rows
 
@@ -268,20 +273,46 @@ def correct_targets(
         excess[idx], rest[idx] = bound_measures(
             sf, position, q_target[idx], q[idx], eb_mm[idx], p_des, zero_off, offsets, idx
         )
+    notes = offsets.notes(q_target) if offsets is not None else [[] for _ in range(m)]
+    return _judged(
+        sf, q_target, q, conv, eb_mm, eb_rad, res_mm, res_rad, excess, rest, q_limits, joint_names,
+        request_reasons, unreachable, notes,
+    )  # fmt: skip
+
+
+def _judged(
+    policy: SafetyPolicy,
+    q_target: np.ndarray,
+    q: np.ndarray,
+    converged: np.ndarray,
+    eb_mm: np.ndarray,
+    eb_rad: np.ndarray,
+    res_mm: np.ndarray,
+    res_rad: np.ndarray,
+    excess: np.ndarray,
+    rest: np.ndarray,
+    q_limits: np.ndarray,
+    joint_names: Sequence[str],
+    request_reasons: Sequence[str],
+    unreachable: np.ndarray | None,
+    notes: list[list[str]],
+    iterations: int = 0,
+    command: np.ndarray | None = None,
+) -> Corrected:
+    """The :class:`Corrected` of a solved batch, judged by ``policy`` (arguments as :meth:`SafetyPolicy.judge`)."""
     res_n = np.sqrt((res_mm * res_mm).sum(axis=1))
     res_deg = np.rad2deg(np.sqrt((res_rad * res_rad).sum(axis=1)))
-    status, reasons = sf.judge(
-        conv, res_n, res_deg, excess, rest, q_target, q, q_limits, joint_names, request_reasons, unreachable
+    status, reasons = policy.judge(
+        converged, res_n, res_deg, excess, rest, q_target, q, q_limits, joint_names, request_reasons, unreachable
     )
-    notes = offsets.notes(q_target) if offsets is not None else [[] for _ in range(m)]
     return Corrected(
         q_target,
         q,
-        dq_deg,
-        conv,
+        np.rad2deg(q - q_target),
+        converged,
         eb_mm,
         eb_rad,
-        eb_n,
+        np.sqrt((eb_mm * eb_mm).sum(axis=1)),
         res_mm,
         res_rad,
         res_n,
@@ -291,6 +322,8 @@ def correct_targets(
         status,
         reasons,
         notes,
+        iterations,
+        command,
     )
 
 
@@ -383,35 +416,13 @@ def correct(
     n = q_target.shape[1]
     ql = np.asarray(q_limits, dtype=float) if q_limits is not None else np.tile([-np.inf, np.inf], (n, 1))
     names = list(joint_names) if joint_names is not None else [f"q{j + 1}" for j in range(n)]
-    res_n = np.sqrt((comp.residual_mm * comp.residual_mm).sum(axis=1))
-    res_deg = np.rad2deg(np.sqrt((comp.residual_rad * comp.residual_rad).sum(axis=1)))
-    status, reasons = pol.judge(
-        comp.converged, res_n, res_deg, excess, rest, q_target, comp.q, ql, names, request_reasons
-    )
     if not isinstance(robot, ActualRobot):
         command = fk(robot.model.chain, comp.q) @ T_tool
     notes = hook.notes(q_target) if isinstance(hook, JointOffsets) else [[] for _ in range(m)]
-    eb = comp.error_before_mm
-    return Corrected(
-        q_target,
-        comp.q,
-        np.rad2deg(comp.q - q_target),
-        comp.converged,
-        eb,
-        comp.error_before_rad,
-        np.sqrt((eb * eb).sum(axis=1)),
-        comp.residual_mm,
-        comp.residual_rad,
-        res_n,
-        res_deg,
-        excess,
-        rest,
-        status,
-        reasons,
-        notes,
-        comp.iterations,
-        command,
-    )
+    return _judged(
+        pol, q_target, comp.q, comp.converged, comp.error_before_mm, comp.error_before_rad, comp.residual_mm,
+        comp.residual_rad, excess, rest, ql, names, request_reasons, None, notes, comp.iterations, command,
+    )  # fmt: skip
 
 
 def _hook(effects: Sequence[JointEffect] | JointOffset | None, signals: Signals) -> Any:
