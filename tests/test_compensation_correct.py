@@ -75,6 +75,14 @@ def test_robocal_compensate_is_the_one_entry_point(calibration):
     np.testing.assert_allclose(real[:, :3, 3], (fk(model.chain, q) @ T_tool)[:, :3, 3], atol=1e-3)  # Newton 1e-4 mm
 
 
+def test_bad_input_names_the_parameter(calibration):
+    with pytest.raises(TypeError, match="'robot' parameter of correct"):
+        correct({"x": 1}, np.zeros((1, 6)))
+    _, actual, q, _ = _robot(calibration.model.robot)
+    with pytest.raises(ValueError, match="'desired'"):
+        correct(actual, q)
+
+
 def test_the_deprecated_wrapper_is_correct(calibration):
     from robocal.discovery.effects import compensate_targets
 

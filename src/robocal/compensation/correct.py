@@ -375,9 +375,17 @@ def correct(
         if effects is not None:
             actual = replace(actual, joint_offset=_hook(effects, sig))
         if desired is None:
-            raise ValueError("correct: an ActualRobot needs the 'desired' poses (p (m, 3), R (m, 3, 3))")
+            raise ValueError(
+                "The 'desired' parameter of correct is required with an ActualRobot: the poses to reach, "
+                "(p (m, 3) mm, R (m, 3, 3) or None). Got None instead."
+            )
         p_d, R_d = desired
     else:
+        if not hasattr(robot, "kinematic_errors"):
+            raise TypeError(
+                "The 'robot' parameter of correct must be a CalibrationResult or an ActualRobot. "
+                f"Got {type(robot).__name__} instead."
+            )
         model = robot.model
         k = 0 if target is None else model.target_names.index(target)
         tool, tool_R = model.tools(robot.x)[k], model.tool_rotations(robot.x)[k]
