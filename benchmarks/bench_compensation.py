@@ -77,7 +77,7 @@ def main() -> None:
     cal = robocal.load_calibration(cal_dict, robot)
     robocal.compensate(cal, q[:10])  # warm-up: the compiled kernels (each call builds its effect tables again)
     t = time.perf_counter()
-    comp, _ = robocal.compensate(cal, q)
+    comp = robocal.compensate(cal, q)  # one robocal.Corrected
     dt = time.perf_counter() - t
     st = np.asarray(comp.status)
     print(f"robocal.compensate (compensation.csv's path), one call: {dt:.2f} s "

@@ -1,12 +1,15 @@
 """One idea, one definition (issue 32): the 3-D RMS of position errors is computed by :class:`robocal.metrics.
 ErrorStats` only, and which parameters a setting holds fixed (shell patterns over the parameter names) and the
 order parameters are kept in are resolved by :mod:`robocal.identification.identifiability` only, for calibrate,
-plan and discovery alike. Read with :mod:`ast` over ``src/robocal``.
+plan and discovery alike; compensation has one entry point, ``correct``, and the correction beyond the calibration's
+own one definition (:mod:`robocal.compensation.correct`); ``needs`` one meaning. Read with :mod:`ast` over
+``src/robocal``.
 """
 
 from __future__ import annotations
 
 import ast
+import functools
 from pathlib import Path
 
 import numpy as np
@@ -19,8 +22,10 @@ from robocal.metrics import ErrorStats
 SRC = Path(__file__).resolve().parents[1] / "src" / "robocal"
 HOME_RMS = SRC / "metrics.py"
 HOME_FIXED = SRC / "identification" / "identifiability.py"
+HOME_CORRECT = SRC / "compensation" / "correct.py"
 
 
+@functools.cache  # parsed once for every check
 def _modules() -> list[tuple[Path, ast.Module]]:
     return [(p, ast.parse(p.read_text(encoding="utf-8"))) for p in sorted(SRC.rglob("*.py"))]
 
@@ -105,3 +110,48 @@ def test_error_stats_rms_is_the_3d_rms() -> None:
     # the same sum in another order: equal to a few ulp, and so to the 6 decimals (mm) the files write
     assert ErrorStats.of(r).rms_mm == pytest.approx(by_hand, rel=1e-14)
     assert ErrorStats.of(r.ravel().reshape(-1, 3)).rms_mm == ErrorStats.of(r).rms_mm
+
+
+def _defs(name: str) -> list[str]:
+    """Where a module-level function ``name`` is defined (methods such as the service's ``correct`` op are not
+    compensation entry points)."""
+    return [
+        f"{p.relative_to(SRC)}"
+        for p, tree in _modules()
+        for n in tree.body
+        if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef)) and n.name == name
+    ]
+
+
+def test_one_compensation_entry_point_and_one_beyond_own_correction() -> None:
+    """``correct`` is defined once (compensation/correct.py); the old judges and the thermal copy of the
+    beyond-own correction are gone; the own correction and what lies beyond it are computed in
+    compensation/correct.py only (no other module calls ``beyond_own``, ``own_correction`` or ``bound_measures``,
+    nor defines a function of that name)."""
+    assert _defs("correct") == ["compensation/correct.py"]
+    for gone in ("judge_compensation", "_beyond_own_correction", "_compensate_by_target"):
+        assert _defs(gone) == [], gone
+    names = ("beyond_own", "own_correction", "bound_measures")
+    for name in names:
+        assert _defs(name) == ["compensation/correct.py"], name
+    found = []
+    for p, tree in _modules():
+        if p == HOME_CORRECT:
+            continue
+        for n in ast.walk(tree):
+            call = next((c for c in (_call(n, name) for name in names) if c is not None), None)
+            if call is not None:
+                found.append(f"{p.relative_to(SRC)}:{n.lineno}: {ast.unparse(n)}")
+    assert not found, "the beyond-own correction computed outside compensation/correct.py:\n" + "\n".join(found)
+
+
+def test_needs_has_one_meaning() -> None:
+    """``needs`` is what a joint-space effect needs among ``robocal.compensation.effects.SIGNALS`` (the protocol's
+    property and its one module-level function); the request fields the discovered records read are
+    ``request_fields``."""
+    from robocal.compensation.discovered import DiscoveredEffects, request_fields
+
+    assert _defs("needs") == ["compensation/effects.py"]
+    rec = [{"key": "backlash:j2", "signal": "direction", "joint": 2, "coefficients": [1e-4]}]
+    assert request_fields(rec) == {"dir"}
+    assert DiscoveredEffects(tuple(rec), None).needs == frozenset({"direction"})

@@ -12,7 +12,7 @@ The public API (imported lazily: ``import robocal`` itself reads and loads nothi
     print(result.solver.redchi, result.solver.bic)              # the fit itself: a FitResult (immutable)
     print(robocal.validate(result, campaign))                  # errors on the validation rows
     found = robocal.discover(campaign, robot)                  # what the model misses, named
-    comp, command = robocal.compensate(result, q_rad)          # corrected joints for targets q (m, n) rad
+    c = robocal.compensate(result, q_rad)                      # corrected joints c.q, c.command_T, c.status
     planned = robocal.plan("kr16_2", {"n_poses": 40})          # the poses to measure, before the tracker is on
 
 ``simulate`` / ``load_scenario`` write twin campaigns with a known truth; ``load_calibration`` reads a
@@ -40,7 +40,8 @@ _API = {
     "FitResult": "robocal.identification.result:FitResult",
     "discover": "robocal.discovery.search:discover",
     "DiscoveryConfig": "robocal.discovery.config:DiscoveryConfig",
-    "compensate": "robocal.discovery.effects:compensate_targets",
+    "compensate": "robocal.compensation.correct:correct",
+    "Corrected": "robocal.compensation.correct:Corrected",
     "plan": "robocal.plan.planner:plan_poses",
     "simulate": "robocal.sim.twin:simulate",
     "load_scenario": "robocal.sim.twin:load_scenario",

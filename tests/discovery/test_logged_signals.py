@@ -178,8 +178,9 @@ def test_compensation_and_the_service_take_the_logged_signal_with_each_target(tm
 
     import pandas as pd
 
+    from robocal.compensation.correct import correct
     from robocal.compensation.discovered import frame_transforms
-    from robocal.discovery.effects import compensate_targets
+    from robocal.compensation.effects import Signals
     from robocal.identification.calibrate import load_calibration
     from robocal.kinematics.chain import fk
     from robocal.serve.bundle import load_bundle, write_bundle
@@ -198,7 +199,7 @@ def test_compensation_and_the_service_take_the_logged_signal_with_each_target(tm
     cal = load_calibration(data, robot)
     val = camp.subset(camp.split == "validation")
     logged = {c: np.asarray(val.extra[c], dtype=float) for c in ("incl_x", "incl_y")}
-    comp, _ = compensate_targets(cal, val.q, "T1", logged=logged)
+    comp = correct(cal, val.q, target="T1", signals=Signals(np.zeros(val.n_rows), logged=logged))
     ok = np.array([st != "refused" for st in comp.status])
     # the safety policy refuses corrections over 0.5 deg, which the twin's random geometry asks for on some poses
     # (as it does without the stand): the others are checked
@@ -211,7 +212,7 @@ def test_compensation_and_the_service_take_the_logged_signal_with_each_target(tm
     nominal = fk(cal.model.chain, val.q) @ T
     assert np.abs(real[ok, :3, 3] - nominal[ok, :3, 3]).max() < 1e-3  # mm: the Newton solver's tolerance is 1e-4
     with pytest.raises(ValueError, match="needs the logged signal 'incl_"):
-        compensate_targets(cal, val.q, "T1")
+        correct(cal, val.q, target="T1")
     svc = Service(load_bundle(write_bundle(tmp_path / "bundle", "kr16_2", out / "calibration.json")))
     targets = [{"q_deg": np.rad2deg(val.q[k]).tolist()} for k in range(3)]
     r = json.loads(svc.handle_line(json.dumps({"op": "correct", "targets": targets}).encode()))

@@ -8,7 +8,8 @@ import json
 import numpy as np
 import pytest
 
-from robocal.discovery.effects import compensate_targets
+from robocal.compensation.correct import correct
+from robocal.compensation.effects import Signals
 from robocal.identification.calibrate import load_calibration
 from robocal.serve.bundle import load_bundle, write_bundle
 from robocal.serve.protocol import Service, ServiceConfig, SolverConfig
@@ -60,9 +61,8 @@ def test_service_equals_offline_with_discovered_effects(product):
     reply = json.loads(svc.handle_line(json.dumps(req).encode()))
     assert reply["ok"] and reply["n_refused"] == 0, reply
     cal = load_calibration(json.loads((tmp / "out" / "calibration.json").read_text()), robot)
-    comp, _ = compensate_targets(
-        cal, np.deg2rad(QS), None, 0.0, None, None, DIRS.astype(float), max_iter=50, tol_mm=1e-11, tol_rad=1e-13
-    )
+    sig = Signals(np.zeros(len(QS)), direction=DIRS.astype(float))
+    comp = correct(cal, np.deg2rad(QS), signals=sig, max_iter=50, tol_mm=1e-11, tol_rad=1e-13)
     assert comp.converged.all()
     # the reply rounds joints to 1e-9 deg
     assert np.abs(np.array([r["q_deg"] for r in reply["results"]]) - np.rad2deg(comp.q)).max() < 2e-9
@@ -119,5 +119,5 @@ def test_a_proposed_equation_reaches_the_service(tmp_path):
     cfg = ServiceConfig(solver=SolverConfig(max_iter=50, tol_mm=1e-11, tol_deg=1e-11))
     reply = json.loads(Service(b, cfg).handle_line(json.dumps({"targets": [{"q_deg": QS[0].tolist()}]}).encode()))
     cal = load_calibration(cal_d, robot)
-    comp, _ = compensate_targets(cal, q[:1], max_iter=50, tol_mm=1e-11, tol_rad=1e-13)
+    comp = correct(cal, q[:1], max_iter=50, tol_mm=1e-11, tol_rad=1e-13)
     assert np.abs(np.array(reply["results"][0]["q_deg"]) - np.rad2deg(comp.q[0])).max() < 2e-9

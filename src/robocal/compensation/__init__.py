@@ -1,11 +1,14 @@
 """Differential error compensation: joint corrections that make the real robot reach the nominal pose.
 
-The one compensation path of robocal: the Newton solver (:mod:`robocal.kinematics.ik`), the joint-space effects
-composed once (:mod:`robocal.compensation.effects`), the one safety policy and its per-target statuses
-(:mod:`robocal.compensation.safety`), the correction the service and the program filter share
-(:mod:`robocal.compensation.correct`) and the one controller CSV (:mod:`robocal.compensation.controller_csv`).
-This module keeps the reference API over an :class:`ActualRobot` that the thermal, compliance and discovery
-workflows use.
+The one entry point is :func:`robocal.compensation.correct.correct` (``robocal.compensate``): a calibration or an
+:class:`ActualRobot`, the targets, the joint-space effects, the safety policy in; one
+:class:`~robocal.compensation.correct.Corrected` out. The one compensation path of robocal: the Newton solver
+(:mod:`robocal.kinematics.ik`), the joint-space effects composed once (:mod:`robocal.compensation.effects`), the
+one safety policy and its per-target statuses (:mod:`robocal.compensation.safety`), the correction and the one
+beyond-own computation (:mod:`robocal.compensation.correct`) and the one controller CSV
+(:mod:`robocal.compensation.controller_csv`).
+This module keeps the model of the robot at the moment (:class:`ActualRobot`) and the Newton step over it
+(:func:`compensate`, unjudged) that :func:`~robocal.compensation.correct.correct` runs.
 
 The controller plans with its nominal kinematics: for a target ``q_target`` it expects the tool frame
 at ``desired = tracker_T_base · FK_nominal(q_target) · flange_T_tool``. The real robot (calibrated
@@ -23,12 +26,15 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from robocal.kinematics.chain import Chain, ChainState, propagate
 from robocal.status import TargetStatus
+
+if TYPE_CHECKING:
+    from robocal.kinematics.ik import Solution
 
 
 @dataclass(frozen=True)
@@ -57,34 +63,6 @@ class ActualRobot:
         return p, R, st
 
 
-@dataclass
-class Compensation:
-    """Result of :func:`compensate`.
-
-    q_target : (m, n) the requested joints; q : (m, n) corrected joint targets, rad;
-    converged : (m,) bool; residual_mm : (m, 3) predicted position error after compensation;
-    residual_rad : (m, 3) predicted orientation error (rotation vector);
-    error_before_mm / error_before_rad : the same without compensation; iterations : int; status / reasons :
-    the safety policy's verdict per target when judged (:func:`judge_compensation`).
-    """
-
-    q_target: np.ndarray
-    q: np.ndarray
-    converged: np.ndarray
-    residual_mm: np.ndarray
-    residual_rad: np.ndarray
-    error_before_mm: np.ndarray
-    error_before_rad: np.ndarray
-    iterations: int
-    status: list[str] | None = None
-    reasons: list[list[str]] | None = None
-
-    @property
-    def correction_rad(self) -> np.ndarray:
-        """Joint corrections ``q - q_target`` (m, n), rad."""
-        return self.q - self.q_target
-
-
 def desired_poses(nominal: ActualRobot, q_target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Tool positions ``(m, 3)`` and rotations ``(m, 3, 3)`` the nominal controller expects at ``q_target``."""
     p, R, _ = nominal.pose(q_target)
@@ -101,8 +79,10 @@ def compensate(
     tol_rad: float = 1e-9,
     max_step_rad: float = 0.05,
     stall: bool = True,
-) -> Compensation:
-    """Joint targets ``q*`` with ``actual.pose(q*) = (p_desired, R_desired)``.
+) -> Solution:
+    """Joint targets ``q*`` with ``actual.pose(q*) = (p_desired, R_desired)``: the Newton step, unjudged (the
+    solver's :class:`~robocal.kinematics.ik.Solution`; :func:`robocal.compensation.correct.correct` judges it and
+    returns the one :class:`~robocal.compensation.correct.Corrected`).
 
     With ``R_desired`` the full 6-D tool pose is matched (6 equations, a square system for a 6-axis
     arm); without it only the tool position (minimum-norm joint correction). ``max_step_rad`` and ``stall``
@@ -131,16 +111,7 @@ def compensate(
 
     sol = solve(cc, tool_T, q0, np.asarray(p_desired, dtype=float), R_desired, offset, max_iter=max_iter,
                 tol_mm=tol_mm, tol_rad=tol_rad, max_step_rad=max_step_rad, stall=stall)  # fmt: skip
-    return Compensation(
-        q_target=q0,
-        q=sol.q,
-        converged=sol.converged,
-        residual_mm=sol.residual_mm,
-        residual_rad=sol.residual_rad,
-        error_before_mm=sol.error_before_mm,
-        error_before_rad=sol.error_before_rad,
-        iterations=sol.iterations,
-    )
+    return sol
 
 
 def _rows_of(fn: Callable[[np.ndarray], np.ndarray], q0: np.ndarray) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
@@ -162,51 +133,6 @@ def _rows_of(fn: Callable[[np.ndarray], np.ndarray], q0: np.ndarray) -> Callable
         return out
 
     return offset
-
-
-def judge_compensation(
-    actual: ActualRobot,
-    comp: Compensation,
-    p_desired: np.ndarray,
-    policy: Any = None,
-    q_limits: np.ndarray | None = None,
-    joint_names: Sequence[str] | None = None,
-) -> tuple[list[str], list[list[str]]]:
-    """Status and reasons of every target of ``comp`` under the one safety policy
-    (:class:`robocal.compensation.safety.SafetyPolicy`, default its defaults): the correction beyond the
-    calibration's own joint-space correction (minus the zero offsets of ``actual.eta``, minus the joint offset at
-    the corrected joints) and the error ``actual`` makes after that own correction against ``p_desired`` (m, 3),
-    each the smaller of it and the whole correction / error."""
-    from robocal.compensation.correct import zero_offsets
-    from robocal.compensation.safety import SafetyPolicy
-
-    pol = policy if policy is not None else SafetyPolicy()
-    q_t, q = comp.q_target, comp.q
-    zero = zero_offsets(actual.chain, actual.eta)
-
-    def own(qq: np.ndarray) -> np.ndarray:
-        o = np.broadcast_to(-zero, qq.shape)
-        return o if actual.joint_offset is None else o - np.asarray(actual.joint_offset(qq), dtype=float)
-
-    whole = np.rad2deg(np.abs(q - q_t).max(axis=1))
-    excess = np.minimum(whole, np.rad2deg(np.abs(q - q_t - own(q)).max(axis=1)))
-    p_own, _, _ = actual.pose(q_t + own(q_t))
-    before = np.linalg.norm(comp.error_before_mm, axis=1)
-    rest = np.minimum(before, np.linalg.norm(p_own - np.asarray(p_desired, dtype=float), axis=1))
-    n = q.shape[1]
-    ql = np.asarray(q_limits, dtype=float) if q_limits is not None else np.tile([-np.inf, np.inf], (n, 1))
-    names = list(joint_names) if joint_names is not None else [f"q{j + 1}" for j in range(n)]
-    return pol.judge(
-        comp.converged,
-        comp.residual_mm,
-        comp.residual_rad,
-        excess,
-        rest,
-        q_t,
-        q,
-        ql,
-        names,
-    )
 
 
 def write_compensation_csv(

@@ -131,9 +131,10 @@ def layer_coverage(effects: list[dict[str, Any]], q: np.ndarray) -> np.ndarray |
 LAYER_NOTE = "outside the calibrated region: the residual layer is not applied (parametric correction only)"
 
 
-def needs(effects: list[dict[str, Any]]) -> set[str]:
-    """The per-target signals the effects need besides the joints: ``tau_Nm``, ``current_A``, ``dir``, and
-    ``signal:<column>`` for an effect driven by a logged signal."""
+def request_fields(effects: list[dict[str, Any]]) -> set[str]:
+    """The per-target fields of a request the effect records read besides the joints: ``tau_Nm``, ``current_A``,
+    ``dir``, and ``signal:<column>`` for an effect driven by a logged signal. (What a joint-space effect *needs*,
+    among :data:`robocal.compensation.effects.SIGNALS`, is :attr:`DiscoveredEffects.needs`.)"""
     names = {"torque": "tau_Nm", "current": "current_A", "direction": "dir"}
     out = {names[e["signal"]] for e in effects if e["signal"] in names}
     return out | {f"signal:{e['column']}" for e in effects if e["signal"] in ("logged", "logged_frame")}
@@ -264,7 +265,7 @@ class DiscoveredEffects:
 
     @property
     def needs(self) -> frozenset[str]:
-        return frozenset("direction" if k == "dir" else k for k in needs(list(self.records)))
+        return frozenset("direction" if k == "dir" else k for k in request_fields(list(self.records)))
 
     @property
     def keys(self) -> list[str]:

@@ -11,8 +11,9 @@ A new effect (a per-joint periodic gear error, a residual layer on the joint ang
 ``name``, the ``needs`` it has among :data:`SIGNALS` and ``offsets(q, signals) -> dq`` (the protocol
 :class:`JointEffect`; optionally ``notes(q)``, per target, where it does not apply); listed once in
 :meth:`robocal.serve.bundle.Bundle.joint_effects` it reaches the service and the program filter (both through
-:func:`robocal.compensation.correct.correct_targets`, its notes with them), and the safety policy counts it as
-the calibration's own correction (:mod:`robocal.compensation.safety`).
+:func:`robocal.compensation.correct.correct_targets`, its notes with them); passed to the one entry point
+:func:`robocal.compensation.correct.correct` it reaches every offline compensation; the safety policy counts it as
+the calibration's own correction (:func:`robocal.compensation.correct.beyond_own`).
 """
 
 from __future__ import annotations

@@ -7,8 +7,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from robocal.compensation import ActualRobot, compensate, judge_compensation
-from robocal.compliance.fit import ComplianceFit, campaign_signal
+from robocal.compensation import ActualRobot
+from robocal.compensation.correct import correct
+from robocal.compensation.effects import ComplianceEffect, Signals
+from robocal.compliance.fit import ComplianceFit
 from robocal.kinematics.chain import fk
 from robocal.status import TargetStatus
 
@@ -24,7 +26,7 @@ def compensation_rows(
 
     The controller expects the calibrated geometric model at the commanded joints; the deflection predicted by
     the compliance model (from the row's currents / torques / payload) is undone by Newton iterations
-    (:func:`robocal.compensation.compensate`, first order ``q* = q_n - c s``). Returns ids, corrected joints,
+    (:func:`robocal.compensation.correct.correct`, first order ``q* = q_n - c s``). Returns ids, corrected joints,
     the corrected Cartesian command (base frame), the predicted residual (mm) and the one safety policy's
     verdict (``status``, ``reason``, ``correction_max_deg`` per row; ``policy`` default its defaults): a refused
     row carries the commanded joints and their predicted error instead.
@@ -46,21 +48,16 @@ def compensation_rows(
         if not len(sel):
             continue
         sub = campaign.subset(np.isin(np.arange(campaign.n_rows), sel))
-        S = campaign_signal(model, sub)
-        dq_fixed = S * model.c
-
-        def offset(q: np.ndarray, dq: np.ndarray = dq_fixed, s: Campaign = sub) -> np.ndarray:
-            if model.kind == "gravity":
-                return model.joint_offsets(q, s.payload_kg)
-            return dq
-
-        actual = ActualRobot(gm.chain, eta, T, tools[k], np.eye(3), joint_offset=offset)
+        # the deflection as a joint-space effect (the protocol of robocal.compensation.effects): the compliance
+        # model at the corrected joints with the row's payload, currents or torques
+        sig = Signals(np.asarray(sub.payload_kg, dtype=float), sub.tau_Nm, sub.current_A)
+        actual = ActualRobot(gm.chain, eta, T, tools[k], np.eye(3))
         desired = ActualRobot(gm.chain, geo.x[: gm.chain.n_params], gm.base_transform(geo.x), tools[k], np.eye(3))
         p_des, _, _ = desired.pose(sub.q)
-        comp = compensate(actual, sub.q, p_des)
-        st, why = judge_compensation(actual, comp, p_des, policy, gm.robot.q_limits, gm.robot.joint_names)
-        refused = np.array([x == TargetStatus.REFUSED for x in st], dtype=bool)
-        status[sel], reason[sel] = st, ["; ".join(r) for r in why]
+        comp = correct(actual, sub.q, [ComplianceEffect(model)], policy, signals=sig, desired=(p_des, None),
+                       orientation=False, q_limits=gm.robot.q_limits, joint_names=gm.robot.joint_names)  # fmt: skip
+        refused = comp.refused
+        status[sel], reason[sel] = comp.status, ["; ".join(r) for r in comp.reasons]
         corr_max[sel] = np.rad2deg(np.abs(comp.q - sub.q).max(axis=1))
         q_send = np.where(refused[:, None], sub.q, comp.q)
         q_c[sel] = q_send

@@ -1,6 +1,6 @@
 """Discovered effects as a product: the extended model written as a calibration (geometry plus its
-joint-level effects as ``effects`` records, :func:`extended_calibration`) and offline compensation with it
-(:func:`compensate_targets`).
+joint-level effects as ``effects`` records, :func:`extended_calibration`); offline compensation with it is the
+one entry point :func:`robocal.compensation.correct.correct` (``robocal.compensate``).
 
 The records are evaluated for any commanded configuration by :mod:`robocal.compensation.discovered` (the one
 compensation path the service, the program filter and ``compensation.csv`` share). Parameter drifts (thermal,
@@ -16,7 +16,6 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from robocal.compensation.discovered import DiscoveredEffects, frame_desired, frame_transforms
 from robocal.discovery.model import Accepted, Fit
 from robocal.identification.calibrate import CalibrationConfig, CalibrationResult, calibration_record
 from robocal.identification.identifiability import Eliminated, Identifiability
@@ -191,47 +190,24 @@ def compensate_targets(
     logged: Mapping[str, np.ndarray] | None = None,
     **newton: Any,
 ) -> tuple[Any, np.ndarray]:
-    """Offline compensation with a calibration and its discovered joint-level effects (robot base frame): the
-    joints that put the real tool where the nominal controller expects it at ``q_target (m, n)`` rad.
+    """Deprecated (was ``robocal.compensate``): use :func:`robocal.compensation.correct.correct` (``robocal.compensate``
+    now), which returns one :class:`~robocal.compensation.correct.Corrected` with the command as ``command_T``.
 
-    Returns the :class:`robocal.compensation.Compensation` (with the one safety policy's status per target) and
-    the nominal Cartesian command ``(m, 4, 4)``
-    (what the nominal controller must be sent so that its inverse kinematics yields the corrected joints).
-    ``logged``: the logged signals' values per target (column -> (m,)) that effects discovered on them need (a
-    joint offset, or the base or the tool moving with the signal: the pose to reach is moved back by it); a
-    signal an effect needs and that is not given is a ValueError naming it.
-    ``newton``: stopping rules of :func:`robocal.compensation.compensate` (``max_iter``, ``tol_mm``, ``tol_rad``)."""
-    from robocal.compensation import ActualRobot, compensate, desired_poses, judge_compensation
-    from robocal.compensation.effects import Signals, compose, joint_effects
-    from robocal.kinematics.chain import fk
+    Kept as a thin wrapper for outside callers: ``(corrected, command_T)`` of
+    ``correct(cal, q_target, target=target, signals=Signals(payload_kg, tau_Nm, current_A, direction, logged))``."""
+    import warnings
 
-    model = cal.model
-    k = 0 if target is None else model.target_names.index(target)
-    tool = model.tools(cal.x)[k]
-    tool_R = model.tool_rotations(cal.x)[k]
-    m = len(q_target)
-    pay = np.broadcast_to(np.asarray(payload_kg, dtype=float), (m,))
-    records = cal.effects
-    effects = joint_effects(None, DiscoveredEffects(records, model.robot) if records else None)
-    sig = Signals(pay, tau_Nm, current_A, direction, logged)
-    try:
-        offset = compose(effects, sig)
-    except ValueError:  # a signal not given: the effect's own error names it when evaluated
-        from robocal.compensation.effects import JointOffsets
+    from robocal.compensation.correct import correct
+    from robocal.compensation.effects import Signals
 
-        offset = JointOffsets(tuple(effects), sig)
-    frames = frame_transforms(list(records), logged, m)
-    actual = ActualRobot(model.chain, cal.kinematic_errors, np.eye(4), tool, tool_R, offset)
-    nominal = ActualRobot(model.chain, np.zeros(model.chain.n_params), np.eye(4), tool, tool_R)
-    p_d, R_d = desired_poses(nominal, q_target)
-    if frames is not None:  # the base or the tool moved by the logged signals: reach the pose that cancels it
-        T_tool0 = np.eye(4)
-        T_tool0[:3, :3], T_tool0[:3, 3] = tool_R, tool
-        p_d, R_d = frame_desired(frames, T_tool0, p_d, R_d)
-    comp = compensate(actual, q_target, p_d, R_d, **newton)
-    comp.status, comp.reasons = judge_compensation(
-        actual, comp, p_d, None, model.robot.q_limits, model.robot.joint_names
+    warnings.warn(
+        "robocal.discovery.effects.compensate_targets is deprecated; use robocal.compensate "
+        "(robocal.compensation.correct.correct), which returns one Corrected with command_T",
+        DeprecationWarning,
+        stacklevel=2,
     )
-    T_tool = np.eye(4)
-    T_tool[:3, :3], T_tool[:3, 3] = tool_R, tool
-    return comp, fk(model.chain, comp.q) @ T_tool
+    m = len(q_target)
+    sig = Signals(np.broadcast_to(np.asarray(payload_kg, dtype=float), (m,)), tau_Nm, current_A, direction, logged)
+    c = correct(cal, q_target, target=target, signals=sig, **newton)
+    assert c.command_T is not None
+    return c, c.command_T

@@ -1,6 +1,6 @@
 """Thermal compensation (Guo et al. 2026, section 3.5, fig. 11): the geometric errors identified at the reference
 (cold) state plus the drift the thermal model predicts from the current temperatures give the robot's parameters
-now; differential error compensation (:func:`robocal.compensation.compensate`) turns every target into corrected
+now; the one compensation entry point (:func:`robocal.compensation.correct.correct`) turns every target into corrected
 joints and a corrected Cartesian command for the nominal controller, written as a CSV a cell controller reads.
 
 No correction is applied silently. Every target gets a status of the one safety policy
@@ -23,9 +23,9 @@ from typing import Any
 
 import numpy as np
 
-from robocal.compensation import ActualRobot, Compensation, compensate, controller_csv, desired_poses
+from robocal.compensation import ActualRobot, controller_csv, desired_poses
 from robocal.compensation.controller_csv import CSV_COLUMNS
-from robocal.compensation.correct import zero_offsets
+from robocal.compensation.correct import Corrected, correct
 from robocal.compensation.safety import STATUSES, SafetyPolicy
 from robocal.identification.calibrate import CalibrationResult
 from robocal.kinematics.chain import fk
@@ -108,7 +108,7 @@ class ThermalCompensation:
 
     ids : (m,) target ids; q_target / q : (m, n) requested and corrected joints (rad);
     command_T : (m, 4, 4) corrected Cartesian command (robot base frame, tool frame) for the nominal controller;
-    deta : (P,) drift used; results : the per-target-name :class:`Compensation` objects.
+    deta : (P,) drift used; results : the per-target-name :class:`~robocal.compensation.correct.Corrected`.
     status : (m,) one of :data:`STATUSES`; reason : (m,) why not ok; applied : (m,) the correction is in ``q``
     (else ``q = q_target``); q_corrected : (m, n) what the compensation computed (applied or not);
     correction_max_deg : (m,) largest joint correction computed; extrapolation_C : worst sensor's distance
@@ -125,7 +125,7 @@ class ThermalCompensation:
     residual_mm: np.ndarray
     residual_rad: np.ndarray
     deta: np.ndarray
-    results: dict[str, Compensation]
+    results: dict[str, Corrected]
     status: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=object))
     reason: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=object))
     applied: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
@@ -160,32 +160,42 @@ def compensate_targets(
     """
     lim = limits if limits is not None else SafetyPolicy()
     q_target = np.asarray(q_target, dtype=float)
-    m = q_target.shape[0]
+    m, n = q_target.shape
     deta, excess_C, worst = _drift(result, model, temperatures)
     tnames = np.asarray(targets).astype(str)
-    q, res_mm, res_rad, before_mm, before_rad, out = _compensate_by_target(result, deta, q_target, tnames, orientation)
-    # -- status of every target (the one safety policy): nothing is applied silently
-    q_corr = q.copy()
-    dq_deg = np.rad2deg(np.abs(q_corr - q_target))
-    corr_max = dq_deg.max(axis=1) if q.shape[1] else np.zeros(m)
-    excess, rest = _beyond_own_correction(result, deta, q_target, q_corr, corr_max, before_mm, tnames, out)
-    conv = np.zeros(m, dtype=bool)
-    for t in out:
-        conv[tnames == t] = out[t].converged
-    ql = np.asarray(q_limits, dtype=float) if q_limits is not None else np.tile([-np.inf, np.inf], (q.shape[1], 1))
+    ql = np.asarray(q_limits, dtype=float) if q_limits is not None else np.tile([-np.inf, np.inf], (n, 1))
+    names = list(result.model.robot.joint_names)
     request = []
     if excess_C > lim.temperature_margin_C:
         request.append(
             f"temperature {worst} outside the fitted range by {excess_C:.2f} degC (> margin "
             f"{lim.temperature_margin_C:g})"
         )
-    names = list(result.model.robot.joint_names)
-    status_l, reasons = lim.judge(conv, res_mm, res_rad, excess, rest, q_target, q_corr, ql, names, request)
-    status = np.array(status_l, dtype=object)
+    # the one entry point per target name (its tool): corrected joints and the safety policy's status; nothing is
+    # applied silently
+    q_corr, res_mm, res_rad = q_target.copy(), np.zeros((m, 3)), np.zeros((m, 3))
+    before_mm, before_rad, corr_max = np.zeros((m, 3)), np.zeros((m, 3)), np.zeros(m)
+    status = np.full(m, "", dtype=object)
+    reasons: list[list[str]] = [[] for _ in range(m)]
+    target_refused = np.zeros(m, dtype=bool)
+    out: dict[str, Corrected] = {}
+    for t in dict.fromkeys(tnames.tolist()):
+        sel = tnames == t
+        qt = q_target[sel]
+        desired = desired_poses(nominal_robot(result, t), qt)
+        c = correct(calibrated_robot(result, t, deta), qt, None, lim, desired=desired, orientation=orientation,
+                    q_limits=ql, joint_names=names, request_reasons=request)  # fmt: skip
+        q_corr[sel], res_mm[sel], res_rad[sel] = c.q, c.residual_mm, c.residual_rad
+        before_mm[sel], before_rad[sel] = c.error_before_mm, c.error_before_rad
+        corr_max[sel] = np.abs(c.correction_deg).max(axis=1) if n else 0.0
+        status[sel] = c.status
+        for r, why in zip(np.flatnonzero(sel), c.reasons, strict=True):
+            reasons[r] = why
+        # refused for a reason of the target itself (not the batch's temperature reading)
+        own, _ = lim.judge(c.converged, c.residual_mm, c.residual_rad, c.excess_deg, c.rest_mm, qt, c.q, ql, names)
+        target_refused[sel] = [st == "refused" for st in own]
+        out[t] = c
     applied = status != "refused"
-    # refused for a reason of the target itself (not the batch's temperature reading)
-    own_status, _ = lim.judge(conv, res_mm, res_rad, excess, rest, q_target, q_corr, ql, names)
-    target_refused = np.array([st == "refused" for st in own_status], dtype=bool)
     for r in np.flatnonzero(~applied):
         reasons[r].append("nominal joints kept")
     q = np.where(applied[:, None], q_corr, q_target)
@@ -230,62 +240,8 @@ def _drift(
     return deta, excess_C, worst
 
 
-def _compensate_by_target(
-    result: CalibrationResult, deta: np.ndarray, q_target: np.ndarray, tnames: np.ndarray, orientation: bool
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Compensation]]:
-    """Differential error compensation of the rows of each target name: corrected joints ``q`` (m, n), the
-    residual and the error before (position mm, orientation rad; (m, 3) each), and each name's
-    :class:`Compensation`."""
-    m = q_target.shape[0]
-    q = q_target.copy()
-    res_mm = np.zeros((m, 3))
-    res_rad = np.zeros((m, 3))
-    before_mm = np.zeros((m, 3))
-    before_rad = np.zeros((m, 3))
-    out: dict[str, Compensation] = {}
-    for t in dict.fromkeys(tnames.tolist()):
-        sel = tnames == t
-        act = calibrated_robot(result, t, deta)
-        p_d, R_d = desired_poses(nominal_robot(result, t), q_target[sel])
-        c = compensate(act, q_target[sel], p_d, R_d if orientation else None)
-        q[sel] = c.q
-        res_mm[sel] = c.residual_mm
-        res_rad[sel] = c.residual_rad
-        before_mm[sel] = c.error_before_mm
-        before_rad[sel] = c.error_before_rad
-        out[t] = c
-    return q, res_mm, res_rad, before_mm, before_rad, out
-
-
-def _beyond_own_correction(
-    result: CalibrationResult,
-    deta: np.ndarray,
-    q_target: np.ndarray,
-    q_corr: np.ndarray,
-    corr_max: np.ndarray,
-    before_mm: np.ndarray,
-    tnames: np.ndarray,
-    out: dict[str, Compensation],
-) -> tuple[np.ndarray, np.ndarray]:
-    """What the safety policy bounds: the correction beyond the calibration's own joint-space correction (deg,
-    (m,)) and the error left after that own correction (mm, (m,)).
-
-    The calibration's own correction is minus its zero offsets (reference + drift); the error left after it is
-    the calibrated robot's, commanded there."""
-    m = q_target.shape[0]
-    zero = zero_offsets(result.model.chain, result.kinematic_errors + deta)
-    excess = np.minimum(corr_max, np.rad2deg(np.abs(q_corr - q_target + zero).max(axis=1))) if m else corr_max
-    rest = np.zeros(m)
-    for t in out:
-        sel = tnames == t
-        p_d, _ = desired_poses(nominal_robot(result, t), q_target[sel])
-        p_own, _, _ = calibrated_robot(result, t, deta).pose(q_target[sel] - zero)
-        rest[sel] = np.minimum(np.linalg.norm(before_mm[sel], axis=1), np.linalg.norm(p_own - p_d, axis=1))
-    return excess, rest
-
-
 def _nominal_commands(
-    result: CalibrationResult, q: np.ndarray, tnames: np.ndarray, out: dict[str, Compensation]
+    result: CalibrationResult, q: np.ndarray, tnames: np.ndarray, out: dict[str, Corrected]
 ) -> np.ndarray:
     """The command (m, 4, 4) the nominal controller must receive so that its inverse kinematics gives ``q``:
     nominal FK at ``q`` times the tool."""

@@ -404,7 +404,9 @@ def write_product(res: DiscoveryResult, summ: dict[str, Any], out: Path) -> str 
     Returns None when both were written, else why ``compensation.csv`` was not (a stale one is removed, so
     that the folder never pairs a new model with an old file)."""
     from robocal.compensation import write_compensation_csv
-    from robocal.discovery.effects import compensate_targets, extended_calibration
+    from robocal.compensation.correct import correct
+    from robocal.compensation.effects import Signals
+    from robocal.discovery.effects import extended_calibration
     from robocal.identification.calibrate import load_calibration
     from robocal.kinematics.chain import fk
 
@@ -444,18 +446,17 @@ def write_product(res: DiscoveryResult, summ: dict[str, Any], out: Path) -> str 
     for t in dict.fromkeys(tgt):
         rows = np.array([k for k, tt in enumerate(tgt) if tt == t])
         r = idx[rows]
-        comp, c = compensate_targets(
-            cal,
-            sub.q[r],
-            t,
-            sub.payload_kg[r],
+        sig = Signals(
+            np.asarray(sub.payload_kg[r], dtype=float),
             None if sub.tau_Nm is None else sub.tau_Nm[r],
             None if sub.current_A is None else sub.current_A[r],
             None if sub.direction is None else sub.direction[r],
             {k: v[r] for k, v in logged.items()} or None,
         )
-        assert comp.status is not None and comp.reasons is not None
-        refused = np.array([x == TargetStatus.REFUSED for x in comp.status], dtype=bool)
+        comp = correct(cal, sub.q[r], target=t, signals=sig)
+        c = comp.command_T
+        assert c is not None
+        refused = comp.refused
         qc[rows] = np.where(refused[:, None], comp.q_target, comp.q)
         cmd[rows] = np.where(refused[:, None, None], fk(cal.model.chain, comp.q_target) @ _tool_T(cal, t), c)
         res_mm[rows] = np.where(refused[:, None], comp.error_before_mm, comp.residual_mm)
