@@ -28,6 +28,7 @@ import numpy as np
 from scipy import stats
 
 from robocal.data.contract import Campaign
+from robocal.discovery import progress
 from robocal.discovery.candidates import Candidate
 from robocal.discovery.config import DiscoveryConfig
 from robocal.discovery.cv import FoldCV, fold_cv
@@ -235,7 +236,8 @@ def grow(
     if cfg.cv_folds < 2 or not pool:
         return fit, accepted, record
     cv = fold_cv(fit, groups, cfg.cv_folds, cfg.seed)
-    for _ in range(cfg.grow_max_steps):
+    for step in range(cfg.grow_max_steps):
+        progress.note(f"cross-validated selection: step {step + 1} (at most {cfg.grow_max_steps})")
         fit_new, accepted, pool, cv = _step(pool, fit, accepted, cv, rows, data, cfg, steps, record, refit, groups)
         if fit_new is fit or not pool:
             fit = fit_new
@@ -261,12 +263,14 @@ def finish(
     cross-validated test accepts it, then the cross-validated estimate and each effect's contribution."""
     record.setdefault("steps", [])
     if cfg.layer and cfg.cv_folds >= 2:
+        progress.note("residual layer")
         layer_pool = layer_candidates(campaign, cfg, rows)
         if layer_pool:
             cv = fold_cv(fit, groups, cfg.cv_folds, cfg.seed)
             fit, accepted, _, _ = _step(layer_pool, fit, accepted, cv, rows, data, cfg, steps, record, refit, groups,
                                         what="residual layer")  # fmt: skip
     if cfg.cv_folds >= 2:
+        progress.note("final held-out check")
         fit, accepted, con = held_out_check(fit, accepted, steps, groups, refit, cfg, record, final=True)
         record.update(con)
     return fit, accepted, record
@@ -370,7 +374,9 @@ def _step(
     n_tests = max(sum(len(v) for _, v in pool) - n_sig, 1)
     thr_lib = float(np.log10(cfg.cv_alpha / n_tests))
     thr_sig = float(np.log10(cfg.cv_alpha / max(n_sig, 1)))
-    for members, variants in pool:
+    ticker = progress.Ticker(f"{what}: candidates scored", len(pool))
+    for i_pool, (members, variants) in enumerate(pool):
+        ticker.tick(i_pool)
         thr = thr_sig if members[0].effect == "signal" else thr_lib
         if all(c.shape == "joint" for c in members):
             # joint-level: the candidate's factors, not its (M, q) regressor (robocal.discovery.cv)

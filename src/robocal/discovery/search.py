@@ -23,6 +23,7 @@ import numpy as np
 from scipy import stats
 
 from robocal.data.contract import Campaign
+from robocal.discovery import progress
 from robocal.discovery.candidates import Candidate, SkippedCandidate, build_library
 from robocal.discovery.config import DiscoveryConfig
 from robocal.discovery.grow import finish, grow, held_out_check, physics_candidates, variant_candidate
@@ -302,6 +303,7 @@ def _retest(
     from robocal.identification import misfit, robust
 
     m = cal.n_rows
+    progress.note(f"gross-error test: every one of the {m} calibration rows against the discovered model")
     r, J, _, _ = fit.model.residuals_and_jacobian(fit.theta, data_all, rows_all)
     w = np.tile(fit.weights[: fit.d], m)
     row_of = np.repeat(np.arange(m), fit.d)
@@ -336,6 +338,7 @@ def _search(
 ) -> DiscoveryResult:
     """Forward selection on the campaign rows ``rows`` (their fit data ``data``), from the geometric fit ``geo``."""
     t0 = time.perf_counter()
+    progress.note(f"the search on {len(rows)} rows (the gross-error rounds repeat it, at most 3 times)")
     cal = campaign.subset(rows)
     targets = geo.model.target_names
     T_ref = geo.model.T_ref
@@ -363,7 +366,8 @@ def _search(
     unident: dict[str, float] = {}
     remaining = list(library) + weight
     groups = np.repeat(np.asarray(cal.pose_id).astype(str), fit.d)
-    for _ in range(cfg.max_steps):
+    for step in range(cfg.max_steps):
+        progress.note(f"library F-test search: step {step + 1} (at most {cfg.max_steps}), {len(remaining)} candidates")
         scores, chosen = _best_candidate(remaining, fit, rows, data, cfg, log_thr, groups, unident, log_thr_signal)
         if chosen is None:
             steps.append(Step(None, None, fit.rms_mm, fit.rms_mm, fit.rss, fit.rss, fit.dof, scores, phase="library"))
@@ -403,9 +407,11 @@ def _search(
             campaign, robot, cfg, rows, data, fit, accepted, steps, groups, grow_refit, leftovers
         )
     if cfg.dictionary:
+        progress.note("proposed equations (the dictionary)")
         fit, accepted = _propose(campaign, robot, cfg, rows, data, fit, accepted, steps, groups, refit)
     if cfg.cv_folds >= 2 and accepted:
         # what the parametric model keeps earns its place before the layer is offered (the layer's after it)
+        progress.note("held-out check of the parametric model")
         fit, accepted, _ = held_out_check(fit, accepted, steps, groups, refit, cfg, grown)
     parametric = fit
     fit, accepted, grown = finish(campaign, cfg, rows, data, fit, accepted, steps, groups, refit, grown)
