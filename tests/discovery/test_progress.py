@@ -24,7 +24,7 @@ def test_discovery_reports_its_steps(tmp_path, caplog):
     for phrase in ("the search on", "library F-test search: step 1", "cross-validated selection: step 1",
                    "final held-out check", "gross-error test: every one of the"):  # fmt: skip
         assert phrase in text, (phrase, text)
-    assert all(line.startswith("discover [") and " s] " in line for line in lines)
+    assert all(line.startswith("discover [") and " GB] " in line for line in lines)
 
 
 def _fake_run(monkeypatch, tmp_path, fail_in: str | None):

@@ -20,6 +20,7 @@ to the pseudo-inverse (``rcond`` 1e-12), which is what the search used before.
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from collections.abc import Callable, Sequence
 from typing import Any, Protocol
 
@@ -28,6 +29,9 @@ from scipy import linalg
 
 #: residual rows per chunk of an accumulation (bounds the temporaries: chunk x k floats)
 CHUNK = 8192
+
+#: joints whose per-row projections FoldCV keeps (each an ``m x k`` matrix)
+U_CACHE = 2
 
 #: reciprocal condition (of the Jacobi-scaled matrix, estimated from the Cholesky diagonal) below which the
 #: pseudo-inverse is used instead of the factorisation
@@ -126,7 +130,7 @@ class FoldCV:
             err[s:e] = self._r[s:e] - self._A[s:e] @ sol.solve(g)
         self._err_sorted = err
         self.base_err = self._unsort(err)
-        self._U: dict[int, list[np.ndarray]] = {}
+        self._U: OrderedDict[int, list[np.ndarray]] = OrderedDict()
 
     # -- helpers ---------------------------------------------------------------------------------------------
     def _unsort(self, e_sorted: np.ndarray) -> np.ndarray:
@@ -183,14 +187,19 @@ class FoldCV:
         return np.asarray(self.order[s : e : self.d] // self.d)
 
     def _u(self, j: int, v: np.ndarray) -> list[np.ndarray]:
-        """Per fold, ``U = Σ_d A_row v_row`` (rows x k) for joint ``j`` (0-based) with ``v (m, d)``: cached."""
-        if j not in self._U:
-            out = []
-            for i, (s, e) in enumerate(self.bounds):
-                A3 = self._A[s:e].reshape((e - s) // self.d, self.d, -1)
-                out.append(np.einsum("rdk,rd->rk", A3, v[self._rows_of_fold(i)], optimize=True))
-            self._U[j] = out
-        return self._U[j]
+        """Per fold, ``U = Σ_d A_row v_row`` (rows x k) for joint ``j`` (0-based) with ``v (m, d)``: the last
+        :data:`U_CACHE` joints' kept (the pool lists a joint's candidates together; each is ``m x k``)."""
+        if j in self._U:
+            self._U.move_to_end(j)
+            return self._U[j]
+        out = []
+        for i, (s, e) in enumerate(self.bounds):
+            A3 = self._A[s:e].reshape((e - s) // self.d, self.d, -1)
+            out.append(np.einsum("rdk,rd->rk", A3, v[self._rows_of_fold(i)], optimize=True))
+        self._U[j] = out
+        while len(self._U) > U_CACHE:
+            self._U.popitem(last=False)
+        return out
 
     def joint_v(self, j: int) -> np.ndarray:
         """``v (m, d)``: the whitened response of each row's residuals to joint ``j``'s (0-based) angle."""

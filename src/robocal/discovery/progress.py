@@ -35,9 +35,18 @@ def start(what: str) -> None:
 
 
 def note(what: str) -> None:
-    """One progress line: ``discover [  12.3 s] <what>``."""
+    """One progress line: ``discover [  12.3 s, 0.41 GB] <what>`` (time so far, the process's peak memory)."""
     _ready()
-    log.info("discover [%7.1f s] %s", time.perf_counter() - _T0[0], what)
+    log.info("discover [%7.1f s, %5.2f GB] %s", time.perf_counter() - _T0[0], _peak_gb(), what)
+
+
+def _peak_gb() -> float:
+    try:
+        import resource
+
+        return float(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss) / 1024**2  # KB on Linux
+    except (ImportError, OSError):  # not on this platform
+        return float("nan")
 
 
 class Ticker:

@@ -235,7 +235,7 @@ def discover(campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig |
             # converged, or the last round: `kept` stays the set the search ran on, so the rows reported as left
             # out of the fit are the ones it left out (the UR10 reported 18 of 1 046 out while fitting 1 035)
             break
-        kept = ~test.flagged
+        kept, res = ~test.flagged, None  # the round's fits (their Jacobians) let go before the next search
     assert res is not None
     # every calibration row's residual under the final model, for the outlier list
     fit = res.final
