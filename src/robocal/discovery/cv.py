@@ -305,4 +305,9 @@ def fold_cv(fit: Any, groups: np.ndarray, folds: int, seed: int) -> FoldCV:
     return cv
 
 
-__all__ = ["CHUNK", "FoldCV", "SymSolver", "fold_cv", "gram_by_blocks"]
+def clear_cache() -> None:
+    """Let go of the :func:`fold_cv` kept (its fit's Jacobian and the fold sums): at the end of a search."""
+    _LAST.clear()
+
+
+__all__ = ["CHUNK", "FoldCV", "SymSolver", "clear_cache", "fold_cv", "gram_by_blocks"]

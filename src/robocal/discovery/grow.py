@@ -28,7 +28,7 @@ import numpy as np
 from scipy import stats
 
 from robocal.data.contract import Campaign
-from robocal.discovery import progress
+from robocal.discovery import engine, progress
 from robocal.discovery.candidates import Candidate
 from robocal.discovery.config import DiscoveryConfig
 from robocal.discovery.cv import FoldCV, fold_cv
@@ -374,25 +374,31 @@ def _step(
     n_tests = max(sum(len(v) for _, v in pool) - n_sig, 1)
     thr_lib = float(np.log10(cfg.cv_alpha / n_tests))
     thr_sig = float(np.log10(cfg.cv_alpha / max(n_sig, 1)))
-    ticker = progress.Ticker(f"{what}: candidates scored", len(pool))
-    for i_pool, (members, variants) in enumerate(pool):
-        ticker.tick(i_pool)
-        thr = thr_sig if members[0].effect == "signal" else thr_lib
-        if all(c.shape == "joint" for c in members):
-            # joint-level: the candidate's factors, not its (M, q) regressor (robocal.discovery.cv)
-            blocks = [(int(c.joint) - 1, c.S[rows]) for c in members if c.joint is not None]
-            q_all = sum(S.shape[1] for _, S in blocks)
-            drifted: dict[str, tuple[str, ...]] = {c.key: () for c in members}
-            errs = cv.with_joint_variants(blocks, variants)
-        else:
+    drift: list[dict[str, tuple[str, ...]]] = [{} for _ in pool]
+    q_of: list[int] = [0] * len(pool)
+
+    def job(i: int, members: list[Candidate]) -> Any:
+        def make() -> tuple[str, Any, list[Variant]]:
+            if all(c.shape == "joint" for c in members):
+                # joint-level: the candidate's factors, not its (M, q) regressor (robocal.discovery.cv)
+                blocks = [(int(c.joint) - 1, c.S[rows]) for c in members if c.joint is not None]
+                q_of[i] = sum(S.shape[1] for _, S in blocks)
+                drift[i].update({c.key: () for c in members})
+                return "joint", blocks, pool[i][1]
             regs = [regressor(c, fit, rows, data) for c in members]
-            Z_all = np.hstack([z for z, _ in regs])
-            q_all = Z_all.shape[1]
-            drifted = {c.key: prm for c, (_, prm) in zip(members, regs, strict=True)}
-            errs = cv.with_variants(Z_all, variants)
+            q_of[i] = sum(z.shape[1] for z, _ in regs)
+            drift[i].update({c.key: prm for c, (_, prm) in zip(members, regs, strict=True)})
+            return "dense", np.hstack([z for z, _ in regs]), pool[i][1]
+
+        return make
+
+    ticker = progress.Ticker(f"{what}: candidates scored", len(pool))
+    sse_all = engine.group_sse(cv, [job(i, m) for i, (m, _) in enumerate(pool)], ticker.tick)
+    for i_pool, (members, variants) in enumerate(pool):
+        thr = thr_sig if members[0].effect == "signal" else thr_lib
+        q_all, drifted = q_of[i_pool], drift[i_pool]
         best: tuple[float, float, Variant] | None = None
-        for v, err in zip(variants, errs, strict=True):
-            sse1 = cv.group_sse(err)
+        for v, sse1 in zip(variants, sse_all[i_pool], strict=True):
             tot = float(sse1.sum())
             if best is None or tot < best[0]:
                 best = (tot, paired_log10_p(sse0, sse1), v)

@@ -26,6 +26,7 @@ from robocal.data.contract import Campaign
 from robocal.discovery import progress
 from robocal.discovery.candidates import Candidate, SkippedCandidate, build_library
 from robocal.discovery.config import DiscoveryConfig
+from robocal.discovery.cv import clear_cache
 from robocal.discovery.grow import finish, grow, held_out_check, physics_candidates, variant_candidate
 from robocal.discovery.model import Accepted, ExtendedModel, Fit, fit_model
 from robocal.discovery.scoring import Score, Step, regressor
@@ -415,6 +416,7 @@ def _search(
         fit, accepted, _ = held_out_check(fit, accepted, steps, groups, refit, cfg, grown)
     parametric = fit
     fit, accepted, grown = finish(campaign, cfg, rows, data, fit, accepted, steps, groups, refit, grown)
+    clear_cache()  # the last cross-validation's fold sums
     return DiscoveryResult(
         robot=robot,
         config=cfg,
