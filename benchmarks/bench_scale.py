@@ -12,7 +12,8 @@ ratio of each to the previous size.
 Sets: ``ur10`` — the first N rows of the UR10 grid series (``--ur10``, default ``../shared/data/ur10-ipa-A``,
 11 911 rows: the 12 000 size is the whole series), with its robot.yaml; ``twin`` — a simulated KR16 campaign of
 N rows (80 % calibration, 20 % validation poses; a joint-4 gear error and joint-2/5 backlash to find).
-Campaigns are written once into ``--work`` (default a temporary folder) and reused.
+Campaigns are written once into ``--work`` (default a temporary folder) and reused; each run's console (with
+discovery's progress lines: time and peak memory per step) is ``--work``/out-SET-COMMAND-ROWS.log.
 """
 
 from __future__ import annotations
@@ -63,17 +64,18 @@ def twin_campaign(n: int, work: Path) -> tuple[Path, str]:
     return d, "kr16_2"
 
 
-def measure(cmd: list[str], env: dict[str, str]) -> tuple[float, float, float, int]:
-    """Wall s, CPU s (user + system), peak RSS MB and exit status of one subprocess."""
+def measure(cmd: list[str], env: dict[str, str], log: Path) -> tuple[float, float, float, int]:
+    """Wall s, CPU s (user + system), peak RSS MB and exit status of one subprocess (its console in ``log``)."""
     t0 = time.perf_counter()
-    p = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    _, status, ru = os.wait4(p.pid, 0)
+    with open(log, "w") as f:
+        p = subprocess.Popen(cmd, env=env, stdout=f, stderr=subprocess.STDOUT)
+        _, status, ru = os.wait4(p.pid, 0)
     wall = time.perf_counter() - t0
-    err = p.stderr.read().decode() if p.stderr else ""
-    p.returncode = os.waitstatus_to_exitcode(status)
-    if p.returncode:
-        print(f"  failed ({p.returncode}): {' '.join(cmd)}\n{err[-2000:]}", file=sys.stderr)
-    return wall, ru.ru_utime + ru.ru_stime, ru.ru_maxrss / 1024.0, p.returncode
+    rc = os.waitstatus_to_exitcode(status)
+    p.returncode = rc
+    if rc:
+        print(f"  failed ({rc}): {' '.join(cmd)}\n{log.read_text()[-2000:]}", file=sys.stderr)
+    return wall, ru.ru_utime + ru.ru_stime, ru.ru_maxrss / 1024.0, rc
 
 
 def main() -> int:
@@ -97,7 +99,8 @@ def main() -> int:
             for n in a.sizes:
                 d, robot = ur10_campaign(a.ur10, n, work) if s == "ur10" else twin_campaign(n, work)
                 out = work / f"out-{s}-{c}-{n}"
-                wall, cpu, rss, rc = measure([exe, c, str(d), "--robot", robot, "--out", str(out), "--no-report"], env)
+                cmd = [exe, c, str(d), "--robot", robot, "--out", str(out), "--no-report"]
+                wall, cpu, rss, rc = measure(cmd, env, work / f"out-{s}-{c}-{n}.log")
                 line = f"{s:5s} {c:9s} {n:6d} {wall:8.1f} {cpu:8.1f} {rss:8.0f}"
                 if prev is not None and rc == 0:
                     k = n / prev[0]
