@@ -318,7 +318,8 @@ def fit_model(
     order += [i for i, k in enumerate(kinds) if k == "kinematic"]
     order += [i for i, k in enumerate(kinds) if k == "effect" and prec[i] == 0]
     order = [i for i in order if model.names[i] not in fixed]
-    ident = analyse(J0[:M] * w[:, None], model.names, order, rtol=rank_tol)
+    J0[:M] *= w[:, None]  # whitened in place (J0 is not used again)
+    ident = analyse(J0[:M], model.names, order, rtol=rank_tol)
     del _r0, J0  # not held through the solver (an (M, n) matrix)
     # coefficients under a prior are determined by it: always fitted, never eliminated
     free = np.sort(np.concatenate([np.asarray(ident.kept, dtype=int), ridge]))
