@@ -159,7 +159,9 @@ class FoldCV:
         for i, (s, e) in enumerate(self.bounds):
             H = G - self._Gf[i][np.ix_(keep, keep)] + np.diag(prec)
             g = b - bf[i] + prec * th
-            err[s:e] = r2[s:e] - self._A[s:e][:, keep] @ SymSolver(H).solve(g)
+            y = np.zeros(self._A.shape[1])  # the step on the kept columns, zero on the others: no column copy
+            y[keep] = SymSolver(H).solve(g)
+            err[s:e] = r2[s:e] - self._A[s:e] @ y
         return self._unsort(err)
 
     # -- candidates ------------------------------------------------------------------------------------------

@@ -308,7 +308,10 @@ def _retest(
     r, J, _, _ = fit.model.residuals_and_jacobian(fit.theta, data_all, rows_all)
     w = np.tile(fit.weights[: fit.d], m)
     row_of = np.repeat(np.arange(m), fit.d)
-    test = robust.row_test(r * w, J[:, fit.free] * w[:, None], row_of, m, kept, alpha)
+    Jw = J[:, fit.free]  # a copy, whitened in place; the full Jacobian let go first (each is (M, n))
+    del J
+    Jw *= w[:, None]
+    test = robust.row_test(r * w, Jw, row_of, m, kept, alpha)
     # a row is a gross error only when it also stands out from the rows' own scatter (robust scale: the median
     # row sum of squares, the same Bonferroni rate): a row that only the extended model's leverage singles out
     # (a 0.04 mm row among 0.1 mm ones, issue 30 item 9) is not a blunder. Such rows are still left out of the
