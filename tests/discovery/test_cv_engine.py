@@ -201,3 +201,16 @@ def test_the_dictionary_selection_picks_what_the_dense_matrix_picked():
     # and the proposal: joint 3's atom 3 and joint 1's atom 4, stable in every resample
     props = dictionary.select(Jq, w, F, r, Q, groups, 2, 12, 0.7, 1e-3, 9)
     assert sorted((p.joint, a) for p in props for a in p.atoms) == [(1, 4), (3, 3)]
+
+
+def test_a_held_out_difference_at_round_off_is_no_evidence():
+    """A candidate the model absorbs changes the per-pose held-out sums by ~1e-12 relative: the paired t-test on
+    that noise gave any p-value (on the UR10 it accepted a logged signal's joint offset). It is no evidence."""
+    from robocal.discovery.grow import paired_log10_p
+
+    rng = np.random.default_rng(6)
+    sse0 = rng.uniform(1e3, 1e4, size=200)
+    noise = sse0 * (1e-13 + 1e-13 * rng.uniform(size=200))  # a consistent "gain" of 1e-13 relative
+    assert paired_log10_p(sse0, sse0 - noise) == 0.0
+    real = sse0 * 1e-3 * (1.0 + rng.normal(size=200))  # a real gain of 0.1 % is still seen
+    assert paired_log10_p(sse0, sse0 - real) < -10
