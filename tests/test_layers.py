@@ -30,6 +30,7 @@ LAYERS: list[set[str]] = [
         "status",
         "numerics",
         "logged_signals",
+        "parallel",
         "__version__",
     },
     # the data contract

@@ -21,6 +21,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "registered on its own calibration rows, each effect left out in turn (sessions.json)",
     )
     p.add_argument(
+        "--engine",
+        choices=("local", "ray"),
+        default="local",
+        help="where the per-candidate work of the cross-validated selection runs: this process, or Ray tasks (same "
+        "result)",
+    )
+    p.add_argument("--workers", type=int, default=None, help="Ray: CPUs of the local instance (default: all)")
+    p.add_argument("--ray-address", default=None, help="Ray: the cluster to connect to (default: a local instance)")
+    p.add_argument(
         "overrides",
         nargs="*",
         help="discovery settings key=value, e.g. noise_mm=0.02 alpha=0.001 'effects=[gear,backlash]' split.method=none",
@@ -32,9 +41,12 @@ def run(args: argparse.Namespace) -> int:
 
     ov = parse_overrides(args.overrides)
     split = ov.pop("split", None)
-    s = discovery.run(
-        args.data_dir, args.robot, args.out, ov, split=split, report=not args.no_report, sessions=args.validate_on
-    )
+    from robocal.discovery import engine
+
+    with engine.use(args.engine, args.workers, args.ray_address):
+        s = discovery.run(
+            args.data_dir, args.robot, args.out, ov, split=split, report=not args.no_report, sessions=args.validate_on
+        )
     named = ", ".join(
         n["effect"] + (f" j{n['joint']}" if n["joint"] else "") + (f" h{n['harmonic']}" if n["harmonic"] else "")
         for n in s["named"]

@@ -172,20 +172,24 @@ def select(
     (m, K) the dictionary at the fitted rows; r_w : (M,) whitened residuals; Q : (M, k) orthonormal basis of the
     current model's whitened Jacobian; groups : (M,) pose of every residual (resampling unit).
     """
-    from sklearn.linear_model import orthogonal_mp
-
     m, d, n = Jq.shape
     K = F_rows.shape[1]
-    # columns (M, n K): joint j's block is J_q[:, :, j] · F, whitened
-    Z = (Jq[:, :, :, None] * F_rows[:, None, None, :]).reshape(m * d, n * K) * w[:, None]
-    norms = np.linalg.norm(Z, axis=0)
-    Zp = Z - Q @ (Q.T @ Z)
-    pn = np.linalg.norm(Zp, axis=0)
+    # columns (M, n K): joint j's block is J_q[:, :, j] · F, whitened. Never formed (issue 31): every product
+    # with it goes through its factors, V[:, :, j] (m, d) and F (m, K) (robocal.discovery.cv's module docstring)
+    V = Jq * np.asarray(w, dtype=float).reshape(m, d)[:, :, None]
+    F = np.asarray(F_rows, dtype=float)
+    k = Q.shape[1]
+    Q3 = Q.reshape(m, d, k)
+    B = np.empty((k, n * K))  # Qᵀ Z
+    for j in range(n):
+        B[:, j * K : (j + 1) * K] = np.einsum("rdk,rd->rk", Q3, V[:, :, j], optimize=True).T @ F
+    norms = np.sqrt(((np.sum(V**2, axis=1)).T @ F**2).reshape(-1))  # (n K,) norms of Z's columns
+    pn = np.sqrt(np.clip(norms**2 - np.sum(B**2, axis=0), 0.0, None))  # of Z - Q Qᵀ Z
     keep = pn > absorbed_tol * np.maximum(norms, 1e-300)
     idx = np.flatnonzero(keep)
     if len(idx) == 0:
         return []
-    X = Zp[:, idx] / pn[idx]
+    X = _Projected(V, F, Q, B, idx, pn[idx])
     rng = np.random.default_rng(seed)
     uniq = np.unique(groups)
     counts = np.zeros(len(idx))
@@ -193,11 +197,14 @@ def select(
     for _ in range(n_resamples):
         pick = rng.choice(len(uniq), size=len(uniq) // 2, replace=False)
         rows = np.isin(groups, uniq[pick])
-        coef = orthogonal_mp(X[rows], r_w[rows], n_nonzero_coefs=max_terms, precompute=False)
-        sel = np.flatnonzero(coef)
+        sel = np.sort(_omp(X, rows, np.where(rows, r_w, 0.0), max_terms))
         counts[sel] += 1
         picks.append(sel)
-    freq = cluster_votes(X, counts, picks, n_resamples, merge_corr)
+    used = np.flatnonzero(counts > 0)
+    at = np.full(len(idx), -1)
+    at[used] = np.arange(len(used))
+    freq = np.zeros(len(idx))
+    freq[used] = cluster_votes(X.columns(used), counts[used], [at[p] for p in picks], n_resamples, merge_corr)
     stable = np.flatnonzero(freq >= stability)
     out: dict[int, Proposal] = {}
     for s_i in stable[np.argsort(-freq[stable])]:
@@ -207,6 +214,69 @@ def select(
         p.atoms.append(atom)
         p.stability.append(float(freq[s_i]))
     return list(out.values())
+
+
+class _Projected:
+    """The dictionary's kept columns projected off the current model and normalised, ``X = (Z - Q B)[:, idx] /
+    pn``, held by their factors: products with it cost ``O(m n K)``, not the ``(M, n K)`` matrix."""
+
+    def __init__(
+        self, V: np.ndarray, F: np.ndarray, Q: np.ndarray, B: np.ndarray, idx: np.ndarray, pn: np.ndarray
+    ) -> None:
+        self.V, self.F, self.Q, self.B, self.idx, self.pn = V, F, Q, B[:, idx], idx, pn
+        self.K = F.shape[1]
+
+    def rmatvec(self, u: np.ndarray) -> np.ndarray:
+        """``Xᵀ u`` for a residual vector ``u (M,)``."""
+        m, d, _ = self.V.shape
+        zu = (self.F.T @ np.einsum("rdn,rd->rn", self.V, u.reshape(m, d))).T.reshape(-1)  # Zᵀ u, (n K,)
+        return np.asarray((zu[self.idx] - self.B.T @ (self.Q.T @ u)) / self.pn)
+
+    def columns(self, cols: np.ndarray) -> np.ndarray:
+        """The columns ``cols`` of ``X`` as an ``(M, len(cols))`` matrix."""
+        m, d, _ = self.V.shape
+        out = np.empty((m * d, len(cols)))
+        for c_out, c in enumerate(cols):
+            j, a = divmod(int(self.idx[c]), self.K)
+            out[:, c_out] = (self.V[:, :, j] * self.F[:, a][:, None]).reshape(-1)
+        out -= self.Q @ self.B[:, cols]
+        return out / self.pn[cols]
+
+
+def _omp(X: _Projected, rows: np.ndarray, y: np.ndarray, n_terms: int) -> np.ndarray:
+    """Orthogonal matching pursuit of ``y`` (zero outside ``rows``) on the columns of ``X`` restricted to ``rows``
+    (the Cholesky form of scikit-learn's ``orthogonal_mp`` with ``n_nonzero_coefs``, same picks and stopping
+    rules), from products with ``X``: ``Xᵀ y`` once and one Gram column per chosen atom."""
+    eps = float(np.finfo(float).eps)
+    alpha = X.rmatvec(y)
+    active: list[int] = []
+    gram: list[np.ndarray] = []  # X_sᵀ x_s,a for each active atom a
+    L = np.zeros((n_terms, n_terms))
+    gamma: np.ndarray = np.zeros(0)
+    corr = alpha
+    while len(active) < n_terms:
+        lam = int(np.argmax(np.abs(corr)))
+        if lam in active or alpha[lam] ** 2 < eps:
+            break
+        g = X.rmatvec(np.where(rows, X.columns(np.array([lam]))[:, 0], 0.0))
+        na = len(active)
+        if na > 0:
+            from scipy.linalg import solve_triangular
+
+            ln = solve_triangular(L[:na, :na], np.array([gg[lam] for gg in gram]), lower=True, check_finite=False)
+            Lkk = float(g[lam] - ln @ ln)
+            if Lkk <= eps:
+                break
+            L[na, :na] = ln
+            L[na, na] = np.sqrt(Lkk)
+        else:
+            L[0, 0] = np.sqrt(g[lam])
+        active.append(lam)
+        gram.append(g)
+        La = L[: na + 1, : na + 1]
+        gamma = np.linalg.solve(La.T, np.linalg.solve(La, alpha[active]))
+        corr = alpha - np.column_stack(gram) @ gamma
+    return np.array([a for a, gm in zip(active, gamma, strict=False) if gm != 0], dtype=int)
 
 
 def cluster_votes(

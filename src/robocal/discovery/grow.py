@@ -28,8 +28,10 @@ import numpy as np
 from scipy import stats
 
 from robocal.data.contract import Campaign
+from robocal.discovery import engine, progress
 from robocal.discovery.candidates import Candidate
 from robocal.discovery.config import DiscoveryConfig
+from robocal.discovery.cv import FoldCV, fold_cv
 from robocal.discovery.model import Accepted, Fit
 from robocal.discovery.scoring import Score, Step, regressor
 from robocal.discovery.session_cv import Sessions
@@ -180,7 +182,7 @@ def variant_candidate(cand: Candidate, v: Variant) -> Candidate:
     if "harmonics" in extra:
         h = np.asarray(cand.extra["harmonics"])
         extra["harmonics"] = h[v.columns[: len(v.columns) // 2]].tolist()
-    if "centre" in extra:
+    if "centre" in extra and np.ndim(extra["centre"]) == 1:  # per column (a logged signal's is one number)
         extra["centre"] = np.asarray(cand.extra["centre"])[v.columns].tolist()
     extra["variant"] = v.label
     names = tuple(cand.coef_names[i] for i in v.columns)
@@ -190,79 +192,12 @@ def variant_candidate(cand: Candidate, v: Variant) -> Candidate:
     )  # fmt: skip
 
 
-class FoldCV:
-    """Linearised pose-grouped cross-validation at one joint fit (see the module docstring)."""
-
-    def __init__(self, fit: Fit, groups: np.ndarray, folds: int, seed: int) -> None:
-        self.fit = fit
-        uniq, gidx = np.unique(groups, return_inverse=True)
-        self.gidx = gidx
-        self.n_groups = len(uniq)
-        perm = np.random.default_rng(seed).permutation(len(uniq))
-        self.fold = (perm % folds)[gidx]
-        self.folds = [k for k in range(folds) if np.any(self.fold == k)]
-        A = fit.J_w
-        r = fit.r_w
-        prec = fit.model.prior_precision()[fit.free]
-        th = fit.theta[fit.free]
-        G = A.T @ A
-        b = A.T @ r
-        self.base_err = np.zeros_like(r)
-        self.Hinv: dict[int, np.ndarray] = {}
-        for k in self.folds:
-            t = self.fold == k
-            At = A[t]
-            H = G - At.T @ At + np.diag(prec)
-            g = b - At.T @ r[t] + prec * th
-            Hi = np.linalg.pinv(H, rcond=1e-12, hermitian=True)
-            self.Hinv[k] = Hi
-            self.base_err[t] = r[t] - At @ (Hi @ g)
-        self._g = {k: (b - A[self.fold == k].T @ r[self.fold == k] + prec * th) for k in self.folds}
-
-    def group_sse(self, err: np.ndarray) -> np.ndarray:
-        return np.bincount(self.gidx, weights=err**2, minlength=self.n_groups)
-
-    def with_variants(self, Z: np.ndarray, variants: list[Variant]) -> list[np.ndarray]:
-        """Held-out errors (M,) of each variant (columns of ``Z (M, q)`` and a prior). The products with the
-        model's Jacobian are formed once for all columns; each variant slices them (``W = H⁻¹ C`` commutes with
-        taking columns) and solves only its own Schur complement."""
-        A = self.fit.J_w
-        r = self.fit.r_w
-        tests = [self.fold == k for k in self.folds]
-        Ct = [A[t].T @ Z[t] for t in tests]
-        Z2t = [Z[t].T @ Z[t] for t in tests]
-        bzt = [Z[t].T @ r[t] for t in tests]
-        C_all, Z2_all, bz_all = sum(Ct), sum(Z2t), sum(bzt)
-        per_fold = []
-        for i, k in enumerate(self.folds):
-            C = C_all - Ct[i]
-            W = self.Hinv[k] @ C  # (k, q)
-            P = Z[tests[i]] - A[tests[i]] @ W  # held-out rows' response to each column, the model refitted
-            per_fold.append((Z2_all - Z2t[i], bz_all - bzt[i], C, W, P))
-        out = []
-        for v in variants:
-            cols = np.arange(Z.shape[1]) if v.columns is None else v.columns
-            q = len(cols)
-            pz = np.zeros(q) if v.prior_rad is None else 1.0 / np.broadcast_to(v.prior_rad, (q,)) ** 2
-            err = np.empty_like(r)
-            for i, k in enumerate(self.folds):
-                Z2, bz, C, W, P = per_fold[i]
-                Wc = W[:, cols]
-                Sz = Z2[np.ix_(cols, cols)] + np.diag(pz) - C[:, cols].T @ Wc
-                rhs = bz[cols] - Wc.T @ self._g[k]
-                try:
-                    dz = -np.linalg.solve(Sz, rhs)
-                except np.linalg.LinAlgError:
-                    dz = -np.linalg.lstsq(Sz, rhs, rcond=1e-12)[0]
-                err[tests[i]] = self.base_err[tests[i]] + P[:, cols] @ dz
-            out.append(err)
-        return out
-
-
 def paired_log10_p(sse0: np.ndarray, sse1: np.ndarray) -> float:
     """log10 p of the one-sided paired t-test that the held-out error per pose fell (``sse0 - sse1 > 0``)."""
     d = sse0 - sse1
-    if len(d) < 3 or float(np.std(d)) == 0.0:
+    # differences at the round-off of the held-out sums (a candidate the model absorbs changes them by ~1e-12
+    # relative) carry no evidence: their t statistic is the arithmetic's noise, any sign and size
+    if len(d) < 3 or float(np.std(d)) == 0.0 or float(np.max(np.abs(d))) <= 1e-9 * float(np.max(sse0)):
         return 0.0
     t = float(np.mean(d) / (np.std(d, ddof=1) / np.sqrt(len(d))))
     return float(stats.t.logsf(t, len(d) - 1) / np.log(10.0))
@@ -303,8 +238,9 @@ def grow(
                               "steps": []}  # fmt: skip
     if cfg.cv_folds < 2 or not pool:
         return fit, accepted, record
-    cv = FoldCV(fit, groups, cfg.cv_folds, cfg.seed)
-    for _ in range(cfg.grow_max_steps):
+    cv = fold_cv(fit, groups, cfg.cv_folds, cfg.seed)
+    for step in range(cfg.grow_max_steps):
+        progress.note(f"cross-validated selection: step {step + 1} (at most {cfg.grow_max_steps})")
         fit_new, accepted, pool, cv = _step(pool, fit, accepted, cv, rows, data, cfg, steps, record, refit, groups)
         if fit_new is fit or not pool:
             fit = fit_new
@@ -331,9 +267,10 @@ def finish(
     cross-validated test accepts it, then the cross-validated estimate and each effect's contribution."""
     record.setdefault("steps", [])
     if cfg.layer and cfg.cv_folds >= 2:
+        progress.note("residual layer")
         layer_pool = layer_candidates(campaign, cfg, rows)
         if layer_pool:
-            cv = FoldCV(fit, groups, cfg.cv_folds, cfg.seed)
+            cv = fold_cv(fit, groups, cfg.cv_folds, cfg.seed)
             fit, accepted, _, _ = _step(layer_pool, fit, accepted, cv, rows, data, cfg, steps, record, refit, groups,
                                         what="residual layer")  # fmt: skip
     if sessions is not None:
@@ -345,6 +282,7 @@ def finish(
                         for a in accepted]  # fmt: skip
             fit = refit(accepted, fit)
     if cfg.cv_folds >= 2:
+        progress.note("final held-out check")
         fit, accepted, con = held_out_check(fit, accepted, steps, groups, refit, cfg, record, final=True,
                                             sessions=sessions)  # fmt: skip
         record.update(con)
@@ -416,14 +354,14 @@ def _prune(
     removal does not raise the cross-validated error contributes nothing held-out and is dropped (one pass,
     then the model is refitted). The library's F-test effects are left to their own Wald check."""
     added = {c for st in record["steps"] for c in st.get("members", [st["key"]])}
-    cv = FoldCV(fit, groups, cfg.cv_folds, cfg.seed)
+    cv = fold_cv(fit, groups, cfg.cv_folds, cfg.seed)
     base = float(np.sum(cv.base_err**2))
     drop = []
     for a, sl in zip(fit.model.accepted, fit.model.slices, strict=True):
         if a.cand.key not in added or a.cand.shape != "joint":
             continue
         keep = np.array([i for i, p in enumerate(fit.free) if not (sl.start <= p < sl.stop)])
-        e = FoldCV(replace_fit_columns(fit, keep), groups, cfg.cv_folds, cfg.seed).base_err
+        e = cv.base_err_without(keep)
         if float(np.sum(e**2)) <= base:
             drop.append(a.cand.key)
     record["pruned"] = drop
@@ -458,14 +396,31 @@ def _step(
     n_tests = max(sum(len(v) for _, v in pool) - n_sig, 1)
     thr_lib = float(np.log10(cfg.cv_alpha / n_tests))
     thr_sig = float(np.log10(cfg.cv_alpha / max(n_sig, 1)))
-    for members, variants in pool:
+    drift: list[dict[str, tuple[str, ...]]] = [{} for _ in pool]
+    q_of: list[int] = [0] * len(pool)
+
+    def job(i: int, members: list[Candidate]) -> Any:
+        def make() -> tuple[str, Any, list[Variant]]:
+            if all(c.shape == "joint" for c in members):
+                # joint-level: the candidate's factors, not its (M, q) regressor (robocal.discovery.cv)
+                blocks = [(int(c.joint) - 1, c.S[rows]) for c in members if c.joint is not None]
+                q_of[i] = sum(S.shape[1] for _, S in blocks)
+                drift[i].update({c.key: () for c in members})
+                return "joint", blocks, pool[i][1]
+            regs = [regressor(c, fit, rows, data) for c in members]
+            q_of[i] = sum(z.shape[1] for z, _ in regs)
+            drift[i].update({c.key: prm for c, (_, prm) in zip(members, regs, strict=True)})
+            return "dense", np.hstack([z for z, _ in regs]), pool[i][1]
+
+        return make
+
+    ticker = progress.Ticker(f"{what}: candidates scored", len(pool))
+    sse_all = engine.group_sse(cv, [job(i, m) for i, (m, _) in enumerate(pool)], ticker.tick)
+    for i_pool, (members, variants) in enumerate(pool):
         thr = thr_sig if members[0].effect == "signal" else thr_lib
-        regs = [regressor(c, fit, rows, data) for c in members]
-        Z_all = np.hstack([z for z, _ in regs])
-        drifted = {c.key: prm for c, (_, prm) in zip(members, regs, strict=True)}
+        q_all, drifted = q_of[i_pool], drift[i_pool]
         best: tuple[float, float, Variant] | None = None
-        for v, err in zip(variants, cv.with_variants(Z_all, variants), strict=True):
-            sse1 = cv.group_sse(err)
+        for v, sse1 in zip(variants, sse_all[i_pool], strict=True):
             tot = float(sse1.sum())
             if best is None or tot < best[0]:
                 best = (tot, paired_log10_p(sse0, sse1), v)
@@ -474,7 +429,7 @@ def _step(
         gain = float((sse0.sum() - tot) / sse0.sum()) if sse0.sum() > 0 else 0.0
         key = members[0].key if len(members) == 1 else f"{members[0].effect}:all"
         label = members[0].label if len(members) == 1 else f"{members[0].effect}, every joint"
-        q = Z_all.shape[1] if v.columns is None else len(v.columns)
+        q = q_all if v.columns is None else len(v.columns)
         sc = Score(key, label, "tested", float("nan"), q, log10_p=lp, cv_gain=gain)
         sc.passes = bool(gain > 0 and lp < thr)
         scores.append((tot, lp, sc, members, v, drifted))
@@ -499,7 +454,7 @@ def _step(
                             "cv_gain": sc.cv_gain, "members": [c.key for c in chosen]})  # fmt: skip
     taken = {c.key for c in members}
     pool = [(m, vs) for m, vs in pool if not taken & {c.key for c in m}]
-    return fit, accepted, pool, FoldCV(fit, groups, cfg.cv_folds, cfg.seed)
+    return fit, accepted, pool, fold_cv(fit, groups, cfg.cv_folds, cfg.seed)
 
 
 def layer_candidates(campaign: Campaign, cfg: DiscoveryConfig, rows: np.ndarray) -> Pool:
@@ -556,7 +511,7 @@ def contributions(
     contribution: the held-out error with that effect's coefficients removed from the model (linearised).
     With ``sessions`` (a campaign of several sessions) the same in leave-one-session-out cross-validation
     (:mod:`robocal.discovery.session_cv`): ``session_cv`` and each effect's ``session_gain``."""
-    cv = FoldCV(fit, groups, max(cfg.cv_folds, 2), cfg.seed)
+    cv = fold_cv(fit, groups, max(cfg.cv_folds, 2), cfg.seed)
     own = sessions.summary(fit) if sessions is not None else None
     e = ErrorStats.of(cv_position_mm(fit, cv.base_err))
     out: dict[str, Any] = {
@@ -573,15 +528,14 @@ def contributions(
         keep = np.array([i for i, p in enumerate(fit.free) if not (sl.start <= p < sl.stop)])
         if len(keep) == len(fit.free):
             continue
-        sub = replace_fit_columns(fit, keep)
-        cvs = FoldCV(sub, groups, max(cfg.cv_folds, 2), cfg.seed)
-        e_without = ErrorStats.of(cv_position_mm(fit, cvs.base_err))
+        err_without = cv.base_err_without(keep)
+        e_without = ErrorStats.of(cv_position_mm(fit, err_without))
         out["effects"][a.cand.key] = {
             "cv_mean_without_mm": e_without.mean_mm,
             "cv_rms_without_mm": e_without.rms_mm,
             # the relative rise of the held-out RMS as fitted (whitened positions and, with a 6-DoF probe,
             # orientations) without the effect: the held-out check's gain (an effect that turns the tool shows here)
-            "held_out_gain": float(np.sqrt(np.sum(cvs.base_err**2) / max(float(np.sum(cv.base_err**2)), 1e-300)) - 1),
+            "held_out_gain": float(np.sqrt(np.sum(err_without**2) / max(float(np.sum(cv.base_err**2)), 1e-300)) - 1),
         }
         if sessions is not None and own is not None:
             other = sessions.summary(fit, keep=keep)  # = sessions.summary(sub), from the fit's normal equations

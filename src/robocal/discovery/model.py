@@ -121,12 +121,14 @@ class ExtendedModel:
         return 6 if (self.base.orientation and data.R_meas is not None) else 3
 
     def residuals_and_jacobian(
-        self, theta: np.ndarray, data: FitData, rows: np.ndarray
+        self, theta: np.ndarray, data: FitData, rows: np.ndarray, extra_rows: int = 0
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Residuals ``(d m,)`` row by row, Jacobian ``(d m, n)``, and the base Jacobians ``J_x (m, d, nb)``,
         ``J_q (m, d, N)`` (``d`` = :meth:`per_row`).
 
         ``rows`` index the campaign rows of ``data`` (signals are stored for every campaign row).
+        ``extra_rows``: the Jacobian is allocated with that many more rows (zero) below, for a caller that
+        appends rows of its own (a prior) without copying the ``(d m, n)`` matrix.
         """
         x = theta[: self.nb]
         m = data.m
@@ -138,7 +140,8 @@ class ExtendedModel:
         Jx = Jb.reshape(m, dd, self.nb)
         Jq_p, Jq_w = self.base.joint_jacobians(x, d)
         Jq = Jq_p if Jq_w is None else np.concatenate([Jq_p, Jq_w], axis=1)
-        J = np.zeros((dd * m, self.n))
+        J_all = np.zeros((dd * m + extra_rows, self.n))
+        J = J_all[: dd * m]
         J[:, : self.nb] = Jb
         Jv = J.reshape(m, dd, self.n)
         rv = r.reshape(m, dd).copy()
@@ -170,7 +173,19 @@ class ExtendedModel:
                 cols = axis_rows(c, self.base, x, d, rows, dd)
                 Jv[:, :, sl] = cols
                 rv += np.einsum("mij,j->mi", cols, theta[sl])
-        return rv.ravel(), J, Jx, Jq
+        return rv.ravel(), (J_all if extra_rows else J), Jx, Jq
+
+    def base_jacobians(self, theta: np.ndarray, data: FitData, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``J_x (m, d, nb)`` and ``J_q (m, d, N)`` of :meth:`residuals_and_jacobian` without its ``(d m, n)``
+        Jacobian (the same numbers)."""
+        x = theta[: self.nb]
+        m = data.m
+        dd = self.per_row(data)
+        d = data.with_q(data.q + self.joint_offsets(theta, rows, 0))
+        _, Jb = self.base.residuals_and_jacobian(x, d)
+        Jx = by_row(Jb, m, dd).reshape(m, dd, self.nb)
+        Jq_p, Jq_w = self.base.joint_jacobians(x, d)
+        return Jx, (Jq_p if Jq_w is None else np.concatenate([Jq_p, Jq_w], axis=1))
 
 
 def tracker_columns(cand: Candidate, rows: np.ndarray, d: int = 3) -> np.ndarray:
@@ -291,11 +306,12 @@ def fit_model(
     sq = np.sqrt(prec[ridge])
 
     def fun(th: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        r, J, _, _ = model.residuals_and_jacobian(th, data, rows)
-        if len(ridge):  # the prior as extra residual rows sqrt(precision) * theta (weight 1)
-            Jp = np.zeros((len(ridge), model.n))
-            Jp[np.arange(len(ridge)), ridge] = sq
-            return np.concatenate([r, sq * th[ridge]]), np.vstack([J, Jp])
+        # the prior as extra residual rows sqrt(precision) * theta (weight 1), filled in place below the
+        # Jacobian (no copy of the (M, n) matrix)
+        r, J, _, _ = model.residuals_and_jacobian(th, data, rows, extra_rows=len(ridge))
+        if len(ridge):
+            J[len(r) + np.arange(len(ridge)), ridge] = sq
+            return np.concatenate([r, sq * th[ridge]]), J
         return r, J
 
     d = model.per_row(data)
@@ -309,13 +325,15 @@ def fit_model(
     order += [i for i, k in enumerate(kinds) if k == "kinematic"]
     order += [i for i, k in enumerate(kinds) if k == "effect" and prec[i] == 0]
     order = [i for i in order if model.names[i] not in fixed]
-    ident = analyse(J0[:M] * w[:, None], model.names, order, rtol=rank_tol)
+    J0[:M] *= w[:, None]  # whitened in place (J0 is not used again)
+    ident = analyse(J0[:M], model.names, order, rtol=rank_tol)
+    del _r0, J0  # not held through the solver (an (M, n) matrix)
     # coefficients under a prior are determined by it: always fitted, never eliminated
     free = np.sort(np.concatenate([np.asarray(ident.kept, dtype=int), ridge]))
     w_all = np.concatenate([w, np.ones(len(ridge))])
     lm = levenberg_marquardt(fun, theta0, free, w_all, max_iter=max_iter, ftol=1e-12, xtol=1e-10)
     theta = np.array(lm.x)
-    _, _, Jx, Jq = model.residuals_and_jacobian(theta, data, rows)  # the solver's r and J, with their parts
+    Jx, Jq = model.base_jacobians(theta, data, rows)  # the parts of the solver's J
     assert lm.covariance is not None  # a finite fit
     return Fit(
         model=model,

@@ -22,8 +22,10 @@ import numpy as np
 from scipy import stats
 
 from robocal.data.contract import Campaign
+from robocal.discovery import progress
 from robocal.discovery.candidates import Candidate, SkippedCandidate, build_library, periodic_window
 from robocal.discovery.config import DiscoveryConfig
+from robocal.discovery.cv import clear_cache
 from robocal.discovery.grow import finish, grow, held_out_check, physics_candidates, variant_candidate
 from robocal.discovery.model import Accepted, ExtendedModel, Fit, fit_model
 from robocal.discovery.scoring import Score, Step, regressor
@@ -225,7 +227,7 @@ def discover(campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig |
             # converged, or the last round: `kept` stays the set the search ran on, so the rows reported as left
             # out of the fit are the ones it left out (the UR10 reported 18 of 1 046 out while fitting 1 035)
             break
-        kept = ~test.flagged
+        kept, res = ~test.flagged, None  # the round's fits (their Jacobians) let go before the next search
     assert res is not None
     # every calibration row's residual under the final model, for the outlier list
     fit = res.final
@@ -293,10 +295,14 @@ def _retest(
     from robocal.identification import misfit, robust
 
     m = cal.n_rows
+    progress.note(f"gross-error test: every one of the {m} calibration rows against the discovered model")
     r, J, _, _ = fit.model.residuals_and_jacobian(fit.theta, data_all, rows_all)
     w = np.tile(fit.weights[: fit.d], m)
     row_of = np.repeat(np.arange(m), fit.d)
-    test = robust.row_test(r * w, J[:, fit.free] * w[:, None], row_of, m, kept, alpha)
+    Jw = J[:, fit.free]  # a copy, whitened in place; the full Jacobian let go first (each is (M, n))
+    del J
+    Jw *= w[:, None]
+    test = robust.row_test(r * w, Jw, row_of, m, kept, alpha)
     # a row is a gross error only when it also stands out from the rows' own scatter (robust scale: the median
     # row sum of squares, the same Bonferroni rate): a row that only the extended model's leverage singles out
     # (a 0.04 mm row among 0.1 mm ones, issue 30 item 9) is not a blunder. Such rows are still left out of the
@@ -344,6 +350,7 @@ def _search(
 ) -> DiscoveryResult:
     """Forward selection on the campaign rows ``rows`` (their fit data ``data``), from the geometric fit ``geo``."""
     t0 = time.perf_counter()
+    progress.note(f"the search on {len(rows)} rows (the gross-error rounds repeat it, at most 3 times)")
     cal = campaign.subset(rows)
     targets = geo.model.target_names
     T_ref = geo.model.T_ref
@@ -378,7 +385,8 @@ def _search(
         data.station_index, geo.model.station_names, campaign.q[rows],
         periodic_window(cfg, max(cfg.transmission_orders))[0],
     ) if cfg.cv_folds >= 2 else None  # fmt: skip
-    for _ in range(cfg.max_steps):
+    for step in range(cfg.max_steps):
+        progress.note(f"library F-test search: step {step + 1} (at most {cfg.max_steps}), {len(remaining)} candidates")
         scores, chosen = _best_candidate(remaining, fit, rows, data, cfg, log_thr, groups, unident, log_thr_signal)
         if chosen is None:
             steps.append(Step(None, None, fit.rms_mm, fit.rms_mm, fit.rss, fit.rss, fit.dof, scores, phase="library"))
@@ -418,14 +426,17 @@ def _search(
             campaign, robot, cfg, rows, data, fit, accepted, steps, groups, grow_refit, leftovers
         )
     if cfg.dictionary:
+        progress.note("proposed equations (the dictionary)")
         fit, accepted = _propose(campaign, robot, cfg, rows, data, fit, accepted, steps, groups, refit)
     if cfg.cv_folds >= 2 and accepted:
         # what the parametric model keeps earns its place before the layer is offered (the layer's after it)
+        progress.note("held-out check of the parametric model")
         fit, accepted, _ = held_out_check(fit, accepted, steps, groups, refit, cfg, grown, sessions=sessions)
     parametric = fit
     fit, accepted, grown = finish(campaign, cfg, rows, data, fit, accepted, steps, groups, refit, grown, sessions)
     if sessions is not None:
         grown["geometric_session_cv"] = {k: v for k, v in sessions.summary(geometric).items() if k != "sse"}
+    clear_cache()  # the last cross-validation's fold sums
     return DiscoveryResult(
         robot=robot,
         config=cfg,

@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 import sys
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -30,6 +29,7 @@ from typing import Any
 
 from robocal.errors import ConfigError, RobocalError
 from robocal.fleet.layout import Fleet, RobotFolder, campaign_dir
+from robocal.parallel import start_ray
 from robocal.status import CampaignStatus
 
 #: keys of the calibration's ``fit`` that are timings (never written: outputs must not depend on the machine)
@@ -202,40 +202,6 @@ def run_local(jobs: list[Job], on_done: OnDone) -> None:
     """Run the jobs one after the other in this process."""
     for job in jobs:
         on_done(job, timed_process_robot(job))
-
-
-def ray_available() -> tuple[bool, str]:
-    """(True, "") when Ray can be imported, else (False, why)."""
-    try:
-        import ray  # noqa: F401
-    except Exception as exc:  # ImportError, or a broken install
-        return False, f"ray cannot be imported ({type(exc).__name__}: {exc}); pip install 'robocal[fleet]'"
-    return True, ""
-
-
-def start_ray(workers: int, address: str | None = None) -> None:
-    """Start a local Ray instance with ``workers`` CPUs (no dashboard), or connect to ``address``."""
-    ok, why = ray_available()
-    if not ok:
-        raise ConfigError(why)
-    import ray
-
-    os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
-    if ray.is_initialized():
-        return
-    env = {
-        "env_vars": {v: os.environ.get(v, "1") for v in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")}
-    }
-    if address:
-        ray.init(address=address, runtime_env=env, log_to_driver=False, configure_logging=False)
-    else:
-        ray.init(
-            num_cpus=int(workers),
-            include_dashboard=False,
-            runtime_env=env,
-            log_to_driver=False,
-            configure_logging=False,
-        )
 
 
 def run_ray(jobs: list[Job], on_done: OnDone, workers: int, address: str | None = None, keep: bool = False) -> None:

@@ -105,8 +105,9 @@ def analyse(
     """
     names = tuple(names)
     cand = np.asarray(candidates, dtype=int)
-    norms = np.linalg.norm(J[:, cand], axis=0)
-    Jc = J[:, cand] / np.where(norms > 0, norms, 1.0)
+    Jc = J[:, cand]  # a copy (fancy index), normalised in place: one (M, k) matrix, not three
+    norms = np.linalg.norm(Jc, axis=0)
+    Jc /= np.where(norms > 0, norms, 1.0)
     # QR in the priority order, against the kept columns only: left[k] is the norm of the part of column k
     # that the kept columns before it cannot explain. (One Householder QR over all candidates would let each
     # dropped column use up a dimension of R, so later columns would be judged against a wrong span, and

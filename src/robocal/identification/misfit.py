@@ -183,17 +183,27 @@ def _extend(
     warm-up's tail, where the misfit fades). Returns the condition and its rows among the ``pool``."""
     x = np.asarray(column_values(camp, cond.column), dtype=float)
     lo, hi = float(cond.lo), float(cond.hi)  # type: ignore[arg-type]
+    # the row counts of every interval by binary search on the sorted values, and the enrichment test of the whole
+    # sequence of candidate ends in one call: the same numbers as growing it one row at a time, without a pass
+    # over the rows and a scalar test per row (issue 31: on the UR10 that loop was a quarter of discovery's time)
+    xp, xf = np.sort(x[pool]), np.sort(x[pool & F])
     for side in (-1, 1):
         out = pool & F & ((x < lo) if side < 0 else (x > hi))
-        for r in np.flatnonzero(out)[np.argsort(-x[out] if side < 0 else x[out], kind="stable")]:  # nearest first
-            if not alike[r]:
-                break
-            nlo, nhi = min(lo, float(x[r])), max(hi, float(x[r]))
-            inside = pool & (x >= nlo) & (x <= nhi)
-            n, k = int(inside.sum()), int((inside & F).sum())
-            if not float(stats.hypergeom.logsf(k - 1, N, K, n) / np.log(10.0)) < log_thr:
-                break
-            lo, hi = nlo, nhi
+        seq = np.flatnonzero(out)[np.argsort(-x[out] if side < 0 else x[out], kind="stable")]  # nearest first
+        not_alike = np.flatnonzero(~alike[seq])
+        seq = seq[: not_alike[0]] if len(not_alike) else seq
+        if not len(seq):
+            continue
+        ends = x[seq]
+        nlo = np.minimum(lo, ends) if side < 0 else np.full(len(seq), lo)
+        nhi = np.full(len(seq), hi) if side < 0 else np.maximum(hi, ends)
+        n = np.searchsorted(xp, nhi, side="right") - np.searchsorted(xp, nlo, side="left")
+        k = np.searchsorted(xf, nhi, side="right") - np.searchsorted(xf, nlo, side="left")
+        lp = stats.hypergeom.logsf(k - 1, N, K, n) / np.log(10.0)
+        fails = np.flatnonzero(~(lp < log_thr))
+        t = int(fails[0]) if len(fails) else len(seq)  # the ends before the first that is not significant
+        if t > 0:
+            lo, hi = float(nlo[t - 1]), float(nhi[t - 1])
     ext = Condition(cond.kind, cond.column, lo=lo, hi=hi, unit=cond.unit)
     return ext, ext.holds(camp) & pool
 

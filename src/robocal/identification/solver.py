@@ -81,9 +81,7 @@ def levenberg_marquardt(
     if not (np.all(np.isfinite(r)) and np.all(np.isfinite(Jf))):
         return _result(method, x, free, w, r, Jf, cost, 0, nfev, njev, -1, t0, history)
     for nit in range(1, max_iter + 1):
-        A = Jf * s  # scaled Jacobian
-        g = A.T @ r
-        H = A.T @ A
+        g, H = _normal_equations(Jf, s, r)
         accepted = False
         # predicted reduction of the undamped Gauss-Newton step: stop without another evaluation when
         # even the full step cannot lower the cost by more than ftol (at a minimum to working precision)
@@ -147,6 +145,13 @@ def _trial(
     r_new, J_new = fun(x_new)
     r_new = weighted(r_new)
     return x_new, r_new, J_new, 0.5 * float(r_new @ r_new)
+
+
+def _normal_equations(Jf: np.ndarray, s: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``g = Aᵀ r`` and ``H = Aᵀ A`` of the scaled Jacobian ``A = Jf s`` (``A`` is not held after: an ``(M, k)``
+    matrix the trial evaluation need not keep beside its own Jacobian)."""
+    A = Jf * s
+    return A.T @ r, A.T @ A
 
 
 def _predicted_reduction(H: np.ndarray, g: np.ndarray) -> float:

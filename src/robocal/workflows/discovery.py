@@ -4,6 +4,9 @@
 from __future__ import annotations
 
 import json
+import os
+import shutil
+import tempfile
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -11,6 +14,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from robocal.data.contract import Campaign
+from robocal.discovery import progress
 from robocal.discovery.config import DiscoveryConfig
 from robocal.discovery.search import DiscoveryResult, discover
 from robocal.discovery.summary import summary
@@ -489,14 +493,26 @@ def run(
     rob = robot_of(robot)
     cfg = DiscoveryConfig.from_mapping(settings)
     camp = campaign_of(data_dir, rob, split, campaign)
+    progress.start(f"{camp.n_rows} rows of {camp.source}: the geometric calibration")
     res = discover(camp, rob, cfg)
+    progress.note(f"discovery done ({len(res.accepted)} effects): writing {out_dir}")
     summ = summary(res, validation_errors(res))
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    why_not = write_product(res, summ, out)
-    write_json(out / "discovery.json", summ)
-    if report:
-        write_report(res, as_written(summ), out / "report.html")
+    # written into a staging folder, then moved into place together: an interrupted run (Ctrl-C) leaves the
+    # last complete run's files as they were, never a new model beside an old report
+    staging = Path(tempfile.mkdtemp(prefix=".discover-", dir=out))
+    try:
+        why_not = write_product(res, summ, staging)
+        write_json(staging / "discovery.json", summ)
+        if report:
+            write_report(res, as_written(summ), staging / "report.html")
+        if why_not:
+            (out / "compensation.csv").unlink(missing_ok=True)
+        for f in sorted(staging.iterdir()):
+            os.replace(f, out / f.name)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
     written = ["discovery.json", "calibration.json", *([] if why_not else ["compensation.csv"])]
     not_written = {"compensation.csv": why_not} if why_not else {}
     judged: dict[str, Any] = {}

@@ -1,0 +1,320 @@
+"""The linearised pose-grouped cross-validation of discovery, from sufficient statistics (issue 31).
+
+Every fold's refit of the current model is a linear least-squares problem in the model's whitened Jacobian ``A``
+(``M x k``) and residuals ``r``: its normal equations need only the fold's Gram ``A_fᵀ A_f`` and ``A_fᵀ r_f``.
+They are accumulated once per fit, in row chunks, over the residuals sorted by fold (so a fold is a contiguous
+block, never a boolean copy of the rows); the training side of a fold is the total minus the fold (a downdate),
+and a candidate's block (``Aᵀ Z``, ``Zᵀ Z``, ``Zᵀ r``) enters by its Schur complement. The held-out errors the
+paired test needs are the only per-row quantities: one pass over the rows, ``O(M k)``.
+
+A joint-level candidate's regressor has a product structure: the row's ``d`` residuals respond to a joint-angle
+error through ``v_row = J_q[row, :, j] · w_row`` (``d`` numbers), and the candidate's columns are ``v_row ⊗
+S_row`` (``S``: its ``q`` signals at that row). Its blocks are formed from per-row projections (``U = Σ_d A_row
+v_row``, ``m x k``, shared by every candidate of that joint) without the ``M x q`` matrix, ``d`` times fewer
+operations (:meth:`FoldCV.with_joint_variants`).
+
+The fold systems are solved by a Cholesky factorisation of the Jacobi-scaled matrix (``k³/3`` operations, not the
+eigendecomposition of a pseudo-inverse); a matrix the factorisation finds singular to working precision falls back
+to the pseudo-inverse (``rcond`` 1e-12), which is what the search used before.
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from collections.abc import Callable, Sequence
+from typing import Any, Protocol
+
+import numpy as np
+from scipy import linalg
+
+#: residual rows per chunk of an accumulation (bounds the temporaries: chunk x k floats)
+CHUNK = 8192
+
+#: joints whose per-row projections FoldCV keeps (each an ``m x k`` matrix)
+U_CACHE = 2
+
+#: reciprocal condition (of the Jacobi-scaled matrix, estimated from the Cholesky diagonal) below which the
+#: pseudo-inverse is used instead of the factorisation
+_RCOND = 1e-12
+
+
+class _Variant(Protocol):
+    @property
+    def columns(self) -> np.ndarray | None: ...
+    @property
+    def prior_rad(self) -> float | np.ndarray | None: ...
+
+
+class SymSolver:
+    """Solves ``H x = b`` for a symmetric positive semi-definite ``H``: Cholesky of the Jacobi-scaled matrix, or
+    its pseudo-inverse (``rcond`` 1e-12, as :func:`numpy.linalg.pinv`) when the factorisation fails or the matrix
+    is singular to working precision."""
+
+    def __init__(self, H: np.ndarray) -> None:
+        dg = np.sqrt(np.clip(np.diag(H), 0.0, None))
+        dg[dg == 0] = 1.0
+        self.scale = 1.0 / dg
+        self.pinv: np.ndarray | None = None
+        self.chol: tuple[np.ndarray, bool] | None = None
+        Hs = H * self.scale[:, None] * self.scale[None, :]
+        try:
+            c, low = linalg.cho_factor(Hs, lower=True, check_finite=False)
+            diag = np.abs(np.diag(c))
+            if len(diag) and float(np.min(diag)) ** 2 < _RCOND * float(np.max(diag)) ** 2:
+                raise np.linalg.LinAlgError("singular to working precision")
+            self.chol = (c, low)
+        except (np.linalg.LinAlgError, linalg.LinAlgError):
+            self.pinv = np.linalg.pinv(H, rcond=1e-12, hermitian=True)
+
+    def solve(self, b: np.ndarray) -> np.ndarray:
+        if self.pinv is not None:
+            return np.asarray(self.pinv @ b)
+        assert self.chol is not None
+        s = self.scale if b.ndim == 1 else self.scale[:, None]
+        return np.asarray(s * linalg.cho_solve(self.chol, s * b, check_finite=False))
+
+
+def gram_by_blocks(A: np.ndarray, r: np.ndarray, bounds: Sequence[tuple[int, int]], chunk: int = CHUNK) -> tuple[
+    list[np.ndarray], list[np.ndarray]
+]:  # fmt: skip
+    """Per block ``[s, e)`` of rows: ``A_sᵀ A_s`` and ``A_sᵀ r_s``, accumulated over row chunks of at most ``chunk``
+    rows (no temporary larger than ``chunk x k``)."""
+    G, b = [], []
+    for s, e in bounds:
+        Gi = np.zeros((A.shape[1], A.shape[1]))
+        bi = np.zeros(A.shape[1])
+        for c0 in range(s, e, chunk):
+            Ac = A[c0 : min(c0 + chunk, e)]
+            Gi += Ac.T @ Ac
+            bi += Ac.T @ r[c0 : min(c0 + chunk, e)]
+        G.append(Gi)
+        b.append(bi)
+    return G, b
+
+
+class FoldCV:
+    """Linearised pose-grouped cross-validation at one joint fit (see :mod:`robocal.discovery.grow`).
+
+    ``base_err`` (M,): every residual's held-out error, the model refitted without its fold (original order)."""
+
+    def __init__(self, fit: Any, groups: np.ndarray, folds: int, seed: int) -> None:
+        self.fit = fit
+        uniq, gidx = np.unique(groups, return_inverse=True)
+        self.gidx = gidx
+        self.n_groups = len(uniq)
+        perm = np.random.default_rng(seed).permutation(len(uniq))
+        self.fold = (perm % folds)[gidx]
+        self.folds = [k for k in range(folds) if np.any(self.fold == k)]
+        # residuals sorted by fold: each fold a contiguous block
+        self.order = np.argsort(self.fold, kind="stable")
+        counts = np.bincount(self.fold, minlength=folds)
+        ends = np.cumsum(counts)
+        self.bounds = [(int(ends[k] - counts[k]), int(ends[k])) for k in self.folds]
+        self.d = int(fit.d)
+        self._A = np.ascontiguousarray(fit.J_w[self.order])
+        self._r = np.asarray(fit.r_w)[self.order]
+        self.prec = fit.model.prior_precision()[fit.free]
+        self.th = fit.theta[fit.free]
+        self._Gf, self._bf = gram_by_blocks(self._A, self._r, self.bounds)
+        self.G = np.sum(self._Gf, axis=0) if self._Gf else np.zeros((self._A.shape[1],) * 2)
+        self.b = np.sum(self._bf, axis=0) if self._bf else np.zeros(self._A.shape[1])
+        self._solver: list[SymSolver] = []
+        self._g: list[np.ndarray] = []
+        err = np.empty_like(self._r)
+        for i, (s, e) in enumerate(self.bounds):
+            H = self.G - self._Gf[i] + np.diag(self.prec)
+            g = self.b - self._bf[i] + self.prec * self.th
+            sol = SymSolver(H)
+            self._solver.append(sol)
+            self._g.append(g)
+            err[s:e] = self._r[s:e] - self._A[s:e] @ sol.solve(g)
+        self._err_sorted = err
+        self.base_err = self._unsort(err)
+        self._U: OrderedDict[int, list[np.ndarray]] = OrderedDict()
+
+    # -- helpers ---------------------------------------------------------------------------------------------
+    def _unsort(self, e_sorted: np.ndarray) -> np.ndarray:
+        out = np.empty_like(e_sorted)
+        out[self.order] = e_sorted
+        return out
+
+    def group_sse(self, err: np.ndarray) -> np.ndarray:
+        return np.bincount(self.gidx, weights=err**2, minlength=self.n_groups)
+
+    def base_err_without(self, keep: np.ndarray) -> np.ndarray:
+        """The held-out errors of the fit seen with only the free parameters ``keep`` (positions in
+        ``fit.free``; the residual gains back what the others explained, first order, as
+        :func:`robocal.discovery.grow.replace_fit_columns`), from this fit's fold sums: no pass over the rows but
+        the prediction of the held-out residuals."""
+        keep = np.asarray(keep, dtype=int)
+        drop = np.setdiff1d(np.arange(self._A.shape[1]), keep)
+        th_d = self.th[drop]
+        r2 = self._r - self._A[:, drop] @ th_d if len(drop) else self._r
+        Gkd = [Gi[np.ix_(keep, drop)] for Gi in self._Gf]
+        bf = [bi[keep] - Gd @ th_d for bi, Gd in zip(self._bf, Gkd, strict=True)]
+        b = np.sum(bf, axis=0)
+        G = self.G[np.ix_(keep, keep)]
+        prec, th = self.prec[keep], self.th[keep]
+        err = np.empty_like(self._r)
+        for i, (s, e) in enumerate(self.bounds):
+            H = G - self._Gf[i][np.ix_(keep, keep)] + np.diag(prec)
+            g = b - bf[i] + prec * th
+            y = np.zeros(self._A.shape[1])  # the step on the kept columns, zero on the others: no column copy
+            y[keep] = SymSolver(H).solve(g)
+            err[s:e] = r2[s:e] - self._A[s:e] @ y
+        return self._unsort(err)
+
+    # -- candidates ------------------------------------------------------------------------------------------
+    def with_variants(self, Z: np.ndarray, variants: Sequence[_Variant]) -> list[np.ndarray]:
+        """Held-out errors (M,) of each variant (columns of ``Z (M, q)`` and a prior). The products with the
+        model's Jacobian are formed once for all columns; each variant slices them (``W = H⁻¹ C`` commutes with
+        taking columns) and solves only its own Schur complement."""
+        Zs = Z[self.order]
+        Ct, Z2t, bzt = [], [], []
+        for s, e in self.bounds:
+            At, Zt = self._A[s:e], Zs[s:e]
+            Ct.append(At.T @ Zt)
+            Z2t.append(Zt.T @ Zt)
+            bzt.append(Zt.T @ self._r[s:e])
+
+        def apply_z(i: int, DZ: np.ndarray) -> np.ndarray:
+            s, e = self.bounds[i]
+            return np.asarray(Zs[s:e] @ DZ)
+
+        return self._variants(Z.shape[1], Ct, Z2t, bzt, apply_z, variants)
+
+    def _rows_of_fold(self, i: int) -> np.ndarray:
+        """The fit rows (measurement rows, not residuals) of fold ``i`` in the sorted order."""
+        s, e = self.bounds[i]
+        return np.asarray(self.order[s : e : self.d] // self.d)
+
+    def _u(self, j: int, v: np.ndarray) -> list[np.ndarray]:
+        """Per fold, ``U = Σ_d A_row v_row`` (rows x k) for joint ``j`` (0-based) with ``v (m, d)``: the last
+        :data:`U_CACHE` joints' kept (the pool lists a joint's candidates together; each is ``m x k``)."""
+        if j in self._U:
+            self._U.move_to_end(j)
+            return self._U[j]
+        out = []
+        for i, (s, e) in enumerate(self.bounds):
+            A3 = self._A[s:e].reshape((e - s) // self.d, self.d, -1)
+            out.append(np.einsum("rdk,rd->rk", A3, v[self._rows_of_fold(i)], optimize=True))
+        self._U[j] = out
+        while len(self._U) > U_CACHE:
+            self._U.popitem(last=False)
+        return out
+
+    def joint_v(self, j: int) -> np.ndarray:
+        """``v (m, d)``: the whitened response of each row's residuals to joint ``j``'s (0-based) angle."""
+        fit = self.fit
+        return np.asarray(fit.Jq[:, :, j] * fit.weights.reshape(-1, self.d))
+
+    def with_joint_variants(
+        self, blocks: Sequence[tuple[int, np.ndarray]], variants: Sequence[_Variant]
+    ) -> list[np.ndarray]:
+        """:meth:`with_variants` for joint-level candidates given by their factors: ``blocks`` of ``(joint
+        (0-based), S (m, q_b))`` (the signals at the fit rows), the columns of ``Z`` in block order. The same
+        numbers without forming ``Z`` (see the module docstring)."""
+        vs = {j: self.joint_v(j) for j, _ in blocks}
+        offs = np.cumsum([0] + [S.shape[1] for _, S in blocks])
+        q = int(offs[-1])
+        Ct, Z2t, bzt = [], [], []
+        per_fold: list[list[tuple[np.ndarray, np.ndarray]]] = []  # (v_t, S_t) per block
+        for i, (s, e) in enumerate(self.bounds):
+            rows = self._rows_of_fold(i)
+            r3 = self._r[s:e].reshape(-1, self.d)
+            C = np.empty((self._A.shape[1], q))
+            Z2 = np.empty((q, q))
+            bz = np.empty(q)
+            fb = []
+            for a, (ja, Sa) in enumerate(blocks):
+                va, Sat = vs[ja][rows], Sa[rows]
+                fb.append((va, Sat))
+                C[:, offs[a] : offs[a + 1]] = self._u(ja, vs[ja])[i].T @ Sat
+                bz[offs[a] : offs[a + 1]] = Sat.T @ np.einsum("rd,rd->r", va, r3)
+            for a in range(len(blocks)):
+                va, Sat = fb[a]
+                for b in range(a, len(blocks)):
+                    vb, Sbt = fb[b]
+                    blk = (Sat * np.einsum("rd,rd->r", va, vb)[:, None]).T @ Sbt
+                    Z2[offs[a] : offs[a + 1], offs[b] : offs[b + 1]] = blk
+                    if b != a:
+                        Z2[offs[b] : offs[b + 1], offs[a] : offs[a + 1]] = blk.T
+            Ct.append(C)
+            Z2t.append(Z2)
+            bzt.append(bz)
+            per_fold.append(fb)
+
+        def apply_z(i: int, DZ: np.ndarray) -> np.ndarray:
+            fb = per_fold[i]
+            out = np.zeros((*fb[0][0].shape, DZ.shape[1]))
+            for a, (va, Sat) in enumerate(fb):
+                Da = DZ[offs[a] : offs[a + 1]]
+                if np.any(Da):
+                    out += va[:, :, None] * (Sat @ Da)[:, None, :]
+            return out.reshape(-1, DZ.shape[1])
+
+        return self._variants(q, Ct, Z2t, bzt, apply_z, variants)
+
+    def _variants(
+        self,
+        q_all: int,
+        Ct: list[np.ndarray],
+        Z2t: list[np.ndarray],
+        bzt: list[np.ndarray],
+        apply_z: Callable[[int, np.ndarray], np.ndarray],
+        variants: Sequence[_Variant],
+    ) -> list[np.ndarray]:
+        """Each variant's held-out errors: per fold, every variant's small Schur system solved first, then the
+        held-out rows' response to all variants at once (``Z_t DZ - A_t (W DZ)``: one pass over the fold's rows
+        of the model's Jacobian for all variants, not one per variant)."""
+        C_all, Z2_all, bz_all = sum(Ct), sum(Z2t), sum(bzt)
+        per_fold = []
+        for i in range(len(self.bounds)):
+            C = C_all - Ct[i]
+            per_fold.append((Z2_all - Z2t[i], bz_all - bzt[i], C, self._solver[i].solve(C)))
+        cols_of, pz_of = [], []
+        for v in variants:
+            cols = np.arange(q_all) if v.columns is None else np.asarray(v.columns)
+            cols_of.append(cols)
+            pz_of.append(
+                np.zeros(len(cols)) if v.prior_rad is None else 1.0 / np.broadcast_to(v.prior_rad, (len(cols),)) ** 2
+            )
+        errs = np.repeat(self._err_sorted[:, None], len(variants), axis=1)
+        for i, (s, e) in enumerate(self.bounds):
+            Z2, bz, C, W = per_fold[i]
+            DZ = np.zeros((q_all, len(variants)))
+            for vi, cols in enumerate(cols_of):
+                Wc = W[:, cols]
+                Sz = Z2[np.ix_(cols, cols)] + np.diag(pz_of[vi]) - C[:, cols].T @ Wc
+                rhs = bz[cols] - Wc.T @ self._g[i]
+                try:
+                    DZ[cols, vi] = -np.linalg.solve(Sz, rhs)
+                except np.linalg.LinAlgError:
+                    DZ[cols, vi] = -np.linalg.lstsq(Sz, rhs, rcond=1e-12)[0]
+            # held-out response to the candidate with the model refitted: Z_t dz - A_t (W dz), every variant
+            errs[s:e] += apply_z(i, DZ) - self._A[s:e] @ (W @ DZ)
+        return [self._unsort(errs[:, vi]) for vi in range(len(variants))]
+
+
+_LAST: list[tuple[Any, np.ndarray, int, int, FoldCV]] = []
+
+
+def fold_cv(fit: Any, groups: np.ndarray, folds: int, seed: int) -> FoldCV:
+    """:class:`FoldCV` of ``fit``, reused when the last one asked for was of the same fit object, groups, folds
+    and seed (the selection, the layer and the held-out check ask for the same fit's folds in turn)."""
+    if _LAST:
+        f, g, k, s, cv = _LAST[0]
+        if f is fit and (g is groups or np.array_equal(g, groups)) and k == folds and s == seed:
+            return cv
+    _LAST.clear()  # the previous fit's sums are let go before the new ones are formed
+    cv = FoldCV(fit, groups, folds, seed)
+    _LAST.append((fit, groups, folds, seed, cv))
+    return cv
+
+
+def clear_cache() -> None:
+    """Let go of the :func:`fold_cv` kept (its fit's Jacobian and the fold sums): at the end of a search."""
+    _LAST.clear()
+
+
+__all__ = ["CHUNK", "FoldCV", "SymSolver", "clear_cache", "fold_cv", "gram_by_blocks"]
