@@ -103,6 +103,9 @@ def test_screen_names_each_column_not_used_with_its_reason(tmp_path):
         # the B + C campaign named "signal:std_y_mm:base_trans", the base moving with the tracker's noise figure
         "std_y_mm": np.abs(rng.normal(size=m)) * 0.01,
         "declared_std": rng.normal(size=m),
+        # a commanded roll angle at pitch 90 deg (the UR10 series' goal_roll_rad): undefined alone, random here;
+        # on main series A's 6 000 rows named "signal:goal_roll_rad:..."
+        "goal_roll_rad": rng.uniform(-np.pi, np.pi, size=m),
     }
     decl = parse_declarations({"skip_me": {"use": False}, "declared_std": {"unit": "mm"}}, "test")
     camp = replace(camp, extra=extra, signal_declarations=decl)
@@ -116,6 +119,7 @@ def test_screen_names_each_column_not_used_with_its_reason(tmp_path):
     assert why["comment"] == "not numeric"
     assert why["skip_me"] == "declared not to be used (use: false)"
     assert why["std_y_mm"].startswith("the instrument's stated uncertainty of the measurement")
+    assert why["goal_roll_rad"].startswith("a commanded pose or set point")
 
 
 def test_declarations_in_signals_yaml_and_the_robot_description(tmp_path):

@@ -12,6 +12,9 @@ inclinometer, an accelerometer, an external axis position, a load cell, a time c
   recognised by regressing it on the measured position (linear, quadratic and spherical terms) and not used: an
   effect driven by it would fit the measurement with itself;
 * a column equal to an earlier usable one (|r| >= :data:`FUNCTION_R2`) is a copy and not used twice;
+* a column whose name says it logs a commanded pose or set point (``goal_roll_rad``, ``cmd_x_mm``:
+  :func:`commanded_column`) is a function of the joints even where the regression cannot show it (angles that wrap,
+  roll and yaw undefined at pitch +-90 deg) and is not used unless declared;
 * a column whose name says it is the instrument's stated uncertainty of its reading (``std_x_mm``, ``u_mm``,
   ``sigma_z``: :func:`uncertainty_column`) is a noise figure, not a cause, and is not used unless declared.
 
@@ -145,6 +148,16 @@ def measurement_basis(campaign: Campaign) -> np.ndarray:
 _UNCERTAINTY = re.compile(r"^(std|u|sigma|unc|uncertainty)(_|$)|_(std|sigma|unc|uncertainty)(_|$)", re.IGNORECASE)
 
 
+#: names of the columns that log what the controller was commanded (``goal_x_mm``, ``cmd_roll_rad``,
+#: ``setpoint_z``, ``commanded_a``): the joints' own target, not a cause
+_COMMANDED = re.compile(r"^(goal|cmd|command|commanded|setpoint|set_point|nominal)(_|$)", re.IGNORECASE)
+
+
+def commanded_column(name: str) -> bool:
+    """Whether a column's name says it logs a commanded pose or set point (:data:`_COMMANDED`)."""
+    return bool(_COMMANDED.search(name))
+
+
 def uncertainty_column(name: str) -> bool:
     """Whether a column's name says it is the measurement's own stated uncertainty (:data:`_UNCERTAINTY`)."""
     return bool(_UNCERTAINTY.search(name))
@@ -171,6 +184,11 @@ def screen(campaign: Campaign, robot: RobotDescription) -> tuple[list[LoggedSign
 
         if d is not None and not d.use:
             skip("declared not to be used (use: false)")
+            continue
+        if d is None and commanded_column(name):
+            skip("a commanded pose or set point (its name): a function of the joints the controller was sent, which "
+                 "the joint-angle test cannot always show (a roll-pitch-yaw angle wraps at +-180 deg and is "
+                 "undefined at pitch +-90 deg); declare it in signals.yaml to offer it anyway")  # fmt: skip
             continue
         if d is None and uncertainty_column(name):
             skip("the instrument's stated uncertainty of the measurement (a noise figure, not a cause of an error): "
