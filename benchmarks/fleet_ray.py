@@ -71,9 +71,9 @@ def main() -> int:
 
     import ray
 
-    from robocal.fleet.engine import start_ray
     from robocal.fleet.run import load_settings, run_fleet
     from robocal.fleet.twin import simulate_fleet
+    from robocal.parallel import start_ray
 
     tmp = tempfile.TemporaryDirectory(prefix="fleet-bench-")
     work = Path(args.work or tmp.name)

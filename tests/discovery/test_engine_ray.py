@@ -13,7 +13,7 @@ from robocal.discovery import engine
 from robocal.discovery.cv import FoldCV
 from robocal.discovery.grow import Variant
 from robocal.errors import ConfigError
-from robocal.fleet.engine import ray_available
+from robocal.parallel import ray_available
 
 from .test_cv_engine import fake_fit
 

@@ -8,8 +8,8 @@ from __future__ import annotations
 import pytest
 
 from conftest import settings
-from robocal.fleet.engine import ray_available
 from robocal.fleet.run import run_fleet
+from robocal.parallel import ray_available
 
 
 def _tree(d):
@@ -23,7 +23,7 @@ def ray_instance():
         pytest.skip(f"Ray engine not tested: {why}")
     import ray
 
-    from robocal.fleet.engine import start_ray
+    from robocal.parallel import start_ray
 
     try:
         start_ray(2)
