@@ -185,15 +185,6 @@ def screen(campaign: Campaign, robot: RobotDescription) -> tuple[list[LoggedSign
         if d is not None and not d.use:
             skip("declared not to be used (use: false)")
             continue
-        if d is None and commanded_column(name):
-            skip("a commanded pose or set point (its name): a function of the joints the controller was sent, which "
-                 "the joint-angle test cannot always show (a roll-pitch-yaw angle wraps at +-180 deg and is "
-                 "undefined at pitch +-90 deg); declare it in signals.yaml to offer it anyway")  # fmt: skip
-            continue
-        if d is None and uncertainty_column(name):
-            skip("the instrument's stated uncertainty of the measurement (a noise figure, not a cause of an error): "
-                 "declare it in signals.yaml to offer it anyway")  # fmt: skip
-            continue
         try:
             x = np.asarray(raw, dtype=float)
         except (TypeError, ValueError):
@@ -219,6 +210,15 @@ def screen(campaign: Campaign, robot: RobotDescription) -> tuple[list[LoggedSign
         r2m = _r2(x, Bm) if Bm.shape[1] < campaign.n_rows else float("nan")
         if r2m >= FUNCTION_R2:
             skip(f"a function of the measured position (the tracker's own reading): R² = {r2m:.6f}", r2m)
+            continue
+        if d is None and commanded_column(name):
+            skip("a commanded pose or set point (its name): a function of the joints the controller was sent, which "
+                 "the joint-angle test cannot always show (a roll-pitch-yaw angle wraps at +-180 deg and is "
+                 "undefined at pitch +-90 deg); declare it in signals.yaml to offer it anyway")  # fmt: skip
+            continue
+        if d is None and uncertainty_column(name):
+            skip("the instrument's stated uncertainty of the measurement (a noise figure, not a cause of an error): "
+                 "declare it in signals.yaml to offer it anyway")  # fmt: skip
             continue
         copy = next((s for s in used if abs(float(np.corrcoef(s.values, x)[0, 1])) >= FUNCTION_R2), None)
         if copy is not None:
