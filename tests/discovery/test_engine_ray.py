@@ -30,6 +30,7 @@ def test_an_unknown_engine_is_a_clear_error():
         pass
 
 
+@pytest.mark.e2e  # starting Ray takes 10-20 s on 2 cores: run by make e2e (CI), outside make test's 5 minutes
 def test_the_ray_engine_scores_candidates_as_the_local_one():
     ok, why = ray_available()
     if not ok:
