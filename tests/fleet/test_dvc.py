@@ -44,6 +44,7 @@ def _reproduce(root: Path) -> list[str]:
         return sorted(s.addressing for s in repo.reproduce())
 
 
+@pytest.mark.e2e  # dvc repro in a copy (16 s): make e2e (CI), outside make test's 5 minutes
 def test_dvc_repro_reruns_only_the_robot_with_a_new_campaign(tmp_path, monkeypatch):
     from robocal.fleet.twin import simulate_fleet
 

@@ -11,6 +11,9 @@ from conftest import settings
 from robocal.fleet.run import run_fleet
 from robocal.parallel import ray_available
 
+#: starting Ray takes 10-20 s on 2 cores: these run under make e2e (CI), outside make test's 5 minutes
+pytestmark = pytest.mark.e2e
+
 
 def _tree(d):
     return {p.relative_to(d).as_posix(): p.read_bytes() for p in sorted(d.rglob("*")) if p.is_file()}

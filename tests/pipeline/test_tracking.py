@@ -46,6 +46,7 @@ def _ensure(uri: str) -> str:
     return tracking.ensure_store(uri, "robocal")
 
 
+@pytest.mark.e2e  # four processes racing on a new store (13 s): make e2e (CI), outside make test's 5 minutes
 def test_a_new_sqlite_store_survives_parallel_first_use(tmp_path: Path) -> None:
     # a brand-new SQLite file raced by parallel writers fails without the lock in ensure_store
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
