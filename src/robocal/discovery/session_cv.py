@@ -25,6 +25,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from sklearn.metrics import pairwise_distances_argmin_min
 
 from robocal.compensation.signals import coverage_weight, layer_features, layer_gate
 from robocal.discovery.model import Fit
@@ -73,6 +74,16 @@ class Sessions:
         ex = cand.extra
         if cand.key in opened:
             return None
+        # the same for every fit and every effect left out: computed once per effect, window and session
+        memo = self.__dict__.setdefault("_coverage_memo", {})
+        key = (cand.key, ex.get("taper_deg"), ex.get("length_rad"), held.tobytes())
+        if key not in memo:
+            memo[key] = self._coverage_of(cand, held)
+        return memo[key]
+
+    def _coverage_of(self, cand: Any, held: np.ndarray) -> np.ndarray | None:
+        """:meth:`_coverage`, computed."""
+        ex = cand.extra
         if "visited_deg" in ex and cand.joint is not None:
             j = int(cand.joint) - 1
             visited = visited_intervals(self.q[~held, j], float(ex.get("gap_deg", self.gap_deg)))
@@ -81,12 +92,8 @@ class Sessions:
             ell, inside = float(ex["length_rad"]), float(ex["inside_rad"])
             _, d_all = layer_features(self.q[held], np.asarray(ex["centres_rad"], dtype=float), ell)
             g_all = layer_gate(d_all, inside, ell)
-            others = self.q[~held]
             # the gate of the other sessions' own calibrated region: distance to their nearest pose
-            d_own = np.min(
-                np.stack([layer_features(self.q[held], others[k : k + 2048], ell)[1]
-                          for k in range(0, len(others), 2048)]), axis=0
-            )  # fmt: skip
+            d_own = np.sqrt(nearest_sq_distances(self.q[held], self.q[~held]))
             g_own = layer_gate(d_own, inside, ell)
             return np.where(g_all > 0, np.minimum(g_own / np.maximum(g_all, 1e-300), 1.0), 0.0)
         return None
@@ -215,6 +222,12 @@ def opened_candidate(cand: Any, q: np.ndarray) -> Any:
     S = fourier_signal(q[:, cand.joint - 1], np.asarray(cand.extra["harmonics"], dtype=int))
     S = S - np.asarray(cand.extra.get("centre", 0.0), dtype=float)
     return replace(cand, S=S, extra={**cand.extra, "visited_deg": [[0.0, 360.0]], "window": "opened by the sessions"})
+
+
+def nearest_sq_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Squared distance of each row of ``a`` to its nearest row of ``b`` (scikit-learn, in chunks)."""
+    _, d = pairwise_distances_argmin_min(a, b, metric="sqeuclidean")
+    return np.asarray(d)
 
 
 __all__ = ["MIN_SESSION_ROWS", "Sessions", "open_windows", "opened_candidate"]
