@@ -62,11 +62,11 @@ def _row(label: str, v: dict) -> str:
     return out
 
 
-def bench(path: Path, campaign=None) -> dict:  # type: ignore[no-untyped-def]
+def bench(path: Path, campaign=None, settings: dict | None = None) -> dict:  # type: ignore[no-untyped-def]
     robot = load_robot(path / "robot.yaml")
     camp = campaign if campaign is not None else read_campaign(path, robot)
     t0 = time.perf_counter()
-    res = discover(camp, robot)
+    res = discover(camp, robot, DiscoveryConfig(**settings) if settings else None)
     dt = time.perf_counter() - t0
     val = validation_errors(res)
     assert val is not None, f"{path} has no validation rows"
@@ -235,7 +235,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"no real datasets under {SHARED}")
         return 0
     for p in paths:
-        bench(p)
+        bench(p, settings=dict(map(_setting, args.settings)))
         if args.hold_out_range:
             hold_out_range(p, args.joint)
     return 0

@@ -36,6 +36,7 @@ ALLOWED: dict[tuple[str, str], str] = {
             ("sim/stand.py", "LoggedChannelsEffect"),
             ("fleet/twin.py", "FleetState"),
             ("sim/axes.py", "LinearAxisEffect"),
+            ("sim/session.py", "SecondSessionEffect"),
         )
     },
     ("compensation/axes.py", "residual_deg"): "a field of the result for the caller: the orientation error left",

@@ -514,6 +514,42 @@ def _signal_candidates(campaign: Campaign, robot: RobotDescription, cfg: Discove
             )  # fmt: skip
 
 
+#: a session (tracker station) is offered its own tool with at least this many rows (the sessions that the
+#: leave-one-session-out selection holds out, robocal.discovery.session_cv.MIN_SESSION_ROWS)
+SESSION_MIN_ROWS = 20
+
+
+def _session_candidates(campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig, out: _Library) -> None:
+    """The ``session`` candidates: in a campaign of several sessions (tracker stations of at least
+    :data:`SESSION_MIN_ROWS` rows), the tool re-seated in each session after the first — every target moved on the
+    flange by the session's own ``(tx, ty, tz)`` mm, as a tool taken off and put back, a nest re-glued, a new
+    reflector do. Like the session's tracker frame it belongs to the session: not sent to the controller, and a
+    new session re-measures it (the session validation's ``tool`` registration)."""
+    if not campaign.has_stations:
+        return
+    st = np.asarray(campaign.station).astype(str)
+    big = [s for s in campaign.station_names if int(np.sum(st == s)) >= SESSION_MIN_ROWS]
+    if len(big) < 2:
+        why = f"fewer than two sessions (tracker stations) of >= {SESSION_MIN_ROWS} rows"
+        out.skipped.append(SkippedCandidate("session:tool", "session", None, why))
+        return
+    ref = campaign.station_names[0]
+    for s in big:
+        if s == ref:
+            continue
+        out.cands.append(
+            Candidate(
+                f"session:{s}:tool", "session", None, None,
+                cause=f"the tool re-seated in session {s}: every target sits elsewhere on the flange than in session "
+                f"{ref} (taken off and put back, a nest re-glued); the session's own, like its tracker frame, and "
+                "re-measured in a new session", signal=f"session {s} (the station column)", shape="frame",
+                S=(st == s).astype(float)[:, None], coef_names=("tx", "ty", "tz"), coef_units=("mm", "mm", "mm"),
+                extra={"column": "station", "centre": 0.0, "side": "session", "frame": "tool_trans", "station": s,
+                       "reference": ref, "target": campaign.target},
+            )
+        )  # fmt: skip
+
+
 #: the candidate builder of each library effect (an effect not listed has no candidates of its own here)
 _EFFECT_CANDIDATES: dict[str, Callable[..., None]] = {
     "compliance": _compliance_candidates,
@@ -526,6 +562,7 @@ _EFFECT_CANDIDATES: dict[str, Callable[..., None]] = {
     "scale": _scale_candidates,
     "beta": _beta_candidates,
     "signal": _signal_candidates,
+    "session": _session_candidates,
 }
 
 

@@ -29,6 +29,7 @@ EFFECT_NAMES = (
     "transmission",
     "weight",
     "signal",
+    "session",
 )
 
 
@@ -51,7 +52,8 @@ class DiscoveryConfig:
     use_orientation : use measured orientations when present (``None`` = when present), as ``calibrate`` does.
     outliers, outlier_alpha : gross errors, as in the geometric calibration (``auto`` / ``off`` / file rows).
     effects : which effects of the library to try (subset of :data:`EFFECT_NAMES`); ``signal``: every logged signal
-        (a numeric column of the campaign beyond the contract) as a driver (:mod:`robocal.discovery.logged`).
+        (a numeric column of the campaign beyond the contract) as a driver (:mod:`robocal.discovery.logged`);
+        ``session``: in a campaign of several sessions (tracker stations), a tool re-seated in each session.
     gear_harmonics : harmonics of the joint angle tried for the periodic gear error.
     thermal_components : principal components of the temperature log each parameter may follow (thermal).
     alpha : family-wise false-alarm rate of the nested F-test over the library (Bonferroni).

@@ -54,6 +54,8 @@ def signal_kind(acc: Accepted) -> str | None:
 
 #: why an effect of these families is not compensated (the families not listed: effect_records says)
 _NOT_COMPENSATED = {
+    "session": "a tool re-seated between sessions: the session's own, like its tracker frame; a new session "
+    "re-measures its tool",
     "axis": "an external axis's own error along its travel (robocal.discovery.axes): the service (robocal serve) "
     "and its bundle take revolute chains only; compensated in the discovery's compensation.csv and by "
     "robocal.compensation.axes / robocal.cell.programs.axes",

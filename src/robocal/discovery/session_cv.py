@@ -9,7 +9,12 @@ another cell), each session in turn is held out, as a new session would be met:
 * the model (geometry, tools, every effect) is refitted on the other sessions: the linearised refit of
   :class:`~robocal.discovery.grow.FoldCV` (normal equations of the other sessions' rows, the priors included);
 * the held-out session's tracker is registered on its own rows (its six frame parameters fitted to them, the model
-  frozen: a new session always registers its tracker), and its rows' errors are what is left;
+  frozen: a new session always registers its tracker), and its rows' errors are what is left; when the model
+  holds a re-seated tool (a ``session`` effect: a tool that moved between sessions), the held-out session
+  re-measures its tool too;
+* the effects that belong to the sessions they were measured in (the tracker's drift and scale, a logged signal
+  declared on the tracker, a re-seated tool: :func:`session_own`) are fitted on the other sessions as before but
+  not carried into the held-out one — a new session has its own tracker state;
 * an effect defined on the joint angles the calibration visited (the transmission error's coverage window,
   the residual layer's gate) is applied in the held-out session only where the *other* sessions visited:
   exactly what the service would do with a model fitted without it.
@@ -134,6 +139,10 @@ class Sessions:
         out = np.zeros_like(r)
         mask = np.zeros(len(r), dtype=bool)
         model = fit.model
+        reseated = any(a.cand.effect == "session" for a in model.accepted)
+        own = [col[p] for a, sl in zip(model.accepted, model.slices, strict=True) if session_own(a.cand)
+               for p in range(sl.start, sl.stop) if p in col]  # fmt: skip
+        tool_cols = [p for p, kind in enumerate(model.base.kinds) if kind in ("tool", "tool_rot")]
         for i, s in enumerate(self.station):
             held = self.index == i
             t = np.repeat(held, d)
@@ -157,7 +166,14 @@ class Sessions:
                 At[:, cols] *= wr[:, None]
             step = np.linalg.pinv(H, rcond=1e-12, hermitian=True) @ g
             e = rt - At @ step
+            if own:  # the sessions' own effects (the tracker's drift, scale, a re-seated tool) stay with them
+                e = e - At[:, own] @ (th[own] - step[own])
             frame = [col[int(p)] for p in model.base.station_columns(s) if int(p) in col]
+            if reseated:  # the tool re-seated between sessions: a new session re-measures it as well
+                frame += [col[p] for p in tool_cols if p in col]
+                for a, sl in zip(model.accepted, model.slices, strict=True):
+                    if a.cand.effect == "session" and a.cand.extra.get("station") == self.names[i]:
+                        frame += [col[p] for p in range(sl.start, sl.stop) if p in col]
             if frame:
                 F = At[:, frame]
                 e = e - F @ np.linalg.lstsq(F, e, rcond=None)[0]
@@ -184,6 +200,22 @@ class Sessions:
             "per_session": {n: ErrorStats.of(e[held == i]).mean_mm for i, n in enumerate(self.names)},
             "sse": float(np.sum(err[mask] ** 2)),
         }
+
+
+#: effect families that belong to the session they were measured in (the tracker's drift, its air and length
+#: scale, a fresh registration after a pause, a systematic misfit of some rows): a new session has its own
+MEASUREMENT_FAMILIES = ("drift", "air", "regap", "scale", "misfit")
+
+
+def session_own(cand: Any) -> bool:
+    """Whether an effect belongs to the session it was measured in — the tracker's state (a measurement-side
+    effect) or the session's own tool (``session``) — so that a model fitted on other sessions does not carry
+    it into a new one: the held-out session gets none of it (its tracker, and a re-seated tool, registered)."""
+    return (
+        cand.effect in MEASUREMENT_FAMILIES
+        or cand.effect == "session"
+        or (cand.extra.get("side", "robot") in ("measurement", "session"))
+    )
 
 
 def open_windows(fit: Fit, sessions: Sessions, thr: float) -> tuple[list[str], dict[str, Any]]:
@@ -230,4 +262,4 @@ def nearest_sq_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.asarray(d)
 
 
-__all__ = ["MIN_SESSION_ROWS", "Sessions", "open_windows", "opened_candidate"]
+__all__ = ["MEASUREMENT_FAMILIES", "MIN_SESSION_ROWS", "Sessions", "open_windows", "opened_candidate", "session_own"]

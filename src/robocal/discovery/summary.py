@@ -10,12 +10,11 @@ import numpy as np
 from robocal.discovery.model import Accepted, Fit, tracker_columns
 from robocal.discovery.scoring import Step
 from robocal.discovery.search import DiscoveryResult
+from robocal.discovery.session_cv import MEASUREMENT_FAMILIES
 from robocal.kinematics.chain import fk
 from robocal.metrics import ErrorStats
 
 _DEG = float(np.rad2deg(1.0))
-#: Effects of the measurement, not of the robot: reported, used in the fit, never sent to the controller.
-MEASUREMENT_SIDE = ("drift", "air", "regap", "scale", "misfit")
 
 
 def _est(value: float, se: float, unit: str) -> dict[str, Any]:
@@ -73,7 +72,7 @@ def estimates(fit: Fit, acc: Accepted) -> dict[str, Any]:
         out[f"{nm}_deg"] = _est(fit.theta[model.index(nm)] * _DEG, fit.stderr(nm) * _DEG, "deg")
     elif c.effect in ("thermal", "drift", "air", "regap", "misfit"):
         out.update(_drift_estimates(fit, acc, val, se))
-    elif c.effect == "signal":
+    elif c.effect in ("signal", "session"):
         out.update(_signal_estimates(acc, val, se))
     return out
 
@@ -91,6 +90,8 @@ def _signal_estimates(acc: Accepted, val: np.ndarray, se: np.ndarray) -> dict[st
     unit = (c.extra.get("signal_info") or {}).get("unit") or "unit"
     per_rad = ANGLE_UNITS.get(unit)
     out: dict[str, Any] = {}
+    if c.effect == "session":  # the session's tool re-seated: its move on the flange against the first session's
+        return {f"tool_{n}_mm": _est(val[k], se[k], "mm") for k, n in enumerate(c.coef_names)}
     if c.shape == "tracker":  # the tracker's scale, ppm per unit of the signal
         return {f"ppm_per_{col}": _est(val[0], se[0], f"ppm/{unit}")}
     for k, n in enumerate(c.coef_names):
@@ -416,7 +417,7 @@ def summary(res: DiscoveryResult, validation: dict[str, Any] | None = None) -> d
                 "signal": c.signal,
                 "selection": None if sc is None else sc.to_dict(),
                 "rms_of_effect_mm": ErrorStats.of(effect_displacement(fit, acc)).rms_mm,
-                "side": "measurement" if c.effect in MEASUREMENT_SIDE else c.extra.get("side", "robot"),
+                "side": "measurement" if c.effect in MEASUREMENT_FAMILIES else c.extra.get("side", "robot"),
                 "held_out": (res.extra.get("cv") or {}).get("effects", {}).get(c.key),
             }
         )

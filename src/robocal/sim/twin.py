@@ -57,6 +57,9 @@ class Rows:
     base_rotvec: np.ndarray | None = None  # (m, 3) rad: the robot base turned about its origin, base axes (stand)
     # joint (0-based) -> (m, 6): a linear axis's true carriage errors (robocal.kinematics.axes.COMPONENTS)
     axis_error: dict[int, np.ndarray] | None = None
+    station: np.ndarray | None = None  # (m,) the tracker station of each row, when an effect sets them (sessions)
+    dtool_mm: np.ndarray | None = None  # (m, 3) mm: every target moved on the flange (flange axes; a re-seated tool)
+    base_scale: np.ndarray | None = None  # (m,) the robot grown about its base (thermal expansion), 1e-6 = 1 ppm
 
 
 @dataclass
@@ -90,6 +93,7 @@ EFFECT_MODULES = (
     "robocal.sim.drift",
     "robocal.sim.stand",
     "robocal.sim.axes",
+    "robocal.sim.session",
 )
 
 
@@ -549,8 +553,14 @@ def _true_points(
         sel = inv == g_i
         st = propagate(chain, q_true[sel], eta + rows.deta[np.flatnonzero(sel)[0]], cfg.tracker_T_base)
         t = cfg.tools_mm[rows.target_index[sel]]
+        if rows.dtool_mm is not None:
+            t = t + rows.dtool_mm[sel]
         p[sel] = st.o + st.x * t[:, 0:1] + st.y * t[:, 1:2] + st.z * t[:, 2:3]
         R[sel] = st.R @ tool_R[rows.target_index[sel]]
+    if rows.base_scale is not None:  # the robot grown about its base's origin (thermal expansion): T S T^-1
+        T = cfg.tracker_T_base
+        t0 = T[:3, 3]
+        p = t0 + (p - t0) * (1.0 + rows.base_scale)[:, None]
     if rows.base_rotvec is not None:  # the base turned about its own origin (a compliant stand): T R(w) T^-1
         T = cfg.tracker_T_base
         Rt, t0 = T[:3, :3], T[:3, 3]
@@ -661,16 +671,26 @@ def _stations(
     cfg: ScenarioConfig, truth: dict[str, Any], rows: Rows, p: np.ndarray, R: np.ndarray
 ) -> np.ndarray | None:
     """``stations: {S2: {xyz_mm, rpy_deg}, ...}``: more tracker placements besides ``tracker`` (station S1).
-    Pose number k (in plan order) is measured from station ``k mod S``; ``p`` and ``R`` are moved into that
-    station's frame in place. Returns the station of every row, or None without extra stations."""
-    if not cfg.stations:
-        return None
+    Pose number k (in plan order) is measured from station ``k mod S`` — or from the station an effect gave the
+    row (``rows.station``, the placements in ``truth["stations_T_base"]``: :mod:`robocal.sim.session`); ``p`` and
+    ``R`` are moved into that station's frame in place. Returns the station of every row, or None without extra
+    stations."""
     T_base = cfg.tracker_T_base
-    names = ["S1", *cfg.stations]
-    Ts = [T_base, *cfg.stations.values()]
-    poses = list(dict.fromkeys(map(str, rows.pose_id)))
-    k_of = {pid: k for k, pid in enumerate(poses)}
-    st = np.array([k_of[str(pid)] % len(names) for pid in rows.pose_id])
+    if rows.station is not None:  # an effect measured the rows from its own stations (robocal.sim.session)
+        if cfg.stations:
+            raise ConfigError("The 'stations' scenario setting cannot be combined with an effect that sets stations")
+        placed = dict(truth["stations_T_base"])
+        names = list(placed)
+        Ts = [np.asarray(placed[nm], dtype=float) for nm in names]
+        st = np.array([names.index(str(s)) for s in rows.station])
+    elif not cfg.stations:
+        return None
+    else:
+        names = ["S1", *cfg.stations]
+        Ts = [T_base, *cfg.stations.values()]
+        poses = list(dict.fromkeys(map(str, rows.pose_id)))
+        k_of = {pid: k for k, pid in enumerate(poses)}
+        st = np.array([k_of[str(pid)] % len(names) for pid in rows.pose_id])
     inv_base = np.linalg.inv(T_base)
     for s in range(1, len(names)):
         sel = st == s
