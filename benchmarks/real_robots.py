@@ -115,7 +115,7 @@ def _resplit(camp, split):  # type: ignore[no-untyped-def]
     return replace(camp, split=np.asarray(split))
 
 
-def session(cal_path: Path, val_paths: list[Path], settings: dict, keep: Path | None = None) -> None:
+def session(cal_path: Path, val_paths: list[Path], settings: dict, keep: Path | None = None, every: int = 1) -> None:
     import json
 
     from robocal.discovery.effects import extended_calibration
@@ -131,6 +131,8 @@ def session(cal_path: Path, val_paths: list[Path], settings: dict, keep: Path | 
         print(f"{'+'.join(p.name for p in parts)}: the discovery kept in {saved} (settings {kept['settings']})")
     else:
         camp = _sessions(parts, robot) if len(parts) > 1 else read_campaign(cal_path, robot)
+        if every > 1:  # every k-th row of CAL (a long series thinned)
+            camp = camp.subset(np.arange(camp.n_rows) % every == 0)
         camp = _resplit(camp, np.full(camp.n_rows, "calibration", dtype=object))
         t0 = time.perf_counter()
         res = discover(camp, robot, DiscoveryConfig(**settings) if settings else None)
@@ -224,11 +226,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--session", nargs="+", type=Path, metavar="DIR", help="CAL VAL [VAL ...]: across sessions")
     ap.add_argument("-S", dest="settings", action="append", default=[], help="discovery setting key=value")
     ap.add_argument("--keep", type=Path, help="session mode: keep the discovery here and reuse it on a rerun")
+    ap.add_argument("--every", type=int, default=1, help="session mode: calibrate on every k-th row of CAL")
     args = ap.parse_args(argv)
     if args.session:
         if len(args.session) < 2:
             ap.error("--session needs CAL and at least one VAL folder")
-        session(args.session[0], args.session[1:], dict(map(_setting, args.settings)), args.keep)
+        session(args.session[0], args.session[1:], dict(map(_setting, args.settings)), args.keep, args.every)
         return 0
     paths = args.data or sorted(p for p in SHARED.glob("*") if (p / "robot.yaml").exists())
     if not paths:
