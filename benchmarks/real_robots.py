@@ -126,13 +126,14 @@ def session(cal_path: Path, val_paths: list[Path], settings: dict, keep: Path | 
     parts = [Path(p) for p in str(cal_path).split(",")]
     robot = load_robot(parts[0] / "robot.yaml")
     saved = keep / "session.json" if keep else None
+    camp = _sessions(parts, robot) if len(parts) > 1 else read_campaign(cal_path, robot)
+    if every > 1:  # every k-th row of CAL (a long series thinned)
+        camp = camp.subset(np.arange(camp.n_rows) % every == 0)
+    q_cal = camp.q
     if saved is not None and saved.exists():  # the discovery of an earlier run with the same --keep folder
         kept = json.loads(saved.read_text())
         print(f"{'+'.join(p.name for p in parts)}: the discovery kept in {saved} (settings {kept['settings']})")
     else:
-        camp = _sessions(parts, robot) if len(parts) > 1 else read_campaign(cal_path, robot)
-        if every > 1:  # every k-th row of CAL (a long series thinned)
-            camp = camp.subset(np.arange(camp.n_rows) % every == 0)
         camp = _resplit(camp, np.full(camp.n_rows, "calibration", dtype=object))
         t0 = time.perf_counter()
         res = discover(camp, robot, DiscoveryConfig(**settings) if settings else None)
@@ -176,7 +177,7 @@ def session(cal_path: Path, val_paths: list[Path], settings: dict, keep: Path | 
     for vp in val_paths:
         vcamp = read_campaign(vp, load_robot(vp / "robot.yaml"))
         for tool in (False, True):
-            _session_lines(vp.name, session_validation(cal, vcamp, geo, tool=tool))
+            _session_lines(vp.name, session_validation(cal, vcamp, geo, tool=tool, calibrated_q=q_cal))
 
 
 def _sessions(parts: list[Path], robot):  # type: ignore[no-untyped-def]
@@ -209,6 +210,12 @@ def _session_lines(name: str, v: dict) -> None:
         verdict = "helped" if d > 0 else "hurt"
         print(f"    without {k:<24} mean {s['mean_position_mm']:.4f} mm ({verdict} {abs(d):.4f})")
     print(f"    helped: {v['helped']}  hurt: {v['hurt']}")
+    cov = v.get("coverage")
+    if cov:
+        ins, outs = cov["inside"], cov["outside"]
+        print(f"    {cov['n_outside']} of {cov['n_judged']} judged rows outside the calibrated joint angles "
+              f"{cov['outside_per_joint']}: mean {outs['mean_position_mm'] if outs else float('nan'):.4f} mm there, "
+              f"{ins['mean_position_mm'] if ins else float('nan'):.4f} inside")  # fmt: skip
 
 
 def _setting(text: str) -> tuple[str, object]:

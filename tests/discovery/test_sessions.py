@@ -98,3 +98,30 @@ def test_a_reseated_tool_is_measured_again_when_asked(tmp_path: Path) -> None:
     assert tracker_only > 0.2  # most of the 0.8 mm shift left (a third or more: the tracker frame takes the rest)
     # re-measured, the session is as good as without the shift (the 3 tool parameters cost a little: 10 %)
     assert with_tool["final"]["mean_position_mm"] == pytest.approx(same, rel=0.1)
+
+
+def test_the_joint_angles_a_calibration_visited_decide_what_is_an_extrapolation() -> None:
+    from robocal.discovery.sessions import COVERAGE_TOL_DEG, outside_calibrated
+
+    # joint 1 visited 350..360..10 deg (through zero), joint 2 a prismatic axis visited 0..500 mm
+    q_cal = np.column_stack([np.deg2rad(np.r_[350.0:360.0:2.0, 0.0:10.5:2.0]), np.linspace(0.0, 500.0, 11)])
+    q = np.array([[np.deg2rad(0.0), 250.0], [np.deg2rad(180.0), 250.0], [np.deg2rad(10.0 + COVERAGE_TOL_DEG - 0.1),
+                  510.0], [np.deg2rad(-8.0), -10.0]])  # fmt: skip
+    out = outside_calibrated(q_cal, q, np.array([False, True]))
+    assert out.tolist() == [[False, False], [True, False], [False, True], [False, True]]
+
+
+def test_a_session_outside_the_calibrated_joint_angles_is_said(tmp_path: Path) -> None:
+    camp, robot, _ = make_campaign(tmp_path, "geometric", 14, {}, n_poses=40, n_validation_poses=20)
+    cal = calibrate(camp, robot)
+    qc = camp.q[camp.split == "calibration"]
+    low = qc[qc[:, 0] < np.median(qc[:, 0])]  # a calibration that saw only the lower half of joint 1's angles
+    v = session_validation(cal, camp, calibrated_q=low)
+    cov = v["coverage"]
+    qv = camp.q[camp.split == "validation"]
+    beyond = int(np.sum(np.rad2deg(qv[:, 0]) > np.rad2deg(low[:, 0].max()) + 5.0))
+    assert beyond > 0 and cov["outside_per_joint"]["j1"] >= beyond
+    assert cov["n_judged"] == v["n_validation_rows"] and cov["n_outside"] >= beyond
+    assert cov["outside"] is not None and (cov["inside"] is None) == (cov["n_outside"] == cov["n_judged"])
+    # without the calibration's angles, no coverage is reported
+    assert "coverage" not in session_validation(cal, camp)

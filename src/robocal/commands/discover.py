@@ -113,6 +113,16 @@ def run(args: argparse.Namespace) -> int:
             f"{f['mean_position_mm']:.4f} mm discovered; effects that helped there: {v['helped'] or 'none'}, "
             f"hurt: {v['hurt'] or 'none'}"
         )
+        cov = v.get("coverage")
+        if cov and cov["n_outside"]:
+            joints = ", ".join(f"{j} {n}" for j, n in cov["outside_per_joint"].items() if n)
+            ins, outs = cov["inside"], cov["outside"]
+            print(
+                f"  {cov['n_outside']} of its {cov['n_judged']} judged rows lie outside the joint angles this "
+                f"calibration visited ({joints}): an extrapolation; mean {outs['mean_position_mm']:.4f} mm there"
+                + (f", {ins['mean_position_mm']:.4f} mm inside" if ins else "")
+                + " — measure that region to calibrate it"
+            )
     shown = {"calibration.json": "calibration.json (the discovered model)"}
     print(f"wrote {args.out}/" + ", ".join(shown.get(f, f) for f in s["written"]))
     for name, why in s["not_written"].items():

@@ -15,12 +15,15 @@ from typing import Any
 import numpy as np
 
 from robocal.compensation.discovered import joint_offsets
+from robocal.compensation.signals import coverage_weight
 from robocal.data.contract import Campaign
+from robocal.discovery.physics import visited_intervals
 from robocal.errors import DataError
 from robocal.identification.calibrate import CalibrationResult
 from robocal.kinematics.chain import fk
 from robocal.kinematics.transforms import kabsch
 from robocal.metrics import ErrorStats
+from robocal.robot import RobotDescription
 
 
 def predicted_flanges(
@@ -84,16 +87,65 @@ def _judge(
     reg: np.ndarray,
     val: np.ndarray,
     tool: bool,
-) -> ErrorStats:
+    rows: bool = False,
+) -> Any:
+    """The model's errors on the rows ``val`` with the tracker (and with ``tool`` the tools) registered on ``reg``:
+    their :class:`ErrorStats`, with ``rows`` also each row's 3-D error (mm)."""
     T, off = predicted_flanges(cal, campaign, records)
     meas = np.asarray(campaign.p_mm, dtype=float)
     X, off = _register(T, off, np.asarray(campaign.target).astype(str), meas, reg, tool)
     pts = np.einsum("mij,mj->mi", T[val, :3, :3], off[val]) + T[val, :3, 3]
-    return ErrorStats.of(pts @ X[:3, :3].T + X[:3, 3] - meas[val])
+    e = pts @ X[:3, :3].T + X[:3, 3] - meas[val]
+    return (ErrorStats.of(e), np.linalg.norm(e, axis=1)) if rows else ErrorStats.of(e)
+
+
+#: visits of a joint closer than this (deg) make one calibrated interval; a row within COVERAGE_TOL_DEG (deg, or mm
+#: for a prismatic joint) of a calibrated interval is inside it: the calibration has seen that joint there
+COVERAGE_GAP_DEG = 30.0
+COVERAGE_TOL_DEG = 5.0
+
+
+def outside_calibrated(q_cal: np.ndarray, q: np.ndarray, prismatic: np.ndarray | None = None) -> np.ndarray:
+    """``(m, n)`` bool: where each row of ``q`` (rad; mm for a prismatic joint) lies outside the joint angles the
+    calibration rows ``q_cal`` visited (modulo one revolution, visits closer than :data:`COVERAGE_GAP_DEG` joined,
+    :data:`COVERAGE_TOL_DEG` of tolerance)."""
+    q_cal, q = np.asarray(q_cal, dtype=float), np.asarray(q, dtype=float)
+    out = np.zeros(q.shape, dtype=bool)
+    for j in range(q.shape[1]):
+        if prismatic is not None and prismatic[j]:
+            out[:, j] = (q[:, j] < q_cal[:, j].min() - COVERAGE_TOL_DEG) | (
+                q[:, j] > q_cal[:, j].max() + COVERAGE_TOL_DEG
+            )
+            continue
+        iv = visited_intervals(q_cal[:, j], COVERAGE_GAP_DEG)
+        # the raised cosine over twice the tolerance is at 1/2 exactly at the tolerance's distance
+        out[:, j] = coverage_weight(q[:, j], iv, 2.0 * COVERAGE_TOL_DEG) < 0.5
+    return out
+
+
+def _coverage(
+    q_cal: np.ndarray, campaign: Campaign, val: np.ndarray, e: np.ndarray, robot: RobotDescription
+) -> dict[str, Any]:
+    """Where the judged rows lie against the joint angles the calibration visited, and the errors inside and
+    outside them."""
+    out = outside_calibrated(q_cal, campaign.q[val], robot.prismatic)
+    any_out = out.any(axis=1)
+    return {
+        "n_judged": int(val.sum()),
+        "n_outside": int(any_out.sum()),
+        "outside_per_joint": {f"j{j + 1}": int(out[:, j].sum()) for j in range(out.shape[1])},
+        "inside": ErrorStats.of(e[~any_out]).to_dict() if (~any_out).any() else None,
+        "outside": ErrorStats.of(e[any_out]).to_dict() if any_out.any() else None,
+        "tolerance_deg": COVERAGE_TOL_DEG,
+    }
 
 
 def session_validation(
-    cal: CalibrationResult, campaign: Campaign, geometric: CalibrationResult | None = None, tool: bool = False
+    cal: CalibrationResult,
+    campaign: Campaign,
+    geometric: CalibrationResult | None = None,
+    tool: bool = False,
+    calibrated_q: np.ndarray | None = None,
 ) -> dict:
     """``cal`` (a calibration, with or without discovered effects) on another session ``campaign``: the tracker
     registered on the session's calibration rows (a rigid fit to the model's predictions; with ``tool`` the
@@ -102,7 +154,9 @@ def session_validation(
 
     Returns ``{"n_registration_rows", "n_validation_rows", "final": stats, "geometric": stats (when given),
     "without": {effect key: stats with that effect left out}, "helped": [...], "hurt": [...]}``; stats are
-    :class:`ErrorStats` dicts in mm."""
+    :class:`ErrorStats` dicts in mm. With ``calibrated_q`` (the calibration rows' joints, rad) also
+    ``"coverage"``: how many judged rows lie outside the joint angles the calibration visited (per joint) and the
+    final model's errors inside and outside them — a new session there is an extrapolation."""
     split = np.asarray(campaign.split).astype(str)
     reg = split == "calibration"
     val = split == "validation"
@@ -115,7 +169,7 @@ def session_validation(
             f"campaign {campaign.source}: {int(reg.sum())} calibration row(s); registering a tracker needs >= 3"
         )
     records = tuple(cal.effects)
-    final = _judge(cal, campaign, records, reg, val, tool)
+    final, err = _judge(cal, campaign, records, reg, val, tool, rows=True)
     out: dict[str, Any] = {
         "registered": "tracker and tool" if tool else "tracker",
         "n_registration_rows": int(reg.sum()),
@@ -124,6 +178,8 @@ def session_validation(
     }
     if note:
         out["note"] = note
+    if calibrated_q is not None:
+        out["coverage"] = _coverage(calibrated_q, campaign, val, err, cal.model.robot)
     if geometric is not None:
         out["geometric"] = _judge(geometric, campaign, (), reg, val, tool).to_dict()
     without: dict[str, Any] = {}
@@ -137,4 +193,4 @@ def session_validation(
     return out
 
 
-__all__ = ["predicted_flanges", "predicted_points", "session_validation"]
+__all__ = ["outside_calibrated", "predicted_flanges", "predicted_points", "session_validation"]

@@ -525,7 +525,7 @@ def run(
         geo = res.extra.get("geometric_calibration")
         for folder in sessions:
             other = campaign_of(folder, rob, None, None)
-            judged[display_path(folder)] = session_validation(cal, other, geo)
+            judged[display_path(folder)] = session_validation(cal, other, geo, calibrated_q=camp.q[res.rows])
         write_json(out / "sessions.json", judged)
         written.append("sessions.json")
     extra = {"sessions": judged} if judged else {}
