@@ -18,6 +18,11 @@ The expansion the registration cannot take (a scale about the base, 46 ppm at 4 
 the S1 -> S2 figures; the truth's size of it is printed beside them.
 
     python benchmarks/second_session.py [--seeds 3] [key=value scenario overrides ...]
+    python benchmarks/second_session.py --null --seeds 100   # the same two sessions, tool and air unchanged
+
+``--null``: the tool left alone, the cell at the same temperature in both sessions and the robot not growing with
+it (only the tracker placement differs; the air still logged, driving nothing): the share of seeds whose discovery
+over both sessions names a re-seated tool (goal <= 1 %) or anything.
 """
 
 from __future__ import annotations
@@ -67,14 +72,39 @@ def run_seed(scenario: dict, seed: int) -> dict:
     return out
 
 
+def null(scenario: dict, seeds: int) -> int:
+    """Discovery over two sessions that differ only by the tracker's placement, over ``seeds`` seeds."""
+    quiet = {"tool_shift_mm": [0.0, 0.0, 0.0], "air_C": [20.0, 20.0], "expansion_ppm_per_C": 0.0}
+    sc = {**scenario, "effects": {"second_session": {**scenario["effects"]["second_session"], **quiet}}}
+    rob = robocal.load_robot(sc["robot"])
+    n_session = n_any = 0
+    for seed in range(seeds):
+        with tempfile.TemporaryDirectory() as d:
+            robocal.simulate(sc, d, seed=seed)
+            camp = read_campaign(d, rob)
+        named = [a.cand.key for a in robocal.discover(camp, rob).accepted]
+        n_session += any(k.startswith("session:") for k in named)
+        n_any += bool(named)
+        if named:
+            print(f"seed {seed}: named {named}", flush=True)
+    print(
+        f"{seeds} null twins of two sessions: a re-seated tool named in {n_session} ({n_session / seeds:.1%}), "
+        f"anything named in {n_any} ({n_any / seeds:.1%})"
+    )
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--scenario", default="second_session")
     ap.add_argument("overrides", nargs="*", help="scenario key=value overrides")
+    ap.add_argument("--null", action="store_true", help="no re-seat, no warming: the false-discovery rate")
     args = ap.parse_args(argv)
     scenario = load_scenario(args.scenario)
     scenario.update(parse_overrides(args.overrides))
+    if args.null:
+        return null(scenario, args.seeds)
     rows = []
     for seed in range(args.seeds):
         r = run_seed(scenario, seed)
