@@ -9,7 +9,8 @@ another cell), each session in turn is held out, as a new session would be met:
 * the model (geometry, tools, every effect) is refitted on the other sessions: the linearised refit of
   :class:`~robocal.discovery.grow.FoldCV` (normal equations of the other sessions' rows, the priors included);
 * the held-out session's tracker is registered on its own rows (its six frame parameters fitted to them, the model
-  frozen: a new session always registers its tracker), and its rows' errors are what is left; when the model
+  frozen: a new session always registers its tracker; on the other half of its poses, below), and its rows'
+  errors are what is left; when the model
   holds a re-seated tool (a ``session`` effect: a tool that moved between sessions), the held-out session
   re-measures its tool too;
 * the effects that belong to the sessions they were measured in (the tracker's drift and scale, a logged signal
@@ -19,9 +20,9 @@ another cell), each session in turn is held out, as a new session would be met:
   the residual layer's gate) is applied in the held-out session only where the *other* sessions visited:
   exactly what the service would do with a model fitted without it.
 
-Registering on the rows it is judged on makes the figure a little optimistic (six parameters against three
-equations a row; sessions below :data:`MIN_SESSION_ROWS` rows are not held out), the same for every model
-compared. The first-order refit is the one pose-grouped CV uses.
+The held-out session's poses are split in two halves (alternately, in the order measured): each half is judged
+with the tracker (and tool) registered on the other half, so no row is judged by a frame fitted to it (sessions
+below :data:`MIN_SESSION_ROWS` rows are not held out). The first-order refit is the one pose-grouped CV uses.
 """
 
 from __future__ import annotations
@@ -103,6 +104,18 @@ class Sessions:
             return np.where(g_all > 0, np.minimum(g_own / np.maximum(g_all, 1e-300), 1.0), 0.0)
         return None
 
+    def halves(self, i: int) -> np.ndarray:
+        """Session ``i``'s rows in two halves (bool over its rows, True: the first half): its poses (distinct joint
+        configurations, in row order) alternately in one and the other, every target of a pose in the same half.
+        A held-out session's frame is registered on one half and judges the other, and the reverse."""
+        memo = self.__dict__.setdefault("_halves_memo", {})
+        if i not in memo:
+            q = self.q[self.index == i]
+            _, first, pose = np.unique(np.round(q, 9), axis=0, return_index=True, return_inverse=True)
+            rank = np.argsort(np.argsort(first))  # the poses in the order the session measured them
+            memo[i] = rank[np.asarray(pose).ravel()] % 2 == 0
+        return np.asarray(memo[i])
+
     def _grams(self, fit: Fit) -> tuple[np.ndarray, np.ndarray, list[tuple[np.ndarray, np.ndarray]]]:
         """The normal equations of the fit, all rows and each session's (``JᵀJ``, ``Jᵀr``), formed once per fit
         (every effect left out is a slice of them, :meth:`errors` with ``keep``)."""
@@ -174,9 +187,13 @@ class Sessions:
                 for a, sl in zip(model.accepted, model.slices, strict=True):
                     if a.cand.effect == "session" and a.cand.extra.get("station") == self.names[i]:
                         frame += [col[p] for p in range(sl.start, sl.stop) if p in col]
-            if frame:
+            if frame:  # each half of the session's poses judged with the frame registered on the other half
                 F = At[:, frame]
-                e = e - F @ np.linalg.lstsq(F, e, rcond=None)[0]
+                half = np.repeat(self.halves(i), d)
+                judged = e.copy()
+                for h in (half, ~half):
+                    judged[h] = e[h] - F[h] @ np.linalg.lstsq(F[~h], e[~h], rcond=None)[0]
+                e = judged
             out[t] = e
             mask |= t
         return out, mask
