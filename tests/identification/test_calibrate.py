@@ -8,17 +8,14 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from robocal.calibration.config import CalibrationConfig
+from robocal.calibration.fit import calibrate
+from robocal.calibration.load import load_calibration
+from robocal.calibration.record import calibration_record
+from robocal.calibration.result import FitStart
+from robocal.calibration.validation import Validation, validate
 from robocal.data import read_campaign
 from robocal.errors import ConfigError
-from robocal.identification.calibrate import (
-    CalibrationConfig,
-    FitStart,
-    Validation,
-    calibration_record,
-    load_calibration,
-    validate,
-)
-from robocal.optimizers.geometric import calibrate
 from robocal.sim.truth import equivalent_truth, z_scores
 from robocal.sim.twin import load_scenario, simulate
 

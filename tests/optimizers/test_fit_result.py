@@ -10,13 +10,14 @@ import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
+from robocal.calibration.config import CalibrationConfig
+from robocal.calibration.fit import calibrate
+from robocal.calibration.problem import calibration_problem
+from robocal.calibration.start import fit_data, present_targets
 from robocal.data.contract import read_campaign
-from robocal.identification.calibrate import CalibrationConfig, fit_data, present_targets
 from robocal.identification.result import FitResult
 from robocal.identification.solver import levenberg_marquardt
 from robocal.optimizers import make_optimizer, registered
-from robocal.optimizers.calibration import calibration_problem
-from robocal.optimizers.geometric import calibrate
 from robocal.sim.twin import load_scenario, simulate
 
 

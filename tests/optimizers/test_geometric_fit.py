@@ -12,11 +12,13 @@ import numpy as np
 import pytest
 
 import robocal
+from robocal.calibration import start as calibrate_module
+from robocal.calibration.config import CalibrationConfig
+from robocal.calibration.fit import fit_with_optimizer
+from robocal.calibration.solve import START_DAMPING, gradient_fit
+from robocal.calibration.start import calibration_start
 from robocal.data.contract import read_campaign
 from robocal.errors import ConfigError
-from robocal.identification import calibrate as calibrate_module
-from robocal.identification.calibrate import CalibrationConfig, calibration_start
-from robocal.optimizers.geometric import START_DAMPING, fit_with_optimizer, gradient_fit
 from robocal.sim.twin import load_scenario, simulate
 
 SMALL = {"population": 20, "max_iter": 5}  # a fast run: these tests check the path, not the optimum

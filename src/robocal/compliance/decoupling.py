@@ -22,8 +22,8 @@ from typing import Any
 
 import numpy as np
 
+from robocal.calibration.result import CalibrationResult
 from robocal.errors import ConfigError
-from robocal.identification.calibrate import CalibrationResult
 from robocal.identification.model import CalibrationModel, FitData
 from robocal.identification.solver import levenberg_marquardt
 from robocal.metrics import ErrorStats

@@ -29,14 +29,16 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from robocal.calibration.config import CalibrationConfig
+from robocal.calibration.fit import calibrate
+from robocal.calibration.result import CalibrationResult
+from robocal.calibration.start import fit_data
 from robocal.compliance.model import KINDS, ComplianceModel
 from robocal.config import parse, setting
 from robocal.errors import ConfigError
-from robocal.identification.calibrate import CalibrationConfig, CalibrationResult, fit_data
 from robocal.identification.model import FitData
 from robocal.identification.solver import levenberg_marquardt
 from robocal.metrics import ErrorStats
-from robocal.optimizers.geometric import calibrate
 
 if TYPE_CHECKING:
     from robocal.data.contract import Campaign
@@ -58,7 +60,7 @@ class ComplianceConfig:
     unloaded_max_kg : rows with ``payload_kg <= unloaded_max_kg`` count as unloaded.
     t_min : automatic joint selection keeps joints with ``|c| / stderr >= t_min``.
     max_iter, tol : Gauss-Newton stopping rules (relative cost change).
-    geometric : the geometric calibration settings (:class:`robocal.identification.calibrate.CalibrationConfig`).
+    geometric : the geometric calibration settings (:class:`robocal.calibration.config.CalibrationConfig`).
     compensation : write the controller-ready compensation CSV of the validation rows.
     report : write the HTML report.
     """

@@ -17,7 +17,7 @@ ranges (a fixed seed), with the campaign's targets and stations. The record (``f
 
 The prior (:func:`choose_prior`) is a Gaussian one toward the nominal description, written as extra residual
 rows of the calibration's least squares (:class:`Prior`, added by
-:class:`robocal.optimizers.calibration.WhitenedResiduals`): ``sqrt(lambda) (p - p0) / width`` for each free
+:class:`robocal.calibration.problem.WhitenedResiduals`): ``sqrt(lambda) (p - p0) / width`` for each free
 joint-level parameter (``width`` = ``prior_mm`` for lengths, ``prior_deg`` for angles; ``p0`` nominal) and
 ``(p - p0) / width`` for the tracker frames and tools (``prior_frame_mm``, ``prior_frame_deg``, ``p0`` the
 nominal model's best rigid fit: a weak bound that does not take part in the strength's choice). With the
@@ -42,7 +42,7 @@ import numpy as np
 from robocal.identification.identifiability import analyse, keep_order
 from robocal.identification.model import FitData
 
-#: a :class:`robocal.identification.calibrate.CalibrationStart` (not imported: calibrate imports this module)
+#: a :class:`robocal.calibration.start.CalibrationStart` (not imported: calibrate imports this module)
 CalibrationStart = Any
 
 __all__ = [

@@ -3,7 +3,7 @@
 Gradient methods: :class:`GaussNewton`, :class:`LevenbergMarquardt` (``robocal.identification.solver``),
 :class:`Ipopt` (CasADi, exact derivatives). Population methods: :class:`GOA`, :class:`ImprovedGOA` (Guo et al.
 2026), :class:`WOA`. Build one from a Hydra ``optimizer`` config with :func:`make_optimizer`; add more with
-:func:`register`. The calibration as a Problem: :mod:`robocal.optimizers.calibration`.
+:func:`register`. The calibration as a Problem: :mod:`robocal.calibration.problem`.
 """
 
 from __future__ import annotations

@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from robocal.identification.calibrate import CalibrationResult
+from robocal.calibration.result import CalibrationResult
 from robocal.identification.model import FitData
 from robocal.identification.solver import levenberg_marquardt
 from robocal.kinematics.chain import build_chain, propagate

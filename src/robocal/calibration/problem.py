@@ -19,7 +19,7 @@ scale (used by Ipopt): ``1 / |J_k|``, the change of each parameter that moves th
 
 :func:`least_squares_problem` is the calibration's own least squares as a Problem (what the gradient optimizers
 ``lm`` and ``gn`` solve in every geometric fit): the whitened residuals of every row (positions and, with
-orientation data, rotations) over the free parameters of a :class:`~robocal.identification.calibrate.
+orientation data, rotations) over the free parameters of a :class:`~robocal.calibration.
 CalibrationStart`, the rows left out as gross errors weighted zero, unbounded.
 """
 
@@ -31,8 +31,8 @@ from typing import Any
 
 import numpy as np
 
+from robocal.calibration.start import CalibrationStart
 from robocal.errors import ConfigError
-from robocal.identification.calibrate import CalibrationStart
 from robocal.identification.model import CalibrationModel, FitData
 from robocal.kinematics.chain import FIXED, Chain, step
 from robocal.metrics import ErrorStats
