@@ -119,7 +119,7 @@ def test_solver_statistics_agree_with_scipy(twin):
 def test_rows_left_out_are_not_data(twin):
     """A row weighted zero by the robust fit is listed in outliers and counted neither in N nor in chi2."""
     _, base, _, data = twin
-    from robocal.identification.robust import least_squares_on
+    from robocal.calibration.start import least_squares_on
 
     model, x0, free = base.model, base.start.x_init, np.flatnonzero(base.identified)
     m = data.m

@@ -7,11 +7,12 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from scipy import stats
+from scipy import special, stats
 
 from robocal.calibration.start import CalibrationStart, Solve
-from robocal.identification import misfit
+from robocal.identification import misfit, robust
 from robocal.identification.result import FitResult
+from robocal.optimizers.least_squares import least_squares
 
 if TYPE_CHECKING:
     from robocal.data.contract import Campaign
@@ -41,8 +42,6 @@ def screen_outliers(start: CalibrationStart, lm: FitResult, solve: Solve) -> Scr
     kept rows and the exact test until the flagged set is stable; more flagged rows than gross errors can be
     (``outlier_max_share``) are a model error: every row kept, the rows reported as suspects. Flagged rows that
     share a condition (:mod:`robocal.identification.misfit`) are a systematic misfit: kept, and named."""
-    from robocal.identification import robust
-
     cfg, m, kept = start.config, start.m, start.kept
     test = None
     rounds = 0
@@ -55,7 +54,7 @@ def screen_outliers(start: CalibrationStart, lm: FitResult, solve: Solve) -> Scr
     screen = robust.robust_screen(lm.residual, rows, m, cfg.outlier_alpha, len(free))
     if test.flagged.any() or screen.any():
         # masking and swamping: restart from an M-estimate, flag from there, then iterate the exact test
-        x_rob = robust.irls_cauchy(fun, start.x_init, free, weights, rows, m)
+        x_rob = irls_cauchy(fun, start.x_init, free, weights, rows, m)
         r_rob, _ = fun(x_rob)
         kept = ~robust.robust_screen(weights * r_rob, rows, m, cfg.outlier_alpha, len(free))
         for rounds in range(1, 8):  # noqa: B007 (reported)
@@ -127,3 +126,36 @@ def describe_outliers(
 def _split_resid(r: np.ndarray, m: int, use_rot: bool) -> tuple[np.ndarray, np.ndarray | None]:
     """Unwhitened residuals ``[positions (3m), rotations (3m)]`` as ``(m, 3)`` positions and rotations."""
     return r[: 3 * m].reshape(-1, 3), (r[3 * m :].reshape(-1, 3) if use_rot else None)
+
+
+def irls_cauchy(
+    fun: robust.Fun,
+    x0: np.ndarray,
+    free: np.ndarray,
+    weights: np.ndarray,
+    rows: np.ndarray,
+    m: int,
+    iters: int = 12,
+    max_iter: int = 30,
+) -> np.ndarray:
+    """An M-estimate (Cauchy loss on each row's whitened norm) by iteratively reweighted least squares.
+
+    Each row's weight is ``1 / (1 + e²/c²)`` with ``e²`` its mean squared whitened residual over the robust
+    (median) scale. Returns the parameters; the final fit and statistics are the caller's (least squares on
+    the kept rows).
+    """
+    d = int(len(weights) // m)
+    x = np.array(x0, dtype=float)
+    med = special.chdtri(d, 0.5)
+    for _ in range(iters):
+        r, _ = fun(x)
+        rw = weights * r
+        ss = np.bincount(rows, weights=rw**2, minlength=m)
+        s2 = max(float(np.median(ss) / med), 1e-300)
+        omega = 1.0 / (1.0 + ss / (d * s2) / robust.CAUCHY_C**2)
+        lm = least_squares(fun, x, free, weights * np.sqrt(omega[rows]), max_iter=max_iter, lam0=0.0)
+        step = np.abs(lm.x - x)[free].max() if len(free) else 0.0
+        x = lm.x
+        if step < 1e-7:
+            break
+    return x

@@ -13,11 +13,13 @@ import numpy as np
 
 from robocal.calibration.config import CalibrationConfig, point_sigma
 from robocal.errors import ConfigError
+from robocal.identification import robust
 from robocal.identification.identifiability import Identifiability, analyse, keep_order, resolve_fixed
 from robocal.identification.model import CalibrationModel, FitData
 from robocal.identification.result import FitResult
 from robocal.kinematics.chain import fk
 from robocal.kinematics.transforms import kabsch, quat_to_matrix
+from robocal.optimizers.least_squares import least_squares
 from robocal.robot import RobotDescription
 
 if TYPE_CHECKING:
@@ -118,13 +120,12 @@ def rigid_fit(
     kept: np.ndarray,
 ) -> np.ndarray:
     """Frames and tools fitted to convergence with the kinematics held as in ``x`` (nominal: the "before")."""
-    from robocal.identification import robust
 
     def fun(xx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return model.residuals_and_jacobian(xx, data)
 
     # an auxiliary fit: Levenberg-Marquardt starting undamped (lam0 = 0), the fastest on this small problem
-    return robust.least_squares_on(fun, x, rigid, weights, rows, kept, max_iter=100, ftol=1e-14, xtol=1e-12, lam0=0.0).x
+    return least_squares_on(fun, x, rigid, weights, rows, kept, max_iter=100, ftol=1e-14, xtol=1e-12, lam0=0.0).x
 
 
 #: The solve step of a calibration: from a start point and the kept rows, a fit (a :class:`FitResult` over the
@@ -183,8 +184,6 @@ def calibration_start(
     """Closed-form frames (registration + tool offsets, one frame per tracker station) -> the nominal model's
     best rigid fit (frames and tools fitted to convergence with the nominal kinematics: the "before" figures;
     skipped when ``x0`` is given) -> the identifiable parameter set on the unit-column-scaled Jacobian there."""
-    from robocal.identification import robust
-
     cfg = config
     t0 = time.perf_counter()
     cal = campaign.calibration() if np.any(campaign.split == "validation") else campaign
@@ -254,4 +253,26 @@ def calibration_start(
         identifiability=ident,
         free=np.sort(ident.kept),
         t0=t0,
+    )
+
+
+def least_squares_on(
+    fun: robust.Fun,
+    x0: np.ndarray,
+    free: np.ndarray,
+    weights: np.ndarray,
+    rows: np.ndarray,
+    kept: np.ndarray,
+    **kw: Any,
+) -> FitResult:
+    """Least squares with the excluded rows' residuals weighted zero: χ², covariance and ``ndata`` are the
+    kept rows'; the returned ``residual`` and ``jacobian`` hold every row (whitened by ``weights``, the
+    excluded ones as predictions) and ``outliers`` lists the excluded rows."""
+    if kept.all():
+        return least_squares(fun, x0, free, weights, **kw)
+    w_kept = weights * kept[rows]
+    lm = least_squares(fun, x0, free, w_kept, **kw)
+    r, J = fun(lm.x)
+    return lm.evolve(
+        residual=weights * r, jacobian=weights[:, None] * J[:, free], outliers=tuple(np.flatnonzero(~kept))
     )

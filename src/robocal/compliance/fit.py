@@ -37,8 +37,8 @@ from robocal.compliance.model import KINDS, ComplianceModel
 from robocal.config import parse, setting
 from robocal.errors import ConfigError
 from robocal.identification.model import FitData
-from robocal.identification.solver import levenberg_marquardt
 from robocal.metrics import ErrorStats
+from robocal.optimizers.least_squares import least_squares
 
 if TYPE_CHECKING:
     from robocal.data.contract import Campaign
@@ -148,7 +148,7 @@ def _gauss_newton(
     tol: float,
 ) -> GNResult:
     """Minimise ``|f(q + S∘c, x) - p|²`` over ``c[joints]`` (and ``x[geo_free]``): Gauss-Newton with a line
-    search, by the identification's least-squares core (:func:`robocal.identification.solver.levenberg_marquardt`,
+    search, by the least squares of the optimizer protocol (:func:`robocal.optimizers.least_squares.least_squares`,
     ``method="gn"``) on the stacked vector ``[x, c]``."""
     model = geo.model
     nx = len(geo.x)
@@ -164,7 +164,7 @@ def _gauss_newton(
 
     z0 = np.concatenate([geo.x, c0])
     free = np.concatenate([np.asarray(geo_free, dtype=int), nx + np.asarray(joints, dtype=int)])
-    lm = levenberg_marquardt(fun, z0, free, 1.0, max_iter=max_iter, ftol=tol, xtol=1e-12, method="gn")
+    lm = least_squares(fun, z0, free, 1.0, max_iter=max_iter, ftol=tol, xtol=1e-12, method="gn")
     res = lm.residual.reshape(-1, 3)
     s2 = lm.redchi if lm.dof > 0 else lm.chi2  # the residual variance (per coordinate)
     assert lm.covariance is not None  # the fit is finite (the model's residuals always are)
