@@ -254,7 +254,9 @@ def fit_with_optimizer(
     if is_gradient(optimizer):
         gcfg, solve = gradient_fit(cfg, optimizer)
         cres = calibrate_with(campaign, robot, gcfg, solve)
-        return FitOutcome(gcfg.method, cres, cres, None, None, options, {"optimizer_s": cres.fit["solver_time_s"]})
+        return FitOutcome(
+            gcfg.method, cres, cres, None, None, options, {"optimizer_s": cres.statistics["solver_time_s"]}
+        )
     assert optimizer is not None
     name = str(optimizer.get("name"))
     opt = make_optimizer(optimizer)  # validates name and keys
@@ -273,7 +275,11 @@ def fit_with_optimizer(
     at = fit_from(start, solve_at(x_raw))  # the statistics at the optimizer's point ...
     # ... whose solve is the optimizer's (its FitResult gives the fit record's iterations, status and time); its
     # config says the least-squares core made no step; its wall time is the method's own, not the statistics'
-    raw = replace(at, config=replace(at.config, max_iter=0), solver=res).with_statistics(wall_time_s=t2 - t0 - warmup_s)
+    raw = (
+        replace(at, config=replace(at.config, max_iter=0))
+        .with_solver(res)
+        .with_statistics(wall_time_s=t2 - t0 - warmup_s)
+    )
     options["noise_floor_fitness_mm"] = floor
     options["stop_fitness_mm"] = problem.target
     polished = None

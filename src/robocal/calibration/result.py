@@ -46,9 +46,14 @@ class FitStart:
 class CalibrationResult:
     """A fitted calibration: parameters with standard errors, frames, tools and fit statistics.
 
-    Immutable (derive a changed one with :func:`dataclasses.replace`); ``solver`` is the least-squares core's
-    :class:`~robocal.identification.result.FitResult` (χ², covariance, status, timings of the fit itself);
-    ``start`` where the fit started and which rows it kept (None for a calibration read from a file);
+    Immutable (derive a changed one with :func:`dataclasses.replace`, :meth:`with_statistics`, :meth:`with_solver`).
+    The figures are attributes: ``x``, ``stderr``, ``covariance`` (over the identified parameters), :attr:`chi2`,
+    :attr:`dof`, :attr:`reduced_chi2` (against the configured noise, kept rows), :attr:`status`, :attr:`message`,
+    :attr:`success`, :attr:`nit`, :attr:`nfev` (of the solve that gave ``x``); ``statistics`` is the fit record
+    (``calibration.json`` ``fit``, read as :attr:`fit`), laid out once when the calibration is made
+    (:func:`calibration_result`) or read (:func:`~robocal.calibration.load.load_calibration`). ``solver`` is the
+    solve's own :class:`~robocal.identification.result.FitResult` (whitened residuals, Jacobian, timings), None for
+    a calibration read from a file; ``start`` where the fit started and which rows it kept (None when read);
     ``effects`` the joint-level effects a discovery wrote into the calibration (``effects`` records of
     ``calibration.json``, evaluated by :func:`robocal.compensation.discovered.joint_offsets`).
     """
@@ -60,7 +65,7 @@ class CalibrationResult:
     covariance: np.ndarray  # (k, k) over identified parameters, in their units
     identifiability: Identifiability
     fixed_by_user: tuple[str, ...]
-    statistics: dict[str, Any]  # the fit record without the solver's figures (see :attr:`fit`)
+    statistics: dict[str, Any]  # the fit record (calibration.json ``fit``; read it as :attr:`fit`)
     residuals_mm: np.ndarray  # (m, 3)
     residuals_deg: np.ndarray | None
     config: CalibrationConfig
@@ -70,25 +75,53 @@ class CalibrationResult:
 
     @property
     def fit(self) -> dict[str, Any]:
-        """The fit record (``calibration.json`` ``fit``, a new dict): :attr:`statistics` with the solver's
-        figures read from :attr:`solver` (:func:`solver_figures`: after ``n_eliminated`` the iterations,
-        evaluations and stopping status, after ``wall_time_s`` the solver's own time); the statistics alone
-        when there is no solver (a calibration read from a file keeps its figures there)."""
-        if self.solver is None:
-            return dict(self.statistics)
-        out: dict[str, Any] = {}
-        figures = solver_figures(self.solver)
-        for key, v in self.statistics.items():
-            out[key] = v
-            if key == "n_eliminated":
-                out.update({k: figures[k] for k in ("nit", "nfev", "status", "message", "success")})
-            elif key == "wall_time_s":
-                out["solver_time_s"] = figures["solver_time_s"]
-        return out
+        """The fit record (``calibration.json`` ``fit``; a new dict, so that no reader changes the calibration)."""
+        return dict(self.statistics)
 
     def with_statistics(self, **changes: Any) -> CalibrationResult:
-        """A copy with ``changes`` to the statistics (e.g. ``poorly_determined``)."""
+        """A copy with ``changes`` to the statistics (e.g. ``poorly_determined``); a key that is there keeps its
+        place in the record."""
         return replace(self, statistics={**self.statistics, **changes})
+
+    def with_solver(self, solver: FitResult) -> CalibrationResult:
+        """A copy whose point came from ``solver`` (another optimizer's own result): the record's solve figures
+        (:func:`solver_figures`) are its."""
+        return replace(self, solver=solver, statistics={**self.statistics, **solver_figures(solver)})
+
+    @property
+    def chi2(self) -> float:
+        """χ² of the kept rows against the configured noise."""
+        return float(self.statistics["chi2"])
+
+    @property
+    def dof(self) -> int:
+        """Degrees of freedom of :attr:`chi2` (residuals minus identified parameters, at least 1)."""
+        return int(self.statistics["dof"])
+
+    @property
+    def reduced_chi2(self) -> float:
+        return float(self.statistics["reduced_chi2"])
+
+    @property
+    def status(self) -> int:
+        """The solve's stopping status (:data:`~robocal.identification.result.STATUS_MESSAGES`)."""
+        return int(self.statistics["status"])
+
+    @property
+    def message(self) -> str:
+        return str(self.statistics["message"])
+
+    @property
+    def success(self) -> bool:
+        return bool(self.statistics["success"])
+
+    @property
+    def nit(self) -> int:
+        return int(self.statistics["nit"])
+
+    @property
+    def nfev(self) -> int:
+        return int(self.statistics["nfev"])
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -265,11 +298,14 @@ def calibration_result(start: CalibrationStart, screened: Screened) -> Calibrati
         rule += "; " + misfit.RULE
     chi2_pos = float(np.sum((r_pos[kept] / sig[kept, None]) ** 2))
     dof_pos = max(3 * int(kept.sum()) - k, 1) if not use_rot else max(int(fit["dof"]) // 2, 1)
+    figures = solver_figures(lm)  # the solve's iterations, evaluations, stopping status and own time
     fit.update(
         {
             "n_identified": k,
             "n_eliminated": len(ident.eliminated),
+            **{key: figures[key] for key in ("nit", "nfev", "status", "message", "success")},
             "wall_time_s": time.perf_counter() - start.t0,
+            "solver_time_s": figures["solver_time_s"],
             "targets": list(start.targets),
             "stations": list(start.stations),
             "uses_orientation": use_rot,
