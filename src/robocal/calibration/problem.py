@@ -33,6 +33,7 @@ import numpy as np
 
 from robocal.calibration.start import CalibrationStart
 from robocal.errors import ConfigError
+from robocal.identification.identifiability import ParameterSpec
 from robocal.identification.model import CalibrationModel, FitData
 from robocal.kinematics.chain import FIXED, Chain, step
 from robocal.metrics import ErrorStats
@@ -236,9 +237,9 @@ def search_bounds(
     """Lower, upper bounds and scale (half-widths) of the free parameters around ``x_init``."""
     bound_mm = check_real(bound_mm, "bound_mm", "the optimizer config", 0.0, low_open=True)
     bound_deg = check_real(bound_deg, "bound_deg", "the optimizer config", 0.0, low_open=True)
-    half = np.array([bound_mm if model.units[i] == "mm" else np.deg2rad(bound_deg) for i in free])
-    z0 = x_init[free]
-    return z0 - half, z0 + half, half
+    box = ParameterSpec.of(model).around(x_init, bound_mm, float(np.deg2rad(bound_deg)))
+    assert box.lower is not None and box.upper is not None and box.scale is not None
+    return box.lower[free], box.upper[free], box.scale[free]
 
 
 def calibration_problem(

@@ -337,7 +337,7 @@ def calibration_result(start: CalibrationStart, screened: Screened) -> Calibrati
         stderr=stderr,
         covariance=cov,
         identifiability=ident,
-        fixed_by_user=tuple(sorted(start.fixed - start.held)),
+        fixed_by_user=tuple(sorted(start.parameters.fixed - start.parameters.held)),
         statistics=fit,
         residuals_mm=r_pos,
         residuals_deg=None if r_rot is None else np.rad2deg(r_rot),

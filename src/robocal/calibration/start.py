@@ -14,7 +14,7 @@ import numpy as np
 from robocal.calibration.config import CalibrationConfig, point_sigma
 from robocal.errors import ConfigError
 from robocal.identification import robust
-from robocal.identification.identifiability import Identifiability, analyse, keep_order, resolve_fixed
+from robocal.identification.identifiability import Identifiability, ParameterSpec, analyse
 from robocal.identification.model import CalibrationModel, FitData
 from robocal.identification.result import FitResult
 from robocal.kinematics.chain import fk
@@ -150,8 +150,7 @@ class CalibrationStart:
     sigma_mm: np.ndarray  # (m,) per point (point_sigma)
     weights: np.ndarray  # (M,) 1 / sigma per residual
     rows: np.ndarray  # (M,) row of every residual
-    fixed: frozenset[str]
-    held: frozenset[str]  # of ``fixed``: held because the data do not determine them (poorly determined)
+    parameters: ParameterSpec  # the model's parameters: kinds, the fixed ones (and of them the held), priority
     kept: np.ndarray  # (m,) rows not listed in the 'outliers' setting
     rigid: np.ndarray  # indices fitted by the rigid fit (empty when started from a given x0)
     x_init: np.ndarray
@@ -217,21 +216,20 @@ def calibration_start(
     if use_rot:
         weights = np.concatenate([weights, np.full(3 * m, 1.0 / np.deg2rad(cfg.noise_deg))])
     rows = robust.row_index(m, 3, use_rot)
-    fixed = resolve_fixed(model.names, tuple(cfg.fixed), "calibration.fixed") | set(held)
+    spec = ParameterSpec.of(model, cfg.fixed, "calibration.fixed").holding(held)
     kept = _outlier_rows(cal, cfg.outliers) if isinstance(cfg.outliers, tuple) else np.ones(m, dtype=bool)
 
     # the nominal model's best rigid fit: frames and tools to convergence (the true "before")
     if x0 is None:
         x = model.zeros()
         x[model.n_chain : model.n_chain + 3 * len(targets)] = tools0.ravel()
-        rigid = np.array([i for i, k in enumerate(model.kinds) if k in ("base", "tool", "tool_rot")])
-        rigid = np.array([i for i in rigid if model.names[i] not in fixed], dtype=int)
+        rigid = spec.indices(("base", "tool", "tool_rot"))
         x = rigid_fit(model, data, x, rigid, weights, rows, kept)
     else:
         rigid = np.zeros(0, dtype=int)
         x = np.asarray(x0, dtype=float).copy()
     r0, J0 = model.residuals_and_jacobian(x, data)
-    ident = analyse(J0 * weights[:, None], model.names, keep_order(model.kinds, model.names, fixed), rtol=cfg.rank_tol)
+    ident = analyse(J0 * weights[:, None], model.names, spec.keep_order(), rtol=cfg.rank_tol)
     return CalibrationStart(
         campaign=cal,
         config=cfg,
@@ -243,8 +241,7 @@ def calibration_start(
         sigma_mm=sig,
         weights=weights,
         rows=rows,
-        fixed=frozenset(fixed),
-        held=frozenset(held),
+        parameters=spec,
         kept=kept,
         rigid=rigid,
         x_init=x,

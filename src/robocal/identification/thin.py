@@ -39,7 +39,7 @@ from typing import Any
 
 import numpy as np
 
-from robocal.identification.identifiability import analyse, keep_order
+from robocal.identification.identifiability import analyse
 from robocal.identification.model import FitData
 
 #: a :class:`robocal.calibration.start.CalibrationStart` (not imported: calibrate imports this module)
@@ -98,7 +98,7 @@ def model_parameters(start: CalibrationStart) -> int:
     w = np.full(3 * n * K, 1.0 / cfg.noise_mm)
     if model.orientation:
         w = np.concatenate([w, np.full(3 * n * K, 1.0 / np.deg2rad(cfg.noise_deg))])
-    order = keep_order(model.kinds, model.names, set(start.fixed))
+    order = start.parameters.keep_order()
     ident = analyse(J * w[:, None], model.names, order, rtol=cfg.rank_tol)
     return len(ident.kept)
 
