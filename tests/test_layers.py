@@ -35,7 +35,7 @@ LAYERS: list[set[str]] = [
     },
     # the data contract
     {"data"},
-    # the fit's tools: the model, least squares, FitResult, identifiability, gross errors; the optimizers
+    # the fit's tools: the model, FitResult, identifiability, gross errors; the least-squares core, the optimizers
     {"identification", "optimizers"},
     # the geometric calibration (config, start, solve, screening, result and record, validation, calibrate); the
     # report helpers every capability uses

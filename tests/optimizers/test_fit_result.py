@@ -16,8 +16,8 @@ from robocal.calibration.problem import calibration_problem
 from robocal.calibration.start import fit_data, present_targets
 from robocal.data.contract import read_campaign
 from robocal.identification.result import FitResult
-from robocal.identification.solver import levenberg_marquardt
 from robocal.optimizers import make_optimizer, registered
+from robocal.optimizers.solver import levenberg_marquardt
 from robocal.sim.twin import load_scenario, simulate
 
 

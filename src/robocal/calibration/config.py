@@ -56,7 +56,7 @@ class CalibrationConfig:
         the true "before calibration" figures).
     method : ``"lm"`` (Levenberg-Marquardt, the default) or ``"gn"`` (Gauss-Newton with a line search): the
         registered gradient optimizer that solves the least squares (:mod:`robocal.optimizers.gradient`, the
-        core :mod:`robocal.identification.solver`).
+        core :mod:`robocal.optimizers.solver`).
     outliers : ``"auto"`` (gross errors found by the test in :mod:`robocal.identification.robust`), ``"off"``,
         or a list of file rows (header = row 1) to leave out.
     outlier_alpha : family-wise false-flag rate of the outlier test over the rows of a campaign.

@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import special
 
-from robocal.identification.solver import normal_inverse
+from robocal.identification.result import normal_inverse
 
 #: Cauchy tuning constant (95 % efficiency at the normal distribution), in units of the per-component scale
 CAUCHY_C = 2.385

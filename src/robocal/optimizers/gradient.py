@@ -1,6 +1,6 @@
 """Gauss-Newton and Levenberg-Marquardt behind the optimizer protocol.
 
-Thin wrappers of :func:`robocal.identification.solver.levenberg_marquardt`, and the solve step of every
+Thin wrappers of :func:`robocal.optimizers.solver.levenberg_marquardt`, and the solve step of every
 gradient-family geometric fit (``robocal.calibrate``'s default: :func:`robocal.calibration.solve.solve_with`):
 a :class:`~robocal.optimizers.protocol.Problem` with ``residuals`` and ``jacobian`` in, an
 :class:`~robocal.optimizers.protocol.FitResult` out. Both minimise the sum of squared residuals
@@ -23,7 +23,6 @@ import math
 import numpy as np
 
 from robocal.errors import ConfigError
-from robocal.identification.solver import levenberg_marquardt
 from robocal.optimizers.protocol import (
     EstimatorParams,
     FitResult,
@@ -32,6 +31,7 @@ from robocal.optimizers.protocol import (
     check_real,
     fitness_from_residuals,
 )
+from robocal.optimizers.solver import levenberg_marquardt
 
 __all__ = ["GaussNewton", "LevenbergMarquardt", "check_problem", "history_in_objective"]
 

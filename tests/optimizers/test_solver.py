@@ -11,7 +11,7 @@ from robocal.calibration.config import CalibrationConfig
 from robocal.calibration.fit import calibrate
 from robocal.calibration.start import fit_data
 from robocal.data import read_campaign
-from robocal.identification.solver import levenberg_marquardt
+from robocal.optimizers.solver import levenberg_marquardt
 from robocal.sim.twin import load_scenario, simulate
 
 
