@@ -20,48 +20,55 @@ from robocal.identification.result import FitResult, fit_covariance
 from robocal.optimizers.protocol import Problem
 from robocal.optimizers.registry import make_optimizer
 
-__all__ = ["least_squares"]
+__all__ = ["Whitened", "least_squares"]
 
 #: Levenberg-Marquardt's initial damping when none is given (Madsen, Nielsen & Tingleff: a start believed close)
 DAMPING = 1e-6
 
 
-class _Whitened:
-    """``w r(x)`` and ``w J(x)[:, free]`` at the free variables ``z`` (the others held at ``x0``); the model gives
-    both in one evaluation, the protocol asks for them one at a time: the last point's pair is kept."""
+class Whitened:
+    """``w r(x)`` and ``w J(x)[:, free]`` at the free variables ``z`` (the others held at ``x0``), for a Problem's
+    ``residuals`` and ``jacobian``: the model gives both in one evaluation, the protocol asks for them one at a
+    time, so the last point's pair is kept (a gradient step costs one model evaluation). :meth:`evaluate` is the
+    pair at a point (a subclass adds rows: the calibration's prior, :class:`robocal.calibration.problem.
+    WhitenedResiduals`)."""
 
     def __init__(
         self,
         fun: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
         x0: np.ndarray,
         free: np.ndarray,
-        weights: np.ndarray,
+        weights: np.ndarray | float,
     ) -> None:
         self.fun = fun
-        self.x0 = x0
-        self.free = free
-        self.w = weights
+        self.x0 = np.array(x0, dtype=float)
+        self.free = np.asarray(free, dtype=int)
+        self.weights = np.asarray(weights, dtype=float)
         # unit weights and every column free: no product and no column copy (the same numbers: 1.0 * v is v)
-        self.unit = weights.ndim == 0 and float(weights) == 1.0
-        self.every = bool(free.size) and np.array_equal(free, np.arange(free.size))
-        self._key: bytes | None = None
+        self.unit = self.weights.ndim == 0 and float(self.weights) == 1.0
+        self.every = bool(self.free.size) and np.array_equal(self.free, np.arange(self.free.size))
+        self._key: bytes | None = None  # the bytes of the last point (cheaper to compare than np.array_equal)
         self._pair: tuple[np.ndarray, np.ndarray] = (np.empty(0), np.empty((0, 0)))
 
     def full(self, z: np.ndarray) -> np.ndarray:
+        """The full vector with the free entries ``z``."""
         x = self.x0.copy()
         x[self.free] = z
         return x
 
+    def evaluate(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The whitened residuals and Jacobian (free columns) at ``z``, evaluated."""
+        r, J = self.fun(self.full(z))
+        w = self.weights
+        Jc = J if self.every and J.shape[1] == self.free.size else J[:, self.free]
+        if self.unit:
+            return r, Jc
+        return w * r, (w[:, None] if w.ndim else w) * Jc
+
     def _at(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         key = np.ascontiguousarray(z, dtype=float).tobytes()
         if key != self._key:
-            r, J = self.fun(self.full(z))
-            w = self.w
-            Jc = J if self.every and J.shape[1] == self.free.size else J[:, self.free]
-            if not self.unit:
-                r = w * r
-                Jc = (w[:, None] if w.ndim else w) * Jc
-            self._pair = (r, Jc)
+            self._pair = self.evaluate(z)
             self._key = key
         return self._pair
 
@@ -94,7 +101,7 @@ def least_squares(
     x_start = np.array(x0, dtype=float)
     free = np.asarray(free, dtype=int)
     w = np.asarray(weights, dtype=float)
-    wr = _Whitened(fun, x_start, free, w)
+    wr = Whitened(fun, x_start, free, w)
     z0 = x_start[free]
     problem = Problem(
         n=int(free.size),
