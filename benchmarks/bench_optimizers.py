@@ -27,12 +27,13 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
 
+from robocal.calibration.config import CalibrationConfig
+from robocal.calibration.fit import calibrate
+from robocal.calibration.problem import calibration_problem
+from robocal.calibration.start import fit_data, present_targets
 from robocal.data.contract import read_campaign
-from robocal.identification.calibrate import CalibrationConfig, fit_data, present_targets
 from robocal.optimizers import make_optimizer
-from robocal.optimizers.calibration import calibration_problem
 from robocal.optimizers.fastfk import HAVE_NUMBA, PopulationPositions
-from robocal.optimizers.geometric import calibrate
 from robocal.optimizers.protocol import evaluate_batch
 from robocal.robot import load_robot
 from robocal.sim.twin import load_scenario, simulate

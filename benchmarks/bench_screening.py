@@ -119,9 +119,9 @@ def part_table4(sens: pd.DataFrame) -> None:
 def part_twin() -> None:
     try:
         import robocal.sim.thermal  # noqa: F401
+        from robocal.calibration.config import CalibrationConfig
+        from robocal.calibration.fit import calibrate
         from robocal.data import read_campaign
-        from robocal.identification.calibrate import CalibrationConfig
-        from robocal.optimizers.geometric import calibrate
         from robocal.sim.twin import load_scenario, simulate
         from robocal.thermal.identify import find_states, identify_states
         from robocal.thermal.model import ThermalModel

@@ -20,8 +20,8 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import yaml
 
+from robocal.calibration.config import CalibrationConfig
 from robocal.data.contract import read_campaign
-from robocal.identification.calibrate import CalibrationConfig
 from robocal.robot import load_robot
 from robocal.sim.twin import load_scenario, simulate
 

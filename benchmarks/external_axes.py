@@ -22,11 +22,11 @@ from pathlib import Path
 import numpy as np
 
 import robocal
+from robocal.calibration.validation import validate
 from robocal.compensation.axes import compensate_axes
 from robocal.data.contract import read_campaign
 from robocal.discovery.config import DiscoveryConfig
 from robocal.identification.axes import axis_errors, fit_axis_errors, term_named
-from robocal.identification.calibrate import validate
 from robocal.kinematics.axes import augment
 from robocal.kinematics.chain import build_chain, fk, propagate
 from robocal.robot import load_robot

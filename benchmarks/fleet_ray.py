@@ -51,7 +51,7 @@ def warm_up(workers: int) -> None:
         import importlib
         import time as _t
 
-        for mod in ("robocal.fleet.engine", "robocal.identification.calibrate", "robocal.serve.bundle"):
+        for mod in ("robocal.fleet.engine", "robocal.calibration", "robocal.serve.bundle"):
             importlib.import_module(mod)
 
         _t.sleep(1.0)  # hold the CPU so that the next warm-up task lands on another worker

@@ -27,11 +27,12 @@ from typing import Any
 import numpy as np
 import yaml
 
+from robocal.calibration.config import CalibrationConfig
+from robocal.calibration.fit import calibrate
+from robocal.calibration.validation import validate
 from robocal.commands import parse_overrides
 from robocal.commands.simulate import merge_overrides
 from robocal.data.contract import read_campaign
-from robocal.identification.calibrate import CalibrationConfig, validate
-from robocal.optimizers.geometric import calibrate
 from robocal.plan import PlanConfig, plan_poses, predict, random_poses
 from robocal.plan.planner import rng_stream
 from robocal.robot import load_robot

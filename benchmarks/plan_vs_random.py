@@ -23,11 +23,12 @@ from pathlib import Path
 
 import numpy as np
 
+from robocal.calibration.config import CalibrationConfig
+from robocal.calibration.fit import calibrate
+from robocal.calibration.validation import validate
 from robocal.data.contract import read_campaign
-from robocal.identification.calibrate import CalibrationConfig, validate
 from robocal.kinematics.chain import build_chain
 from robocal.kinematics.transforms import homogeneous, inv_transform, matrix_from_rpy
-from robocal.optimizers.geometric import calibrate
 from robocal.plan import PlanConfig, build_problem, predict, random_poses
 from robocal.plan.constraints import sample_configurations, sampling_limits, screen
 from robocal.plan.design import exchange

@@ -25,11 +25,11 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
 
+from robocal.calibration.validation import validate
 from robocal.data.contract import Campaign, read_campaign
 from robocal.discovery.search import discover
 from robocal.discovery.summary import summary
 from robocal.discovery.validate import validation_errors
-from robocal.identification.calibrate import validate
 from robocal.robot import RobotDescription, load_robot
 
 HERE = Path(__file__).resolve().parent

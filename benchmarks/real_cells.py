@@ -26,13 +26,14 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
 
+from robocal.calibration.config import CalibrationConfig
+from robocal.calibration.fit import calibrate
+from robocal.calibration.start import fit_data, present_targets, register_frames
 from robocal.data import read_campaign
 from robocal.discovery.search import discover
 from robocal.discovery.summary import summary
 from robocal.discovery.validate import validation_errors
-from robocal.identification.calibrate import CalibrationConfig, fit_data, present_targets, register_frames
 from robocal.identification.model import CalibrationModel
-from robocal.optimizers.geometric import calibrate
 from robocal.robot import load_robot
 from robocal.sim.truth import z_scores
 from robocal.sim.twin import load_scenario, simulate

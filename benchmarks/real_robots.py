@@ -38,12 +38,12 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
 
+from robocal.calibration.validation import validate
 from robocal.data.contract import read_campaign
 from robocal.discovery.config import DiscoveryConfig
 from robocal.discovery.search import discover
 from robocal.discovery.summary import summary
 from robocal.discovery.validate import validation_errors
-from robocal.identification.calibrate import validate
 from robocal.robot import load_robot
 
 HERE = Path(__file__).resolve().parent
@@ -118,9 +118,9 @@ def _resplit(camp, split):  # type: ignore[no-untyped-def]
 def session(cal_path: Path, val_paths: list[Path], settings: dict, keep: Path | None = None, every: int = 1) -> None:
     import json
 
+    from robocal.calibration.load import load_calibration
     from robocal.discovery.effects import extended_calibration
     from robocal.discovery.sessions import session_validation
-    from robocal.identification.calibrate import load_calibration
     from robocal.io import to_json, write_text
 
     parts = [Path(p) for p in str(cal_path).split(",")]

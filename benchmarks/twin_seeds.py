@@ -18,8 +18,8 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np
 from scipy import stats
 
+from robocal.calibration.fit import calibrate
 from robocal.data import read_campaign
-from robocal.optimizers.geometric import calibrate
 from robocal.robot import load_robot
 from robocal.sim.truth import z_scores
 from robocal.sim.twin import load_scenario, simulate

@@ -1,8 +1,8 @@
 """The thermal paper's optimizer comparison (Guo et al. 2026, section 3.2, fig. 4): an experiment, not library code.
 
 Improved GOA vs GOA vs WOA on the geometric calibration: every algorithm x population x run from the same start
-(:func:`robocal.identification.calibrate.calibration_start`), on the calibration as an optimizer Problem
-(:func:`robocal.optimizers.geometric.build_problem`), stopped at an error threshold or an iteration budget.
+(:func:`robocal.calibration.start.calibration_start`), on the calibration as an optimizer Problem
+(:func:`robocal.calibration.fit.build_problem`), stopped at an error threshold or an iteration budget.
 Run by ``stages/compare_optimizers.py`` (``dvc exp run experiments/dvc.yaml:compare_optimizers``) and by
 ``benchmarks/compare_paper.py``.
 """
@@ -16,18 +16,12 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from robocal.calibration.config import CalibrationConfig
+from robocal.calibration.fit import build_problem, calibrate, fit_from, position_config, warm_up
+from robocal.calibration.solve import POLISH, solve_at, solve_polish
+from robocal.calibration.start import calibration_start
 from robocal.config import parse, setting
-from robocal.identification.calibrate import CalibrationConfig, calibration_start, fit_from
 from robocal.optimizers import make_optimizer, pipeline_options
-from robocal.optimizers.geometric import (
-    POLISH,
-    build_problem,
-    calibrate,
-    position_config,
-    solve_at,
-    solve_polish,
-    warm_up,
-)
 from robocal.optimizers.registry import registered
 from robocal.robot import RobotDescription
 

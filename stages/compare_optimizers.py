@@ -52,8 +52,8 @@ def compute(ctx: Context) -> Any:
     import numpy as np
     import yaml
 
+    from robocal.calibration.config import CalibrationConfig
     from robocal.data.contract import read_campaign
-    from robocal.identification.calibrate import CalibrationConfig
     from robocal.report.plots import save_figure
     from robocal.robot import robot_from_dict
     from robocal.tracking import StageRun

@@ -1,6 +1,6 @@
 """geometric_fit: geometric calibration of the interim campaign (robocal.workflows.geometric.run).
 
-Reads ``robot``, ``optimizer`` (any registered optimizer, robocal.optimizers.geometric.fit_with_optimizer; for
+Reads ``robot``, ``optimizer`` (any registered optimizer, robocal.calibration.fit.fit_with_optimizer; for
 ipopt / igoa / goa / woa the raw and polished results both in summary.json and the metrics)
 and ``calibration``; writes ``reports/geometric/``
 (calibration.json, summary.json, residuals.csv, report.html), metrics (errors in mm, and degrees when the
@@ -32,7 +32,7 @@ INPUT = "data/interim"
 
 def calibration_settings(cfg: dict[str, Any]) -> tuple[dict[str, Any], bool]:
     """The CalibrationConfig mapping from the ``calibration`` section, and ``report``; the optimizer's name
-    checked (its stopping rules and ``polish`` are read by robocal.optimizers.geometric.fit_with_optimizer)."""
+    checked (its stopping rules and ``polish`` are read by robocal.calibration.fit.fit_with_optimizer)."""
     from robocal.errors import ConfigError
     from robocal.optimizers.registry import registered  # the one list of optimizer names
 

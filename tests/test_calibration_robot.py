@@ -12,9 +12,9 @@ import pytest
 import yaml
 
 import robocal
+from robocal.calibration.load import load_calibration
 from robocal.cli import main
 from robocal.errors import ConfigError
-from robocal.identification.calibrate import load_calibration
 from robocal.io import write_json
 from robocal.robot import SHIPPED_ROBOT_DIR, robot_from_dict
 

@@ -194,11 +194,11 @@ def test_check_fields_checks_direct_construction() -> None:
 
 
 def _section_cases() -> list[tuple[Any, dict[str, Any], str]]:
+    from robocal.calibration.config import CalibrationConfig
     from robocal.compliance.fit import ComplianceConfig
     from robocal.data.contract import SplitConfig
     from robocal.discovery.config import DiscoveryConfig
     from robocal.fleet.twin import TwinSettings
-    from robocal.identification.calibrate import CalibrationConfig
     from robocal.plan.config import PlanConfig
     from robocal.serve.protocol import ServiceConfig
     from robocal.serve.server import ServerConfig
@@ -259,8 +259,8 @@ def test_every_section_names_the_key(case: int) -> None:
 def test_sections_keep_their_special_forms() -> None:
     from datetime import date
 
+    from robocal.calibration.config import CalibrationConfig
     from robocal.fleet.twin import TwinSettings
-    from robocal.identification.calibrate import CalibrationConfig
     from robocal.plan.config import PlanConfig
     from robocal.serve.protocol import ServiceConfig
     from robocal.thermal.regression import RegressionConfig

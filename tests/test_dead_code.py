@@ -55,7 +55,7 @@ ALLOWED: dict[tuple[str, str], str] = {
     },
     ("discovery/scoring.py", "delta_bic"): "a field of a candidate's test, written to discovery.json (to_dict)",
     ("discovery/scoring.py", "excess_share"): "a field of a candidate's test, written to discovery.json (to_dict)",
-    ("identification/calibrate.py", "residuals_deg"): "a field of the public CalibrationResult",
+    ("calibration/result.py", "residuals_deg"): "a field of the public CalibrationResult",
     ("metrics.py", "rms_deg"): "a field of ErrorStats, written by ErrorStats.orientation",
     ("metrics.py", "max_deg"): "a field of ErrorStats, written by ErrorStats.orientation",
     ("sim/closed_loop.py", "temperatures_C"): "a field of the public ClosedLoopResult",

@@ -87,7 +87,9 @@ def test_fixed_parameters_are_resolved_in_one_place() -> None:
                 found.append(f"{p.relative_to(SRC)}:{n.lineno}: def {n.name}")
             if isinstance(n, ast.Attribute) and n.attr == "filter" and ast.unparse(n.value) == "fnmatch":
                 found.append(f"{p.relative_to(SRC)}:{n.lineno}: fnmatch.filter")
-    assert not found, "use identification.identifiability.resolve_fixed / keep_order:\n" + "\n".join(found)
+    assert not found, "use identification.identifiability.ParameterSpec (resolve_fixed / keep_order):\n" + "\n".join(
+        found
+    )
 
 
 def test_resolve_fixed_names_the_setting_and_the_pattern() -> None:

@@ -129,7 +129,7 @@ def noise_floor(
     ``rms``: ``sigma sqrt(3 dof / M)`` with ``dof = max(M - k, 1)`` (M = ``n_residuals``, k = ``n_params``):
     the expected RMS of the 3-D residual, each point's three coordinates sharing the residual degrees of
     freedom of the fit. ``mean``: the mean of a 3-D normal's norm, ``sigma sqrt(8 / pi)``, with the same dof
-    share (the fitness of the linearised objective of :mod:`robocal.optimizers.calibration`). With
+    share (the fitness of the linearised objective of :mod:`robocal.calibration.problem`). With
     orientations, ``M`` counts their residuals too (the dof share of the whole fit).
     """
     sig = np.asarray(sigma_mm, dtype=float)

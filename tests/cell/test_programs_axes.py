@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from robocal.calibration.fit import calibrate
 from robocal.cell.programs.axes import filter_krl_axes
 from robocal.cell.programs.common import ProgramError, format_number
 from robocal.cell.programs.krl import read_krl
@@ -14,7 +15,6 @@ from robocal.data import read_campaign
 from robocal.identification.axes import axis_errors, fit_axis_errors, term_named
 from robocal.kinematics.axes import augment
 from robocal.kinematics.chain import build_chain, fk, propagate
-from robocal.optimizers.geometric import calibrate
 from robocal.robot import load_robot
 from robocal.sim.twin import load_scenario, sample_poses, simulate
 

@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from robocal.calibration.config import CalibrationConfig
+from robocal.calibration.fit import calibrate
 from robocal.compliance.decoupling import controller_parameters, decoupling_matrix, layout_lengths, with_lengths
 from robocal.data import read_campaign
 from robocal.errors import ConfigError
-from robocal.identification.calibrate import CalibrationConfig
-from robocal.optimizers.geometric import calibrate
 from robocal.sim.twin import load_scenario, simulate
 
 

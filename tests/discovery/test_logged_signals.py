@@ -182,10 +182,10 @@ def test_compensation_and_the_service_take_the_logged_signal_with_each_target(tm
 
     import pandas as pd
 
+    from robocal.calibration.load import load_calibration
     from robocal.compensation.correct import correct
     from robocal.compensation.discovered import frame_transforms
     from robocal.compensation.effects import Signals
-    from robocal.identification.calibrate import load_calibration
     from robocal.kinematics.chain import fk
     from robocal.serve.bundle import load_bundle, write_bundle
     from robocal.serve.protocol import Service

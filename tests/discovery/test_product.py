@@ -8,9 +8,9 @@ import json
 import numpy as np
 import pytest
 
+from robocal.calibration.load import load_calibration
 from robocal.compensation.correct import correct
 from robocal.compensation.effects import Signals
-from robocal.identification.calibrate import load_calibration
 from robocal.serve.bundle import load_bundle, write_bundle
 from robocal.serve.protocol import Service, ServiceConfig, SolverConfig
 from robocal.workflows import discovery

@@ -12,12 +12,12 @@ import functools
 
 import pytest
 
+from robocal.calibration.fit import calibrate
+from robocal.calibration.validation import validate
 from robocal.data import read_campaign
 from robocal.discovery.search import discover
 from robocal.discovery.summary import summary
 from robocal.discovery.validate import validation_errors
-from robocal.identification.calibrate import validate
-from robocal.optimizers.geometric import calibrate
 from robocal.robot import load_robot
 
 

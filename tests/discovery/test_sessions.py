@@ -8,11 +8,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from robocal.calibration.fit import calibrate
+from robocal.calibration.validation import validate
 from robocal.discovery.sessions import predicted_flanges, predicted_points, session_validation
 from robocal.errors import DataError
-from robocal.identification.calibrate import validate
 from robocal.kinematics.transforms import homogeneous, rotvec_to_matrix
-from robocal.optimizers.geometric import calibrate
 
 from .conftest import make_campaign
 

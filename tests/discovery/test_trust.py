@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
+from robocal.calibration.start import fit_data, present_stations, present_targets
 from robocal.discovery.config import DiscoveryConfig
 from robocal.discovery.grow import held_out_check
 from robocal.discovery.model import Accepted, ExtendedModel, fit_model
@@ -16,7 +17,6 @@ from robocal.discovery.scoring import PHASES
 from robocal.discovery.search import discover
 from robocal.discovery.summary import summary
 from robocal.discovery.validate import gross_errors, validation_errors
-from robocal.identification.calibrate import fit_data, present_stations, present_targets
 
 from .conftest import make_campaign
 

@@ -9,15 +9,15 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from robocal.calibration.fit import calibrate
+from robocal.calibration.validation import validate
 from robocal.data import read_campaign
 from robocal.errors import ConfigError
 from robocal.identification.axes import AxisSettings, fit_axis_errors
-from robocal.identification.calibrate import validate
 from robocal.kinematics.axes import COMPONENTS, augment, carried_moment
 from robocal.kinematics.chain import build_chain, fk
 from robocal.kinematics.gravity import potential_energy
 from robocal.kinematics.transforms import rotx, roty
-from robocal.optimizers.geometric import calibrate
 from robocal.robot import load_robot
 from robocal.sim.twin import load_scenario, simulate
 

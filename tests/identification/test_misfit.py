@@ -7,9 +7,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from robocal.calibration.fit import calibrate
 from robocal.data import read_campaign
 from robocal.identification import misfit
-from robocal.optimizers.geometric import calibrate
 from robocal.sim.twin import load_scenario, simulate
 
 #: the common offset of the affected rows, mm (tracker frame): 0.45 mm, ~30 x the twin's 0.015 mm noise per

@@ -6,9 +6,9 @@ import copy
 
 import numpy as np
 
+from robocal.calibration.config import CalibrationConfig
+from robocal.calibration.fit import calibrate
 from robocal.data.contract import read_campaign
-from robocal.identification.calibrate import CalibrationConfig
-from robocal.optimizers.geometric import calibrate
 from robocal.robot import load_robot
 from robocal.sim.twin import load_scenario, simulate
 
@@ -57,7 +57,7 @@ def test_a_well_determined_campaign_lists_nothing(tmp_path):
 def test_the_pipeline_fit_holds_them_too(tmp_path):
     """``robocal calibrate`` and the stage fit through :func:`fit_with_optimizer`: its default (Levenberg-Marquardt)
     is the same fit as ``calibrate``, poorly determined parameters held (it used to fit once and only report them)."""
-    from robocal.optimizers.geometric import fit_with_optimizer
+    from robocal.calibration.fit import fit_with_optimizer
 
     camp, robot = _campaign(tmp_path, 1.0)
     out = fit_with_optimizer(camp, robot, CalibrationConfig(), None)

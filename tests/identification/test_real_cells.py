@@ -6,12 +6,14 @@ import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
+from robocal.calibration.config import CalibrationConfig
+from robocal.calibration.fit import calibrate
+from robocal.calibration.start import fit_data
+from robocal.calibration.validation import validate
 from robocal.data import read_campaign
 from robocal.errors import ConfigError, DataError
-from robocal.identification.calibrate import CalibrationConfig, fit_data, validate
 from robocal.identification.model import CalibrationModel
 from robocal.kinematics.chain import fk
-from robocal.optimizers.geometric import calibrate
 from robocal.sim.truth import z_scores
 from robocal.sim.twin import load_scenario, simulate
 

@@ -15,11 +15,14 @@ from typing import Any
 import numpy as np
 import pytest
 
+from robocal.calibration.config import CalibrationConfig
+from robocal.calibration.fit import calibrate
+from robocal.calibration.result import CalibrationResult
+from robocal.calibration.start import fit_data
+from robocal.calibration.validation import validate
 from robocal.data import read_campaign
-from robocal.identification.calibrate import CalibrationConfig, CalibrationResult, fit_data, validate
 from robocal.kinematics.chain import fk
 from robocal.kinematics.transforms import inv_transform
-from robocal.optimizers.geometric import calibrate
 from robocal.robot import load_robot
 
 

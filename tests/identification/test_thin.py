@@ -174,7 +174,8 @@ def test_a_sparse_campaign_takes_the_prior_only_where_it_clearly_beats_none(seed
     when it wins by more than two standard errors; otherwise the fit and its record are what they were."""
     cal, val, rob = _sparse(seed)
     auto = robocal.calibrate(cal, rob)
-    from robocal.identification.calibrate import CalibrationConfig, validate
+    from robocal.calibration.config import CalibrationConfig
+    from robocal.calibration.validation import validate
 
     off = robocal.calibrate(cal, rob, CalibrationConfig.from_mapping({"prior": "off"}))
 

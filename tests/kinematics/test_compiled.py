@@ -65,7 +65,7 @@ def test_every_form_of_the_chain_gives_the_same_pose(name, request):
         p, R, _, _ = forward(cc, q, tool, record=True)
         _close(p, R, T)
     # the CasADi form (the same element code on CasADi expressions): tool offsets 0, e_x, e_y, e_z give p and R
-    from robocal.optimizers.calibration import _casadi_point_function
+    from robocal.calibration.problem import _casadi_point_function
 
     point = _casadi_point_function(model)
     x = np.zeros(model.n)

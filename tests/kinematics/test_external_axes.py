@@ -10,13 +10,13 @@ import pandas as pd
 import pytest
 import yaml
 
+from robocal.calibration.fit import calibrate
 from robocal.cell.urdf import load_urdf, robot_from_urdf, urdf_fk, write_calibrated_urdf
 from robocal.data import read_campaign
 from robocal.errors import ConfigError, DataError
 from robocal.kinematics.chain import build_chain, fk, propagate
 from robocal.kinematics.gravity import gravity_regressor, gravity_torques, potential_energy
 from robocal.kinematics.transforms import homogeneous, rotx, rotz
-from robocal.optimizers.geometric import calibrate
 from robocal.robot import SHIPPED_ROBOT_DIR, load_robot, robot_from_dict
 from robocal.sim.twin import load_scenario, simulate
 

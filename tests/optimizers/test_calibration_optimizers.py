@@ -14,14 +14,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from robocal.calibration.config import CalibrationConfig
+from robocal.calibration.fit import calibrate, fit_with_optimizer, noise_floor
+from robocal.calibration.problem import calibration_problem
+from robocal.calibration.start import fit_data, present_targets
 from robocal.data.contract import read_campaign
 from robocal.errors import ConfigError
-from robocal.identification.calibrate import CalibrationConfig, fit_data, present_targets
 from robocal.identification.model import CalibrationModel, FitData
 from robocal.optimizers import GaussNewton, Ipopt, make_optimizer, pipeline_options
-from robocal.optimizers.calibration import calibration_problem
 from robocal.optimizers.fastfk import HAVE_NUMBA, PopulationPositions
-from robocal.optimizers.geometric import calibrate, fit_with_optimizer, noise_floor
 from robocal.optimizers.ipopt import cache_info
 from robocal.optimizers.protocol import evaluate_batch
 from robocal.sim.twin import load_scenario, simulate

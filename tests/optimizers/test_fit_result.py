@@ -10,13 +10,14 @@ import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
+from robocal.calibration.config import CalibrationConfig
+from robocal.calibration.fit import calibrate
+from robocal.calibration.problem import calibration_problem
+from robocal.calibration.start import fit_data, present_targets
 from robocal.data.contract import read_campaign
-from robocal.identification.calibrate import CalibrationConfig, fit_data, present_targets
 from robocal.identification.result import FitResult
-from robocal.identification.solver import levenberg_marquardt
 from robocal.optimizers import make_optimizer, registered
-from robocal.optimizers.calibration import calibration_problem
-from robocal.optimizers.geometric import calibrate
+from robocal.optimizers.solver import levenberg_marquardt
 from robocal.sim.twin import load_scenario, simulate
 
 
@@ -118,7 +119,7 @@ def test_solver_statistics_agree_with_scipy(twin):
 def test_rows_left_out_are_not_data(twin):
     """A row weighted zero by the robust fit is listed in outliers and counted neither in N nor in chi2."""
     _, base, _, data = twin
-    from robocal.identification.robust import least_squares_on
+    from robocal.calibration.start import least_squares_on
 
     model, x0, free = base.model, base.start.x_init, np.flatnonzero(base.identified)
     m = data.m

@@ -12,11 +12,13 @@ import numpy as np
 import pytest
 
 import robocal
+from robocal.calibration import start as calibrate_module
+from robocal.calibration.config import CalibrationConfig
+from robocal.calibration.fit import fit_with_optimizer
+from robocal.calibration.solve import START_DAMPING, gradient_fit
+from robocal.calibration.start import calibration_start, least_squares_on
 from robocal.data.contract import read_campaign
 from robocal.errors import ConfigError
-from robocal.identification import calibrate as calibrate_module
-from robocal.identification.calibrate import CalibrationConfig, calibration_start
-from robocal.optimizers.geometric import START_DAMPING, fit_with_optimizer, gradient_fit
 from robocal.sim.twin import load_scenario, simulate
 
 SMALL = {"population": 20, "max_iter": 5}  # a fast run: these tests check the path, not the optimum
@@ -78,7 +80,8 @@ def test_the_statistics_of_a_method_are_the_starts(campaign, kr16):
 
 def test_the_default_fit_solves_through_the_registered_optimizer(campaign, kr16, monkeypatch):
     """The default fit (Levenberg-Marquardt) is the registered ``lm``'s ``minimize(Problem)``, not a second path
-    to the least-squares core: a spy registered as ``lm`` sees every solve, with the calibration's settings."""
+    to the least-squares core: a spy registered as ``lm`` sees every solve, with the calibration's settings; the
+    start's rigid fit (frames and tools, undamped) goes through it too."""
     from robocal.optimizers import registry
     from robocal.optimizers.gradient import LevenbergMarquardt
 
@@ -92,7 +95,9 @@ def test_the_default_fit_solves_through_the_registered_optimizer(campaign, kr16,
     monkeypatch.setitem(registry._REGISTRY, "lm", registry._Entry(Spy, "tests.Spy"))
     res = robocal.calibrate(campaign, kr16, CalibrationConfig(max_iter=40))
     k = int(res.identified.sum())
-    assert seen and seen[0] == (k, START_DAMPING, 40)  # the free parameters; calibrate's damping and budget
+    n_rigid = int(np.isin(np.array(res.model.kinds), ("base", "tool", "tool_rot")).sum())
+    assert seen[0] == (n_rigid, 0.0, 100)  # the rigid fit: frames and tools, undamped (calibration.start.rigid_fit)
+    assert seen[1] == (k, START_DAMPING, 40)  # the free parameters; calibrate's damping and budget
     assert res.solver is not None and res.solver.method == "lm" and res.solver.varied.size == k
 
 
@@ -100,14 +105,12 @@ def test_the_default_fit_solves_through_the_registered_optimizer(campaign, kr16,
 def test_the_protocol_solve_is_the_least_squares_core_to_the_bit(campaign, kr16, method):
     """The solve through the protocol gives the core's fit bit for bit (same steps, point, residuals, Jacobian,
     covariance of the kept rows), also with rows left out (weighted zero in the problem, not data)."""
-    from robocal.identification import robust
-
     cfg = CalibrationConfig(method=method)
     start = calibration_start(campaign, kr16, cfg)
     _, solve = gradient_fit(cfg, None)
     kept = start.kept.copy()
     for rows in (kept, np.where(np.isin(np.arange(start.m), [3, 17]), False, kept)):
-        core = robust.least_squares_on(
+        core = least_squares_on(
             start.fun, start.x_init, start.free, start.weights, start.rows, rows,
             max_iter=cfg.max_iter, ftol=cfg.ftol, xtol=cfg.xtol, method=method,
         )  # fmt: skip

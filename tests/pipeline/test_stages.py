@@ -227,7 +227,7 @@ def test_geometric_fit_rejects_an_unknown_optimizer_naming_the_key() -> None:
             "calibration": {"noise_mm": 0.02, "report": False},
         }
     )
-    # the optimizer's stopping rules are read by the one fit (robocal.optimizers.geometric), not copied here
+    # the optimizer's stopping rules are read by the one fit (robocal.calibration), not copied here
     assert settings == {"noise_mm": 0.02} and report is False
 
 

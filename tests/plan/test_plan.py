@@ -220,9 +220,9 @@ def test_observability_indices_on_known_singular_values():
 
 def test_cramer_rao_against_monte_carlo_of_calibrations(tmp_path, kr16):
     """Predicted standard errors vs the spread of 60 real calibrations of twin measurements of the plan."""
+    from robocal.calibration.config import CalibrationConfig
+    from robocal.calibration.fit import calibrate
     from robocal.data.contract import read_campaign
-    from robocal.identification.calibrate import CalibrationConfig
-    from robocal.optimizers.geometric import calibrate
     from robocal.sim.twin import load_scenario, simulate
 
     res = plan_poses(kr16, {**SETTINGS, "collision": {}, "n_poses": 25}, curve=False)

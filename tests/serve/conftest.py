@@ -30,9 +30,9 @@ def standin_thermal(robot, seed: int = 0) -> StandinThermal:
 
 @pytest.fixture(scope="session")
 def calibration_file(tmp_path_factory, kr16) -> Path:
+    from robocal.calibration.fit import calibrate
     from robocal.data import read_campaign
     from robocal.io import write_json
-    from robocal.optimizers.geometric import calibrate
     from robocal.sim.twin import load_scenario, simulate
 
     d = tmp_path_factory.mktemp("cal")

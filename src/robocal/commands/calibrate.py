@@ -67,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
     if keys is not None and not isinstance(keys, dict):
         raise ConfigError(f"The setting 'optimizer' must be a name or optimizer.<key>=<value>. Got {keys!r} instead.")
     optimizer = optimizer_config({**(keys or {}), "name": named[-1]} if named else keys)
-    from robocal.optimizers.geometric import GRADIENT_KEYS, is_gradient
+    from robocal.calibration.solve import GRADIENT_KEYS, is_gradient
 
     if optimizer is not None and is_gradient(optimizer):
         # calibrate()'s stopping rules come from the optimizer config; calibration overrides of them win

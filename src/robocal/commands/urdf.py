@@ -21,9 +21,9 @@ def run(args: argparse.Namespace) -> int:
     import json
     from pathlib import Path
 
+    from robocal.calibration.load import load_calibration
     from robocal.cell.urdf import export_calibration, not_in_urdf
     from robocal.errors import ConfigError
-    from robocal.identification.calibrate import load_calibration
     from robocal.robot import load_robot
 
     robot = load_robot(args.robot)

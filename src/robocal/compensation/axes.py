@@ -25,8 +25,8 @@ from typing import Any
 
 import numpy as np
 
+from robocal.calibration.result import CalibrationResult
 from robocal.identification.axes import AxisFit, axis_errors
-from robocal.identification.calibrate import CalibrationResult
 from robocal.identification.model import with_base
 from robocal.kinematics.axes import augment
 from robocal.kinematics.chain import build_chain, fk, point_jacobians, propagate

@@ -31,9 +31,9 @@ from robocal.kinematics.ik import CompiledChain, forward, solve
 from robocal.status import TargetStatus
 
 if TYPE_CHECKING:
+    from robocal.calibration.result import CalibrationResult
     from robocal.compensation import ActualRobot
     from robocal.compensation.effects import JointEffect, Signals
-    from robocal.identification.calibrate import CalibrationResult
 
 #: the joint-space effects as the Newton solver and :func:`beyond_own` call them: ``(q (k, n), rows (k,) or None)
 #: -> dq (k, n)`` rad (:class:`~robocal.compensation.effects.JointOffsets`)
@@ -344,7 +344,7 @@ def correct(
 ) -> Corrected:
     """Correct the joint targets ``q_target`` (m, n) rad and judge each: the one compensation entry point.
 
-    robot : a calibration (:class:`~robocal.identification.calibrate.CalibrationResult`: its geometry, the tool of
+    robot : a calibration (:class:`~robocal.calibration.result.CalibrationResult`: its geometry, the tool of
     ``target`` (default its first), in the robot base frame) or an
     :class:`~robocal.compensation.ActualRobot` (what the robot is at the moment: thermal drift in its ``eta``, its
     tracker frame and tool). effects : the joint-space effects (:class:`~robocal.compensation.effects.JointEffect`

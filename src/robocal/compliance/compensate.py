@@ -15,8 +15,8 @@ from robocal.kinematics.chain import fk
 from robocal.status import TargetStatus
 
 if TYPE_CHECKING:
+    from robocal.calibration.result import CalibrationResult
     from robocal.data.contract import Campaign
-    from robocal.identification.calibrate import CalibrationResult
 
 
 def compensation_rows(

@@ -22,11 +22,11 @@ from typing import Any
 
 import numpy as np
 
+from robocal.calibration.result import CalibrationResult
 from robocal.errors import ConfigError
-from robocal.identification.calibrate import CalibrationResult
 from robocal.identification.model import CalibrationModel, FitData
-from robocal.identification.solver import levenberg_marquardt
 from robocal.metrics import ErrorStats
+from robocal.optimizers.least_squares import least_squares
 from robocal.robot import RobotDescription
 
 _W = np.array([[0, 0, 1], [0, -1, 0], [0, -1, 0], [1, 0, 0], [0, -1, 0], [1, 0, 0]], dtype=float)
@@ -141,7 +141,7 @@ def controller_parameters(result: CalibrationResult, q: np.ndarray, target_index
 
     # Gauss-Newton by the identification's least-squares core (line search; a linear problem in L, so 1-2 steps)
     w0 = np.concatenate([y[base_tool], z[free_ctrl]])
-    lm = levenberg_marquardt(fun, w0, np.arange(len(w0)), 1.0, max_iter=8, ftol=1e-15, xtol=1e-12, method="gn")
+    lm = least_squares(fun, w0, np.arange(len(w0)), 1.0, max_iter=8, ftol=1e-15, xtol=1e-12, method="gn")
     y, z = unpack(lm.x)
     r = build(z).residuals(y, data)
     e = ErrorStats.of(r.reshape(-1, 3))

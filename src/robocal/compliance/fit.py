@@ -29,14 +29,16 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from robocal.calibration.config import CalibrationConfig
+from robocal.calibration.fit import calibrate
+from robocal.calibration.result import CalibrationResult
+from robocal.calibration.start import fit_data
 from robocal.compliance.model import KINDS, ComplianceModel
 from robocal.config import parse, setting
 from robocal.errors import ConfigError
-from robocal.identification.calibrate import CalibrationConfig, CalibrationResult, fit_data
 from robocal.identification.model import FitData
-from robocal.identification.solver import levenberg_marquardt
 from robocal.metrics import ErrorStats
-from robocal.optimizers.geometric import calibrate
+from robocal.optimizers.least_squares import least_squares
 
 if TYPE_CHECKING:
     from robocal.data.contract import Campaign
@@ -58,7 +60,7 @@ class ComplianceConfig:
     unloaded_max_kg : rows with ``payload_kg <= unloaded_max_kg`` count as unloaded.
     t_min : automatic joint selection keeps joints with ``|c| / stderr >= t_min``.
     max_iter, tol : Gauss-Newton stopping rules (relative cost change).
-    geometric : the geometric calibration settings (:class:`robocal.identification.calibrate.CalibrationConfig`).
+    geometric : the geometric calibration settings (:class:`robocal.calibration.config.CalibrationConfig`).
     compensation : write the controller-ready compensation CSV of the validation rows.
     report : write the HTML report.
     """
@@ -146,7 +148,7 @@ def _gauss_newton(
     tol: float,
 ) -> GNResult:
     """Minimise ``|f(q + S∘c, x) - p|²`` over ``c[joints]`` (and ``x[geo_free]``): Gauss-Newton with a line
-    search, by the identification's least-squares core (:func:`robocal.identification.solver.levenberg_marquardt`,
+    search, by the least squares of the optimizer protocol (:func:`robocal.optimizers.least_squares.least_squares`,
     ``method="gn"``) on the stacked vector ``[x, c]``."""
     model = geo.model
     nx = len(geo.x)
@@ -162,7 +164,7 @@ def _gauss_newton(
 
     z0 = np.concatenate([geo.x, c0])
     free = np.concatenate([np.asarray(geo_free, dtype=int), nx + np.asarray(joints, dtype=int)])
-    lm = levenberg_marquardt(fun, z0, free, 1.0, max_iter=max_iter, ftol=tol, xtol=1e-12, method="gn")
+    lm = least_squares(fun, z0, free, 1.0, max_iter=max_iter, ftol=tol, xtol=1e-12, method="gn")
     res = lm.residual.reshape(-1, 3)
     s2 = lm.redchi if lm.dof > 0 else lm.chi2  # the residual variance (per coordinate)
     assert lm.covariance is not None  # the fit is finite (the model's residuals always are)

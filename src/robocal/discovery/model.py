@@ -18,8 +18,8 @@ import numpy as np
 from robocal.discovery.candidates import Candidate, with_beta
 from robocal.identification.identifiability import analyse
 from robocal.identification.model import CalibrationModel, FitData
-from robocal.identification.solver import levenberg_marquardt
 from robocal.metrics import ErrorStats, noise_floor
+from robocal.optimizers.least_squares import least_squares
 from robocal.robot import RobotDescription
 
 
@@ -331,7 +331,7 @@ def fit_model(
     # coefficients under a prior are determined by it: always fitted, never eliminated
     free = np.sort(np.concatenate([np.asarray(ident.kept, dtype=int), ridge]))
     w_all = np.concatenate([w, np.ones(len(ridge))])
-    lm = levenberg_marquardt(fun, theta0, free, w_all, max_iter=max_iter, ftol=1e-12, xtol=1e-10)
+    lm = least_squares(fun, theta0, free, w_all, max_iter=max_iter, ftol=1e-12, xtol=1e-10)
     theta = np.array(lm.x)
     Jx, Jq = model.base_jacobians(theta, data, rows)  # the parts of the solver's J
     assert lm.covariance is not None  # a finite fit

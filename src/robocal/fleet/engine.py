@@ -111,7 +111,7 @@ def _calibrate_one(
     serial: str, robot_ref: str, name: str, path: str, key: str, out: Path, cal_cfg: Mapping[str, Any], rules: Mapping
 ) -> dict[str, Any]:
     import robocal
-    from robocal.identification.calibrate import CalibrationConfig
+    from robocal.calibration.config import CalibrationConfig
     from robocal.io import write_json
     from robocal.serve.bundle import MANIFEST, write_bundle
 

@@ -1,4 +1,4 @@
-"""Geometric identification: the calibration model (chain + tracker frame + tools), identifiability, the one
-least-squares core (Gauss-Newton / Levenberg-Marquardt), gross-error screening, noise estimates, the one
-``FitResult`` and the steps of a calibration (:mod:`robocal.identification.calibrate`; the entry point with its
-solve step is :func:`robocal.optimizers.geometric.calibrate`). Importing it reads and writes nothing."""
+"""Geometric identification: the calibration model (chain + tracker frame + tools), identifiability and the
+fitted parameters as a value (``ParameterSpec``), gross-error tests, noise estimates, the one ``FitResult``. The
+least-squares core and the optimizers are :mod:`robocal.optimizers`; the calibration's steps are
+:mod:`robocal.calibration`. Importing it reads and writes nothing."""

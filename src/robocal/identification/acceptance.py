@@ -2,7 +2,7 @@
 (``accepted``: registered and served).
 
 :func:`judge` reads a calibration's fit record (``calibration.json`` ``fit``) and, when there are validation rows,
-the calibrated and the nominal model's validation figures (:class:`robocal.identification.calibrate.Validation`
+the calibrated and the nominal model's validation figures (:class:`robocal.calibration.validation.Validation`
 or its record), and returns a :class:`Verdict`: the *problems* (the calibration must not be used) and the
 *warnings* (usable, with care), each a sentence, in this order:
 

@@ -1,6 +1,6 @@
 """Identification of an external axis's own errors along its travel (issue 34), beside the arm's kinematics.
 
-The geometric calibration (:func:`robocal.optimizers.geometric.calibrate`) fits the kinematic parameters of every
+The geometric calibration (:func:`robocal.calibration.fit.calibrate`) fits the kinematic parameters of every
 joint, a track's or a column's as the arm's (its identifiability analysis and poorly-determined test cover them
 alike). This module fits, on top, each linear axis's errors as smooth functions of its position
 (:mod:`robocal.kinematics.axes`): straightness in x and y, positioning, pitch, yaw and roll of the carriage, each a
@@ -31,10 +31,12 @@ from typing import Any
 import numpy as np
 import scipy.linalg
 
+from robocal.calibration.config import point_sigma
+from robocal.calibration.result import CalibrationResult
+from robocal.calibration.start import fit_data
 from robocal.config import parse, setting
 from robocal.data.contract import Campaign
 from robocal.errors import ConfigError
-from robocal.identification.calibrate import CalibrationResult, fit_data, point_sigma
 from robocal.identification.model import CalibrationModel, FitData, with_base
 from robocal.kinematics.axes import COMPONENTS, UNITS, augment, carried_moment, legendre, travel_coordinate
 

@@ -12,7 +12,8 @@ from __future__ import annotations
 
 import fnmatch
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 
@@ -171,7 +172,7 @@ def analyse(
 def resolve_fixed(names: Sequence[str], patterns: Sequence[str], setting: str) -> set[str]:
     """The parameter names the shell-style ``patterns`` of the setting ``setting`` (e.g. ``calibration.fixed``)
     hold at their start (``theta*``, ``a2``); a pattern that matches no name of ``names`` is a :class:`ConfigError`
-    naming the setting and the pattern. The one resolution of calibrate, plan and discovery."""
+    naming the setting and the pattern. The one resolution (:attr:`ParameterSpec.fixed` for calibrate and plan)."""
     out: set[str] = set()
     for p in patterns:
         hits = fnmatch.filter(names, p)
@@ -181,10 +182,109 @@ def resolve_fixed(names: Sequence[str], patterns: Sequence[str], setting: str) -
     return out
 
 
-def keep_order(kinds: Sequence[str], names: Sequence[str], fixed: set[str] | frozenset[str]) -> list[int]:
-    """Priority order for keeping parameters in the rank analysis: base frames, tools, then joint-level
-    parameters base -> flange; ``fixed`` names left out."""
-    order = [i for i, k in enumerate(kinds) if k == "base"]
-    order += [i for i, k in enumerate(kinds) if k in ("tool", "tool_rot")]
-    order += [i for i, k in enumerate(kinds) if k == "kinematic"]
+#: The order the rank analysis keeps parameters in, by kind (:func:`analyse`): frames, tools, then the joint-level
+#: parameters base -> flange; a kind in no group is never a candidate.
+PRIORITY: tuple[tuple[str, ...], ...] = (("base",), ("tool", "tool_rot"), ("kinematic",))
+
+
+def keep_order(
+    kinds: Sequence[str],
+    names: Sequence[str],
+    fixed: set[str] | frozenset[str],
+    priority: tuple[tuple[str, ...], ...] = PRIORITY,
+) -> list[int]:
+    """Priority order for keeping parameters in the rank analysis: the kinds of each group of ``priority`` in
+    turn (:data:`PRIORITY`: base frames, tools, then joint-level parameters base -> flange), each in index
+    order; ``fixed`` names left out (:meth:`ParameterSpec.keep_order`)."""
+    order = [i for group in priority for i, k in enumerate(kinds) if k in group]
     return [i for i in order if names[i] not in fixed]
+
+
+def _frozen_vector(value: Any, name: str, n: int) -> np.ndarray | None:
+    if value is None:
+        return None
+    arr = np.array(value, dtype=float)
+    if arr.shape != (n,):
+        raise ConfigError(f"The {name!r} parameter of ParameterSpec must have shape ({n},). Got {arr.shape} instead.")
+    arr.setflags(write=False)
+    return arr
+
+
+@dataclass(frozen=True, eq=False)
+class ParameterSpec:
+    """Which parameters a fit has and how it treats each, as one value (calibrate, plan).
+
+    names, kinds, units : one each per parameter (kinds as :attr:`robocal.identification.model.CalibrationModel.
+    kinds`: ``base``, ``tool``, ``tool_rot``, ``kinematic``, or a kind of the caller's, e.g. the plan's ``axis``);
+    fixed_patterns : shell patterns (``beta*``) of the setting ``setting`` (``calibration.fixed``) held at their
+    start, resolved once here: a pattern that matches no name is a :class:`ConfigError` naming the setting;
+    held : names the fit holds itself (the poorly determined ones); priority : the kind groups in the order the
+    rank analysis keeps parameters (:data:`PRIORITY`); lower, upper, scale : per-parameter bounds and typical
+    magnitudes when a search has them (:meth:`around`), else None.
+    """
+
+    names: tuple[str, ...]
+    kinds: tuple[str, ...]
+    units: tuple[str, ...] = ()
+    fixed_patterns: tuple[str, ...] = ()
+    setting: str = "fixed"
+    held: frozenset[str] = frozenset()
+    priority: tuple[tuple[str, ...], ...] = PRIORITY
+    lower: np.ndarray | None = None
+    upper: np.ndarray | None = None
+    scale: np.ndarray | None = None
+    fixed: frozenset[str] = field(init=False)
+
+    def __post_init__(self) -> None:
+        put = object.__setattr__  # frozen: normalise once, here
+        put(self, "names", tuple(self.names))
+        put(self, "kinds", tuple(self.kinds))
+        put(self, "units", tuple(self.units))
+        put(self, "fixed_patterns", tuple(self.fixed_patterns))
+        put(self, "held", frozenset(self.held))
+        put(self, "priority", tuple(tuple(g) for g in self.priority))
+        n = len(self.names)
+        if len(self.kinds) != n or (self.units and len(self.units) != n):
+            raise ConfigError(
+                f"ParameterSpec needs one kind (and unit) per name: {n} names, {len(self.kinds)} kinds, "
+                f"{len(self.units)} units"
+            )
+        unknown = sorted(self.held - set(self.names))
+        if unknown:
+            raise ConfigError(f"ParameterSpec holds {unknown}, which are not parameters of {self.names}")
+        for name in ("lower", "upper", "scale"):
+            put(self, name, _frozen_vector(getattr(self, name), name, n))
+        fixed = resolve_fixed(self.names, self.fixed_patterns, self.setting) | self.held
+        put(self, "fixed", frozenset(fixed))
+
+    @classmethod
+    def of(cls, model: Any, fixed_patterns: Sequence[str] = (), setting: str = "fixed") -> ParameterSpec:
+        """The parameters of a model (anything with ``names``, ``kinds`` and ``units``: a
+        :class:`~robocal.identification.model.CalibrationModel`)."""
+        return cls(tuple(model.names), tuple(model.kinds), tuple(model.units), tuple(fixed_patterns), setting)
+
+    @property
+    def n(self) -> int:
+        return len(self.names)
+
+    def holding(self, names: Sequence[str]) -> ParameterSpec:
+        """The same parameters with ``names`` held too."""
+        return replace(self, held=self.held | frozenset(names))
+
+    def keep_order(self) -> list[int]:
+        """The candidates of the rank analysis in the order it keeps them (:attr:`priority`), fixed ones out."""
+        return keep_order(self.kinds, self.names, self.fixed, self.priority)
+
+    def indices(self, kinds: Sequence[str]) -> np.ndarray:
+        """The parameters of the given kinds that are not fixed, in index order."""
+        return np.array(
+            [i for i, k in enumerate(self.kinds) if k in kinds and self.names[i] not in self.fixed], dtype=int
+        )
+
+    def around(self, x: np.ndarray, half_mm: float, half_rad: float) -> ParameterSpec:
+        """Bounds ``x ± half`` (``half_mm`` for lengths, ``half_rad`` for angles) with the half-widths as scale."""
+        if len(self.units) != self.n:
+            raise ConfigError("ParameterSpec.around needs the parameters' units")
+        half = np.array([half_mm if u == "mm" else half_rad for u in self.units])
+        x = np.asarray(x, dtype=float)
+        return replace(self, lower=x - half, upper=x + half, scale=half)

@@ -3,7 +3,7 @@
 :class:`FitResult` is immutable (a frozen dataclass whose arrays are read-only): the point found, its
 covariance and standard errors, the goodness of fit (χ², reduced χ², AIC, BIC, as lmfit reports them),
 the stopping status, the rows left out as gross errors and the timings. Gauss-Newton / Levenberg-Marquardt
-(:func:`robocal.identification.solver.levenberg_marquardt`, and through it ``calibrate``, the compliance
+(:func:`robocal.optimizers.solver.levenberg_marquardt`, and through it ``calibrate``, the compliance
 and discovery fits), Ipopt and the population methods (GOA, improved GOA, WOA) all return one.
 
 Conventions

@@ -1,4 +1,6 @@
-"""Gross measurement errors: a robust start, a stated outlier test, and the final fit on the kept rows.
+"""Gross measurement errors: a robust start, a stated outlier test, and the final fit on the kept rows (the
+fits themselves, through the optimizer protocol, are the calibration's: :func:`robocal.calibration.screening.
+irls_cauchy`, :func:`robocal.calibration.start.least_squares_on`).
 
 A gross error (beam break, bumped reflector, a target seated in the wrong nest, a joint angle logged from the
 previous move) is a whole *row* that is wrong: its 3 position residuals (and 3 orientation residuals with a
@@ -29,12 +31,11 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 from scipy import special
 
-from robocal.identification.solver import FitResult, levenberg_marquardt, normal_inverse
+from robocal.identification.result import normal_inverse
 
 #: Cauchy tuning constant (95 % efficiency at the normal distribution), in units of the per-component scale
 CAUCHY_C = 2.385
@@ -123,61 +124,6 @@ def robust_screen(rw: np.ndarray, rows: np.ndarray, m: int, alpha: float, n_para
     dof = max(m * d - n_params, 1)
     thr_F = special.fdtri(d, dof, 1.0 - alpha / max(m, 1))
     return np.asarray(ss / (d * s2) > thr_F)
-
-
-def irls_cauchy(
-    fun: Fun,
-    x0: np.ndarray,
-    free: np.ndarray,
-    weights: np.ndarray,
-    rows: np.ndarray,
-    m: int,
-    iters: int = 12,
-    max_iter: int = 30,
-) -> np.ndarray:
-    """An M-estimate (Cauchy loss on each row's whitened norm) by iteratively reweighted least squares.
-
-    Each row's weight is ``1 / (1 + e²/c²)`` with ``e²`` its mean squared whitened residual over the robust
-    (median) scale. Returns the parameters; the final fit and statistics are the caller's (least squares on
-    the kept rows).
-    """
-    d = int(len(weights) // m)
-    x = np.array(x0, dtype=float)
-    med = special.chdtri(d, 0.5)
-    for _ in range(iters):
-        r, _ = fun(x)
-        rw = weights * r
-        ss = np.bincount(rows, weights=rw**2, minlength=m)
-        s2 = max(float(np.median(ss) / med), 1e-300)
-        omega = 1.0 / (1.0 + ss / (d * s2) / CAUCHY_C**2)
-        lm = levenberg_marquardt(fun, x, free, weights * np.sqrt(omega[rows]), max_iter=max_iter, lam0=0.0)
-        step = np.abs(lm.x - x)[free].max() if len(free) else 0.0
-        x = lm.x
-        if step < 1e-7:
-            break
-    return x
-
-
-def least_squares_on(
-    fun: Fun,
-    x0: np.ndarray,
-    free: np.ndarray,
-    weights: np.ndarray,
-    rows: np.ndarray,
-    kept: np.ndarray,
-    **kw: Any,
-) -> FitResult:
-    """Least squares with the excluded rows' residuals weighted zero: χ², covariance and ``ndata`` are the
-    kept rows'; the returned ``residual`` and ``jacobian`` hold every row (whitened by ``weights``, the
-    excluded ones as predictions) and ``outliers`` lists the excluded rows."""
-    if kept.all():
-        return levenberg_marquardt(fun, x0, free, weights, **kw)
-    w_kept = weights * kept[rows]
-    lm = levenberg_marquardt(fun, x0, free, w_kept, **kw)
-    r, J = fun(lm.x)
-    return lm.evolve(
-        residual=weights * r, jacobian=weights[:, None] * J[:, free], outliers=tuple(np.flatnonzero(~kept))
-    )
 
 
 def outlier_line(outliers: list[dict], total: int | None = None) -> str:

@@ -17,7 +17,7 @@ ranges (a fixed seed), with the campaign's targets and stations. The record (``f
 
 The prior (:func:`choose_prior`) is a Gaussian one toward the nominal description, written as extra residual
 rows of the calibration's least squares (:class:`Prior`, added by
-:class:`robocal.optimizers.calibration.WhitenedResiduals`): ``sqrt(lambda) (p - p0) / width`` for each free
+:class:`robocal.calibration.problem.WhitenedResiduals`): ``sqrt(lambda) (p - p0) / width`` for each free
 joint-level parameter (``width`` = ``prior_mm`` for lengths, ``prior_deg`` for angles; ``p0`` nominal) and
 ``(p - p0) / width`` for the tracker frames and tools (``prior_frame_mm``, ``prior_frame_deg``, ``p0`` the
 nominal model's best rigid fit: a weak bound that does not take part in the strength's choice). With the
@@ -39,10 +39,10 @@ from typing import Any
 
 import numpy as np
 
-from robocal.identification.identifiability import analyse, keep_order
+from robocal.identification.identifiability import analyse
 from robocal.identification.model import FitData
 
-#: a :class:`robocal.identification.calibrate.CalibrationStart` (not imported: calibrate imports this module)
+#: a :class:`robocal.calibration.start.CalibrationStart` (not imported: calibrate imports this module)
 CalibrationStart = Any
 
 __all__ = [
@@ -98,7 +98,7 @@ def model_parameters(start: CalibrationStart) -> int:
     w = np.full(3 * n * K, 1.0 / cfg.noise_mm)
     if model.orientation:
         w = np.concatenate([w, np.full(3 * n * K, 1.0 / np.deg2rad(cfg.noise_deg))])
-    order = keep_order(model.kinds, model.names, set(start.fixed))
+    order = start.parameters.keep_order()
     ident = analyse(J * w[:, None], model.names, order, rtol=cfg.rank_tol)
     return len(ident.kept)
 

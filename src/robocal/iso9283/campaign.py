@@ -24,9 +24,9 @@ from typing import Any
 
 import numpy as np
 
+from robocal.calibration.result import CalibrationResult
 from robocal.data import Campaign
 from robocal.errors import DataError
-from robocal.identification.calibrate import CalibrationResult
 from robocal.iso9283.analysis import IsoTest
 from robocal.kinematics.transforms import inv_transform, quat_to_matrix, rpy_from_matrix
 

@@ -42,8 +42,8 @@ def run_iso9283(
     settings: IsoSettings | None = None,
     report: bool = True,
 ) -> IsoRun:
+    from robocal.calibration.load import load_calibration
     from robocal.data import read_campaign
-    from robocal.identification.calibrate import load_calibration
     from robocal.robot import load_robot
 
     st = settings or IsoSettings()

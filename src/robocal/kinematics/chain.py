@@ -199,7 +199,7 @@ def step(kind: int, v: Any, frame: Frame, Tf: np.ndarray | None = None, cos: Any
     """One element of the chain applied to a frame given by its world axes and origin ``(x, y, z, o)``.
 
     The one place the element kinds are written down: :func:`propagate` (numpy, batched), the CasADi form of
-    the identification (:mod:`robocal.optimizers.calibration`, with ``casadi.cos`` / ``sin``) and the service's
+    the identification (:mod:`robocal.calibration.problem`, with ``casadi.cos`` / ``sin``) and the service's
     chain folding (:func:`robocal.kinematics.ik.compile_chain`) all step through it. ``v`` is the element's value
     (mm or rad; shaped to broadcast against the axes), ``Tf`` the transform of a ``FIXED`` element.
     """

@@ -1,9 +1,9 @@
 """Optimizers for identification: one protocol (:class:`Problem` in, :class:`FitResult` out).
 
-Gradient methods: :class:`GaussNewton`, :class:`LevenbergMarquardt` (``robocal.identification.solver``),
+Gradient methods: :class:`GaussNewton`, :class:`LevenbergMarquardt` (``robocal.optimizers.solver``),
 :class:`Ipopt` (CasADi, exact derivatives). Population methods: :class:`GOA`, :class:`ImprovedGOA` (Guo et al.
 2026), :class:`WOA`. Build one from a Hydra ``optimizer`` config with :func:`make_optimizer`; add more with
-:func:`register`. The calibration as a Problem: :mod:`robocal.optimizers.calibration`.
+:func:`register`. The calibration as a Problem: :mod:`robocal.calibration.problem`.
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Gauss-Newton and Levenberg-Marquardt behind the optimizer protocol.
 
-Thin wrappers of :func:`robocal.identification.solver.levenberg_marquardt`, and the solve step of every
-gradient-family geometric fit (``robocal.calibrate``'s default: :func:`robocal.optimizers.geometric.solve_with`):
+Thin wrappers of :func:`robocal.optimizers.solver.levenberg_marquardt`, and the solve step of every
+gradient-family geometric fit (``robocal.calibrate``'s default: :func:`robocal.calibration.solve.solve_with`):
 a :class:`~robocal.optimizers.protocol.Problem` with ``residuals`` and ``jacobian`` in, an
 :class:`~robocal.optimizers.protocol.FitResult` out. Both minimise the sum of squared residuals
 without bounds (a least-squares solver; ``problem.lower``/``upper`` are reported, not enforced:
@@ -9,7 +9,7 @@ without bounds (a least-squares solver; ``problem.lower``/``upper`` are reported
 
 * ``gn``: Gauss-Newton, undamped steps with a backtracking line search (``method="gn"`` of the solver).
 * ``lm``: Levenberg-Marquardt with adaptive damping from ``lam0`` (``method="lm"``; default 1e-3 here, where
-  the start may be far; ``calibrate()`` passes 1e-6, :data:`robocal.optimizers.geometric.START_DAMPING`, from its
+  the start may be far; ``calibrate()`` passes 1e-6, :data:`robocal.calibration.solve.START_DAMPING`, from its
   converged rigid fit).
 
 Both return the solver's :class:`~robocal.identification.result.FitResult` with the problem's fitness as
@@ -23,7 +23,6 @@ import math
 import numpy as np
 
 from robocal.errors import ConfigError
-from robocal.identification.solver import levenberg_marquardt
 from robocal.optimizers.protocol import (
     EstimatorParams,
     FitResult,
@@ -32,6 +31,7 @@ from robocal.optimizers.protocol import (
     check_real,
     fitness_from_residuals,
 )
+from robocal.optimizers.solver import levenberg_marquardt
 
 __all__ = ["GaussNewton", "LevenbergMarquardt", "check_problem", "history_in_objective"]
 

@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from robocal.errors import ConfigError
-from robocal.identification.identifiability import analyse, keep_order, resolve_fixed
+from robocal.identification.identifiability import PRIORITY, ParameterSpec, analyse
 from robocal.identification.model import CalibrationModel, FitData
 from robocal.kinematics.chain import build_chain
 from robocal.kinematics.transforms import matrix_to_rotvec
@@ -355,10 +355,10 @@ def build_problem(
     sub = np.sort(sub_rng.choice(cand.n, size=min(_IDENT_SUBSET, cand.n), replace=False))
     Js = Jb[sub].reshape(-1, n_all)
     Js = Js[np.any(Js != 0.0, axis=1)]
-    fixed = resolve_fixed(all_names, cfg.fixed, "plan.fixed")
-    order = keep_order(model.kinds, model.names, fixed) + [
-        model.n + k for k in range(len(terms)) if terms[k].name not in fixed
-    ]
+    # the calibration's parameters, then the axis errors along the travel as candidates after them
+    kinds = (*model.kinds, *(["axis"] * len(terms)))
+    spec = ParameterSpec(all_names, kinds, all_units, tuple(cfg.fixed), "plan.fixed", priority=(*PRIORITY, ("axis",)))
+    order = spec.keep_order()
     ident = analyse(Js, all_names, order, rtol=cfg.rank_tol)
     kept = np.sort(ident.kept)
     rms = np.sqrt(np.mean(Js[:, kept] ** 2, axis=0))

@@ -14,8 +14,9 @@ from robocal.report import plots
 from robocal.report.html import Report
 
 if TYPE_CHECKING:
+    from robocal.calibration.result import CalibrationResult
+    from robocal.calibration.validation import Validation
     from robocal.data.contract import Campaign
-    from robocal.identification.calibrate import CalibrationResult, Validation
 
 
 def _mean_rms_max(s: ErrorStats) -> str:

@@ -59,9 +59,9 @@ def run_discovered_closed_loop(
     n_poses: int = 80,
 ) -> dict[str, Any]:
     """Run the loop (module docstring); writes ``closed_loop_discovered.json`` into ``out_dir``; returns it."""
+    from robocal.calibration.fit import calibrate
     from robocal.data import read_campaign
     from robocal.kinematics.chain import build_chain
-    from robocal.optimizers.geometric import calibrate
     from robocal.robot import load_robot
     from robocal.sim.twin import load_scenario, simulate
     from robocal.workflows import discovery

@@ -12,11 +12,11 @@ from typing import Any
 
 import numpy as np
 
-from robocal.identification.calibrate import CalibrationResult
+from robocal.calibration.result import CalibrationResult
 from robocal.identification.model import FitData
-from robocal.identification.solver import levenberg_marquardt
 from robocal.kinematics.chain import build_chain, propagate
 from robocal.metrics import ErrorStats
+from robocal.optimizers.least_squares import least_squares
 from robocal.robot import RobotDescription
 
 
@@ -50,7 +50,7 @@ def equivalent_truth(
     def fun(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return model.residuals_and_jacobian(x, data)
 
-    lm = levenberg_marquardt(fun, result.x.copy(), free, 1.0, max_iter=50, ftol=1e-15, xtol=1e-13)
+    lm = least_squares(fun, result.x.copy(), free, 1.0, max_iter=50, ftol=1e-15, xtol=1e-13)
     rms = ErrorStats.of(lm.residual.reshape(-1, 3)).rms_mm
     return np.array(lm.x), rms
 

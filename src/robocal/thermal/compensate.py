@@ -23,11 +23,11 @@ from typing import Any
 
 import numpy as np
 
+from robocal.calibration.result import CalibrationResult
 from robocal.compensation import ActualRobot, controller_csv, desired_poses
 from robocal.compensation.controller_csv import CSV_COLUMNS
 from robocal.compensation.correct import Corrected, correct
 from robocal.compensation.safety import STATUSES, SafetyPolicy
-from robocal.identification.calibrate import CalibrationResult
 from robocal.kinematics.chain import fk
 from robocal.thermal.model import ThermalModel
 

@@ -22,10 +22,12 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from robocal.calibration.config import CalibrationConfig
+from robocal.calibration.fit import calibrate
+from robocal.calibration.load import load_calibration
+from robocal.calibration.result import CalibrationResult
 from robocal.config import parse, setting, sub_settings
 from robocal.errors import ConfigError, DataError
-from robocal.identification.calibrate import CalibrationConfig, CalibrationResult, load_calibration
-from robocal.optimizers.geometric import calibrate
 from robocal.robot import RobotDescription
 from robocal.thermal.identify import StateDrift, find_states, identify_states
 from robocal.thermal.model import ThermalModel

@@ -19,8 +19,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from robocal.calibration.result import CalibrationResult
+from robocal.calibration.start import fit_data
 from robocal.errors import ConfigError, DataError
-from robocal.identification.calibrate import CalibrationResult, fit_data
 from robocal.identification.identifiability import Identifiability, analyse
 from robocal.kinematics.transforms import matrix_to_rotvec, quat_to_matrix
 from robocal.metrics import ErrorStats

@@ -20,9 +20,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from robocal.calibration.result import CalibrationResult
 from robocal.compensation import desired_poses
 from robocal.compensation.safety import SafetyPolicy
-from robocal.identification.calibrate import CalibrationResult
 from robocal.kinematics.transforms import matrix_to_rotvec, quat_to_matrix
 from robocal.metrics import ErrorStats, orientation_errors_deg
 from robocal.thermal.compensate import compensate_targets, nominal_robot, true_robot

@@ -407,11 +407,11 @@ def write_product(res: DiscoveryResult, summ: dict[str, Any], out: Path) -> str 
 
     Returns None when both were written, else why ``compensation.csv`` was not (a stale one is removed, so
     that the folder never pairs a new model with an old file)."""
+    from robocal.calibration.load import load_calibration
     from robocal.compensation import write_compensation_csv
     from robocal.compensation.correct import correct
     from robocal.compensation.effects import Signals
     from robocal.discovery.effects import extended_calibration
-    from robocal.identification.calibrate import load_calibration
     from robocal.kinematics.chain import fk
 
     fit_stats = {k: summ[k] for k in ("rms_before_mm", "rms_after_mm", "noise_floor_mm", "chi2", "dof", "outliers")}
@@ -517,8 +517,8 @@ def run(
     not_written = {"compensation.csv": why_not} if why_not else {}
     judged: dict[str, Any] = {}
     if sessions:
+        from robocal.calibration.load import load_calibration
         from robocal.discovery.sessions import session_validation
-        from robocal.identification.calibrate import load_calibration
         from robocal.io import display_path
 
         cal = load_calibration(json.loads((out / "calibration.json").read_text()), rob)

@@ -10,12 +10,15 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from robocal.calibration.config import CalibrationConfig
+from robocal.calibration.fit import calibrate, fit_with_optimizer
+from robocal.calibration.result import CalibrationResult
+from robocal.calibration.solve import is_gradient
+from robocal.calibration.validation import Validation, validate
 from robocal.data.contract import Campaign
 from robocal.identification.acceptance import judge
-from robocal.identification.calibrate import CalibrationConfig, CalibrationResult, Validation, validate
 from robocal.io import atomic_write, write_json
 from robocal.metrics import ErrorStats
-from robocal.optimizers.geometric import calibrate, fit_with_optimizer, is_gradient
 from robocal.robot import RobotDescription
 from robocal.status import CampaignStatus
 from robocal.workflows import campaign_of, robot_of
@@ -121,7 +124,7 @@ def run(
     fitted on top (:func:`robocal.identification.axes.fit_axis_errors`): ``summary.json`` → ``axes``.
 
     ``optimizer``: an optimizer config (``conf/optimizer/*.yaml``), run by
-    :func:`robocal.optimizers.geometric.fit_with_optimizer` (None: Levenberg-Marquardt with ``settings``'
+    :func:`robocal.calibration.fit.fit_with_optimizer` (None: Levenberg-Marquardt with ``settings``'
     stopping rules); for the non-gradient ones (``ipopt``, ``igoa``, ``goa``, ``woa``) the summary gets an
     ``optimizer`` section with the raw and (with ``polish``) the polished result."""
     rob = robot_of(robot)

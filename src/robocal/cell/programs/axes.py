@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from robocal.calibration.result import CalibrationResult
 from robocal.cell.programs.common import ProgramError, apply_edits, format_number
 from robocal.cell.programs.krl import read_krl
 from robocal.cell.programs.krl import render as render_krl
@@ -31,7 +32,6 @@ from robocal.cell.programs.rapid import read_rapid
 from robocal.cell.programs.rapid import render as render_rapid
 from robocal.compensation.axes import compensate_axes
 from robocal.errors import ConfigError
-from robocal.identification.calibrate import CalibrationResult
 
 
 @dataclass(frozen=True)

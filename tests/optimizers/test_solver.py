@@ -7,10 +7,11 @@ import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
+from robocal.calibration.config import CalibrationConfig
+from robocal.calibration.fit import calibrate
+from robocal.calibration.start import fit_data
 from robocal.data import read_campaign
-from robocal.identification.calibrate import CalibrationConfig, fit_data
-from robocal.identification.solver import levenberg_marquardt
-from robocal.optimizers.geometric import calibrate
+from robocal.optimizers.solver import levenberg_marquardt
 from robocal.sim.twin import load_scenario, simulate
 
 

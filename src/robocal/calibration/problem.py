@@ -19,7 +19,7 @@ scale (used by Ipopt): ``1 / |J_k|``, the change of each parameter that moves th
 
 :func:`least_squares_problem` is the calibration's own least squares as a Problem (what the gradient optimizers
 ``lm`` and ``gn`` solve in every geometric fit): the whitened residuals of every row (positions and, with
-orientation data, rotations) over the free parameters of a :class:`~robocal.identification.calibrate.
+orientation data, rotations) over the free parameters of a :class:`~robocal.calibration.
 CalibrationStart`, the rows left out as gross errors weighted zero, unbounded.
 """
 
@@ -31,12 +31,14 @@ from typing import Any
 
 import numpy as np
 
+from robocal.calibration.start import CalibrationStart
 from robocal.errors import ConfigError
-from robocal.identification.calibrate import CalibrationStart
+from robocal.identification.identifiability import ParameterSpec
 from robocal.identification.model import CalibrationModel, FitData
 from robocal.kinematics.chain import FIXED, Chain, step
 from robocal.metrics import ErrorStats
 from robocal.optimizers.fastfk import PopulationPositions
+from robocal.optimizers.least_squares import Whitened
 from robocal.optimizers.protocol import Problem, check_real
 
 __all__ = [
@@ -236,9 +238,9 @@ def search_bounds(
     """Lower, upper bounds and scale (half-widths) of the free parameters around ``x_init``."""
     bound_mm = check_real(bound_mm, "bound_mm", "the optimizer config", 0.0, low_open=True)
     bound_deg = check_real(bound_deg, "bound_deg", "the optimizer config", 0.0, low_open=True)
-    half = np.array([bound_mm if model.units[i] == "mm" else np.deg2rad(bound_deg) for i in free])
-    z0 = x_init[free]
-    return z0 - half, z0 + half, half
+    box = ParameterSpec.of(model).around(x_init, bound_mm, float(np.deg2rad(bound_deg)))
+    assert box.lower is not None and box.upper is not None and box.scale is not None
+    return box.lower[free], box.upper[free], box.scale[free]
 
 
 def calibration_problem(
@@ -340,58 +342,38 @@ def calibration_problem(
 # --------------------------------------------------------------------------------------------------------
 
 
-class WhitenedResiduals:
+class WhitenedResiduals(Whitened):
     """The whitened residuals ``w r(x)`` and Jacobian ``w J(x)`` of a started calibration on its free parameters
     ``z`` (the others held at ``x_from``), ``w`` the noise weights with the rows left out weighted zero; with a
     prior (a thin campaign, :mod:`robocal.identification.thin`) its rows ``w_p (z - z_init)`` follow the data's.
-
-    The model gives residuals and Jacobian in one evaluation; the protocol asks for them one at a time: the last
-    point's pair is kept, so that a gradient step costs one model evaluation (at ``x_init`` none: the start's).
+    The last point's pair is kept (:class:`~robocal.optimizers.least_squares.Whitened`; at ``x_init`` no model
+    evaluation: the start's).
     """
 
     def __init__(self, start: CalibrationStart, x_from: np.ndarray, kept: np.ndarray) -> None:
-        self.fun = start.fun
-        self.free = start.free
-        self.x_from = np.array(x_from, dtype=float)
-        self.weights = start.weights if kept.all() else start.weights * kept[start.rows]
-        self._key: bytes | None = None  # the bytes of the last point (cheaper to compare than np.array_equal)
-        self._pair: tuple[np.ndarray, np.ndarray] = (np.empty(0), np.empty((0, 0)))
+        weights = start.weights if kept.all() else start.weights * kept[start.rows]
+        super().__init__(start.fun, x_from, start.free, weights)
         # a thin campaign's prior (robocal.identification.thin.Prior): rows w (z - z_init) after the data's
         prior = start.prior
         self.prior_w = None if prior is None else np.asarray(prior.rows(start.free), dtype=float)
         self.z_center = np.asarray(start.x_init, dtype=float)[start.free]
 
     @property
+    def x_from(self) -> np.ndarray:
+        """Where the fit starts (the entries not fitted stay there)."""
+        return self.x0
+
+    @property
     def n_prior(self) -> int:
         """The prior's rows at the end of the residuals (0 without a prior)."""
         return 0 if self.prior_w is None else int(self.prior_w.size)
 
-    def full(self, z: np.ndarray) -> np.ndarray:
-        """The full parameter vector with the free entries ``z``."""
-        x = self.x_from.copy()
-        x[self.free] = z
-        return x
-
-    def _at(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        key = np.ascontiguousarray(z, dtype=float).tobytes()
-        if key != self._key:
-            r, J = self.fun(self.full(z))
-            w = self.weights
-            self._pair = (w * r, w[:, None] * J[:, self.free])
-            if self.prior_w is not None:
-                pw = self.prior_w
-                self._pair = (
-                    np.concatenate([self._pair[0], pw * (np.asarray(z, dtype=float) - self.z_center)]),
-                    np.vstack([self._pair[1], np.diag(pw)]),
-                )
-            self._key = key
-        return self._pair
-
-    def residuals(self, z: np.ndarray) -> np.ndarray:
-        return self._at(z)[0]
-
-    def jacobian(self, z: np.ndarray) -> np.ndarray:
-        return self._at(z)[1]
+    def evaluate(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        r, J = super().evaluate(z)
+        if self.prior_w is None:
+            return r, J
+        pw = self.prior_w
+        return np.concatenate([r, pw * (np.asarray(z, dtype=float) - self.z_center)]), np.vstack([J, np.diag(pw)])
 
 
 def least_squares_problem(

@@ -1,0 +1,39 @@
+"""One calibration package (issue 32): the geometric fit's steps live in ``robocal/calibration/``, a module for
+each role and none over 600 lines; ``robocal.calibrate`` is its ``fit.calibrate``; the old module paths define
+nothing (they only hand names on to the branches that still import them)."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import robocal
+
+SRC = Path(__file__).resolve().parents[2] / "src" / "robocal"
+ROLES = {"config", "start", "problem", "solve", "screening", "result", "record", "load", "validation", "fit"}
+OLD_PATHS = ("identification/calibrate.py", "optimizers/geometric.py")
+
+
+def test_a_module_for_each_role_none_over_600_lines() -> None:
+    modules = {p.stem: p for p in (SRC / "calibration").glob("*.py") if p.stem != "__init__"}
+    assert set(modules) == ROLES
+    long = {name: n for name, p in modules.items() if (n := len(p.read_text(encoding="utf-8").splitlines())) > 600}
+    assert not long, long
+
+
+def test_the_public_names_come_from_the_package() -> None:
+    from robocal.calibration import config, fit, load, result, validation
+
+    assert robocal.calibrate is fit.calibrate
+    assert robocal.CalibrationConfig is config.CalibrationConfig
+    assert robocal.CalibrationResult is result.CalibrationResult
+    assert robocal.load_calibration is load.load_calibration
+    assert robocal.validate is validation.validate
+
+
+def test_the_old_paths_define_nothing() -> None:
+    for rel in OLD_PATHS:
+        tree = ast.parse((SRC / rel).read_text(encoding="utf-8"))
+        defs = [n.name for n in tree.body if isinstance(n, ast.FunctionDef | ast.ClassDef)]
+        assert not defs, f"{rel} defines {defs}: it only re-exports robocal.calibration's names"
+    assert not (SRC / "optimizers" / "calibration.py").exists()
