@@ -54,9 +54,7 @@ LAYERS: list[set[str]] = [
 
 #: (importer package, imported package) -> why it is allowed for now. Each one is known and to be removed.
 EXCEPTIONS: dict[tuple[str, str], str] = {
-    ("identification", "calibration"): "identification/calibrate.py hands the old path on to discovery and serve "
-    "(branches in flight when the package was made); identification/axes.py fits on top of a CalibrationResult",
-    ("optimizers", "calibration"): "optimizers/geometric.py hands robocal.calibrate on to discovery/search.py",
+    ("identification", "calibration"): "identification/axes.py fits an axis's errors on top of a CalibrationResult",
 }
 
 

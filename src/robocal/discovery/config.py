@@ -12,8 +12,8 @@ from typing import Any
 
 import yaml
 
+from robocal.calibration.config import data_rows, outlier_rule
 from robocal.config import parse, setting
-from robocal.identification.calibrate import data_rows, outlier_rule
 
 #: Every effect the library knows, in the order candidates are built.
 EFFECT_NAMES = (

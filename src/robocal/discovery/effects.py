@@ -16,8 +16,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from robocal.calibration.config import CalibrationConfig
+from robocal.calibration.record import calibration_record
+from robocal.calibration.result import CalibrationResult
 from robocal.discovery.model import Accepted, Fit
-from robocal.identification.calibrate import CalibrationConfig, CalibrationResult, calibration_record
 from robocal.identification.identifiability import Eliminated, Identifiability
 from robocal.robot import RobotDescription
 
@@ -145,7 +147,7 @@ def effect_records(fit: Fit) -> tuple[list[dict[str, Any]], list[dict[str, Any]]
 
 def extended_calibration(fit: Fit, robot: RobotDescription, summary_fit: dict[str, Any]) -> dict[str, Any]:
     """The discovered model written as a calibration (the geometric format of
-    :func:`~robocal.identification.calibrate.calibration_record`, so every reader of ``calibration.json`` takes
+    :func:`~robocal.calibration.record.calibration_record`, so every reader of ``calibration.json`` takes
     it) with its joint-level effects under ``effects`` and the rest under ``effects_not_compensated``."""
     model = fit.model
     base = model.base

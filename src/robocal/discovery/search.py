@@ -21,6 +21,10 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
+from robocal.calibration.config import CalibrationConfig
+from robocal.calibration.fit import calibrate
+from robocal.calibration.screening import describe_outliers
+from robocal.calibration.start import fit_data, present_stations, present_targets
 from robocal.data.contract import Campaign
 from robocal.discovery import progress
 from robocal.discovery.candidates import Candidate, SkippedCandidate, build_library, periodic_window
@@ -32,11 +36,9 @@ from robocal.discovery.scoring import Score, Step, regressor
 from robocal.discovery.session_cv import Sessions
 from robocal.discovery.systematic import misfit_candidates
 from robocal.errors import ConfigError
-from robocal.identification.calibrate import CalibrationConfig, fit_data, present_targets
 from robocal.identification.identifiability import resolve_fixed
 from robocal.identification.model import FitData
 from robocal.numerics import sorted_tied
-from robocal.optimizers.geometric import calibrate
 from robocal.robot import RobotDescription
 
 
@@ -178,7 +180,6 @@ def discover(campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig |
     "unexplained" is judged against it.
     """
     from robocal.identification import misfit, robust
-    from robocal.identification.calibrate import describe_outliers, present_stations
 
     cfg = cfg or DiscoveryConfig()
     t0 = time.perf_counter()

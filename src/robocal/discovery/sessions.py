@@ -14,12 +14,12 @@ from typing import Any
 
 import numpy as np
 
+from robocal.calibration.result import CalibrationResult
 from robocal.compensation.discovered import joint_offsets
 from robocal.compensation.signals import coverage_weight
 from robocal.data.contract import Campaign
 from robocal.discovery.physics import visited_intervals
 from robocal.errors import DataError
-from robocal.identification.calibrate import CalibrationResult
 from robocal.kinematics.chain import fk
 from robocal.kinematics.transforms import kabsch
 from robocal.metrics import ErrorStats

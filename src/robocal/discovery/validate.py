@@ -8,9 +8,9 @@ from typing import Any
 
 import numpy as np
 
+from robocal.calibration.validation import Validation, validate_rows
 from robocal.discovery.model import Fit, tracker_columns
 from robocal.discovery.search import DiscoveryResult
-from robocal.identification.calibrate import Validation, validate_rows
 from robocal.identification.model import FitData
 from robocal.kinematics.chain import fk
 from robocal.metrics import ErrorStats
@@ -124,7 +124,7 @@ def validation_errors(res: DiscoveryResult) -> dict[str, Any] | None:
     rows, same noise, same gross errors), so the two commands can be read one against the other. ``final`` is
     the model the service applies: the discovered one with the residual layer on top when the cross-validated
     selection accepted it (``final["layer"]``: ``"accepted"`` or ``"none"``)."""
-    from robocal.identification.calibrate import validate
+    from robocal.calibration.validation import validate
 
     camp = res.campaign
     if not np.any(camp.split == "validation"):

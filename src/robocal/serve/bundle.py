@@ -7,7 +7,7 @@ Layout::
                            "calibration": "calibration.json", "thermal": "thermal.json" | null,
                            "compliance": "compliance.json" | null, "created": ISO time,
                            "sha256": {file name: hex digest, ...}}
-      calibration.json    geometric calibration (robocal.identification.calibrate.CalibrationResult.to_dict);
+      calibration.json    geometric calibration (robocal.calibration.result.CalibrationResult.to_dict);
                           a calibration written by ``robocal discover`` also carries its joint-level effects
                           (gear, backlash, compliance), applied like the compliance model's deflection
       thermal.json        optional: robocal.thermal.model.ThermalModel
@@ -39,9 +39,11 @@ from typing import Any
 
 import numpy as np
 
+from robocal.calibration.load import load_calibration
+from robocal.calibration.record import check_robot
+from robocal.calibration.result import CalibrationResult
 from robocal.errors import ConfigError
 from robocal.identification.acceptance import too_few_configurations
-from robocal.identification.calibrate import CalibrationResult, check_robot, load_calibration
 from robocal.io import write_json
 from robocal.kinematics.chain import Chain
 from robocal.robot import SHIPPED_ROBOT_DIR, RobotDescription, find_robot, is_robot_path, load_robot
