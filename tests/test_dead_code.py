@@ -38,7 +38,6 @@ ALLOWED: dict[tuple[str, str], str] = {
             ("sim/axes.py", "LinearAxisEffect"),
         )
     },
-    ("compensation/axes.py", "residual_deg"): "a field of the result for the caller: the orientation error left",
     **{
         ("fleet/twin.py", f): "a fleet twin setting (conf/fleet/default.yaml), read through the settings parser"
         for f in (

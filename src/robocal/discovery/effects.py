@@ -54,9 +54,9 @@ def signal_kind(acc: Accepted) -> str | None:
 
 #: why an effect of these families is not compensated (the families not listed: effect_records says)
 _NOT_COMPENSATED = {
-    "axis": "an external axis's own error along its travel (robocal.discovery.axes): the service (robocal serve) "
-    "and its bundle take revolute chains only; compensated in the discovery's compensation.csv and by "
-    "robocal.compensation.axes / robocal.cell.programs.axes",
+    "axis": "an external axis's own error along its travel (robocal.discovery.axes): not a joint-level effect; "
+    "written under the calibration's 'axes' and compensated there (robocal.compensation.axes: the service, "
+    "the program filter, the discovery's compensation.csv)",
 }
 
 

@@ -480,3 +480,46 @@ def _validation(campaign: Campaign, base: CalibrationResult, prob: _Problem, x: 
         "rms_position_mm": float(np.sqrt(np.mean(e1**2))),
         "max_position_mm": float(e1.max()),
     }
+
+
+def calibration_axes(fit: AxisFit) -> dict[str, Any]:
+    """The axis errors as ``calibration.json`` carries them (key ``axes``): :meth:`AxisFit.record` and the
+    calibration vector ``x`` fitted with them, for the service's bundle (:func:`axis_fit_of`)."""
+    return {**fit.record(), "x": [float(v) for v in fit.x]}
+
+
+#: the factor from a term's unit in a record (:meth:`AxisFit.record`) to the fit's own (mm, rad, rad per kN·m)
+RECORD_UNITS = {"mm": 1.0, "urad": 1e-6, "urad/kNm": 1e-6}
+
+
+def axis_fit_of(robot: Any, record: Mapping[str, Any], x: np.ndarray, where: str = "axes") -> AxisFit:
+    """The :class:`AxisFit` of a record (:func:`calibration_axes`; its ``x`` when it has one, else ``x``), for
+    compensation (standard errors kept, no cross-validation). Raises :class:`ConfigError` naming ``where`` and
+    the term for a term ``robot`` has not or a unit the record cannot carry."""
+    terms, coef, se = [], [], []
+    for k, t in enumerate(record.get("terms") or []):
+        name = str(t.get("name"))
+        try:
+            terms.append(term_named(robot, name))
+        except ConfigError as exc:
+            raise ConfigError(f"{where}.terms[{k}]: {exc}") from None
+        unit = str(t.get("unit"))
+        if unit not in RECORD_UNITS:
+            raise ConfigError(f"{where}.terms[{k}] ({name}): unit {unit!r}; known {sorted(RECORD_UNITS)}")
+        coef.append(float(t["value"]) * RECORD_UNITS[unit])
+        se.append(float(t.get("stderr") or 0.0) * RECORD_UNITS[unit])
+    xv = np.asarray(record.get("x", x), dtype=float)
+    if xv.shape != np.shape(x):
+        raise ConfigError(f"{where}.x has {xv.size} values; the calibration has {np.size(x)}")
+    return AxisFit(
+        terms=tuple(terms),
+        coef=np.array(coef),
+        stderr=np.array(se),
+        covariance=np.diag(np.square(se)),
+        x=xv,
+        order=int(record.get("order", 0)),
+        bending=bool(record.get("bending", False)),
+        cv=(),
+        poorly_determined=tuple(record.get("poorly_determined") or ()),
+        not_identifiable=tuple(record.get("not_identifiable") or ()),
+    )

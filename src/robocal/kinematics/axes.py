@@ -123,3 +123,31 @@ def carried_moment(
     pl = np.broadcast_to(np.asarray(payload_kg, dtype=float), (m,))
     M += np.cross((com - o) * MM, pl[:, None] * g)
     return np.einsum("mji,mj->mi", R, M)  # R^T M: the carriage frame
+
+
+def arm_chain(chain: Chain, external: Sequence[int], values: Sequence[float] | np.ndarray) -> Chain:
+    """The chain of the arm alone with the external axes ``external`` (0-based joints, prismatic or not) held at
+    ``values`` (mm / rad): each of their elements becomes a constant element (its nominal value plus the axis'
+    value, its parameter kept), and the other joints are renumbered ``0 .. n - k - 1`` in chain order. Folded
+    (:func:`robocal.kinematics.chain.fold`), it is a revolute chain the compiled solver takes (the nominal inverse
+    kinematics of a Cartesian target at its stated external axes, the configuration of a corrected pose)."""
+    ext = [int(j) for j in external]
+    if len(ext) != len(values):
+        raise ValueError(f"{len(ext)} external axes but {len(values)} values")
+    joint = np.asarray(chain.joint)
+    nominal = np.array(chain.nominal, dtype=float)
+    renumber = np.full(chain.n_joints, -1)
+    arm = [j for j in range(chain.n_joints) if j not in ext]
+    renumber[arm] = np.arange(len(arm))
+    new_joint = np.where(joint >= 0, renumber[np.maximum(joint, 0)], -1)
+    for j, v in zip(ext, values, strict=True):
+        nominal[joint == j] += float(v)
+    return Chain(
+        kinds=chain.kinds,
+        nominal=nominal,
+        joint=new_joint.astype(int),
+        param=np.asarray(chain.param),
+        fixed=chain.fixed,
+        param_names=chain.param_names,
+        n_joints=len(arm),
+    )

@@ -118,7 +118,8 @@ def run(
     """Calibrate the campaign in ``data_dir`` (``settings``: a :class:`CalibrationConfig` mapping); write
     ``calibration.json``, ``summary.json``, ``residuals.csv`` and (optionally) ``report.html`` into ``out_dir``.
     Returns the summary. A robot on external axes (a prismatic joint) also gets its axes' errors along the travel
-    fitted on top (:func:`robocal.identification.axes.fit_axis_errors`): ``summary.json`` → ``axes``.
+    fitted on top (:func:`robocal.identification.axes.fit_axis_errors`): ``summary.json`` → ``axes``, and
+    ``calibration.json`` → ``axes`` (with the calibration vector refitted with them) for the service.
 
     ``optimizer``: an optimizer config (``conf/optimizer/*.yaml``), run by
     :func:`robocal.optimizers.geometric.fit_with_optimizer` (None: Levenberg-Marquardt with ``settings``'
@@ -150,14 +151,17 @@ def run(
     warnings = result_warnings(summary)
     if warnings:  # the key only when there are some (a clean run's summary.json is unchanged)
         summary["warnings"] = warnings
+    cal_record = result.to_dict()
     if rob.has_prismatic and not summary["problems"]:  # a track's or a column's own errors (issue 34)
-        from robocal.identification.axes import fit_axis_errors
+        from robocal.identification.axes import calibration_axes, fit_axis_errors
 
-        summary["axes"] = fit_axis_errors(camp, result).record()
+        axis_fit = fit_axis_errors(camp, result)
+        summary["axes"] = axis_fit.record()
+        cal_record["axes"] = calibration_axes(axis_fit)  # served with the calibration (robocal.serve.bundle)
     summary["status"] = status_of(summary)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    write_json(out / "calibration.json", result.to_dict())
+    write_json(out / "calibration.json", cal_record)
     cal = camp.calibration() if val else camp
     rows = pd.DataFrame(
         {
