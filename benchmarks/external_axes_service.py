@@ -93,9 +93,12 @@ def one(name: str, seed: int, n_targets: int, tmp: Path) -> None:
                 [[*r["ext_mm"], *np.deg2rad(r["q_deg"])] for r in reply["results"] if r["status"] != "refused"]
             )
             after = np.linalg.norm(true_points(robot, truth, qc, pl[ok]) - p_des[ok], axis=1)
-            line = (f"{name} seed {seed} {kind:5s} move_external={move!s:5s}: served {ok.sum()}/{len(ok)}, twin error "
-                    f"before {before[ok].mean():.3f} / {before[ok].max():.3f} mm, after {after.mean():.4f} / "
-                    f"{after.max():.4f} mm, largest axis move {np.abs(qc[:, 0] - q_t[ok, 0]).max():.3f} mm")  # fmt: skip
+            b, move_mm = before[ok], np.abs(qc[:, 0] - q_t[ok, 0]).max()
+            line = (
+                f"{name} seed {seed} {kind:5s} move_external={move!s:5s}: served {ok.sum()}/{len(ok)}, twin error "
+                f"before {b.mean():.3f} / {b.max():.3f} mm, after {after.mean():.4f} / {after.max():.4f} mm, "
+                f"largest axis move {move_mm:.3f} mm"
+            )
             if kind == "joint":
                 by_joint[move] = reply
             else:
