@@ -36,6 +36,7 @@ ALLOWED: dict[tuple[str, str], str] = {
             ("sim/stand.py", "LoggedChannelsEffect"),
             ("fleet/twin.py", "FleetState"),
             ("sim/axes.py", "LinearAxisEffect"),
+            ("sim/positioner.py", "PositionerEffect"),
         )
     },
     **{

@@ -57,6 +57,9 @@ class Rows:
     base_rotvec: np.ndarray | None = None  # (m, 3) rad: the robot base turned about its origin, base axes (stand)
     # joint (0-based) -> (m, 6): a linear axis's true carriage errors (robocal.kinematics.axes.COMPONENTS)
     axis_error: dict[int, np.ndarray] | None = None
+    # (m, 3) tracker frame: the true point of a row that measures something else than the robot's tool (a
+    # reflector on a positioner's part, robocal.sim.positioner), NaN for the tool's rows
+    fixed_points: np.ndarray | None = None
 
 
 @dataclass
@@ -90,6 +93,7 @@ EFFECT_MODULES = (
     "robocal.sim.drift",
     "robocal.sim.stand",
     "robocal.sim.axes",
+    "robocal.sim.positioner",
 )
 
 
@@ -440,6 +444,9 @@ def simulate(
     rows = _apply_effects(cfg, rows, ctx)
 
     p, R = _true_points(cfg, chain, rows, eta, tool_R)
+    if rows.fixed_points is not None:  # rows measuring a reflector on the part (a positioner), not the tool
+        on_part = ~np.isnan(rows.fixed_points[:, 0])
+        p[on_part] = rows.fixed_points[on_part]
     station_of = _stations(cfg, truth, rows, p, R)
     if rows.tracker_scale is not None:  # about the tracker head: the point in its station's frame
         p = p * (1.0 + rows.tracker_scale)[:, None]
