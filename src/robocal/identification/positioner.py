@@ -2,7 +2,7 @@
 
 A positioner (``positioner:`` in the robot description, :class:`robocal.robot.Positioner`) carries the part; the
 rows of the reflectors on the part (its ``targets``) measure ``tracker_T_base · P(q_pos) · w``
-(:mod:`robocal.kinematics.positioner`: each axis line's four errors, a carrying axis' zero offset; ``w`` the
+(:mod:`robocal.kinematics.positioner`: each axis line's four errors; ``w`` the
 reflector on the part), at the angles of the campaign's ``pos<j>_deg`` columns; the other rows measure the tool
 as for any arm. :func:`fit_positioner` starts from the arm's calibration on its own rows (what ``robocal
 calibrate`` fits) and refits, jointly, the arm's identified parameters (the tracker frame is shared), the
@@ -235,7 +235,7 @@ def _lines(model: Any, pos: Any, x: np.ndarray, theta: np.ndarray) -> np.ndarray
 def _axis_frame(pos: Any, theta: np.ndarray, j: int) -> np.ndarray:
     """The frame of axis ``j`` in the robot base frame at positioner angles 0 (errors ``theta``)."""
     sub = type(pos)(pos.names[: j + 1], pos.w[: j + 1], pos.p_mm[: j + 1], pos.q_limits[: j + 1], pos.targets)
-    return part_frames(sub, np.zeros((1, j + 1)), theta[: 5 * j + 4])[0]
+    return part_frames(sub, np.zeros((1, j + 1)), theta[: 4 * (j + 1)])[0]
 
 
 def line_distance(fit: PositionerFit, j: int, w_true: np.ndarray, p_true: np.ndarray) -> tuple[np.ndarray, float]:
@@ -329,7 +329,7 @@ def _axes(pos: Any, theta: np.ndarray, se: np.ndarray) -> list[dict[str, Any]]:
             "tilt_stderr_deg": float(np.rad2deg(np.hypot(se[k + 2], se[k + 3]))),
             "shift_stderr_mm": float(np.hypot(se[k], se[k + 1])),
         })  # fmt: skip
-        k += 4 + (1 if j < pos.n_axes - 1 else 0)
+        k += 4
     return out
 
 

@@ -4,13 +4,14 @@ The description (:class:`robocal.robot.Positioner`) gives each axis ``j`` (base 
 point ``p_j`` in the robot base frame at positioner angles 0. Each axis gets a nominal frame ``F_j`` (origin
 ``p_j``, z along ``w_j``, :func:`axis_frames`); the part carried by the last axis is
 
-    ``P(q) = F_1 E_1 Rot_z(q_1 + theta_1) F_1^-1 F_2 E_2 Rot_z(q_2) ...``
+    ``P(q) = F_1 E_1 Rot_z(q_1) F_1^-1 F_2 E_2 Rot_z(q_2) ...``
 
 in the robot base frame, a reflector on the part at ``P(q) w`` (``w`` its coordinates in the last axis' nominal
 frame at angle 0). The error of axis ``j``, ``E_j = Trans_x(tx) Trans_y(ty) Rot_x(rx) Rot_y(ry)``, moves the axis
 line across itself (``tx``, ``ty``, mm) and tilts it (``rx``, ``ry``, rad): the four errors of a line. A shift
-along the axis and a turn about it are the part points' (not identifiable apart from them); the zero offset
-``theta_j`` is a parameter only for an axis that carries another (its turn moves the next axis).
+along the axis and a turn about it are the part points' (not identifiable apart from them). No zero offset either:
+the last axis' is a turn of the part (its points'), and a carrying axis' turns the axes it carries, which is a
+move of their lines (their own four errors) and a turn of the part.
 """
 
 from __future__ import annotations
@@ -38,14 +39,8 @@ def axis_frames(pos: Positioner) -> np.ndarray:
 
 
 def parameter_names(pos: Positioner) -> tuple[str, ...]:
-    """The positioner's parameters: ``<axis>_tx``, ``_ty`` (mm), ``_rx``, ``_ry`` (rad) per axis, and
-    ``<axis>_theta`` (rad) for every axis that carries another."""
-    out: list[str] = []
-    for j, name in enumerate(pos.names):
-        out += [f"{name}_{e}" for e in LINE_ERRORS]
-        if j < pos.n_axes - 1:
-            out.append(f"{name}_theta")
-    return tuple(out)
+    """The positioner's parameters: ``<axis>_tx``, ``_ty`` (mm), ``_rx``, ``_ry`` (rad) per axis."""
+    return tuple(f"{name}_{e}" for name in pos.names for e in LINE_ERRORS)
 
 
 def _rot(axis: int, a: np.ndarray) -> np.ndarray:
@@ -69,19 +64,13 @@ def part_frames(pos: Positioner, q: np.ndarray, params: np.ndarray) -> np.ndarra
     F = axis_frames(pos)
     T = np.tile(np.eye(4), (m, 1, 1))
     prev = np.eye(4)
-    k = 0
     for j in range(pos.n_axes):
-        tx, ty, rx, ry = params[k : k + 4]
-        k += 4
-        theta = 0.0
-        if j < pos.n_axes - 1:
-            theta = float(params[k])
-            k += 1
+        tx, ty, rx, ry = params[4 * j : 4 * j + 4]
         E = np.eye(4)
         E[:3, :3] = _rot(0, np.array([rx]))[0] @ _rot(1, np.array([ry]))[0]
         E[:3, 3] = [tx, ty, 0.0]
         Z = np.tile(np.eye(4), (m, 1, 1))
-        Z[:, :3, :3] = _rot(2, q[:, j] + theta)
+        Z[:, :3, :3] = _rot(2, q[:, j])
         T = T @ (np.linalg.inv(prev) @ F[j] @ E) @ Z
         prev = F[j]
     return T
