@@ -4,6 +4,7 @@ twin's track and column scenarios and checked against the truth."""
 
 from __future__ import annotations
 
+import json
 from dataclasses import replace
 
 import numpy as np
@@ -178,3 +179,12 @@ def test_robocal_calibrate_on_a_track_reports_the_axis_errors(track, tmp_path):
     assert ax["order"] == 3 and ax["validation"]["mean_position_mm"] < 1.15 * FLOOR_MEAN_MM
     assert {t["name"] for t in ax["terms"]} >= {"track:straightness_y_P2", "track:pitch_P1"}
     assert '"axes"' in (tmp_path / "cal" / "summary.json").read_text()
+    # and into calibration.json, with the calibration vector refitted with them: what the service's bundle serves
+    from robocal.identification.axes import axis_fit_of
+    from robocal.identification.calibrate import load_calibration
+
+    data = json.loads((tmp_path / "cal" / "calibration.json").read_text())
+    served = axis_fit_of(robot, data["axes"], load_calibration(data, robot).x)
+    assert [t.name for t in served.terms] == [t["name"] for t in ax["terms"]]
+    assert np.allclose(served.coef[[t.unit == "mm" for t in served.terms]],
+                       [t["value"] for t in ax["terms"] if t["unit"] == "mm"])  # fmt: skip
