@@ -151,3 +151,36 @@ def arm_chain(chain: Chain, external: Sequence[int], values: Sequence[float] | n
         param_names=chain.param_names,
         n_joints=len(arm),
     )
+
+
+#: the bodies' first moments are per this length (m) in :func:`moment_features`: a body's centre of mass 0.1 m off
+#: its frame's origin has a first-moment coefficient of its mass
+FIRST_MOMENT_M = 0.1
+
+
+def moment_features(robot: RobotDescription, q: np.ndarray, joint: int) -> tuple[np.ndarray, list[str]]:
+    """The moment (kN·m, carriage frame; (m, 3, F)) of the arm's weight about the carriage of ``joint`` per unit of
+    each unknown mass parameter, when the description has no masses: per body ``i`` after the carriage, 1 kg at its
+    frame's origin (``b<i>_m``) and a first moment of 1 kg x :data:`FIRST_MOMENT_M` along its frame's x, y, z
+    (``b<i>_x`` ...). Any mass distribution's moment (the bodies' masses and centres of mass, :func:`carried_moment`)
+    is their sum weighted by the masses and first moments (the carriage's own weight turns with it: a constant,
+    the axis's kinematic offset). Gravity along the description's ``gravity_mps2`` (default -z)."""
+    q = np.asarray(q, dtype=float)
+    m = q.shape[0]
+    chain = build_chain(robot)
+    e_joint = int(np.flatnonzero(chain.joint == joint)[0])
+    carriage = propagate(_prefix(chain, e_joint + 1), q)
+    o = np.broadcast_to(carriage.o, (m, 3))
+    R = np.stack([np.broadcast_to(a, (m, 3)) for a in (carriage.x, carriage.y, carriage.z)], axis=-1)
+    g = np.asarray(robot.gravity, dtype=float)
+    bounds = body_frame_boundaries(chain, robot.is_mdh)
+    cols, names = [], []
+    for i in range(joint + 1, robot.n_joints):
+        st = propagate(_prefix(chain, bounds[i]), q)
+        cols.append(np.cross((np.broadcast_to(st.o, (m, 3)) - o) * MM, g))
+        names.append(f"b{i + 1}_m")
+        for axis, a in zip("xyz", (st.x, st.y, st.z), strict=True):
+            cols.append(np.cross(np.broadcast_to(a, (m, 3)) * FIRST_MOMENT_M, g))
+            names.append(f"b{i + 1}_{axis}")
+    M = np.stack(cols, axis=-1)  # (m, 3, F) base frame, N·m per unit
+    return np.einsum("mji,mjf->mif", R, M) / 1000.0, names
