@@ -78,18 +78,3 @@ def test_the_corrected_joints_as_e6axis_and_jointtarget():
     assert rapid_jointtarget(robot, q) == [
         "[[10.000000,-90.000000,90.000000,0.000000,45.000000,-30.000000],[1234.500000,9E+09,9E+09,9E+09,9E+09,9E+09]]"
     ]
-
-
-def test_the_service_refuses_a_robot_on_external_axes_by_name(track, tmp_path):
-    import json
-
-    from robocal.errors import ConfigError
-    from robocal.serve.bundle import write_bundle
-
-    _, _, res, _ = track
-    cal = tmp_path / "calibration.json"
-    cal.write_text(json.dumps(res.to_dict()))
-    why = r"robot 'kr16_2_track' rides external axes \(prismatic joint\(s\) \['E1'\]\)"
-    with pytest.raises(ConfigError, match=why):
-        write_bundle(tmp_path / "bundle", "kr16_2_track", cal)
-    assert not (tmp_path / "bundle").exists()  # nothing written

@@ -37,9 +37,9 @@ ALLOWED: dict[tuple[str, str], str] = {
             ("fleet/twin.py", "FleetState"),
             ("sim/axes.py", "LinearAxisEffect"),
             ("sim/session.py", "SecondSessionEffect"),
+            ("sim/positioner.py", "PositionerEffect"),
         )
     },
-    ("compensation/axes.py", "residual_deg"): "a field of the result for the caller: the orientation error left",
     **{
         ("fleet/twin.py", f): "a fleet twin setting (conf/fleet/default.yaml), read through the settings parser"
         for f in (

@@ -32,6 +32,10 @@ YAML format (keys not listed are kept in ``extra`` and ignored)::
     T0_C: 24.3                          # reference temperature of the nominal model
     signals:                            # optional: logged signals (extra numeric columns of poses.csv)
       incl_x: {unit: mrad, location: base, description: "inclinometer on the stand"}   # robocal.logged_signals
+    positioner:                         # optional: axes that carry the part (a turntable), not the tool
+      axes:                             # base -> part, revolute; direction w and a point p_mm on the axis in the
+        - {name: P1, w: [0, 0, 1], p_mm: [1800, 0, 300], q_min_deg: -185, q_max_deg: 185}   # robot base frame
+      targets: [W1, W2]                 # the reflectors on the part: their rows measure the part (column pos<j>_deg)
     dynamics:                           # optional, for gravity torques
       source: "how the masses were obtained"
       gravity_mps2: [0, 0, -9.81]       # in the base frame
@@ -152,6 +156,7 @@ class RobotDescription:
     joint_types: tuple[str, ...] = ()
     coupling: np.ndarray | None = None
     joint_roles: tuple[str, ...] = ()
+    positioner: Positioner | None = None
 
     def role(self, j: int) -> str:
         """The role of joint ``j`` (0-based; e.g. ``track``, ``column``): its ``role`` key, else its name."""
@@ -264,7 +269,65 @@ def robot_from_dict(data: dict[str, Any], source: str = "<dict>") -> RobotDescri
         joint_types=tuple(types) if PRISMATIC in types else (),
         coupling=coupling,
         joint_roles=_roles(joints, source),
+        positioner=_positioner(data.get("positioner"), source),
     )
+
+
+@dataclass(frozen=True)
+class Positioner:
+    """Axes that carry the part instead of the tool (a turntable, a two-axis tilt-rotate positioner): revolute,
+    base -> part. ``names``; ``w`` (k, 3) unit directions and ``p_mm`` (k, 3) a point on each axis, in the robot
+    base frame at positioner angles 0 (nominal); ``q_limits`` (k, 2) rad; ``targets`` the reflectors mounted on the
+    part (the campaign rows that measure them measure the part, at the angles of the columns :attr:`columns`)."""
+
+    names: tuple[str, ...]
+    w: np.ndarray
+    p_mm: np.ndarray
+    q_limits: np.ndarray
+    targets: tuple[str, ...]
+
+    @property
+    def n_axes(self) -> int:
+        return len(self.names)
+
+    @property
+    def columns(self) -> tuple[str, ...]:
+        """The campaign columns of the positioner's angles (deg): ``pos1_deg``, ``pos2_deg`` ..."""
+        return tuple(f"pos{j + 1}_deg" for j in range(self.n_axes))
+
+
+def _positioner(data: Any, source: str) -> Positioner | None:
+    """The ``positioner`` block (module docstring), checked; None without one."""
+    if data is None:
+        return None
+    where = f"{source}: positioner"
+    if not isinstance(data, dict):
+        raise ConfigError(f"{where} must be a mapping with 'axes' and 'targets'")
+    unknown = sorted(set(data) - {"axes", "targets"})
+    if unknown:
+        raise ConfigError(f"{where}: unknown key(s) {unknown}; known: ['axes', 'targets']")
+    axes = data.get("axes")
+    if not isinstance(axes, list) or not 1 <= len(axes) <= 2:
+        raise ConfigError(f"{where}: 'axes' must list one or two axes (a turntable, a tilt-rotate positioner)")
+    names, w, pts, lim = [], [], [], []
+    for i, ax in enumerate(axes, start=1):
+        wa = f"{where}.axes[{i}]"
+        if not isinstance(ax, dict):
+            raise ConfigError(f"{wa} must be a mapping")
+        names.append(str(ax.get("name", f"P{i}")))
+        d = _vec(ax.get("w"), 3, f"{wa}: key 'w'")
+        if np.linalg.norm(d) < 1e-9:
+            raise ConfigError(f"{wa}: key 'w' must be a direction (not zero)")
+        w.append(d / np.linalg.norm(d))
+        pts.append(_vec(ax.get("p_mm"), 3, f"{wa}: key 'p_mm'"))
+        lo, hi = _num(ax, "q_min_deg", wa, -180.0), _num(ax, "q_max_deg", wa, 180.0)
+        if lo >= hi:
+            raise ConfigError(f"{wa}: q_min_deg ({lo}) must be below q_max_deg ({hi})")
+        lim.append(np.deg2rad([lo, hi]))
+    targets = data.get("targets")
+    if not isinstance(targets, list) or not targets or not all(isinstance(t, str) and t for t in targets):
+        raise ConfigError(f"{where}: 'targets' must list the names of the reflectors on the part")
+    return Positioner(tuple(names), np.array(w), np.array(pts), np.array(lim), tuple(targets))
 
 
 def _joint_table(joints: list[Any], convention: str, source: str) -> tuple[list[Any], ...]:

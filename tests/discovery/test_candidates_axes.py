@@ -68,7 +68,7 @@ def test_discovery_finds_the_columns_bending_and_lean(tmp_path):
     assert keys == ["column:bending", "column:pitch", "column:yaw"]
     _within([n for n in s["named"] if n["effect"] == "axis"], truth)
     assert v["final"]["mean_position_mm"] < 1.15 * FLOOR_MEAN_MM < v["geometric"]["mean_position_mm"] / 3
-    # the axis errors are not in the service's bundle (no external axes there): said in calibration.json, not dropped
+    # the axis errors are no joint-level effect: said so, and written under the calibration's 'axes' instead
     from robocal.discovery.effects import effect_records
 
     joint_level, other = effect_records(res.final)
@@ -97,3 +97,9 @@ def test_robocal_discover_on_a_track_names_the_axis_errors_and_compensates_with_
     e1 = {f"{p}/{t}": q for p, t, q in zip(val.pose_id, val.target, val.q[:, 0], strict=True)}
     assert np.allclose(comp["q1_mm"], [e1[i] for i in comp["target_id"]], atol=1e-6)  # the track not moved
     assert (comp.loc[ok, "correction_max_deg"] > 0).all() and (comp.loc[ok, "pred_err_mm"] < 1e-3).all()
+    # the discovered axis errors go with the calibration into the service's bundle (robocal serve)
+    from robocal.serve.bundle import load_bundle, write_bundle
+
+    bundle = load_bundle(write_bundle(tmp_path / "bundle", robot.name, out / "calibration.json"))
+    served = {t.name.rsplit("_P", 1)[0] for t in bundle.axis_fit.terms}
+    assert served == {"track:pitch", "track:straightness_x", "track:straightness_y"}

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from robocal.calibration.result import CalibrationResult
+from robocal.compensation.correct import zero_offsets
 from robocal.identification.axes import AxisFit, axis_errors
 from robocal.identification.model import with_base
 from robocal.kinematics.axes import augment
@@ -44,8 +45,12 @@ MAX_STEP_MM = 50.0
 class AxisCompensation:
     """Corrected joints ``q`` (m, n) (rad, mm for a prismatic joint, kinematic) for ``q_target``; ``converged``
     (m,); ``error_before_mm`` / ``residual_mm`` (m,) the calibrated model's position error at the target before
-    and after; ``residual_deg`` (m,) its orientation error after; ``move_external``: whether the external axes
-    were free."""
+    and after; ``residual_deg`` (m,) its orientation error after (0 without ``orientation``); ``move_external``:
+    whether the external axes were free; ``error_before_xyz_mm`` (m, 3) the position error before;
+    ``error_before_deg`` (m,) the orientation error before; ``own_error_mm`` (m,) the position error of the robot
+    sent only the calibration's own joint correction (the zero offsets of the arm's joints, what
+    :func:`robocal.compensation.correct.beyond_own` measures); ``zero_offsets`` (n,) those offsets (rad; 0 on a
+    prismatic joint)."""
 
     q_target: np.ndarray
     q: np.ndarray
@@ -54,6 +59,10 @@ class AxisCompensation:
     residual_mm: np.ndarray
     residual_deg: np.ndarray
     move_external: bool
+    error_before_xyz_mm: np.ndarray | None = None
+    error_before_deg: np.ndarray | None = None
+    own_error_mm: np.ndarray | None = None
+    zero_offsets: np.ndarray | None = None
 
 
 def _model(result: CalibrationResult) -> Any:
@@ -74,9 +83,20 @@ def compensate_axes(
     payload_kg: np.ndarray | float = 0.0,
     max_iter: int = 50,
     tol_mm: float = 1e-5,
+    tool: np.ndarray | None = None,
+    orientation: bool = True,
 ) -> AxisCompensation:
     """Correct joint targets ``q_target`` (m, n) for the calibrated robot on its external axes (module docstring);
-    ``target`` the reflector whose point is corrected (default: the calibration's first)."""
+    ``target`` the reflector whose point is corrected (default: the calibration's first), or ``tool`` (4, 4) a
+    flange-to-TCP transform used instead (a program's tool: the nominal pose and the calibrated robot both carry
+    it); ``orientation`` False: the position only (the arm's joints then least-norm steps, as the service's mode
+    ``position``).
+
+    The Newton steps are batched over the targets (damped normal equations, or the least-norm step when the free
+    joints outnumber the equations), each target's step capped at 3 deg on a revolute joint and 50 mm on an
+    external axis (near a singular pose a full step overshoots); with more free joints than equations (the
+    external axes free, or the position only) the least-norm step, 1 mm of an external axis weighing as much as
+    1 mrad of a joint."""
     robot = result.model.robot
     q_target = np.atleast_2d(np.asarray(q_target, dtype=float))
     m, n = q_target.shape
@@ -85,54 +105,90 @@ def compensate_axes(
     xfull = result.x if axis_fit is None else axis_fit.x  # the axis fit refitted the calibration's parameters
     x = model._local(xfull, 0)
     T_ref = model.station_T_ref[0]
-    tool = result.model.tools(xfull)[k]
-    tool_R = result.model.tool_rotations(xfull)[k]
+    if tool is None:
+        tool_p, tool_R = result.model.tools(xfull)[k], result.model.tool_rotations(xfull)[k]
+    else:
+        tool_p, tool_R = np.asarray(tool, dtype=float)[:3, 3], np.asarray(tool, dtype=float)[:3, :3]
     pl = np.broadcast_to(np.asarray(payload_kg, dtype=float), (m,))
     # the pose the program means: the nominal model in the calibration's tracker frame
     T_base = result.model.base_transform(xfull)
     Tn = T_base @ fk(build_chain(robot), q_target)
-    p_des = Tn[:, :3, 3] + Tn[:, :3, :3] @ tool
+    p_des = Tn[:, :3, 3] + Tn[:, :3, :3] @ tool_p
     R_des = Tn[:, :3, :3] @ tool_R
-    free = np.array([True if move_external else not robot.prismatic[j] for j in range(n)])
 
-    def pose(q: np.ndarray, jac: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-        E = axis_errors(robot, q, pl, axis_fit.terms, axis_fit.coef) if axis_fit is not None else None
-        qa = np.concatenate([q, np.zeros((m, model.chain.n_joints - n)) if E is None else E], axis=1)
+    def pose(q: np.ndarray, rows: np.ndarray, jac: bool) -> tuple[np.ndarray, np.ndarray | None]:
+        k_ = len(rows)
+        E = axis_errors(robot, q, pl[rows], axis_fit.terms, axis_fit.coef) if axis_fit is not None else None
+        qa = np.concatenate([q, np.zeros((k_, model.chain.n_joints - n)) if E is None else E], axis=1)
         st = propagate(model.full_chain, qa, x[: model.n_chain], T_ref, record=jac)
-        p = st.o + st.x * tool[0] + st.y * tool[1] + st.z * tool[2]
+        p = st.o + st.x * tool_p[0] + st.y * tool_p[1] + st.z * tool_p[2]
         R = st.R @ tool_R
-        r = np.concatenate([p - p_des, ROT_WEIGHT_MM * matrix_to_rotvec(R @ np.swapaxes(R_des, -1, -2))], axis=1)
+        rot = ROT_WEIGHT_MM * matrix_to_rotvec(R @ np.swapaxes(R_des[rows], -1, -2))
+        r = np.concatenate([p - p_des[rows], rot], axis=1)
         if not jac:
-            return r, p, None
+            return r, None
         _, _, J_q, W_q = point_jacobians(model.full_chain, st, p)
-        J = np.concatenate([J_q[:, :, :n], ROT_WEIGHT_MM * W_q[:, :, :n]], axis=1)  # (m, 6, n)
-        return r, p, J
+        J = np.concatenate([J_q[:, :, :n], ROT_WEIGHT_MM * W_q[:, :, :n]], axis=1)  # (k, 6, n)
+        return r, J
 
-    q = q_target.copy()
-    r0, _, _ = pose(q, False)
-    converged = np.zeros(m, dtype=bool)
-    for _ in range(max_iter):
-        r, _, J = pose(q, True)
-        assert J is not None
-        converged = np.linalg.norm(r, axis=1) < tol_mm
-        if converged.all():
-            break
-        for i in np.flatnonzero(~converged):
-            dq = np.linalg.lstsq(J[i][:, free], -r[i], rcond=None)[0]
-            # steps capped as the service caps them (3 deg; 50 mm on an external axis): near a singular pose a
-            # full Gauss-Newton step overshoots
-            cap = np.where(robot.prismatic[free], MAX_STEP_MM, MAX_STEP_RAD)
-            q[i, free] += dq * min(1.0, float(np.min(cap / np.maximum(np.abs(dq), 1e-300))))
-    r, _, _ = pose(q, False)
+    everyone = np.arange(m)
+    r0, _ = pose(q_target, everyone, False)
+    free = np.array([True if move_external else not robot.prismatic[j] for j in range(n)])
+    q = _newton(pose, q_target, free, robot.prismatic[free], 6 if orientation else 3, max_iter, tol_mm)
+    r, _ = pose(q, everyone, False)
+    eta = xfull[: result.model.chain.n_params]
+    zero_off = np.where(robot.prismatic, 0.0, zero_offsets(result.model.chain, eta))
+    r_own, _ = pose(q_target - zero_off, everyone, False)
+    rot_after = np.linalg.norm(r[:, 3:], axis=1) / ROT_WEIGHT_MM if orientation else np.zeros(m)
     return AxisCompensation(
         q_target=q_target,
         q=q,
-        converged=np.linalg.norm(r, axis=1) < max(tol_mm, 1e-3),
+        converged=np.linalg.norm(r[:, : 6 if orientation else 3], axis=1) < max(tol_mm, 1e-3),
         error_before_mm=np.linalg.norm(r0[:, :3], axis=1),
         residual_mm=np.linalg.norm(r[:, :3], axis=1),
-        residual_deg=np.rad2deg(np.linalg.norm(r[:, 3:], axis=1) / ROT_WEIGHT_MM),
+        residual_deg=np.rad2deg(rot_after),
         move_external=move_external,
+        error_before_xyz_mm=r0[:, :3],
+        error_before_deg=np.rad2deg(np.linalg.norm(r0[:, 3:], axis=1) / ROT_WEIGHT_MM),
+        own_error_mm=np.linalg.norm(r_own[:, :3], axis=1),
+        zero_offsets=zero_off,
     )
+
+
+def _newton(
+    pose: Any, q_target: np.ndarray, free: np.ndarray, slide: np.ndarray, rows_used: int, max_iter: int, tol_mm: float
+) -> np.ndarray:
+    """The Newton iterations of :func:`compensate_axes`, batched over the targets still iterating: ``pose(q, rows,
+    jac) -> (r (k, 6), J (k, 6, n))``; ``free`` (n,) the joints that move, ``slide`` their kind (prismatic)."""
+    q = q_target.copy()
+    cap = np.where(slide, MAX_STEP_MM, MAX_STEP_RAD)
+    # the least-norm step weighs 1 mm of an external axis as 1 mrad of a joint (ROT_WEIGHT_MM): the track takes
+    # its share of an error along its travel instead of almost none
+    weight = np.where(slide, 1.0, ROT_WEIGHT_MM)
+    active = np.arange(len(q))
+    for _ in range(max_iter):
+        r, J = pose(q[active], active, True)
+        assert J is not None
+        r, J = r[:, :rows_used], J[:, :rows_used]
+        keep = np.linalg.norm(r, axis=1) >= tol_mm
+        if not keep.any():
+            break
+        active, r, A = active[keep], r[keep], J[keep][:, :, free]
+        At = np.swapaxes(A, 1, 2)
+        if rows_used >= A.shape[2]:  # (over)determined: damped normal equations
+            N = At @ A
+            N += 1e-12 * np.einsum("kii->k", N)[:, None, None] * np.eye(A.shape[2])
+            dq = -np.linalg.solve(N, (At @ r[:, :, None]))[:, :, 0]
+        else:  # more free joints than equations: the least-norm step, a joint's radian weighing ROT_WEIGHT_MM mm
+            As = A / weight
+            N = As @ np.swapaxes(As, 1, 2)
+            N += 1e-12 * np.einsum("kii->k", N)[:, None, None] * np.eye(rows_used)
+            dq = -(np.swapaxes(As, 1, 2) @ np.linalg.solve(N, r[:, :, None]))[:, :, 0] / weight
+        scale = np.minimum(1.0, np.min(cap / np.maximum(np.abs(dq), 1e-300), axis=1))
+        sub = q[active]
+        sub[:, free] += dq * scale[:, None]
+        q[active] = sub
+    return q
 
 
 def _reported(robot: RobotDescription, q: np.ndarray) -> tuple[list[int], list[int], np.ndarray]:

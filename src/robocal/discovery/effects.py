@@ -58,9 +58,9 @@ def signal_kind(acc: Accepted) -> str | None:
 _NOT_COMPENSATED = {
     "session": "a tool re-seated between sessions: the session's own, like its tracker frame; a new session "
     "re-measures its tool",
-    "axis": "an external axis's own error along its travel (robocal.discovery.axes): the service (robocal serve) "
-    "and its bundle take revolute chains only; compensated in the discovery's compensation.csv and by "
-    "robocal.compensation.axes / robocal.cell.programs.axes",
+    "axis": "an external axis's own error along its travel (robocal.discovery.axes): not a joint-level effect; "
+    "written under the calibration's 'axes' and compensated there (robocal.compensation.axes: the service, "
+    "the program filter, the discovery's compensation.csv)",
 }
 
 

@@ -6,7 +6,14 @@ alike). This module fits, on top, each linear axis's errors as smooth functions 
 (:mod:`robocal.kinematics.axes`): straightness in x and y, positioning, pitch, yaw and roll of the carriage, each a
 sum of Legendre polynomials of the travel coordinate ``u`` in [-1, 1], and for a column (``role: column``) the
 bending of the carriage under the moment of the arm's weight (rotations about the carriage's x and y in proportion
-to that moment, ``bending_x`` / ``bending_y``, and growing with the extension, ``..._ext``: times ``u``).
+to that moment, ``bending_x`` / ``bending_y``, and growing with the extension, ``..._ext``: times ``u``). A
+description without link masses: the moment is unknown, but linear in the bodies' masses and first moments
+(:func:`robocal.kinematics.axes.moment_features`), so the bending is fitted with one coefficient per mass parameter
+(``column:bending_x_b3_m``: the compliance times that body's mass, ``_b3_x``: times its first moment along its
+frame's x per 0.1 m; the ones the data cannot tell apart held at 0 by the rank test below), without the growth
+with the extension (twenty coefficients per rotation already; on the column twin the ``_ext`` terms cost more
+held-out error than they gain). The arm's own weight only: a payload's moment needs its mass and centre of mass,
+i.e. the description's masses.
 
 Terms that the kinematic parameters already hold are not fitted: the constant of every component and the linear
 part of the straightness (a tilt of the axis' direction). Jointly with the calibration's identified parameters
@@ -38,7 +45,15 @@ from robocal.config import parse, setting
 from robocal.data.contract import Campaign
 from robocal.errors import ConfigError
 from robocal.identification.model import CalibrationModel, FitData, with_base
-from robocal.kinematics.axes import COMPONENTS, UNITS, augment, carried_moment, legendre, travel_coordinate
+from robocal.kinematics.axes import (
+    COMPONENTS,
+    UNITS,
+    augment,
+    carried_moment,
+    legendre,
+    moment_features,
+    travel_coordinate,
+)
 
 #: the components' lowest fitted Legendre order (lower ones are kinematic parameters: a constant offset of every
 #: component, the linear part of the straightness, which is a tilt of the axis' direction)
@@ -48,6 +63,9 @@ ORDER = 3
 #: bending rotations: (component, moment axis of the carriage frame)
 BENDING = (("bending_x", "pitch", 0), ("bending_y", "yaw", 1))
 KNM = 1000.0  # N·m per kN·m
+#: without masses, a bending coefficient is the compliance times a mass parameter: its prior is the compliance's
+#: times this mass (an arm's body is a few to a hundred kg)
+PRIOR_MASS_KG = 100.0
 
 
 @dataclass(frozen=True)
@@ -99,6 +117,7 @@ class Term:
     order: int
     unit: str
     moment_axis: int = -1
+    column: int = -1  # a "masses" feature: which mass parameter (robocal.kinematics.axes.moment_features)
 
 
 def axis_terms(robot: Any, settings: AxisSettings, order: int, bending: bool) -> list[Term]:
@@ -112,22 +131,38 @@ def axis_terms(robot: Any, settings: AxisSettings, order: int, bending: bool) ->
             for k in range(LOWEST_ORDER[comp], order + 1):
                 unit = "mm" if UNITS[c] == "mm" else "rad"
                 out.append(Term(f"{role}:{comp}_P{k}", f"{role}:{comp}", j, a, c, "legendre", k, unit))
-        if bending:
+        if bending and robot.has_dynamics:
             for name, comp, ax in BENDING:
                 c = COMPONENTS.index(comp)
                 for k, suffix in ((0, ""), (1, "_ext")):
                     out.append(Term(f"{role}:{name}{suffix}", f"{role}:{name}", j, a, c, "moment", k, "rad/kNm", ax))
+        elif bending:  # no masses: the moment of each unknown mass parameter (robocal.kinematics.axes), no _ext
+            for name, comp, ax in BENDING:
+                c = COMPONENTS.index(comp)
+                for f, pn in enumerate(mass_parameter_names(robot, j)):
+                    out.append(Term(f"{role}:{name}_{pn}", f"{role}:{name}", j, a, c, "masses", 0, "rad/kNm", ax, f))
     return out
+
+
+def mass_parameter_names(robot: Any, joint: int) -> list[str]:
+    """The unknown mass parameters a column's bending is fitted with when the description has no masses
+    (:func:`robocal.kinematics.axes.moment_features`): ``b<i>_m``, ``b<i>_x`` .. per body after the carriage."""
+    return [f"b{i + 1}_{k}" for i in range(joint + 1, robot.n_joints) for k in ("m", "x", "y", "z")]
 
 
 def features(robot: Any, q: np.ndarray, payload_kg: np.ndarray, terms: list[Term]) -> np.ndarray:
     """The feature of every term at every row, ``(m, T)``: the value of its error element per unit coefficient."""
     F = np.zeros((q.shape[0], len(terms)))
     moments: dict[int, np.ndarray] = {}
+    per_mass: dict[int, np.ndarray] = {}
     for t, term in enumerate(terms):
         u = travel_coordinate(q[:, term.joint], robot.q_limits[term.joint])
         if term.feature == "legendre":
             F[:, t] = legendre(u, term.order)
+        elif term.feature == "masses":
+            if term.joint not in per_mass:
+                per_mass[term.joint] = moment_features(robot, q, term.joint)[0]
+            F[:, t] = per_mass[term.joint][:, term.moment_axis, term.column] * u**term.order
         else:
             if term.joint not in moments:
                 moments[term.joint] = carried_moment(robot, q, term.joint, payload_kg) / KNM
@@ -163,6 +198,8 @@ def _prior_sd(term: Term, s: AxisSettings) -> float:
         return s.prior_mm
     if term.unit == "rad":
         return s.prior_urad * 1e-6
+    if term.feature == "masses":  # the compliance times a mass parameter (kg, or kg x 0.1 m)
+        return s.prior_bending_urad_per_kNm * 1e-6 * PRIOR_MASS_KG
     return s.prior_bending_urad_per_kNm * 1e-6
 
 
@@ -354,8 +391,8 @@ def fit_axis_errors(
     if base.start is not None and len(base.start.kept) == cal.n_rows:
         cal = cal.subset(base.start.kept)
     columns = [j for j in range(robot.n_joints) if robot.prismatic[j] and "column" in robot.role(j)]
-    if s.bending == "auto":
-        bend_options = [False, True] if columns and robot.has_dynamics else [False]
+    if s.bending == "auto":  # without masses the bending's moment is fitted per unknown mass parameter
+        bend_options = [False, True] if columns else [False]
     else:
         bend_options = [bool(s.bending)]
     cv: list[dict[str, Any]] = []
@@ -482,3 +519,46 @@ def _validation(campaign: Campaign, base: CalibrationResult, prob: _Problem, x: 
         "rms_position_mm": float(np.sqrt(np.mean(e1**2))),
         "max_position_mm": float(e1.max()),
     }
+
+
+def calibration_axes(fit: AxisFit) -> dict[str, Any]:
+    """The axis errors as ``calibration.json`` carries them (key ``axes``): :meth:`AxisFit.record` and the
+    calibration vector ``x`` fitted with them, for the service's bundle (:func:`axis_fit_of`)."""
+    return {**fit.record(), "x": [float(v) for v in fit.x]}
+
+
+#: the factor from a term's unit in a record (:meth:`AxisFit.record`) to the fit's own (mm, rad, rad per kN·m)
+RECORD_UNITS = {"mm": 1.0, "urad": 1e-6, "urad/kNm": 1e-6}
+
+
+def axis_fit_of(robot: Any, record: Mapping[str, Any], x: np.ndarray, where: str = "axes") -> AxisFit:
+    """The :class:`AxisFit` of a record (:func:`calibration_axes`; its ``x`` when it has one, else ``x``), for
+    compensation (standard errors kept, no cross-validation). Raises :class:`ConfigError` naming ``where`` and
+    the term for a term ``robot`` has not or a unit the record cannot carry."""
+    terms, coef, se = [], [], []
+    for k, t in enumerate(record.get("terms") or []):
+        name = str(t.get("name"))
+        try:
+            terms.append(term_named(robot, name))
+        except ConfigError as exc:
+            raise ConfigError(f"{where}.terms[{k}]: {exc}") from None
+        unit = str(t.get("unit"))
+        if unit not in RECORD_UNITS:
+            raise ConfigError(f"{where}.terms[{k}] ({name}): unit {unit!r}; known {sorted(RECORD_UNITS)}")
+        coef.append(float(t["value"]) * RECORD_UNITS[unit])
+        se.append(float(t.get("stderr") or 0.0) * RECORD_UNITS[unit])
+    xv = np.asarray(record.get("x", x), dtype=float)
+    if xv.shape != np.shape(x):
+        raise ConfigError(f"{where}.x has {xv.size} values; the calibration has {np.size(x)}")
+    return AxisFit(
+        terms=tuple(terms),
+        coef=np.array(coef),
+        stderr=np.array(se),
+        covariance=np.diag(np.square(se)),
+        x=xv,
+        order=int(record.get("order", 0)),
+        bending=bool(record.get("bending", False)),
+        cv=(),
+        poorly_determined=tuple(record.get("poorly_determined") or ()),
+        not_identifiable=tuple(record.get("not_identifiable") or ()),
+    )

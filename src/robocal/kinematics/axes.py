@@ -123,3 +123,64 @@ def carried_moment(
     pl = np.broadcast_to(np.asarray(payload_kg, dtype=float), (m,))
     M += np.cross((com - o) * MM, pl[:, None] * g)
     return np.einsum("mji,mj->mi", R, M)  # R^T M: the carriage frame
+
+
+def arm_chain(chain: Chain, external: Sequence[int], values: Sequence[float] | np.ndarray) -> Chain:
+    """The chain of the arm alone with the external axes ``external`` (0-based joints, prismatic or not) held at
+    ``values`` (mm / rad): each of their elements becomes a constant element (its nominal value plus the axis'
+    value, its parameter kept), and the other joints are renumbered ``0 .. n - k - 1`` in chain order. Folded
+    (:func:`robocal.kinematics.chain.fold`), it is a revolute chain the compiled solver takes (the nominal inverse
+    kinematics of a Cartesian target at its stated external axes, the configuration of a corrected pose)."""
+    ext = [int(j) for j in external]
+    if len(ext) != len(values):
+        raise ValueError(f"{len(ext)} external axes but {len(values)} values")
+    joint = np.asarray(chain.joint)
+    nominal = np.array(chain.nominal, dtype=float)
+    renumber = np.full(chain.n_joints, -1)
+    arm = [j for j in range(chain.n_joints) if j not in ext]
+    renumber[arm] = np.arange(len(arm))
+    new_joint = np.where(joint >= 0, renumber[np.maximum(joint, 0)], -1)
+    for j, v in zip(ext, values, strict=True):
+        nominal[joint == j] += float(v)
+    return Chain(
+        kinds=chain.kinds,
+        nominal=nominal,
+        joint=new_joint.astype(int),
+        param=np.asarray(chain.param),
+        fixed=chain.fixed,
+        param_names=chain.param_names,
+        n_joints=len(arm),
+    )
+
+
+#: the bodies' first moments are per this length (m) in :func:`moment_features`: a body's centre of mass 0.1 m off
+#: its frame's origin has a first-moment coefficient of its mass
+FIRST_MOMENT_M = 0.1
+
+
+def moment_features(robot: RobotDescription, q: np.ndarray, joint: int) -> tuple[np.ndarray, list[str]]:
+    """The moment (kN·m, carriage frame; (m, 3, F)) of the arm's weight about the carriage of ``joint`` per unit of
+    each unknown mass parameter, when the description has no masses: per body ``i`` after the carriage, 1 kg at its
+    frame's origin (``b<i>_m``) and a first moment of 1 kg x :data:`FIRST_MOMENT_M` along its frame's x, y, z
+    (``b<i>_x`` ...). Any mass distribution's moment (the bodies' masses and centres of mass, :func:`carried_moment`)
+    is their sum weighted by the masses and first moments (the carriage's own weight turns with it: a constant,
+    the axis's kinematic offset). Gravity along the description's ``gravity_mps2`` (default -z)."""
+    q = np.asarray(q, dtype=float)
+    m = q.shape[0]
+    chain = build_chain(robot)
+    e_joint = int(np.flatnonzero(chain.joint == joint)[0])
+    carriage = propagate(_prefix(chain, e_joint + 1), q)
+    o = np.broadcast_to(carriage.o, (m, 3))
+    R = np.stack([np.broadcast_to(a, (m, 3)) for a in (carriage.x, carriage.y, carriage.z)], axis=-1)
+    g = np.asarray(robot.gravity, dtype=float)
+    bounds = body_frame_boundaries(chain, robot.is_mdh)
+    cols, names = [], []
+    for i in range(joint + 1, robot.n_joints):
+        st = propagate(_prefix(chain, bounds[i]), q)
+        cols.append(np.cross((np.broadcast_to(st.o, (m, 3)) - o) * MM, g))
+        names.append(f"b{i + 1}_m")
+        for axis, a in zip("xyz", (st.x, st.y, st.z), strict=True):
+            cols.append(np.cross(np.broadcast_to(a, (m, 3)) * FIRST_MOMENT_M, g))
+            names.append(f"b{i + 1}_{axis}")
+    M = np.stack(cols, axis=-1)  # (m, 3, F) base frame, N·m per unit
+    return np.einsum("mji,mjf->mif", R, M) / 1000.0, names

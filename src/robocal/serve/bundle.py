@@ -125,6 +125,9 @@ class Bundle:
     manifest: dict[str, Any] = field(default_factory=dict)
     bundle_id: str = ""
     effects: tuple[dict[str, Any], ...] = ()  # discovered joint-level effects (robocal.compensation.discovered)
+    #: a robot on external axes: their own errors along the travel (the calibration's ``axes``,
+    #: :class:`robocal.identification.axes.AxisFit`), or None
+    axis_fit: Any = None
 
     @property
     def default_tool(self) -> str:
@@ -166,15 +169,35 @@ class Bundle:
             for i in hot
         ]
 
+    @property
+    def arm(self) -> list[int]:
+        """The arm's joints (the revolute ones, chain order)."""
+        return [j for j in range(self.robot.n_joints) if not self.robot.prismatic[j]]
+
+    @property
+    def external(self) -> list[int]:
+        """The external axes (the prismatic joints: a track, a column; ``E1``, ``E2`` .. in chain order)."""
+        return [j for j in range(self.robot.n_joints) if self.robot.prismatic[j]]
+
     def info(self) -> dict[str, Any]:
-        """What a client needs to know: robot, joints and limits, tools, sensors and their fitted range."""
+        """What a client needs to know: robot, joints and limits, tools, sensors and their fitted range; a robot
+        on external axes also its axes (``external_axes``, their limits in mm, the axis error terms served)."""
+        lim = self.robot.q_limits
+        ext: dict[str, Any] = {}
+        if self.external:
+            ext = {
+                "external_axes": [self.robot.joint_names[j] for j in self.external],
+                "external_limits_mm": lim[self.external].round(9).tolist(),
+                "axis_errors": [] if self.axis_fit is None else [t.name for t in self.axis_fit.terms],
+            }
         return {
             "bundle": self.bundle_id,
             "path": str(self.path),
             "created": self.manifest.get("created"),
             "robot": self.robot.name,
-            "joints": list(self.robot.joint_names),
-            "q_limits_deg": np.rad2deg(self.robot.q_limits).round(9).tolist(),
+            "joints": [self.robot.joint_names[j] for j in self.arm],
+            "q_limits_deg": np.rad2deg(lim[self.arm]).round(9).tolist(),
+            **ext,
             "tools": list(self.tools),
             "thermal": self.thermal is not None,
             "compliance": self.compliance is not None,
@@ -198,9 +221,9 @@ def load_bundle(path: str | Path, loaders: Mapping[str, Loader] | None = None) -
     if not robot_ref:
         raise ConfigError(f"bundle {d}: {MANIFEST} must name the 'robot'")
     robot = load_robot(d / robot_ref if str(robot_ref).endswith((".yaml", ".yml")) else str(robot_ref))
-    _no_external_axes(robot)
-    cal = _read_calibration(d, manifest, robot)
+    cal, axes = _read_calibration(d, manifest, robot)
     models = _read_models(d, manifest, loaders)
+    axis_fit = _external_axes_checked(d, robot, cal, models, axes)
     th = models.get("thermal")
     sensors, t_lo, t_hi = _thermal_range_checked(d, th, robot, cal.model.chain.n_params)
     digest = hashlib.sha256(json.dumps(manifest, sort_keys=True).encode()).hexdigest()[:12]
@@ -220,6 +243,7 @@ def load_bundle(path: str | Path, loaders: Mapping[str, Loader] | None = None) -
         manifest=manifest,
         bundle_id=digest,
         effects=cal.effects,
+        axis_fit=axis_fit,
     )
 
 
@@ -245,11 +269,15 @@ def _read_manifest(d: Path) -> dict[str, Any]:
     return manifest
 
 
-def _read_calibration(d: Path, manifest: dict[str, Any], robot: RobotDescription) -> CalibrationResult:
-    """The bundle's calibration, read for ``robot`` (an error names the bundle and the file)."""
+def _read_calibration(
+    d: Path, manifest: dict[str, Any], robot: RobotDescription
+) -> tuple[CalibrationResult, dict[str, Any] | None]:
+    """The bundle's calibration, read for ``robot`` (an error names the bundle and the file), and its external
+    axes' errors (``axes``, :func:`robocal.identification.axes.calibration_axes`) or None."""
     cal_file = d / str(manifest.get("calibration") or "calibration.json")
     try:
-        return load_calibration(json.loads(cal_file.read_text(encoding="utf-8")), robot)
+        data = json.loads(cal_file.read_text(encoding="utf-8"))
+        return load_calibration(data, robot), data.get("axes")
     except ConfigError as exc:  # e.g. a calibration of another robot: the error names both
         raise ConfigError(f"bundle {d}: {cal_file.name}: {exc}") from None
     except (OSError, json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
@@ -307,16 +335,33 @@ def _thermal_range_checked(
     return sensors, t_lo, t_hi
 
 
-def _no_external_axes(robot: RobotDescription) -> None:
-    """The service compensates revolute chains only (its compiled chain): a robot on external axes is refused by
-    name, with where its compensation is (issue 34)."""
-    if robot.has_prismatic:
-        axes = [robot.joint_names[j] for j in range(robot.n_joints) if robot.prismatic[j]]
+def _external_axes_checked(
+    d: Path, robot: RobotDescription, cal: CalibrationResult, models: dict[str, Any], axes: Any
+) -> Any:
+    """A robot on external axes (issue 34) is corrected by :func:`robocal.compensation.axes.compensate_axes`: its
+    geometry and its axes' own errors along the travel (the calibration's ``axes``, returned as an
+    :class:`~robocal.identification.axes.AxisFit`, None without). A thermal or compliance model, or joint-level
+    effects, are not applied on that path: such a bundle is refused by name rather than served without them."""
+    if not robot.has_prismatic:
+        if axes:
+            raise ConfigError(f"bundle {d}: the calibration has 'axes' but robot {robot.name!r} has no external axis")
+        return None
+    names = [robot.joint_names[j] for j in range(robot.n_joints) if robot.prismatic[j]]
+    extra = [k for k in ("thermal", "compliance") if models.get(k) is not None]
+    extra += [f"joint-level effects {[e['key'] for e in cal.effects]}"] if cal.effects else []
+    if extra:
         raise ConfigError(
-            f"robot {robot.name!r} rides external axes (prismatic joint(s) {axes}): the service compensates revolute "
-            "chains only; robocal.compensation.axes and robocal.cell.programs.axes compensate it, and robocal "
-            "discover's compensation.csv"
+            f"bundle {d}: robot {robot.name!r} rides external axes {names}; its correction "
+            f"(robocal.compensation.axes) takes the geometry and the axes' own errors, not the {', '.join(extra)}: "
+            "bundle the calibration alone"
         )
+    if not axes:
+        return None
+    if not isinstance(axes, dict):
+        raise ConfigError(f"bundle {d}: the calibration's 'axes' must be a mapping (robocal calibrate writes it)")
+    from robocal.identification.axes import axis_fit_of
+
+    return axis_fit_of(robot, axes, cal.x, where=f"bundle {d}: calibration 'axes'")
 
 
 def write_bundle(
@@ -345,7 +390,6 @@ def write_bundle(
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise ConfigError(f"cannot read the calibration {cal_path}: {exc}") from None
     rob = load_robot(robot if rp is None else rp)
-    _no_external_axes(rob)
     if isinstance(cal_data, dict):
         check_robot(cal_data, rob, f"the calibration {cal_path}")
         design = (cal_data.get("fit") or {}).get("configurations") if isinstance(cal_data.get("fit"), dict) else None

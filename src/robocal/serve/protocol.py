@@ -27,6 +27,7 @@ from robocal.compensation.effects import LOGGED, Signals, compose, needs
 from robocal.compensation.safety import POLICIES, SafetyPolicy
 from robocal.config import parse, setting
 from robocal.errors import ConfigError
+from robocal.kinematics.chain import fk
 from robocal.kinematics.ik import CompiledChain, compile_chain, forward, quaternions, solve
 from robocal.kinematics.transforms import quat_to_matrix
 from robocal.serve.bundle import Bundle
@@ -58,6 +59,9 @@ class ServiceConfig:
     max_targets: int = setting(100_000, ge=1)
     safety: SafetyConfig = field(default_factory=SafetyConfig)
     solver: SolverConfig = field(default_factory=SolverConfig)
+    #: a robot on external axes (a track, a column): whether a correction may move them (a request's
+    #: ``move_external`` overrides it); by default only the arm is corrected
+    move_external: bool = False
     token: str | None = setting(None, settable=False)
 
     @classmethod
@@ -66,7 +70,7 @@ class ServiceConfig:
 
 
 #: the keys of the ``serve`` section that are the service's (the rest are the transport's: ServerConfig)
-SERVICE_KEYS = ("max_targets", "safety", "solver")
+SERVICE_KEYS = ("max_targets", "safety", "solver", "move_external")
 
 # --------------------------------------------------------------------------------------------- parsing
 
@@ -132,19 +136,33 @@ class Targets:
     #: (m,) which pose targets state an orientation (``quat_wxyz``); None: every one does
     oriented: np.ndarray | None = None
     logged: dict[str, np.ndarray] | None = None  # the logged signals' values (column -> (m,))
+    #: (m, k) the external axes' values (mm, ``E1``.. in chain order) of a robot on external axes, else None
+    ext_mm: np.ndarray | None = None
+
+    def subset(self, rows: np.ndarray) -> Targets:
+        """The targets ``rows`` (their kinds, joints, poses and orientation flags; the signals left out)."""
+        return Targets(
+            self.kind[rows], self.q_deg[rows], self.xyz_mm[rows], self.quat[rows], None, None, None,
+            None if self.oriented is None else self.oriented[rows], None,
+            None if self.ext_mm is None else self.ext_mm[rows],
+        )  # fmt: skip
 
 
 #: a target's optional per-joint signals, in the order they are checked
 TARGET_SIGNALS = ("current_A", "tau_Nm", "dir")
 #: a target's optional logged signals (``{"incl_x": 0.012}``), for effects discovered on them
 LOGGED_FIELD = "signals"
+#: a target's external axes (mm), with a robot on external axes
+EXT_FIELD = "ext_mm"
 
 
-def parse_targets(raw: Any, n: int, max_targets: int, position: bool = False) -> Targets:
+def parse_targets(raw: Any, n: int, max_targets: int, position: bool = False, n_ext: int = 0) -> Targets:
     """``targets``: a non-empty list of ``{"q_deg": [n]}`` or ``{"xyz_mm": [3], "quat_wxyz": [4],
     "q_seed_deg": [n]}``, each optionally with ``current_A`` / ``tau_Nm`` ([n]) and ``dir`` ([n] of -1 / +1, the
     approach direction of each joint, for a discovered backlash). With ``position`` (mode ``position``) a pose
-    target may leave ``quat_wxyz`` out: a position-only target (a 3-DoF reflector, a drilling point)."""
+    target may leave ``quat_wxyz`` out: a position-only target (a 3-DoF reflector, a drilling point). A robot on
+    ``n_ext`` external axes: ``n`` counts the arm's joints, and every target carries ``ext_mm`` ([n_ext], mm:
+    ``E1``.. in chain order)."""
     if not isinstance(raw, list) or not raw:
         raise RequestError("bad_request", "'targets' must be a non-empty list of objects")
     if len(raw) > max_targets:
@@ -157,9 +175,11 @@ def parse_targets(raw: Any, n: int, max_targets: int, position: bool = False) ->
     oriented = np.ones(m, dtype=bool)
     signals: dict[str, np.ndarray] = {}
     logged: dict[str, np.ndarray] = {}
+    ext = np.zeros((m, n_ext)) if n_ext else None
     for k, t in enumerate(raw):
         if not isinstance(t, dict):
             raise RequestError("bad_request", f"targets[{k}] must be an object")
+        t = _parse_ext(t, k, ext)
         kind[k] = _parse_target(t, k, n, q, xyz, quat)
         if kind[k] == 1 and "quat_wxyz" not in t:
             if not position:
@@ -184,7 +204,21 @@ def parse_targets(raw: Any, n: int, max_targets: int, position: bool = False) ->
         if np.isnan(v).any():
             raise RequestError("bad_request", f"the logged signal '{key}' must be given for every target or for none")
     return Targets(kind, q, xyz, quat, signals.get("current_A"), signals.get("tau_Nm"), signals.get("dir"),
-                   oriented, logged or None)  # fmt: skip
+                   oriented, logged or None, ext)  # fmt: skip
+
+
+def _parse_ext(t: dict[str, Any], k: int, ext: np.ndarray | None) -> dict[str, Any]:
+    """``targets[k].ext_mm`` into row ``k`` of ``ext`` (m, n_ext); the target without it (as it is when the robot
+    has no external axis: an ``ext_mm`` is then an unknown field)."""
+    if ext is None:
+        return t
+    if EXT_FIELD not in t:
+        raise RequestError(
+            "bad_request",
+            f"targets[{k}] needs '{EXT_FIELD}': the robot rides {ext.shape[1]} external axis(es) (E1.., mm)",
+        )
+    ext[k] = _vector(t[EXT_FIELD], ext.shape[1], f"targets[{k}].{EXT_FIELD}")
+    return {key: v for key, v in t.items() if key != EXT_FIELD}
 
 
 def _parse_logged(raw: Any, k: int, m: int, logged: dict[str, np.ndarray]) -> None:
@@ -344,6 +378,8 @@ class Service:
         bundle = self.bundle  # one bundle for the whole request, even if a reload swaps it meanwhile
         cfg = self.config
         r = _parse_request(req, bundle, cfg)
+        if bundle.external:  # a robot on external axes: robocal.compensation.axes
+            return self._reply(bundle, r, *_correct_external(bundle, r, cfg), t_start)
         m = len(r.targets.kind)
         cc, zero_off = self._compiled_and_offsets(bundle, r.temps)
         cc_nom = self._compiled(bundle, None, nominal=True)
@@ -359,6 +395,13 @@ class Service:
         results = _target_replies(c, cc_nom, r.tool_T, q_target, r.targets.kind)
         for k in np.flatnonzero(freed):
             results[k].setdefault("notes", []).append(FREED_NOTE)
+        return self._reply(bundle, r, results, {}, t_start)
+
+    def _reply(
+        self, bundle: Bundle, r: CorrectRequest, results: list[dict[str, Any]], extra: dict[str, Any], t_start: float
+    ) -> dict[str, Any]:
+        """The ``correct`` reply of the targets' ``results`` (the counters updated); ``extra`` request-level keys."""
+        m = len(results)
         n_ref = sum(res["status"] == "refused" for res in results)
         n_flag = sum(res["status"] != "refused" and "reasons" in res for res in results)
         self.counters["targets"] += m
@@ -373,6 +416,7 @@ class Service:
             "n": m,
             "n_refused": n_ref,
             "n_flagged": n_flag,
+            **extra,
             "results": results,
         }
         if r.temps is not None:
@@ -382,7 +426,7 @@ class Service:
 
 
 #: the fields a ``correct`` request may carry
-CORRECT_FIELDS = ("op", "id", "token", "targets", "temperatures", "payload_kg", "tool", "mode")
+CORRECT_FIELDS = ("op", "id", "token", "targets", "temperatures", "payload_kg", "tool", "mode", "move_external")
 
 
 @dataclass(frozen=True)
@@ -397,6 +441,7 @@ class CorrectRequest:
     payload_kg: float
     temps: np.ndarray | None
     reasons: list[str]
+    move_external: bool = False
 
 
 def _parse_request(req: dict[str, Any], bundle: Bundle, cfg: ServiceConfig) -> CorrectRequest:
@@ -407,7 +452,13 @@ def _parse_request(req: dict[str, Any], bundle: Bundle, cfg: ServiceConfig) -> C
     mode = req.get("mode", "pose")
     if mode not in ("pose", "position"):
         raise RequestError("bad_request", f"'mode' must be 'pose' or 'position', got {mode!r}")
-    tg = parse_targets(req.get("targets"), bundle.robot.n_joints, cfg.max_targets, position=mode == "position")
+    n_ext = len(bundle.external)
+    move = req.get("move_external", cfg.move_external)
+    if not isinstance(move, bool):
+        raise RequestError("bad_request", f"'move_external' must be true or false, got {move!r}")
+    if "move_external" in req and not n_ext:
+        raise RequestError("bad_request", f"'move_external': robot {bundle.robot.name!r} has no external axis")
+    tg = parse_targets(req.get("targets"), bundle.robot.n_joints - n_ext, cfg.max_targets, mode == "position", n_ext)
     tool_name = req.get("tool", bundle.default_tool)
     if not isinstance(tool_name, str) or tool_name not in bundle.tools:
         raise RequestError("bad_request", f"unknown 'tool' {tool_name!r}; the bundle has {list(bundle.tools)}")
@@ -426,7 +477,7 @@ def _parse_request(req: dict[str, Any], bundle: Bundle, cfg: ServiceConfig) -> C
         reasons.extend(bundle.temperature_reasons(temps, cfg.safety.temperature_margin_C))
     elif "temperatures" in req and not isinstance(req["temperatures"], dict | list):
         raise RequestError("bad_request", "'temperatures' must be an object or a list")
-    return CorrectRequest(tg, mode, tool_name, bundle.tools[tool_name], payload, temps, reasons)
+    return CorrectRequest(tg, mode, tool_name, bundle.tools[tool_name], payload, temps, reasons, move)
 
 
 def _joint_offsets(bundle: Bundle, tg: Targets, payload_kg: float) -> Any:
@@ -531,3 +582,92 @@ def _target_replies(
             r["q_nominal_deg"] = qt_l[k]
         results.append(r)
     return results
+
+
+def _correct_external(
+    bundle: Bundle, r: CorrectRequest, cfg: ServiceConfig
+) -> tuple[list[dict[str, Any]], dict[str, Any]]:
+    """The ``correct`` op for a robot on external axes (issue 34): the replies and the request-level keys.
+
+    The joints the nominal controller uses: a joint target's arm joints and external axes as given; a pose target
+    (in the robot base frame, the external axes at their stated ``ext_mm``) through the nominal inverse
+    kinematics of the arm with its external axes held there (:func:`robocal.kinematics.axes.arm_chain`, the
+    service's compiled solver). The correction: :func:`robocal.compensation.axes.compensate_axes` (the calibrated
+    geometry and the axes' own errors along the travel, numpy), the external axes moved only with
+    ``move_external``. The one safety policy judges the arm's joints as for any robot (the correction beyond the
+    calibration's own zero offsets, the predicted error, the residual, the joint limits); an external axis outside
+    its limits (mm) is a joint-limit reason too."""
+    from robocal.compensation.axes import compensate_axes
+    from robocal.kinematics.axes import arm_chain
+
+    tg = r.targets
+    assert tg.ext_mm is not None
+    m = len(tg.kind)
+    arm, ext = bundle.arm, bundle.external
+    robot = bundle.robot
+    q_arm = np.deg2rad(tg.q_deg)
+    ik_ok = np.ones(m, dtype=bool)
+    freed = np.zeros(m, dtype=bool)
+    pose = np.flatnonzero(tg.kind == 1)
+    if len(pose):  # the nominal inverse kinematics, grouped by the external axes' values
+        keys = [tg.ext_mm[k].tobytes() for k in pose]
+        for key in dict.fromkeys(keys):
+            rows = pose[[i for i, kk in enumerate(keys) if kk == key]]
+            cc = compile_chain(arm_chain(bundle.chain, ext, tg.ext_mm[rows[0]]))
+            q_r, ok_r, fr_r = _nominal_joints(cc, r.tool_T, tg.subset(rows), cfg.solver, r.mode == "position")
+            q_arm[rows], ik_ok[rows], freed[rows] = q_r, ok_r, fr_r
+    q_target = np.zeros((m, robot.n_joints))
+    q_target[:, arm], q_target[:, ext] = q_arm, tg.ext_mm
+    c = compensate_axes(
+        bundle.calibration, q_target, r.tool_name, bundle.axis_fit, r.move_external, r.payload_kg,
+        max_iter=max(cfg.solver.max_iter, 30), tol_mm=cfg.solver.tol_mm, orientation=r.mode == "pose",
+    )  # fmt: skip
+    assert c.zero_offsets is not None and c.own_error_mm is not None and c.error_before_xyz_mm is not None
+    sf = cfg.safety
+    dq = c.q[:, arm] - q_target[:, arm]
+    excess = np.rad2deg(np.abs(dq).max(axis=1))
+    beyond = np.rad2deg(np.abs(dq + c.zero_offsets[arm]).max(axis=1))  # past the calibration's own zero offsets
+    excess = np.where(excess > sf.max_correction_deg, np.minimum(excess, beyond), excess)
+    rest = np.where(c.error_before_mm > sf.max_error_mm, np.minimum(c.error_before_mm, c.own_error_mm),
+                    c.error_before_mm)  # fmt: skip
+    status, reasons = sf.judge(
+        c.converged, c.residual_mm, c.residual_deg, excess, rest, q_target[:, arm], c.q[:, arm],
+        robot.q_limits[arm], [robot.joint_names[j] for j in arm], r.reasons, ~ik_ok,
+    )  # fmt: skip
+    lim = robot.q_limits[ext]
+    for k in range(m):
+        lo = np.minimum(q_target[k, ext], c.q[k, ext]) < lim[:, 0]
+        hi = np.maximum(q_target[k, ext], c.q[k, ext]) > lim[:, 1]
+        if (lo | hi).any():
+            reasons[k] = [*reasons[k], "outside the external axis limits: " + ", ".join(
+                f"{robot.joint_names[j]}={q_target[k, j]:.4f} mm (corrected {c.q[k, j]:.4f})"
+                for i, j in enumerate(ext) if lo[i] or hi[i])]  # fmt: skip
+            refuse = sf.on_joint_limits == "refuse" or status[k] == "refused"
+            status[k] = "refused" if refuse else "flagged"
+    # the command for the nominal controller: the nominal pose of the corrected joints (base frame)
+    T = fk(bundle.chain, c.q) @ r.tool_T
+    quat = quaternions(T[:, :3, :3])
+    results = []
+    for k in range(m):
+        res: dict[str, Any] = {
+            "status": status[k],
+            "predicted_error_mm": round(float(c.error_before_mm[k]), 7),
+            "predicted_error_xyz_mm": np.round(c.error_before_xyz_mm[k], 7).tolist(),
+            "predicted_error_deg": round(float(c.error_before_deg[k]), 9) if c.error_before_deg is not None else 0.0,
+        }
+        if reasons[k]:
+            res["reasons"] = reasons[k]
+        if freed[k]:
+            res["notes"] = [FREED_NOTE]
+        if status[k] != "refused":
+            res["q_deg"] = np.rad2deg(c.q[k, arm]).round(9).tolist()
+            res["ext_mm"] = c.q[k, ext].tolist()  # unrounded: a track not moved comes back exactly as sent
+            res["correction_deg"] = np.rad2deg(dq[k]).round(9).tolist()
+            res["ext_correction_mm"] = (c.q[k, ext] - q_target[k, ext]).tolist()
+            res["command"] = {"xyz_mm": T[k, :3, 3].round(7).tolist(), "quat_wxyz": quat[k].round(12).tolist()}
+            res["residual_mm"] = float(c.residual_mm[k])
+            res["residual_deg"] = float(c.residual_deg[k])
+        if tg.kind[k] == 1:
+            res["q_nominal_deg"] = np.rad2deg(q_arm[k]).round(9).tolist()
+        results.append(res)
+    return results, {"move_external": r.move_external, "external_axes": [robot.joint_names[j] for j in ext]}

@@ -48,6 +48,18 @@ Every request may carry ``"id"`` (string or integer, echoed in the reply) and ``
 A bundle whose calibration was written by ``robocal discover`` applies its joint-level effects (gear,
 backlash, compliance) like the compliance model's deflection; ``info`` lists them under ``effects``.
 
+A robot on external axes (prismatic joints: a track, a column; ``info`` lists them under ``external_axes`` with
+their limits in mm, ``joints`` then the arm's): every target carries ``"ext_mm": [E1, ...]`` (mm, chain order)
+beside the arm's ``q_deg`` / ``q_seed_deg``, and a request may set ``"move_external": true | false`` (default the
+``serve.move_external`` setting, false: the correction moves the arm only). A pose target's nominal joints are the
+arm's inverse kinematics with the axes at ``ext_mm``; the correction is :mod:`robocal.compensation.axes` (the
+calibrated geometry and the axes' own errors along the travel, the calibration's ``axes``; numpy: 0.7-1.0 ms per
+target against the revolute path's compiled 0.1 ms, ``benchmarks/external_axes_service.py``), judged by the same
+policy on the arm's joints; an axis outside its limits is a joint-limit reason. Replies add ``"ext_mm"`` and
+``"ext_correction_mm"`` per target (an axis not moved comes back exactly as sent) and ``"move_external"`` /
+``"external_axes"`` per request. A thermal or compliance model or joint-level effects in such a bundle are
+refused when it is loaded (that path does not apply them).
+
 Reply to ``correct``::
 
     {"id": ..., "ok": true, "op": "correct", "bundle": "<id>", "tool": "T1", "mode": "pose",

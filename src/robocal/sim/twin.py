@@ -60,6 +60,9 @@ class Rows:
     station: np.ndarray | None = None  # (m,) the tracker station of each row, when an effect sets them (sessions)
     dtool_mm: np.ndarray | None = None  # (m, 3) mm: every target moved on the flange (flange axes; a re-seated tool)
     base_scale: np.ndarray | None = None  # (m,) the robot grown about its base (thermal expansion), 1e-6 = 1 ppm
+    # (m, 3) tracker frame: the true point of a row that measures something else than the robot's tool (a
+    # reflector on a positioner's part, robocal.sim.positioner), NaN for the tool's rows
+    fixed_points: np.ndarray | None = None
 
 
 @dataclass
@@ -94,6 +97,7 @@ EFFECT_MODULES = (
     "robocal.sim.stand",
     "robocal.sim.axes",
     "robocal.sim.session",
+    "robocal.sim.positioner",
 )
 
 
@@ -444,6 +448,9 @@ def simulate(
     rows = _apply_effects(cfg, rows, ctx)
 
     p, R = _true_points(cfg, chain, rows, eta, tool_R)
+    if rows.fixed_points is not None:  # rows measuring a reflector on the part (a positioner), not the tool
+        on_part = ~np.isnan(rows.fixed_points[:, 0])
+        p[on_part] = rows.fixed_points[on_part]
     station_of = _stations(cfg, truth, rows, p, R)
     if rows.tracker_scale is not None:  # about the tracker head: the point in its station's frame
         p = p * (1.0 + rows.tracker_scale)[:, None]

@@ -121,7 +121,10 @@ def run(
     """Calibrate the campaign in ``data_dir`` (``settings``: a :class:`CalibrationConfig` mapping); write
     ``calibration.json``, ``summary.json``, ``residuals.csv`` and (optionally) ``report.html`` into ``out_dir``.
     Returns the summary. A robot on external axes (a prismatic joint) also gets its axes' errors along the travel
-    fitted on top (:func:`robocal.identification.axes.fit_axis_errors`): ``summary.json`` → ``axes``.
+    fitted on top (:func:`robocal.identification.axes.fit_axis_errors`): ``summary.json`` → ``axes``, and
+    ``calibration.json`` → ``axes`` (with the calibration vector refitted with them) for the service. A robot with a
+    positioner (:mod:`robocal.identification.positioner`): the arm is fitted on the tool's rows, then the
+    positioner's axes with it on the part's rows: ``summary.json`` / ``calibration.json`` → ``positioner``.
 
     ``optimizer``: an optimizer config (``conf/optimizer/*.yaml``), run by
     :func:`robocal.calibration.fit.fit_with_optimizer` (None: Levenberg-Marquardt with ``settings``'
@@ -130,6 +133,11 @@ def run(
     rob = robot_of(robot)
     cfg = CalibrationConfig.from_mapping(settings)
     camp = campaign_of(data_dir, rob, split, campaign)
+    full = camp
+    if rob.positioner is not None:  # the rows of the part on a positioner are fitted after the arm's (issue 34)
+        from robocal.identification.positioner import part_rows
+
+        camp = camp.subset(~part_rows(camp, rob))
     outcome = fit_with_optimizer(camp, rob, cfg, optimizer)
     result = outcome.result
     val = validate(result, camp) if np.any(camp.split == "validation") else None
@@ -153,14 +161,11 @@ def run(
     warnings = result_warnings(summary)
     if warnings:  # the key only when there are some (a clean run's summary.json is unchanged)
         summary["warnings"] = warnings
-    if rob.has_prismatic and not summary["problems"]:  # a track's or a column's own errors (issue 34)
-        from robocal.identification.axes import fit_axis_errors
-
-        summary["axes"] = fit_axis_errors(camp, result).record()
+    cal_record = _with_cell_axes(rob, camp, full, result, summary)
     summary["status"] = status_of(summary)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    write_json(out / "calibration.json", result.to_dict())
+    write_json(out / "calibration.json", cal_record)
     cal = camp.calibration() if val else camp
     rows = pd.DataFrame(
         {
@@ -200,3 +205,25 @@ def run(
 
         geometric_report(result, camp, val, val_before, summary).save(out / "report.html")
     return summary
+
+
+def _with_cell_axes(
+    rob: RobotDescription, camp: Campaign, full: Campaign, result: CalibrationResult, summary: dict[str, Any]
+) -> dict[str, Any]:
+    """The calibration's record, with (issue 34) a track's or a column's own errors (``axes``, fitted on the arm's
+    rows) and a positioner's axes (``positioner``, fitted with the arm on the part's rows of ``full``), each also
+    into ``summary``; only when the fit has no problem."""
+    cal_record = result.to_dict()
+    if rob.has_prismatic and not summary["problems"]:
+        from robocal.identification.axes import calibration_axes, fit_axis_errors
+
+        axis_fit = fit_axis_errors(camp, result)
+        summary["axes"] = axis_fit.record()
+        cal_record["axes"] = calibration_axes(axis_fit)  # served with the calibration (robocal.serve.bundle)
+    if rob.positioner is not None and not summary["problems"]:  # the axes carrying the part, with the arm
+        from robocal.identification.positioner import fit_positioner
+
+        record = fit_positioner(full, result).record()
+        summary["positioner"] = {k: v for k, v in record.items() if k != "x"}
+        cal_record["positioner"] = record
+    return cal_record

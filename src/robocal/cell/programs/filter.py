@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import csv
 import io
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -105,9 +106,20 @@ def read_program(path: str | Path) -> Program:
     raise ProgramError(f"unknown program type {p.suffix!r}: KRL .src/.dat or RAPID .mod", p)
 
 
-def nominal_ik(prog: Program, cc_nom: Any, limits: np.ndarray, seed: int = 0, n_seeds: int = N_SEEDS) -> np.ndarray:
-    """Joints (m, n) rad the nominal controller uses for each target (see the module docstring, step 1)."""
+def nominal_ik(
+    prog: Program,
+    cc_nom: Any,
+    limits: np.ndarray,
+    seed: int = 0,
+    n_seeds: int = N_SEEDS,
+    chain_of: Callable[[int], Any] | None = None,
+) -> np.ndarray:
+    """Joints (m, n) rad the nominal controller uses for each target (see the module docstring, step 1);
+    ``chain_of(k)`` the nominal compiled chain of target ``k`` instead of ``cc_nom`` (an arm on external axes: the
+    arm with its axes at the target's values, :func:`robocal.kinematics.axes.arm_chain`)."""
     from robocal.kinematics.ik import forward, solve
+
+    nominal = cc_nom
 
     rng = np.random.default_rng(seed)
     m, n = len(prog.targets), len(limits)
@@ -121,6 +133,7 @@ def nominal_ik(prog: Program, cc_nom: Any, limits: np.ndarray, seed: int = 0, n_
             prev = last_axis = q[k]
             continue
         assert t.T_base_tcp is not None and t.tool is not None and t.base is not None
+        cc_nom = nominal if chain_of is None else chain_of(k)
         T_goal = t.base @ t.T_base_tcp  # robot base -> TCP
         seeds = [s for s in (prev, last_axis) if s is not None]
         found: list[np.ndarray] = []  # solutions within the limits, whatever their configuration (for the error)

@@ -400,10 +400,16 @@ def _target(name: str, typ: str, node: Node, file: Path, text: str, line: int) -
 
 
 def render(t: Target, new: dict[str, Any]) -> str:
-    """The target's value with new pose + confdata (robtarget) or robax (jointtarget); extax text kept."""
+    """The target's value with new pose + confdata (robtarget) or robax (jointtarget); extax text kept unless
+    ``new`` has ``extax`` (the external axes' new values, mm, from ``eax_a``; the rest kept)."""
     node: Node = t.data["node"]
     text: str = t.data["text"]
     edits: list[tuple[int, int, str]] = []
+    if "extax" in new:
+        en = (node.items or [])[3 if t.kind == "pose" else 1]
+        old = [text[it.start : it.end].strip() for it in en.items or []]
+        vals = [format_number(float(v), 4) for v in new["extax"]] + old[len(new["extax"]) :]
+        edits.append((en.start, en.end, "[" + ",".join(vals) + "]"))
     if t.kind == "pose":
         T = new["T_base_tcp"]
         q = matrix_to_quat(T[:3, :3])
