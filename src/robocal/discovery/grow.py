@@ -34,7 +34,7 @@ from robocal.discovery.config import DiscoveryConfig
 from robocal.discovery.cv import FoldCV, fold_cv
 from robocal.discovery.model import Accepted, Fit
 from robocal.discovery.scoring import Score, Step, regressor
-from robocal.discovery.session_cv import Sessions
+from robocal.discovery.session_cv import Sessions, session_own
 from robocal.identification.model import FitData
 from robocal.metrics import ErrorStats
 from robocal.robot import RobotDescription
@@ -504,6 +504,13 @@ def layer_candidates(campaign: Campaign, cfg: DiscoveryConfig, rows: np.ndarray)
     return pool
 
 
+def judged(cand: Any) -> bool:
+    """Whether the held-out checks judge an effect: every joint-level effect, and a logged signal moving the base or
+    the tool (robot side: it is carried to the controller and into a new session, so it must hold there too). The
+    measurement's own effects (the tracker's drift, scale, a re-seated tool) are the session's, not judged here."""
+    return cand.shape == "joint" or (cand.shape == "frame" and not session_own(cand))
+
+
 def contributions(
     fit: Fit, accepted: list[Accepted], groups: np.ndarray, cfg: DiscoveryConfig, sessions: Sessions | None = None
 ) -> dict[str, Any]:
@@ -523,7 +530,7 @@ def contributions(
         out["session_cv"] = {k: v for k, v in own.items() if k != "sse"}
     model = fit.model
     for a, sl in zip(model.accepted, model.slices, strict=True):
-        if a.cand.shape != "joint":
+        if not judged(a.cand):
             continue
         keep = np.array([i for i, p in enumerate(fit.free) if not (sl.start <= p < sl.stop)])
         if len(keep) == len(fit.free):
