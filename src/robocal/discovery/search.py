@@ -231,7 +231,7 @@ def discover(campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig |
     assert res is not None
     # every calibration row's residual under the final model, for the outlier list
     fit = res.final
-    r, _, _, _ = fit.model.residuals_and_jacobian(fit.theta, data_all, rows_all)
+    r, _, _, _ = fit.model.residuals_and_jacobian(fit.theta, data_all, rows_all, cols=np.zeros(0, dtype=int))
     rr = r.reshape(m, fit.d)
     if isinstance(cfg.outliers, tuple):
         outliers = describe_outliers(cal, ~kept, rr[:, :3], rr[:, 3:] if fit.d == 6 else None, None, listed=True)
@@ -296,11 +296,10 @@ def _retest(
 
     m = cal.n_rows
     progress.note(f"gross-error test: every one of the {m} calibration rows against the discovered model")
-    r, J, _, _ = fit.model.residuals_and_jacobian(fit.theta, data_all, rows_all)
+    # the free columns only, whitened in place (no (M, n) matrix, no copy)
+    r, Jw, _, _ = fit.model.residuals_and_jacobian(fit.theta, data_all, rows_all, cols=fit.free)
     w = np.tile(fit.weights[: fit.d], m)
     row_of = np.repeat(np.arange(m), fit.d)
-    Jw = J[:, fit.free]  # a copy, whitened in place; the full Jacobian let go first (each is (M, n))
-    del J
     Jw *= w[:, None]
     test = robust.row_test(r * w, Jw, row_of, m, kept, alpha)
     # a row is a gross error only when it also stands out from the rows' own scatter (robust scale: the median
