@@ -30,6 +30,10 @@ from scipy import linalg
 #: residual rows per chunk of an accumulation (bounds the temporaries: chunk x k floats)
 CHUNK = 8192
 
+#: the largest fit Jacobian (bytes) FoldCV copies in fold order (each candidate then reads its folds' rows in place);
+#: a larger one is read fold by fold from the fit's own matrix (a gather per fold and candidate: slower, no copy)
+SORTED_COPY_BYTES = 128 * 2**20
+
 #: joints whose per-row projections FoldCV keeps (each an ``m x k`` matrix)
 U_CACHE = 2
 
@@ -111,10 +115,11 @@ class FoldCV:
         ends = np.cumsum(counts)
         self.bounds = [(int(ends[k] - counts[k]), int(ends[k])) for k in self.folds]
         self.d = int(fit.d)
-        # the fit's Jacobian is not copied in fold order (an (M, k) matrix): each fold's rows are taken when
-        # needed (:meth:`_fold`, one fold at a time)
+        # the fit's Jacobian in fold order: a copy when it is at most SORTED_COPY_BYTES, else each fold's rows are
+        # taken when needed (:meth:`_fold`, one fold at a time: no second (M, k) matrix)
         self._J = fit.J_w
         self.k = int(fit.J_w.shape[1])
+        self._A = np.ascontiguousarray(fit.J_w[self.order]) if fit.J_w.nbytes <= SORTED_COPY_BYTES else None
         self._r = np.asarray(fit.r_w)[self.order]
         self.prec = fit.model.prior_precision()[fit.free]
         self.th = fit.theta[fit.free]
@@ -143,7 +148,7 @@ class FoldCV:
     def _fold(self, i: int) -> np.ndarray:
         """The whitened Jacobian's rows of fold ``i`` in the sorted order (a copy of that fold only)."""
         s, e = self.bounds[i]
-        return np.asarray(self._J[self.order[s:e]])
+        return self._A[s:e] if self._A is not None else np.asarray(self._J[self.order[s:e]])
 
     def _count(self, i: int) -> int:
         s, e = self.bounds[i]
@@ -165,7 +170,8 @@ class FoldCV:
         keep = np.asarray(keep, dtype=int)
         drop = np.setdiff1d(np.arange(self.k), keep)
         th_d = self.th[drop]
-        r2 = self._r - self._J[self.order[:, None], drop[None, :]] @ th_d if len(drop) else self._r
+        Ad = self._A[:, drop] if self._A is not None else self._J[self.order[:, None], drop[None, :]]
+        r2 = self._r - Ad @ th_d if len(drop) else self._r
         Gkd = [Gi[np.ix_(keep, drop)] for Gi in self._Gf]
         bf = [bi[keep] - Gd @ th_d for bi, Gd in zip(self._bf, Gkd, strict=True)]
         b = np.sum(bf, axis=0)
