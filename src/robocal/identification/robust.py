@@ -73,12 +73,15 @@ def row_test(
     kept: np.ndarray,
     alpha: float,
     cov_w: np.ndarray | None = None,
+    prior: np.ndarray | None = None,
 ) -> RowTest:
     """The exact test of every row at a least-squares fit on the ``kept`` rows.
 
     rw, Jw : whitened residuals ``(M,)`` and Jacobian on the free parameters ``(M, k)`` of *all* rows (the
     excluded ones predicted); rows : (M,) the row of every residual; kept : (m,) bool; cov_w : ``(JᵀJ)⁻¹`` of
-    the kept rows (computed when None).
+    the kept rows (computed when None); prior : ``(k,)`` precision of a prior on the parameters, added to the
+    kept rows' ``JᵀJ`` when ``cov_w`` is computed (the leverages of a fit with a prior, as calibrate's; without
+    it an effect determined by its prior alone leaves ``JᵀJ`` singular and the leverages round-off).
     """
     d = int(len(rw) // m)
     order = np.argsort(rows, kind="stable")
@@ -97,7 +100,7 @@ def row_test(
         for a, b in chunks:
             Jk = block(a, b)[kept[a:b]].reshape(-1, k)
             G = Jk.T @ Jk if len(chunks) == 1 else G + Jk.T @ Jk
-        cov_w = normal_matrix_inverse(G)
+        cov_w = normal_matrix_inverse(G if prior is None else G + np.diag(prior))
     H = np.empty((m, d, d))
     for a, b in chunks:
         JB = block(a, b)
