@@ -101,6 +101,32 @@ def test_fold_sums_equal_the_dense_cross_validation(d):
         assert np.max(np.abs(got - ref)) < TOL * scale
 
 
+def test_folds_read_in_place_equal_the_sorted_copy(monkeypatch):
+    """A fit Jacobian beyond SORTED_COPY_BYTES is read fold by fold from the fit's own matrix (no second (M, k)
+    matrix): the same products on the same numbers as with the copy in fold order (to round-off: a fold's rows
+    in another place in memory may take another BLAS kernel path)."""
+    from robocal.discovery import cv as cv_mod
+
+    rng = np.random.default_rng(5)
+    fit, groups = fake_fit(rng, d=6)
+    m = fit.Jq.shape[0]
+    Z = rng.normal(size=(len(fit.r_w), 4))
+    blocks = [(1, rng.normal(size=(m, 3))), (3, rng.normal(size=(m, 2)))]
+    vs = [Variant(None, None, ""), Variant(np.array([0, 2]), 0.5, "")]
+
+    def run():
+        cv = FoldCV(fit, groups, 5, 7)
+        return [cv.base_err, *cv.with_variants(Z, vs), *cv.with_joint_variants(blocks, vs),
+                cv.base_err_without(np.array([0, 1, 2, 4, 6, 7]))]  # fmt: skip
+
+    copied = run()
+    monkeypatch.setattr(cv_mod, "SORTED_COPY_BYTES", 0)
+    assert FoldCV(fit, groups, 5, 7)._A is None
+    scale = float(np.sqrt(np.mean(fit.r_w**2)))
+    for a, b in zip(copied, run(), strict=True):
+        assert np.max(np.abs(a - b)) < 1e-12 * scale
+
+
 def test_leaving_columns_out_equals_refitting_the_reduced_fit():
     rng = np.random.default_rng(2)
     fit, groups = fake_fit(rng)

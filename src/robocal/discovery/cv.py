@@ -30,6 +30,10 @@ from scipy import linalg
 #: residual rows per chunk of an accumulation (bounds the temporaries: chunk x k floats)
 CHUNK = 8192
 
+#: the largest fit Jacobian (bytes) FoldCV copies in fold order (each candidate then reads its folds' rows in place);
+#: a larger one is read fold by fold from the fit's own matrix (a gather per fold and candidate: slower, no copy)
+SORTED_COPY_BYTES = 128 * 2**20
+
 #: joints whose per-row projections FoldCV keeps (each an ``m x k`` matrix)
 U_CACHE = 2
 
@@ -111,13 +115,21 @@ class FoldCV:
         ends = np.cumsum(counts)
         self.bounds = [(int(ends[k] - counts[k]), int(ends[k])) for k in self.folds]
         self.d = int(fit.d)
-        self._A = np.ascontiguousarray(fit.J_w[self.order])
+        # the fit's Jacobian in fold order: a copy when it is at most SORTED_COPY_BYTES, else each fold's rows are
+        # taken when needed (:meth:`_fold`, one fold at a time: no second (M, k) matrix)
+        self._J = fit.J_w
+        self.k = int(fit.J_w.shape[1])
+        self._A = np.ascontiguousarray(fit.J_w[self.order]) if fit.J_w.nbytes <= SORTED_COPY_BYTES else None
         self._r = np.asarray(fit.r_w)[self.order]
         self.prec = fit.model.prior_precision()[fit.free]
         self.th = fit.theta[fit.free]
-        self._Gf, self._bf = gram_by_blocks(self._A, self._r, self.bounds)
-        self.G = np.sum(self._Gf, axis=0) if self._Gf else np.zeros((self._A.shape[1],) * 2)
-        self.b = np.sum(self._bf, axis=0) if self._bf else np.zeros(self._A.shape[1])
+        self._Gf, self._bf = [], []
+        for i in range(len(self.bounds)):
+            G1, b1 = gram_by_blocks(self._fold(i), self._r[slice(*self.bounds[i])], [(0, self._count(i))])
+            self._Gf += G1
+            self._bf += b1
+        self.G = np.sum(self._Gf, axis=0) if self._Gf else np.zeros((self.k,) * 2)
+        self.b = np.sum(self._bf, axis=0) if self._bf else np.zeros(self.k)
         self._solver: list[SymSolver] = []
         self._g: list[np.ndarray] = []
         err = np.empty_like(self._r)
@@ -127,12 +139,21 @@ class FoldCV:
             sol = SymSolver(H)
             self._solver.append(sol)
             self._g.append(g)
-            err[s:e] = self._r[s:e] - self._A[s:e] @ sol.solve(g)
+            err[s:e] = self._r[s:e] - self._fold(i) @ sol.solve(g)
         self._err_sorted = err
         self.base_err = self._unsort(err)
         self._U: OrderedDict[int, list[np.ndarray]] = OrderedDict()
 
     # -- helpers ---------------------------------------------------------------------------------------------
+    def _fold(self, i: int) -> np.ndarray:
+        """The whitened Jacobian's rows of fold ``i`` in the sorted order (a copy of that fold only)."""
+        s, e = self.bounds[i]
+        return self._A[s:e] if self._A is not None else np.asarray(self._J[self.order[s:e]])
+
+    def _count(self, i: int) -> int:
+        s, e = self.bounds[i]
+        return e - s
+
     def _unsort(self, e_sorted: np.ndarray) -> np.ndarray:
         out = np.empty_like(e_sorted)
         out[self.order] = e_sorted
@@ -147,9 +168,10 @@ class FoldCV:
         :func:`robocal.discovery.grow.replace_fit_columns`), from this fit's fold sums: no pass over the rows but
         the prediction of the held-out residuals."""
         keep = np.asarray(keep, dtype=int)
-        drop = np.setdiff1d(np.arange(self._A.shape[1]), keep)
+        drop = np.setdiff1d(np.arange(self.k), keep)
         th_d = self.th[drop]
-        r2 = self._r - self._A[:, drop] @ th_d if len(drop) else self._r
+        Ad = self._A[:, drop] if self._A is not None else self._J[self.order[:, None], drop[None, :]]
+        r2 = self._r - Ad @ th_d if len(drop) else self._r
         Gkd = [Gi[np.ix_(keep, drop)] for Gi in self._Gf]
         bf = [bi[keep] - Gd @ th_d for bi, Gd in zip(self._bf, Gkd, strict=True)]
         b = np.sum(bf, axis=0)
@@ -159,9 +181,9 @@ class FoldCV:
         for i, (s, e) in enumerate(self.bounds):
             H = G - self._Gf[i][np.ix_(keep, keep)] + np.diag(prec)
             g = b - bf[i] + prec * th
-            y = np.zeros(self._A.shape[1])  # the step on the kept columns, zero on the others: no column copy
+            y = np.zeros(self.k)  # the step on the kept columns, zero on the others: no column copy
             y[keep] = SymSolver(H).solve(g)
-            err[s:e] = r2[s:e] - self._A[s:e] @ y
+            err[s:e] = r2[s:e] - self._fold(i) @ y
         return self._unsort(err)
 
     # -- candidates ------------------------------------------------------------------------------------------
@@ -171,8 +193,8 @@ class FoldCV:
         taking columns) and solves only its own Schur complement."""
         Zs = Z[self.order]
         Ct, Z2t, bzt = [], [], []
-        for s, e in self.bounds:
-            At, Zt = self._A[s:e], Zs[s:e]
+        for i, (s, e) in enumerate(self.bounds):
+            At, Zt = self._fold(i), Zs[s:e]
             Ct.append(At.T @ Zt)
             Z2t.append(Zt.T @ Zt)
             bzt.append(Zt.T @ self._r[s:e])
@@ -196,7 +218,7 @@ class FoldCV:
             return self._U[j]
         out = []
         for i, (s, e) in enumerate(self.bounds):
-            A3 = self._A[s:e].reshape((e - s) // self.d, self.d, -1)
+            A3 = self._fold(i).reshape((e - s) // self.d, self.d, -1)
             out.append(np.einsum("rdk,rd->rk", A3, v[self._rows_of_fold(i)], optimize=True))
         self._U[j] = out
         while len(self._U) > U_CACHE:
@@ -222,7 +244,7 @@ class FoldCV:
         for i, (s, e) in enumerate(self.bounds):
             rows = self._rows_of_fold(i)
             r3 = self._r[s:e].reshape(-1, self.d)
-            C = np.empty((self._A.shape[1], q))
+            C = np.empty((self.k, q))
             Z2 = np.empty((q, q))
             bz = np.empty(q)
             fb = []
@@ -292,7 +314,7 @@ class FoldCV:
                 except np.linalg.LinAlgError:
                     DZ[cols, vi] = -np.linalg.lstsq(Sz, rhs, rcond=1e-12)[0]
             # held-out response to the candidate with the model refitted: Z_t dz - A_t (W dz), every variant
-            errs[s:e] += apply_z(i, DZ) - self._A[s:e] @ (W @ DZ)
+            errs[s:e] += apply_z(i, DZ) - self._fold(i) @ (W @ DZ)
         return [self._unsort(errs[:, vi]) for vi in range(len(variants))]
 
 

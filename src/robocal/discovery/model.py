@@ -121,7 +121,12 @@ class ExtendedModel:
         return 6 if (self.base.orientation and data.R_meas is not None) else 3
 
     def residuals_and_jacobian(
-        self, theta: np.ndarray, data: FitData, rows: np.ndarray, extra_rows: int = 0
+        self,
+        theta: np.ndarray,
+        data: FitData,
+        rows: np.ndarray,
+        extra_rows: int = 0,
+        cols: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Residuals ``(d m,)`` row by row, Jacobian ``(d m, n)``, and the base Jacobians ``J_x (m, d, nb)``,
         ``J_q (m, d, N)`` (``d`` = :meth:`per_row`).
@@ -129,6 +134,8 @@ class ExtendedModel:
         ``rows`` index the campaign rows of ``data`` (signals are stored for every campaign row).
         ``extra_rows``: the Jacobian is allocated with that many more rows (zero) below, for a caller that
         appends rows of its own (a prior) without copying the ``(d m, n)`` matrix.
+        ``cols``: only these columns of the Jacobian (sorted parameter indices: a fit's free parameters), built
+        in place — the same numbers as ``J[:, cols]`` without the ``(d m, n)`` matrix.
         """
         x = theta[: self.nb]
         m = data.m
@@ -140,40 +147,52 @@ class ExtendedModel:
         Jx = Jb.reshape(m, dd, self.nb)
         Jq_p, Jq_w = self.base.joint_jacobians(x, d)
         Jq = Jq_p if Jq_w is None else np.concatenate([Jq_p, Jq_w], axis=1)
-        J_all = np.zeros((dd * m + extra_rows, self.n))
+        pos = np.arange(self.n) if cols is None else column_positions(self.n, cols)
+        n_out = self.n if cols is None else len(cols)
+        J_all = np.zeros((dd * m + extra_rows, n_out))
         J = J_all[: dd * m]
-        J[:, : self.nb] = Jb
-        Jv = J.reshape(m, dd, self.n)
+        bsel = np.flatnonzero(pos[: self.nb] >= 0)
+        if len(bsel) == self.nb and cols is None:
+            J[:, : self.nb] = Jb
+        elif len(bsel):
+            J[:, pos[bsel]] = Jb[:, bsel]
+        Jv = J.reshape(m, dd, n_out)
         rv = r.reshape(m, dd).copy()
+
+        def put(
+            sl: slice, block: np.ndarray | None = None, joint: int | None = None, S: np.ndarray | None = None
+        ) -> None:
+            put_block(Jv, pos[sl], block, None if joint is None else Jq[:, :, joint], S)
+
         for a, sl in zip(self.accepted, self.slices, strict=True):
             c = a.cand
             if c.shape == "joint":
                 assert c.joint is not None
-                Jv[:, :, sl] = Jq[:, :, c.joint - 1][:, :, None] * c.S[rows][:, None, :]
+                put(sl, joint=c.joint - 1, S=c.S[rows])
             elif c.shape == "param":
                 idx = [self.base.index(p) for p in a.params]
                 S = c.S[rows]  # (m, s)
-                cols = Jx[:, :, idx][:, :, :, None] * S[:, None, None, :]  # (m, d, P, s)
-                cols = cols.reshape(m, dd, -1)
-                Jv[:, :, sl] = cols
-                rv += np.einsum("mij,j->mi", cols, theta[sl])
+                blk = Jx[:, :, idx][:, :, :, None] * S[:, None, None, :]  # (m, d, P, s)
+                blk = blk.reshape(m, dd, -1)
+                put(sl, blk)
+                rv += np.einsum("mij,j->mi", blk, theta[sl])
             elif c.shape == "tracker":
-                cols = tracker_columns(c, rows, dd)
-                Jv[:, :, sl] = cols
-                rv += np.einsum("mij,j->mi", cols, theta[sl])
+                blk = tracker_columns(c, rows, dd)
+                put(sl, blk)
+                rv += np.einsum("mij,j->mi", blk, theta[sl])
             elif c.shape == "frame":  # the base or the tool following a logged signal (first order)
                 from robocal.discovery.logged import frame_rows
 
-                cols = frame_rows(c, Jx, self.base, x, data.target_index, rows)
-                Jv[:, :, sl] = cols
-                rv += np.einsum("mij,j->mi", cols, theta[sl])
+                blk = frame_rows(c, Jx, self.base, x, data.target_index, rows)
+                put(sl, blk)
+                rv += np.einsum("mij,j->mi", blk, theta[sl])
             elif c.shape == "axis":  # a linear axis's carriage error along its travel (first order)
                 from robocal.discovery.axes import axis_rows
 
-                cols = axis_rows(c, self.base, x, d, rows, dd)
-                Jv[:, :, sl] = cols
-                rv += np.einsum("mij,j->mi", cols, theta[sl])
-        return rv.ravel(), (J_all if extra_rows else J), Jx, Jq
+                blk = axis_rows(c, self.base, x, d, rows, dd)
+                put(sl, blk)
+                rv += np.einsum("mij,j->mi", blk, theta[sl])
+        return rv.ravel(), J_all, Jx, Jq  # (J_all is J with extra_rows 0: the owner, not a view)
 
     def base_jacobians(self, theta: np.ndarray, data: FitData, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``J_x (m, d, nb)`` and ``J_q (m, d, N)`` of :meth:`residuals_and_jacobian` without its ``(d m, n)``
@@ -186,6 +205,37 @@ class ExtendedModel:
         Jx = by_row(Jb, m, dd).reshape(m, dd, self.nb)
         Jq_p, Jq_w = self.base.joint_jacobians(x, d)
         return Jx, (Jq_p if Jq_w is None else np.concatenate([Jq_p, Jq_w], axis=1))
+
+
+def column_positions(n: int, cols: np.ndarray) -> np.ndarray:
+    """``(n,)``: where each of ``n`` parameters' column goes among the columns ``cols`` built (-1: not built)."""
+    pos = np.full(n, -1)
+    pos[np.asarray(cols, dtype=int)] = np.arange(len(cols))
+    return pos
+
+
+def put_block(
+    Jv: np.ndarray, p: np.ndarray, block: np.ndarray | None, v: np.ndarray | None, S: np.ndarray | None
+) -> None:
+    """An effect's columns into ``Jv (m, d, n_out)``, only those built (``p``: each column's position, -1 none):
+    ``block (m, d, q)``, or a joint effect's ``v ⊗ S`` (``v (m, d)`` the rows' response to the joint, ``S (m, q)``)
+    formed on the built columns alone."""
+    sel = np.flatnonzero(p >= 0)
+    if not len(sel):
+        return
+    full = len(sel) == len(p)
+    dp = p[sel]
+    # consecutive columns (every column of a block: always so for a block under a prior) are a slice
+    dst: slice | np.ndarray = slice(int(dp[0]), int(dp[-1]) + 1) if dp[-1] - dp[0] == len(dp) - 1 else dp
+    if block is not None:
+        Jv[:, :, dst] = block if full else block[:, :, sel]
+        return
+    assert v is not None and S is not None
+    Ss = S if full else S[:, sel]
+    if isinstance(dst, slice):  # the product written in place: no (m, d, q) temporary
+        np.multiply(v[:, :, None], Ss[:, None, :], out=Jv[:, :, dst])
+    else:
+        Jv[:, :, dst] = v[:, :, None] * Ss[:, None, :]
 
 
 def tracker_columns(cand: Candidate, rows: np.ndarray, d: int = 3) -> np.ndarray:
@@ -305,33 +355,41 @@ def fit_model(
     ridge = np.flatnonzero(prec > 0)
     sq = np.sqrt(prec[ridge])
 
-    def fun(th: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        # the prior as extra residual rows sqrt(precision) * theta (weight 1), filled in place below the
-        # Jacobian (no copy of the (M, n) matrix)
-        r, J, _, _ = model.residuals_and_jacobian(th, data, rows, extra_rows=len(ridge))
-        if len(ridge):
-            J[len(r) + np.arange(len(ridge)), ridge] = sq
-            return np.concatenate([r, sq * th[ridge]]), J
-        return r, J
-
     d = model.per_row(data)
     w_row = np.array([1.0 / sigma] * 3 + ([1.0 / (sigma_rad or 1.0)] * 3 if d == 6 else []))
     w = np.tile(w_row, data.m)
     M = len(w)
-    _r0, J0 = fun(theta0)
     kinds = list(model.base.kinds) + ["effect"] * (model.n - model.nb)
     order = [i for i, k in enumerate(kinds) if k == "base"]
     order += [i for i, k in enumerate(kinds) if k in ("tool", "tool_rot")]
     order += [i for i, k in enumerate(kinds) if k == "kinematic"]
     order += [i for i, k in enumerate(kinds) if k == "effect" and prec[i] == 0]
     order = [i for i in order if model.names[i] not in fixed]
-    J0[:M] *= w[:, None]  # whitened in place (J0 is not used again)
-    ident = analyse(J0[:M], model.names, order, rtol=rank_tol)
+    # the identifiability analysis sees only the columns it may keep (an effect under a prior is always fitted,
+    # a fixed parameter never): the Jacobian is built on those alone, whitened in place
+    judged = np.array(sorted(order), dtype=int)
+    at = {int(c): i for i, c in enumerate(judged)}
+    _r0, J0, _, _ = model.residuals_and_jacobian(theta0, data, rows, cols=judged)
+    J0 *= w[:, None]
+    ident = analyse(J0, [model.names[c] for c in judged], [at[c] for c in order], rtol=rank_tol)
     del _r0, J0  # not held through the solver (an (M, n) matrix)
+    kept = judged[np.asarray(ident.kept, dtype=int)]
     # coefficients under a prior are determined by it: always fitted, never eliminated
-    free = np.sort(np.concatenate([np.asarray(ident.kept, dtype=int), ridge]))
+    free = np.sort(np.concatenate([kept, ridge]))
     w_all = np.concatenate([w, np.ones(len(ridge))])
-    lm = least_squares(fun, theta0, free, w_all, max_iter=max_iter, ftol=1e-12, xtol=1e-10)
+    ridge_pos = np.searchsorted(free, ridge)  # the prior rows' columns among the free ones
+
+    def fun_free(th: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        # the solver's evaluation: only the free columns, whitened in place (the same numbers as weighting
+        # ``J[:, free]``, without the (M, n) matrix nor the solver's weighted copy)
+        r, J, _, _ = model.residuals_and_jacobian(th, data, rows, extra_rows=len(ridge), cols=free)
+        if len(ridge):
+            J[len(r) + np.arange(len(ridge)), ridge_pos] = sq
+            r = np.concatenate([r, sq * th[ridge]])
+        J *= w_all[:, None]
+        return w_all * r, J
+
+    lm = least_squares(fun_free, theta0, free, 1.0, max_iter=max_iter, ftol=1e-12, xtol=1e-10, jac_free=True)
     theta = np.array(lm.x)
     Jx, Jq = model.base_jacobians(theta, data, rows)  # the parts of the solver's J
     assert lm.covariance is not None  # a finite fit
@@ -340,7 +398,7 @@ def fit_model(
         theta=theta,
         free=free,
         r_w=np.array(lm.residual)[:M],
-        J_w=np.array(lm.jacobian)[:M],
+        J_w=lm.jacobian[:M],  # the solver's own read-only matrix (a view: no copy of the (M, k) Jacobian)
         Jx=Jx,
         Jq=Jq,
         cov=np.array(lm.covariance),

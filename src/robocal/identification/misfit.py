@@ -168,6 +168,17 @@ def _scores(camp: Campaign, pool: np.ndarray, flagged: np.ndarray) -> list[tuple
     return out
 
 
+def _log10_enrichment(k: np.ndarray, N: int, K: int, n: np.ndarray) -> np.ndarray:
+    """log10 P(at least ``k`` of the ``K`` flagged rows among ``n`` of ``N``) per interval: the hypergeometric
+    tail, evaluated once per distinct ``(k, n)`` (intervals share them; scipy's tail sums the mass function, and
+    the scoring of every interval was a tenth of discovery's time on the UR10's 6 000 rows)."""
+    k, n = np.asarray(k), np.asarray(n)
+    if not k.size:
+        return np.zeros(0)
+    kn, inv = np.unique(np.stack([k, n]), axis=1, return_inverse=True)
+    return np.asarray(stats.hypergeom.logsf(kn[0] - 1, N, K, kn[1]) / np.log(10.0))[np.ravel(inv)]
+
+
 def _extend(
     camp: Campaign,
     cond: Condition,
@@ -199,7 +210,7 @@ def _extend(
         nhi = np.full(len(seq), hi) if side < 0 else np.maximum(hi, ends)
         n = np.searchsorted(xp, nhi, side="right") - np.searchsorted(xp, nlo, side="left")
         k = np.searchsorted(xf, nhi, side="right") - np.searchsorted(xf, nlo, side="left")
-        lp = stats.hypergeom.logsf(k - 1, N, K, n) / np.log(10.0)
+        lp = _log10_enrichment(k, N, K, n)
         fails = np.flatnonzero(~(lp < log_thr))
         t = int(fails[0]) if len(fails) else len(seq)  # the ends before the first that is not significant
         if t > 0:
@@ -234,7 +245,7 @@ def find(
         log_thr = float(np.log10(alpha / len(scored)))
         n = np.array([s[1] for s in scored])
         k = np.array([s[2] for s in scored])
-        lp = stats.hypergeom.logsf(k - 1, N, K, n) / np.log(10.0)
+        lp = _log10_enrichment(k, N, K, n)
         # the most significant; among equals the one holding more flagged rows, then the first tested
         i = int(np.lexsort((np.arange(len(k)), -k, np.round(lp, 9)))[0])
         if not lp[i] < log_thr:

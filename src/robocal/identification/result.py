@@ -71,6 +71,8 @@ def fit_covariance(r: np.ndarray, J: np.ndarray, ndata: int | None = None) -> np
 def _frozen(a: Any, dtype: Any = float) -> np.ndarray | None:
     if a is None:
         return None
+    if isinstance(a, np.ndarray) and a.base is None and not a.flags.writeable and a.dtype == np.dtype(dtype):
+        return a  # read-only and owning its data: nobody can change it, so no copy (a large Jacobian)
     v = np.array(a, dtype=dtype)  # a copy: the caller's array stays theirs
     v.setflags(write=False)
     return v

@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import special
 
-from robocal.identification.result import normal_inverse
+from robocal.identification.result import normal_matrix_inverse
 
 #: Cauchy tuning constant (95 % efficiency at the normal distribution), in units of the per-component scale
 CAUCHY_C = 2.385
@@ -61,10 +61,8 @@ def row_index(m: int, d_pos: int, with_rot: bool) -> np.ndarray:
     return np.concatenate([idx, idx]) if with_rot else idx
 
 
-def _blocks(rw: np.ndarray, Jw: np.ndarray, rows: np.ndarray, m: int, d: int) -> tuple[np.ndarray, np.ndarray]:
-    """Per-row residual blocks ``(m, d)`` and Jacobian blocks ``(m, d, k)`` (rows in their original order)."""
-    order = np.argsort(rows, kind="stable")
-    return rw[order].reshape(m, d), Jw[order].reshape(m, d, -1)
+#: residuals per chunk of the row test (bounds its temporaries: chunk x k floats)
+ROW_CHUNK = 16384
 
 
 def row_test(
@@ -75,19 +73,38 @@ def row_test(
     kept: np.ndarray,
     alpha: float,
     cov_w: np.ndarray | None = None,
+    prior: np.ndarray | None = None,
 ) -> RowTest:
     """The exact test of every row at a least-squares fit on the ``kept`` rows.
 
     rw, Jw : whitened residuals ``(M,)`` and Jacobian on the free parameters ``(M, k)`` of *all* rows (the
     excluded ones predicted); rows : (M,) the row of every residual; kept : (m,) bool; cov_w : ``(JᵀJ)⁻¹`` of
-    the kept rows (computed when None).
+    the kept rows (computed when None); prior : ``(k,)`` precision of a prior on the parameters, added to the
+    kept rows' ``JᵀJ`` when ``cov_w`` is computed (the leverages of a fit with a prior, as calibrate's; without
+    it an effect determined by its prior alone leaves ``JᵀJ`` singular and the leverages round-off).
     """
     d = int(len(rw) // m)
-    R, JB = _blocks(rw, Jw, rows, m, d)
+    order = np.argsort(rows, kind="stable")
+    R = rw[order].reshape(m, d)
     k = Jw.shape[1]
+    # the rows in chunks of at most ROW_CHUNK residuals (a campaign of that size is one chunk): no copy of the
+    # (M, k) Jacobian, nor of its kept rows, nor of its product with the covariance
+    step = max(1, ROW_CHUNK // max(d, 1))
+    chunks = [(a, min(a + step, m)) for a in range(0, m, step)]
+
+    def block(a: int, b: int) -> np.ndarray:
+        return np.asarray(Jw[order[a * d : b * d]]).reshape(b - a, d, k)
+
     if cov_w is None:
-        cov_w = normal_inverse(JB[kept].reshape(-1, k))
-    H = (JB @ cov_w) @ np.swapaxes(JB, 1, 2)  # (m, d, d)
+        G = np.zeros((k, k))
+        for a, b in chunks:
+            Jk = block(a, b)[kept[a:b]].reshape(-1, k)
+            G = Jk.T @ Jk if len(chunks) == 1 else G + Jk.T @ Jk
+        cov_w = normal_matrix_inverse(G if prior is None else G + np.diag(prior))
+    H = np.empty((m, d, d))
+    for a, b in chunks:
+        JB = block(a, b)
+        H[a:b] = (JB @ cov_w) @ np.swapaxes(JB, 1, 2)  # (rows, d, d)
     eye = np.eye(d)
     sign = np.where(kept, -1.0, 1.0)[:, None, None]
     C = eye + sign * H

@@ -115,6 +115,7 @@ class GaussNewton(EstimatorParams):
             xtol=float(self.xtol),
             lam0=self._lam0(),
             method=self.name,
+            jac_free=True,  # the problem's Jacobian is over its own variables, whitened: the solver's, no copy
         )
         m = lm.residual.size
         cost = float(fitness_from_residuals(lm.residual[None, :], problem.objective)[0])

@@ -39,8 +39,10 @@ class Whitened:
         x0: np.ndarray,
         free: np.ndarray,
         weights: np.ndarray | float,
+        jac_free: bool = False,
     ) -> None:
         self.fun = fun
+        self.jac_free = bool(jac_free)  # fun's Jacobian holds only the free columns, in their order
         self.x0 = np.array(x0, dtype=float)
         self.free = np.asarray(free, dtype=int)
         self.weights = np.asarray(weights, dtype=float)
@@ -60,7 +62,7 @@ class Whitened:
         """The whitened residuals and Jacobian (free columns) at ``z``, evaluated."""
         r, J = self.fun(self.full(z))
         w = self.weights
-        Jc = J if self.every and J.shape[1] == self.free.size else J[:, self.free]
+        Jc = J if self.jac_free or (self.every and J.shape[1] == self.free.size) else J[:, self.free]
         if self.unit:
             return r, Jc
         return w * r, (w[:, None] if w.ndim else w) * Jc
@@ -90,9 +92,12 @@ def least_squares(
     ftol: float = 1e-12,
     xtol: float = 1e-10,
     lam0: float | None = None,
+    jac_free: bool = False,
 ) -> FitResult:
     """Minimise ``0.5 |w r(x)|²`` over ``x[free]`` from ``x0`` with the registered gradient optimizer ``method``
     (``"lm"``: Levenberg-Marquardt from the damping ``lam0``, default :data:`DAMPING`; ``"gn"``: Gauss-Newton).
+    ``jac_free``: ``fun``'s Jacobian holds only the free columns, in the order of ``free`` (a large model need not
+    build the fixed variables' columns; with unit weights no copy of it is made on the way to the solver).
 
     Returns a :class:`FitResult` over the full vector (``x`` of length ``len(x0)``, ``varied`` = ``free``): the
     whitened residuals and Jacobian (free columns) at the end, ``cost`` = ``0.5 χ²``, ``history`` the costs of the
@@ -101,7 +106,7 @@ def least_squares(
     x_start = np.array(x0, dtype=float)
     free = np.asarray(free, dtype=int)
     w = np.asarray(weights, dtype=float)
-    wr = Whitened(fun, x_start, free, w)
+    wr = Whitened(fun, x_start, free, w, jac_free)
     z0 = x_start[free]
     problem = Problem(
         n=int(free.size),

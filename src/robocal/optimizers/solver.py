@@ -33,6 +33,7 @@ def levenberg_marquardt(
     xtol: float = 1e-10,
     lam0: float | None = None,
     method: str = "lm",
+    jac_free: bool = False,
 ) -> FitResult:
     """Minimise ``0.5 * |w * r(x)|²`` over ``x[free]``; a :class:`~robocal.identification.result.FitResult`.
 
@@ -49,6 +50,9 @@ def levenberg_marquardt(
         Typical magnitude per variable; steps are measured in ``x / scale``. Default: column norms.
     lam0 : initial damping of ``"lm"`` (default 1e-6); ignored by ``"gn"``.
     method : ``"lm"`` or ``"gn"`` (module docstring).
+    jac_free : ``fun``'s Jacobian holds only the free columns, in the order of ``free`` (a large model need not
+        build, nor this solver copy, the columns of the fixed variables); the Jacobian is then the result's
+        own (read-only, no copy).
     """
     if method not in ("lm", "gn"):
         raise ValueError(f"The 'method' parameter must be 'lm' or 'gn'. Got {method!r} instead.")
@@ -66,12 +70,13 @@ def levenberg_marquardt(
         return r if unit else w * r
 
     def weighted_jacobian(J: np.ndarray) -> np.ndarray:
-        Jc = J if every and J.shape[1] == free.size else J[:, free]
+        Jc = J if jac_free or (every and J.shape[1] == free.size) else J[:, free]
         return Jc if unit else (w[:, None] if w.ndim else w) * Jc
 
-    r, J = fun(x)
+    # (Jf is the evaluation's Jacobian or its weighted copy: the evaluation's own is not held through the steps)
+    r, Jf = _first(fun, x, weighted, weighted_jacobian)
     nfev = njev = 1
-    r, Jf = weighted(r), weighted_jacobian(J)
+    J_new: np.ndarray | None = None
     cost = 0.5 * float(r @ r)
     history = [cost]
     s = _column_scale(Jf, scale, free)
@@ -94,6 +99,7 @@ def levenberg_marquardt(
             if damped or alpha == 1.0:
                 dz_full = _damped_step(H, g, lam)
             dz = dz_full if damped else alpha * dz_full
+            J_new = None  # a rejected trial's Jacobian let go before the next is built
             x_new, r_new, J_new, cost_new = _trial(fun, x, free, s * dz, weighted)
             nfev += 1
             njev += 1
@@ -111,7 +117,8 @@ def levenberg_marquardt(
             lam = lam / 10.0 if lam > 1e-12 else 0.0
         dcost = cost - cost_new
         x, r, cost = x_new, r_new, cost_new
-        Jf = weighted_jacobian(J_new)
+        assert J_new is not None  # an accepted trial's
+        Jf, J_new = weighted_jacobian(J_new), None
         history.append(cost)
         if dcost <= ftol * max(cost, 1e-300):
             status = 1
@@ -119,7 +126,18 @@ def levenberg_marquardt(
         if np.linalg.norm(dz) <= xtol * (xtol + np.linalg.norm(x[free] / s)):
             status = 2
             break
-    return _result(method, x, free, w, r, Jf, cost, nit, nfev, njev, status, t0, history)
+    return _result(method, x, free, w, r, Jf, cost, nit, nfev, njev, status, t0, history, own=jac_free)
+
+
+def _first(
+    fun: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
+    x: np.ndarray,
+    weighted: Callable[[np.ndarray], np.ndarray],
+    weighted_jacobian: Callable[[np.ndarray], np.ndarray],
+) -> tuple[np.ndarray, np.ndarray]:
+    """The weighted residuals and Jacobian at the start ``x``."""
+    r, J = fun(x)
+    return weighted(r), weighted_jacobian(J)
 
 
 def _column_scale(Jf: np.ndarray, scale: np.ndarray | None, free: np.ndarray) -> np.ndarray:
@@ -147,11 +165,26 @@ def _trial(
     return x_new, r_new, J_new, 0.5 * float(r_new @ r_new)
 
 
+#: Jacobian rows per chunk of the normal equations (bounds their temporary: chunk x k floats); a problem of at most
+#: this many rows is one product, as before
+NORMAL_CHUNK = 16384
+
+
 def _normal_equations(Jf: np.ndarray, s: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``g = Aᵀ r`` and ``H = Aᵀ A`` of the scaled Jacobian ``A = Jf s`` (``A`` is not held after: an ``(M, k)``
-    matrix the trial evaluation need not keep beside its own Jacobian)."""
-    A = Jf * s
-    return A.T @ r, A.T @ A
+    """``g = Aᵀ r`` and ``H = Aᵀ A`` of the scaled Jacobian ``A = Jf s``, accumulated over row chunks of
+    :data:`NORMAL_CHUNK` (``A`` is never formed whole: an ``(M, k)`` matrix the trial evaluation need not hold
+    beside its own Jacobian)."""
+    M = Jf.shape[0]
+    if M <= NORMAL_CHUNK:
+        A = Jf * s
+        return A.T @ r, A.T @ A
+    g = np.zeros(Jf.shape[1])
+    H = np.zeros((Jf.shape[1], Jf.shape[1]))
+    for c0 in range(0, M, NORMAL_CHUNK):
+        A = Jf[c0 : c0 + NORMAL_CHUNK] * s
+        g += A.T @ r[c0 : c0 + NORMAL_CHUNK]
+        H += A.T @ A
+    return g, H
 
 
 def _predicted_reduction(H: np.ndarray, g: np.ndarray) -> float:
@@ -187,7 +220,12 @@ def _result(
     status: int,
     t0: float,
     history: list[float],
+    own: bool = False,
 ) -> FitResult:
+    if own and Jf.base is None:
+        # the solver's own matrix (``jac_free``): the result takes it read-only, without a copy (FitResult keeps
+        # such an array as it is)
+        Jf.setflags(write=False)
     # rows weighted zero (left out by the caller) are not data
     ndata = int(np.count_nonzero(w)) if w.ndim else (r.size if w != 0 else 0)
     finite = status >= 0
