@@ -99,9 +99,9 @@ def test_unknown_engine(engine, twin_fleet, tmp_path):
 
 def test_a_crash_in_one_campaign_is_reported_not_cached(twin_fleet, tmp_path, monkeypatch):
     import robocal
-    from robocal.optimizers import geometric
+    from robocal.calibration import fit
 
-    real = geometric.calibrate
+    real = fit.calibrate
 
     def flaky(campaign, robot, config=None, x0=None):
         if "R0002" in str(campaign.source) and "2026-04-06" in str(campaign.source):
