@@ -103,7 +103,7 @@ def run(args: argparse.Namespace) -> int:
     if cv and "session_cv" in cv:
         sc, gc = cv["session_cv"], cv.get("geometric_session_cv") or {}
         print(f"expected in a new session (each of {len(sc['sessions'])} sessions left out, its tracker registered on "
-              f"its own rows): mean {sc['mean_position_mm']:.4f} mm"
+              f"half of its poses to judge the other half): mean {sc['mean_position_mm']:.4f} mm"
               + (f" (geometric model {gc['mean_position_mm']:.4f} mm)" if gc else ""))  # fmt: skip
     for where, v in s.get("sessions", {}).items():
         g, f = v["geometric"], v["final"]

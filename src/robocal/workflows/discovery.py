@@ -176,7 +176,9 @@ def _named_section(rep: Report, summ: dict[str, Any]) -> None:
         rep.paragraph(
             f"Expected in a new session: {sc['mean_position_mm']:.4f} mm mean (each of the campaign's "
             f"{len(sc['sessions'])} sessions ({', '.join(sc['sessions'])}) left out in turn, the model refitted on the "
-            "others and the left-out session's tracker registered on its own rows; the geometric model "
+            "others without the sessions' own effects (the tracker's drift and scale, a re-seated tool), the "
+            "left-out session's tracker (and a re-seated tool) registered on one half of its poses to judge the "
+            "other; the geometric model "
             f"{gc.get('mean_position_mm', float('nan')):.4f} mm). Within this session (pose-grouped "
             f"cross-validation): {cv.get('cv_mean_position_mm', float('nan')):.4f} mm. Per session left out: "
             + ", ".join(f"{k} {v:.4f} mm" for k, v in sc["per_session"].items())
