@@ -5,8 +5,11 @@ carriage along the travel (:mod:`robocal.kinematics.axes`): ``<role>:straightnes
 ``<role>:positioning``, ``<role>:pitch``, ``<role>:yaw``, ``<role>:roll`` (``role`` the joint's ``role`` key, e.g.
 ``track``), each a Legendre series over the travel from the lowest order the kinematic parameters do not hold
 (:data:`robocal.identification.axes.LOWEST_ORDER`) to :data:`robocal.identification.axes.ORDER`; and for a
-column (role ``column``, masses in the description) ``column:bending``: the carriage turning about its x and y
-in proportion to the moment of the carried weight, and that compliance growing with the extension. The
+column (role ``column``) ``column:bending``: the carriage turning about its x and y in proportion to the moment of
+the carried weight, and (with masses in the description) that compliance growing with the extension; without
+masses the moment is unknown but linear in the carried bodies' masses and first moments
+(:func:`robocal.kinematics.axes.moment_features`), one coefficient per mass parameter, as the calibration's axis
+fit does. The
 candidates are offered whenever the robot has a linear axis (no setting: a robot without one gets none, and its
 discovery is unchanged).
 
@@ -23,9 +26,17 @@ from typing import Any
 import numpy as np
 
 from robocal.data.contract import Campaign
-from robocal.identification.axes import BENDING, KNM, LOWEST_ORDER, ORDER
+from robocal.identification.axes import BENDING, KNM, LOWEST_ORDER, ORDER, mass_parameter_names
 from robocal.identification.model import CalibrationModel, FitData, with_base
-from robocal.kinematics.axes import COMPONENTS, UNITS, augment, carried_moment, legendre, travel_coordinate
+from robocal.kinematics.axes import (
+    COMPONENTS,
+    UNITS,
+    augment,
+    carried_moment,
+    legendre,
+    moment_features,
+    travel_coordinate,
+)
 from robocal.robot import RobotDescription
 
 
@@ -61,23 +72,31 @@ def axis_candidates(
         if "column" not in role:
             continue
         key = f"{role}:bending"
-        if not robot.has_dynamics:
-            skipped.append((key, "axis", j + 1, "no link masses (dynamics) in the description"))
-            continue
-        M = carried_moment(robot, campaign.q, j, campaign.payload_kg) / KNM
         cols, slots, names = [], [], []
-        for name, comp, ax in BENDING:
-            for k, suffix in ((0, ""), (1, "_ext")):
-                cols.append(M[:, ax] * u**k)
-                slots.append(COMPONENTS.index(comp))
-                names.append(f"{name}{suffix}")
+        if robot.has_dynamics:
+            M = carried_moment(robot, campaign.q, j, campaign.payload_kg) / KNM
+            for name, comp, ax in BENDING:
+                for k, suffix in ((0, ""), (1, "_ext")):
+                    cols.append(M[:, ax] * u**k)
+                    slots.append(COMPONENTS.index(comp))
+                    names.append(f"{name}{suffix}")
+            signal = ("moment of the carried weight about the carriage (description's masses, kN·m), and times the "
+                      "extension")  # fmt: skip
+        else:  # no masses: the moment per unknown mass parameter of the bodies carried (the calibration's axis fit)
+            Mf, _ = moment_features(robot, campaign.q, j)
+            for name, comp, ax in BENDING:
+                for f, pn in enumerate(mass_parameter_names(robot, j)):
+                    cols.append(Mf[:, ax, f])
+                    slots.append(COMPONENTS.index(comp))
+                    names.append(f"{name}_{pn}")
+            signal = ("moment about the carriage of each unknown mass parameter of the bodies it carries (kN·m per kg "
+                      "or per kg x 0.1 m; no masses in the description)")  # fmt: skip
         cands.append(
             dict(
                 key=key, effect="axis", joint=j + 1, harmonic=None,
                 cause=f"the {role} bends under the arm's weight: its carriage turns about its x and y in proportion "
-                "to the moment of the weight it carries, more as it extends",
-                signal="moment of the carried weight about the carriage (description's masses, kN·m), and times "
-                "the extension", shape="axis", S=np.column_stack(cols),
+                "to the moment of the weight it carries" + (", more as it extends" if robot.has_dynamics else ""),
+                signal=signal, shape="axis", S=np.column_stack(cols),
                 coef_names=tuple(names), coef_units=tuple("rad/kNm" for _ in names),
                 extra={"axis_joint": j, "slots": tuple(slots), "role": role, "component": "bending",
                        "q": campaign.q, "target": campaign.target},
