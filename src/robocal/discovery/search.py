@@ -365,7 +365,8 @@ def _search(
     def refit(accepted: list[Accepted], prev: Fit | None) -> Fit:
         model = ExtendedModel(robot, targets, T_ref, accepted, like=geo.model, base_prior=base_prior)
         theta0 = model.map_from(prev.model.names, prev.theta) if prev is not None else model.map_from(geo.names, geo.x)
-        return fit_model(model, theta0, data, rows, sigma, fixed, cfg.rank_tol, cfg.max_iter, sigma_rad=sigma_rad)
+        return fit_model(model, theta0, data, rows, sigma, fixed, cfg.rank_tol, cfg.max_iter, sigma_rad=sigma_rad,
+                         held=frozenset(e.name for e in geo.eliminated))  # the geometry's: kept out  # fmt: skip
 
     fit = refit([], None)
     geometric = fit
