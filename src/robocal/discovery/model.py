@@ -370,6 +370,11 @@ def fit_model(
     order += [i for i, k in enumerate(kinds) if k == "kinematic"]
     order += [i for i, k in enumerate(kinds) if k == "effect" and prec[i] == 0]
     order = [i for i in order if model.names[i] not in fixed]
+    # the geometry's eliminated parameters are not offered to the rank test (not eliminated after it: where a
+    # redundancy has several representatives, the test here would keep the one the geometry dropped and drop
+    # the one it kept, and both would be lost)
+    also = [i for i in order if model.names[i] in held]
+    order = [i for i in order if model.names[i] not in held]
     # the identifiability analysis sees only the columns it may keep (an effect under a prior is always fitted,
     # a fixed parameter never): the Jacobian is built on those alone, whitened in place
     judged = np.array(sorted(order), dtype=int)
@@ -379,8 +384,6 @@ def fit_model(
     ident = analyse(J0, [model.names[c] for c in judged], [at[c] for c in order], rtol=rank_tol)
     del _r0, J0  # not held through the solver (an (M, n) matrix)
     kept = judged[np.asarray(ident.kept, dtype=int)]
-    also = [int(c) for c in kept if model.names[c] in held]
-    kept = np.array([c for c in kept if int(c) not in also], dtype=int)
     # coefficients under a prior are determined by it: always fitted, never eliminated
     free = np.sort(np.concatenate([kept, ridge]))
     w_all = np.concatenate([w, np.ones(len(ridge))])
