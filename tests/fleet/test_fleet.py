@@ -17,6 +17,7 @@ def _tree(d):
     return {p.relative_to(d).as_posix(): p.read_bytes() for p in sorted(d.rglob("*")) if p.is_file()}
 
 
+@pytest.mark.e2e  # three fleet runs for the cache and the bytes (8 s): make e2e (CI), outside make test's 5 minutes
 def test_fleet_flags_cache_and_determinism(fleet_copy, tmp_path):
     old = os.umask(0o027)
     try:

@@ -28,6 +28,7 @@ def test_model_spec():
             parse_model_spec(bad)
 
 
+@pytest.mark.e2e  # the MLflow registry and a served model swapped (14 s): make e2e (CI), outside make test's 5 minutes
 def test_register_serve_by_alias_and_replace_without_restart(fleet_copy, tmp_path, monkeypatch):
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
     monkeypatch.setenv("MLFLOW_TRACKING_URI", uri)

@@ -132,6 +132,7 @@ def test_a_pending_run_reaches_mlflow_with_everything(tmp_path: Path, monkeypatc
     assert Path(local).read_text() == "<html></html>"
 
 
+@pytest.mark.e2e  # an MLflow server started (6 s): make e2e (CI), outside make test's 5 minutes
 def test_make_ui_prints_the_runs_table_not_the_genai_view(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """Issue 23, item 11 and issue 30, item 10: MLflow 3's UI opens in its GenAI view unless the URL asks for the
     machine-learning workflow; the address also opens the stored view of the runs table (run names in full, the

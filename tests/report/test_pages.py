@@ -40,7 +40,7 @@ def _check(pages: list[Path]) -> None:
         assert not wide, wide
 
 
-@pytest.mark.slow
+@pytest.mark.e2e  # every command page rendered (9 s): make e2e (CI), outside make test's 5 minutes
 def test_the_commands_pages_read_clean(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     camp, fleet = tmp_path / "camp", tmp_path / "fleet"
     args = ["simulate", "geometric", "n_poses=25", "n_validation_poses=8", "--out", str(camp), "--seed", "1"]
