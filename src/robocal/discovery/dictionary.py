@@ -13,7 +13,7 @@ measured residual): hundreds to thousands of columns. What the current model exp
 column it absorbs is dropped. Sparse selection is scikit-learn's orthogonal matching pursuit (a few terms out of
 thousands), made stable by resampling whole poses: a term enters a proposal only when it is chosen in at least
 ``dictionary_stability`` of the resamples. A proposal (the stable terms of one joint) is then tested through
-the same gate as a library effect (:func:`robocal.discovery.search.score_candidate`): the nested F-test with a
+the same gate as a library effect (:func:`robocal.discovery.ftest.score_candidate`): the nested F-test with a
 Bonferroni threshold over the number of ways to pick that many terms from the dictionary (the selection's
 multiple testing), the BIC, the share of the excess chi², and whole-pose cross-validation; it is refitted
 jointly with the geometry by the same Levenberg-Marquardt and reported as an equation, apart from the named

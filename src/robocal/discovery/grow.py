@@ -12,7 +12,7 @@ with nothing left to find the selection stops at once (the false-discovery contr
 on null twins). The logged signals' candidates (:mod:`robocal.discovery.logged`) are a family of their own at the
 same ``cv_alpha``, as in the F-test search.
 
-Cross-validation is linearised at the current joint fit (like :func:`robocal.discovery.search.
+Cross-validation is linearised at the current joint fit (like :func:`robocal.discovery.ftest.
 cross_validation_gain`): each fold refits every free parameter of the current model and the candidate on the
 other poses (normal equations with the priors, the candidate's block by its Schur complement) and predicts the
 held-out residuals. Variants of one candidate (Fourier orders, prior widths) are tried on the same folds and
