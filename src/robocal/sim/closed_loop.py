@@ -219,7 +219,7 @@ def write_report(res: ClosedLoopResult, out_dir: str | Path, tracking: bool = Tr
     """Plot, HTML report and an MLflow run of a closed-loop result."""
     from robocal.report.html import Report
     from robocal.report.plots import save_figure, time_series
-    from robocal.tracking import StageRun
+    from robocal.tracking.runs import StageRun
 
     out = Path(out_dir)
     s = res.summary
