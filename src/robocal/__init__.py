@@ -29,7 +29,7 @@ __version__ = "0.1.0"
 #: public name -> "module:attribute"
 _API = {
     "read_campaign": "robocal.data.contract:read_campaign",
-    "Campaign": "robocal.data.contract:Campaign",
+    "Campaign": "robocal.data.campaign:Campaign",
     "load_robot": "robocal.robot:load_robot",
     "RobotDescription": "robocal.robot:RobotDescription",
     "calibrate": "robocal.calibration.fit:calibrate",
