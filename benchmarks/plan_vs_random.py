@@ -34,7 +34,8 @@ from robocal.plan.constraints import sample_configurations, sampling_limits, scr
 from robocal.plan.design import exchange
 from robocal.plan.planner import rng_stream
 from robocal.robot import load_robot
-from robocal.sim.twin import load_scenario, simulate
+from robocal.sim.scenario import load_scenario
+from robocal.sim.twin import simulate
 
 NS = (15, 25, 40, 80)
 

@@ -40,7 +40,7 @@ from robocal.data.contract import read_campaign
 from robocal.discovery.effects import extended_calibration
 from robocal.discovery.sessions import session_validation
 from robocal.discovery.summary import summary
-from robocal.sim.twin import load_scenario
+from robocal.sim.scenario import load_scenario
 
 
 def run_seed(scenario: dict, seed: int) -> dict:

@@ -44,7 +44,7 @@ _API = {
     "Corrected": "robocal.compensation.correct:Corrected",
     "plan": "robocal.plan.planner:plan_poses",
     "simulate": "robocal.sim.twin:simulate",
-    "load_scenario": "robocal.sim.twin:load_scenario",
+    "load_scenario": "robocal.sim.scenario:load_scenario",
 }
 
 __all__ = ["__version__", *_API]

@@ -54,7 +54,8 @@ from robocal.kinematics.chain import build_chain, propagate
 from robocal.kinematics.transforms import homogeneous, matrix_from_rpy, matrix_to_quat, rotvec_to_matrix
 from robocal.robot import load_robot
 from robocal.sim.compliance import iso9283_cube_points
-from robocal.sim.twin import Rows, TwinContext, load_effect_modules, load_scenario, rng_factory
+from robocal.sim.effects import Rows, TwinContext, load_effect_modules
+from robocal.sim.scenario import load_scenario, rng_factory
 
 #: twin effects the ISO test reproduces (others would change the test's plan)
 SUPPORTED_EFFECTS = ("backlash", "thermal", "gear", "compliance")
@@ -293,7 +294,7 @@ def _apply_effects(
     thermal = None
     if effects.get("thermal") or effects.get("gear") or effects.get("compliance"):
         load_effect_modules()
-        from robocal.sim.twin import EFFECTS
+        from robocal.sim.effects import EFFECTS
 
         for name in ("gear", "compliance"):
             if effects.get(name):

@@ -65,7 +65,7 @@ def well_conditioned_targets(
 ) -> np.ndarray:
     """``n`` random joint targets (m, n) rad whose nominal 6x6 joint Jacobian (rotation rows at 1 m) has a
     condition number below 100: away from the singularities, where full-pose compensation is ill-posed."""
-    from robocal.sim.twin import sample_poses
+    from robocal.sim.scenario import sample_poses
 
     out: list[np.ndarray] = []
     cc = compile_chain(chain)
@@ -105,8 +105,9 @@ def run_closed_loop(
     )
     from robocal.kinematics.chain import build_chain
     from robocal.robot import load_robot
+    from robocal.sim.scenario import load_scenario
     from robocal.sim.thermal import ThermalEffect
-    from robocal.sim.twin import load_scenario, simulate
+    from robocal.sim.twin import simulate
 
     sc = load_scenario(scenario) if isinstance(scenario, str) else dict(scenario)
     th_cfg = dict((sc.get("effects") or {}).get("thermal") or {})

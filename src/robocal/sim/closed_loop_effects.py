@@ -63,7 +63,8 @@ def run_discovered_closed_loop(
     from robocal.data import read_campaign
     from robocal.kinematics.chain import build_chain
     from robocal.robot import load_robot
-    from robocal.sim.twin import load_scenario, simulate
+    from robocal.sim.scenario import load_scenario
+    from robocal.sim.twin import simulate
     from robocal.workflows import discovery
 
     sc = copy.deepcopy(load_scenario("geometric"))
