@@ -34,7 +34,7 @@ from robocal.commands import parse_overrides
 from robocal.commands.simulate import merge_overrides
 from robocal.data.contract import read_campaign
 from robocal.plan import PlanConfig, plan_poses, predict, random_poses
-from robocal.plan.planner import rng_stream
+from robocal.plan.problem import rng_stream
 from robocal.robot import load_robot
 from robocal.sim.scenario import load_scenario
 from robocal.sim.twin import simulate
