@@ -341,7 +341,8 @@ def _compensated(
     bundle's tool), from the test configuration as the seed; ``position`` mode unless the orientation is commanded
     and the bundle's calibration has orientations."""
     from robocal.serve.bundle import load_bundle
-    from robocal.serve.protocol import Service, ServiceConfig
+    from robocal.serve.protocol import Service
+    from robocal.serve.settings import ServiceConfig
 
     b = load_bundle(bundle)
     # the closed loop's service settings: the test starts cold, at the edge of a thermal model's fitted range

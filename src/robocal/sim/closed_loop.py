@@ -98,7 +98,7 @@ def run_closed_loop(
     defaults with a 1 degC margin around the fitted temperature range (the validation day starts 0.5 degC
     colder than the calibration day) and a 2 deg correction bound (this twin's full-pose corrections reach ~1.4 deg).
     """
-    from robocal.serve.protocol import ServiceConfig
+    from robocal.serve.settings import ServiceConfig
 
     service_config = ServiceConfig.from_mapping(
         service if service is not None else {"safety": {"temperature_margin_C": 1.0, "max_correction_deg": 2.0}}
