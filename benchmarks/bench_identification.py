@@ -20,7 +20,8 @@ import numpy as np
 from robocal.calibration.fit import calibrate
 from robocal.data import read_campaign
 from robocal.robot import load_robot
-from robocal.sim.twin import load_scenario, simulate
+from robocal.sim.scenario import load_scenario
+from robocal.sim.twin import simulate
 
 
 def main() -> None:

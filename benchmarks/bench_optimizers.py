@@ -36,7 +36,8 @@ from robocal.optimizers import make_optimizer
 from robocal.optimizers.fastfk import HAVE_NUMBA, PopulationPositions
 from robocal.optimizers.protocol import evaluate_batch
 from robocal.robot import load_robot
-from robocal.sim.twin import load_scenario, simulate
+from robocal.sim.scenario import load_scenario
+from robocal.sim.twin import simulate
 
 
 def rate(fun, X: np.ndarray, seconds: float) -> float:

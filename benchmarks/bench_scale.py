@@ -53,7 +53,8 @@ def ur10_campaign(src: Path, n: int, work: Path) -> tuple[Path, str]:
 
 
 def twin_campaign(n: int, work: Path) -> tuple[Path, str]:
-    from robocal.sim.twin import load_scenario, simulate
+    from robocal.sim.scenario import load_scenario
+    from robocal.sim.twin import simulate
 
     d = work / f"twin-{n}"
     if not (d / "poses.csv").exists():

@@ -122,7 +122,8 @@ def part_twin() -> None:
         from robocal.calibration.config import CalibrationConfig
         from robocal.calibration.fit import calibrate
         from robocal.data import read_campaign
-        from robocal.sim.twin import load_scenario, simulate
+        from robocal.sim.scenario import load_scenario
+        from robocal.sim.twin import simulate
         from robocal.thermal.identify import find_states, identify_states
         from robocal.thermal.model import ThermalModel
     except ImportError as exc:

@@ -42,7 +42,8 @@ def make_bundle(d: Path) -> Path:
     from robocal.data import read_campaign
     from robocal.robot import load_robot
     from robocal.sim.closed_loop import build_bundle
-    from robocal.sim.twin import load_scenario, simulate
+    from robocal.sim.scenario import load_scenario
+    from robocal.sim.twin import simulate
 
     robot = load_robot("kr16_2")
     simulate(load_scenario("thermal"), d / "camp", seed=0, robot=robot)

@@ -16,11 +16,12 @@ import dataclasses
 import tempfile
 from pathlib import Path
 
+from robocal.calibration.fit import calibrate
 from robocal.data import read_campaign
 from robocal.identification.axes import fit_axis_errors
-from robocal.calibration.fit import calibrate
 from robocal.robot import load_robot
-from robocal.sim.twin import load_scenario, simulate
+from robocal.sim.scenario import load_scenario
+from robocal.sim.twin import simulate
 
 
 def main() -> None:

@@ -23,7 +23,8 @@ import yaml
 from robocal.calibration.config import CalibrationConfig
 from robocal.data.contract import read_campaign
 from robocal.robot import load_robot
-from robocal.sim.twin import load_scenario, simulate
+from robocal.sim.scenario import load_scenario
+from robocal.sim.twin import simulate
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "experiments"))  # the experiment's code (experiments/optimizer_comparison.py)

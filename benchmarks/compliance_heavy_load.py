@@ -20,7 +20,8 @@ import numpy as np
 from robocal.compliance.fit import ComplianceConfig, accuracy_by_condition, fit_compliance, geometric_step, load_table
 from robocal.data import read_campaign
 from robocal.robot import load_robot
-from robocal.sim.twin import load_scenario, simulate
+from robocal.sim.scenario import load_scenario
+from robocal.sim.twin import simulate
 
 LOADS = (0.0, 43.0, 128.0, 210.0)
 

@@ -29,7 +29,9 @@ import numpy as np
 from robocal.data.contract import read_campaign
 from robocal.discovery.search import discover
 from robocal.robot import load_robot
-from robocal.sim.twin import load_scenario, register_effect, simulate
+from robocal.sim.effects import register_effect
+from robocal.sim.scenario import load_scenario
+from robocal.sim.twin import simulate
 
 
 @register_effect("bench_q1q5")
@@ -64,8 +66,8 @@ class Product:
         c = self.cfg
         f = {"sin": np.sin, "cos": np.cos}
         (k1, a, h1), (k2, b, h2) = c["factors"]
-        rows.dq[:, c["joint"] - 1] += np.deg2rad(c["amplitude_deg"]) * f[k1](h1 * rows.q_cmd[:, a - 1]) * f[k2](
-            h2 * rows.q_cmd[:, b - 1]
+        rows.dq[:, c["joint"] - 1] += (
+            np.deg2rad(c["amplitude_deg"]) * f[k1](h1 * rows.q_cmd[:, a - 1]) * f[k2](h2 * rows.q_cmd[:, b - 1])
         )
 
 

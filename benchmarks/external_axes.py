@@ -30,7 +30,8 @@ from robocal.identification.axes import axis_errors, fit_axis_errors, term_named
 from robocal.kinematics.axes import augment
 from robocal.kinematics.chain import build_chain, fk, propagate
 from robocal.robot import load_robot
-from robocal.sim.twin import load_scenario, sample_poses, simulate
+from robocal.sim.scenario import load_scenario, sample_poses
+from robocal.sim.twin import simulate
 
 
 def true_points(robot, truth, q):

@@ -33,7 +33,8 @@ from robocal.kinematics.ik import quaternions
 from robocal.robot import load_robot
 from robocal.serve.bundle import load_bundle, write_bundle
 from robocal.serve.protocol import Service
-from robocal.sim.twin import load_scenario, sample_poses, simulate
+from robocal.sim.scenario import load_scenario, sample_poses
+from robocal.sim.twin import simulate
 
 
 def true_points(robot, truth, q, payload):

@@ -34,9 +34,10 @@ from robocal.commands import parse_overrides
 from robocal.commands.simulate import merge_overrides
 from robocal.data.contract import read_campaign
 from robocal.plan import PlanConfig, plan_poses, predict, random_poses
-from robocal.plan.planner import rng_stream
+from robocal.plan.problem import rng_stream
 from robocal.robot import load_robot
-from robocal.sim.twin import load_scenario, simulate
+from robocal.sim.scenario import load_scenario
+from robocal.sim.twin import simulate
 
 ROOT = Path(__file__).resolve().parents[1]
 

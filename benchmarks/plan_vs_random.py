@@ -32,9 +32,10 @@ from robocal.kinematics.transforms import homogeneous, inv_transform, matrix_fro
 from robocal.plan import PlanConfig, build_problem, predict, random_poses
 from robocal.plan.constraints import sample_configurations, sampling_limits, screen
 from robocal.plan.design import exchange
-from robocal.plan.planner import rng_stream
+from robocal.plan.problem import rng_stream
 from robocal.robot import load_robot
-from robocal.sim.twin import load_scenario, simulate
+from robocal.sim.scenario import load_scenario
+from robocal.sim.twin import simulate
 
 NS = (15, 25, 40, 80)
 

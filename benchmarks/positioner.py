@@ -19,12 +19,13 @@ from pathlib import Path
 
 import numpy as np
 
+from robocal.calibration.fit import calibrate
 from robocal.data import read_campaign
 from robocal.identification.positioner import fit_positioner, line_distance, part_rows
 from robocal.kinematics.positioner import part_frames
-from robocal.calibration.fit import calibrate
 from robocal.robot import load_robot
-from robocal.sim.twin import load_scenario, simulate
+from robocal.sim.scenario import load_scenario
+from robocal.sim.twin import simulate
 
 
 def main() -> None:

@@ -26,7 +26,8 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np
 
 from robocal.calibration.validation import validate
-from robocal.data.contract import Campaign, read_campaign
+from robocal.data.campaign import Campaign
+from robocal.data.contract import read_campaign
 from robocal.discovery.search import discover
 from robocal.discovery.summary import summary
 from robocal.discovery.validate import validation_errors

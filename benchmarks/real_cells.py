@@ -35,8 +35,9 @@ from robocal.discovery.summary import summary
 from robocal.discovery.validate import validation_errors
 from robocal.identification.model import CalibrationModel
 from robocal.robot import load_robot
+from robocal.sim.scenario import load_scenario
 from robocal.sim.truth import z_scores
-from robocal.sim.twin import load_scenario, simulate
+from robocal.sim.twin import simulate
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED = REPO.parent / "shared"

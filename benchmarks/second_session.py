@@ -35,11 +35,12 @@ import numpy as np
 
 import robocal
 from robocal.commands import parse_overrides
-from robocal.data.contract import SplitConfig, read_campaign
+from robocal.data.campaign import SplitConfig
+from robocal.data.contract import read_campaign
 from robocal.discovery.effects import extended_calibration
 from robocal.discovery.sessions import session_validation
 from robocal.discovery.summary import summary
-from robocal.sim.twin import load_scenario
+from robocal.sim.scenario import load_scenario
 
 
 def run_seed(scenario: dict, seed: int) -> dict:

@@ -32,7 +32,8 @@ from robocal.discovery.search import discover
 from robocal.discovery.summary import summary
 from robocal.discovery.validate import validation_errors
 from robocal.robot import load_robot
-from robocal.sim.twin import load_scenario, simulate
+from robocal.sim.scenario import load_scenario
+from robocal.sim.twin import simulate
 
 NULL_CHANNELS = {"noise_a": "white", "noise_b": "white", "walk_a": "walk", "walk_b": "walk", "cmd_q2": "joint2",
                  "cmd_x": "commanded_x"}  # fmt: skip

@@ -18,7 +18,8 @@ import numpy as np
 
 from robocal.data import read_campaign
 from robocal.robot import load_robot
-from robocal.sim.twin import load_scenario, simulate
+from robocal.sim.scenario import load_scenario
+from robocal.sim.twin import simulate
 from robocal.thermal import fit as wf
 from robocal.thermal.compensate import extrapolation_summary
 from robocal.thermal.model import ThermalModel

@@ -27,7 +27,8 @@ import numpy as np
 
 import robocal
 from robocal.commands import parse_overrides
-from robocal.data.contract import Campaign, SplitConfig, read_campaign
+from robocal.data.campaign import Campaign, SplitConfig
+from robocal.data.contract import read_campaign
 from robocal.identification.thin import configuration_groups
 from robocal.robot import RobotDescription
 

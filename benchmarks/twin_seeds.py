@@ -21,8 +21,9 @@ from scipy import stats
 from robocal.calibration.fit import calibrate
 from robocal.data import read_campaign
 from robocal.robot import load_robot
+from robocal.sim.scenario import load_scenario
 from robocal.sim.truth import z_scores
-from robocal.sim.twin import load_scenario, simulate
+from robocal.sim.twin import simulate
 
 
 def main() -> None:

@@ -26,7 +26,7 @@ from robocal.optimizers.registry import registered
 from robocal.robot import RobotDescription
 
 if TYPE_CHECKING:
-    from robocal.data.contract import Campaign
+    from robocal.data.campaign import Campaign
 
 POPULATION = registered("population")
 

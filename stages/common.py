@@ -45,7 +45,7 @@ Adding a stage (``thermal_fit`` as the example)
            - stages/thermal_fit.py
            - stages/common.py
            - src/robocal/pipeline.py
-           - src/robocal/tracking.py
+           - src/robocal/tracking
            - src/robocal/workflows/__init__.py
            - src/robocal/workflows/thermal.py  # every library module or package the stage imports
            - src/robocal/thermal
@@ -249,8 +249,8 @@ def run_title(stage: str, cfg: Mapping[str, Any], experiment: str | None = None)
     """The MLflow run name ``<stage> · <campaign> · <experiment>`` (robocal.tracking.run_title): the campaign
     from ``data.campaign`` (``twin <scenario>`` for the twin's), read here for the name only (it reruns nothing);
     the experiment is DVC's, else ``experiment`` (a Hydra job's), else ``workspace``."""
-    from robocal.tracking import campaign_label
-    from robocal.tracking import run_title as title
+    from robocal.tracking.naming import campaign_label
+    from robocal.tracking.naming import run_title as title
 
     data = cfg.get("data") if isinstance(cfg.get("data"), Mapping) else {}
     scenario = cfg.get("scenario") if isinstance(cfg.get("scenario"), Mapping) else {}
@@ -287,7 +287,8 @@ def execute(
 
     Writes ``metrics_path`` = ``{<stage name>: status, **headline}`` (status "ok", "warning", "skipped" or "failed").
     Returns everything: ``status`` (and ``reason`` of a skip), details, headline numbers and the times."""
-    from robocal.tracking import PendingRun, StageRun
+    from robocal.tracking.pending import PendingRun
+    from robocal.tracking.runs import StageRun
 
     cfg = apply_robot_file(cfg, root)  # robot_file=<path>: that description is the `robot` every stage reads
     sections = _sections(stage, cfg, "the config" if hydra else PARAMS_FILE)

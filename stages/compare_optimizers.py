@@ -56,7 +56,7 @@ def compute(ctx: Context) -> Any:
     from robocal.data.contract import read_campaign
     from robocal.report.plots import save_figure
     from robocal.robot import robot_from_dict
-    from robocal.tracking import StageRun
+    from robocal.tracking.runs import StageRun
 
     cal_settings = dict(ctx.cfg["calibration"])
     cal_settings.pop("report", None)

@@ -27,7 +27,7 @@ def compute(ctx: Context) -> Metrics | Skipped:
     if campaign is not None:
         return ctx.skip(f"data.campaign names {campaign!r}: the plan describes the twin's cell, not yours")
     from robocal.plan.output import run_plan
-    from robocal.plan.planner import cell_from_scenario
+    from robocal.plan.region import cell_from_scenario
     from robocal.robot import robot_from_dict
 
     cfg = dict(ctx.get("plan", types=dict))

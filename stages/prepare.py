@@ -24,7 +24,7 @@ def compute(ctx: Context) -> Metrics:
     import pandas as pd
 
     from robocal.data import SplitConfig, read_campaign
-    from robocal.data.contract import TEMPERATURE_TOLERANCE_S
+    from robocal.data.campaign import TEMPERATURE_TOLERANCE_S
     from robocal.io import atomic_write, display_path, write_json
     from robocal.pipeline import campaign_dir
     from robocal.robot import robot_from_dict

@@ -29,7 +29,7 @@ __version__ = "0.1.0"
 #: public name -> "module:attribute"
 _API = {
     "read_campaign": "robocal.data.contract:read_campaign",
-    "Campaign": "robocal.data.contract:Campaign",
+    "Campaign": "robocal.data.campaign:Campaign",
     "load_robot": "robocal.robot:load_robot",
     "RobotDescription": "robocal.robot:RobotDescription",
     "calibrate": "robocal.calibration.fit:calibrate",
@@ -44,7 +44,7 @@ _API = {
     "Corrected": "robocal.compensation.correct:Corrected",
     "plan": "robocal.plan.planner:plan_poses",
     "simulate": "robocal.sim.twin:simulate",
-    "load_scenario": "robocal.sim.twin:load_scenario",
+    "load_scenario": "robocal.sim.scenario:load_scenario",
 }
 
 __all__ = ["__version__", *_API]

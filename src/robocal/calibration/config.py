@@ -12,7 +12,7 @@ from robocal.config import parse, setting
 from robocal.errors import ConfigError
 
 if TYPE_CHECKING:
-    from robocal.data.contract import Campaign
+    from robocal.data.campaign import Campaign
 
 
 NOISE_MODELS = ("constant", "u_mm", "distance")

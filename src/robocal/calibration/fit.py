@@ -45,7 +45,7 @@ from robocal.optimizers.registry import make_optimizer, pipeline_options, regist
 from robocal.robot import RobotDescription
 
 if TYPE_CHECKING:
-    from robocal.data.contract import Campaign
+    from robocal.data.campaign import Campaign
 
 
 #: the fit figures the comparison of raw and polished results reads (the fit record's keys and order)

@@ -15,7 +15,7 @@ from robocal.identification.result import FitResult
 from robocal.optimizers.least_squares import least_squares
 
 if TYPE_CHECKING:
-    from robocal.data.contract import Campaign
+    from robocal.data.campaign import Campaign
 
 
 @dataclass(frozen=True, eq=False)

@@ -23,7 +23,7 @@ from robocal.optimizers.least_squares import least_squares
 from robocal.robot import RobotDescription
 
 if TYPE_CHECKING:
-    from robocal.data.contract import Campaign
+    from robocal.data.campaign import Campaign
 
 
 def fit_data(

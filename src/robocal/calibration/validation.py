@@ -15,7 +15,7 @@ from robocal.kinematics.transforms import inv_transform, kabsch, quat_to_matrix
 from robocal.metrics import ErrorStats, orientation_errors_deg
 
 if TYPE_CHECKING:
-    from robocal.data.contract import Campaign
+    from robocal.data.campaign import Campaign
 
 
 @dataclass(frozen=True, eq=False)

@@ -41,8 +41,8 @@ def load_settings(path: str | None, overrides: list[str] | None) -> tuple[Any, A
     """The safety policy and solver settings from ``--config`` and the overrides (errors name the key)."""
     from robocal.commands.serve import load_config
     from robocal.errors import ConfigError
-    from robocal.serve.protocol import SERVICE_KEYS, ServiceConfig
     from robocal.serve.server import ServerConfig
+    from robocal.serve.settings import SERVICE_KEYS, ServiceConfig
 
     if path is None:
         from robocal.commands import parse_overrides

@@ -76,8 +76,8 @@ def run(args: argparse.Namespace) -> int:
 
     from robocal.errors import ConfigError
     from robocal.serve.bundle import load_bundle, write_bundle
-    from robocal.serve.protocol import SERVICE_KEYS, ServiceConfig
     from robocal.serve.server import Server, ServerConfig, read_token
+    from robocal.serve.settings import SERVICE_KEYS, ServiceConfig
 
     if args.make_bundle:
         if not args.calibration or not args.robot:

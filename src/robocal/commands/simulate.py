@@ -31,7 +31,8 @@ def merge_overrides(base: dict, over: dict) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
-    from robocal.sim.twin import load_scenario, simulate
+    from robocal.sim.scenario import load_scenario
+    from robocal.sim.twin import simulate
 
     if args.scenario == "iso9283":
         return _iso9283(args)
@@ -50,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
 def _iso9283(args: argparse.Namespace) -> int:
     from robocal.iso9283.settings import SECTIONS, IsoSettings
     from robocal.iso9283.twin import simulate_iso
-    from robocal.sim.twin import load_scenario
+    from robocal.sim.scenario import load_scenario
 
     ov = parse_overrides(args.overrides)
     st = IsoSettings.load({k: v for k, v in ov.items() if k in SECTIONS})

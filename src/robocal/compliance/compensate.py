@@ -16,7 +16,7 @@ from robocal.status import TargetStatus
 
 if TYPE_CHECKING:
     from robocal.calibration.result import CalibrationResult
-    from robocal.data.contract import Campaign
+    from robocal.data.campaign import Campaign
 
 
 def compensation_rows(

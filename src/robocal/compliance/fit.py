@@ -41,7 +41,7 @@ from robocal.metrics import ErrorStats
 from robocal.optimizers.least_squares import least_squares
 
 if TYPE_CHECKING:
-    from robocal.data.contract import Campaign
+    from robocal.data.campaign import Campaign
     from robocal.robot import RobotDescription
 
 METHODS = ("sequential", "joint")

@@ -9,7 +9,7 @@ from matplotlib.figure import Figure
 
 from robocal.calibration.result import CalibrationResult
 from robocal.compliance.fit import ComplianceFit, position_errors
-from robocal.data.contract import Campaign
+from robocal.data.campaign import Campaign
 from robocal.report import plots
 from robocal.report.html import Report
 

@@ -58,7 +58,7 @@ class FleetTracker:
         alias: str = DEFAULT_ALIAS,
         register: bool = True,
     ) -> None:
-        from robocal.tracking import ensure_store, tracking_uri
+        from robocal.tracking.store import ensure_store, tracking_uri
 
         self.uri = tracking_uri(uri)
         self.experiment = experiment
@@ -81,7 +81,7 @@ class FleetTracker:
 
         Returns ``{"logged": n, "registered": [versions], "alias_version": v | None}``. MLflow errors are printed
         and collected in :attr:`errors` (tracking never costs results)."""
-        from robocal.tracking import retry
+        from robocal.tracking.store import retry
 
         try:  # retried on SQLite contention ("database is locked") when several workers log at once
             return retry(lambda: self._track(serial, summaries, Path(out_dir)), attempts=6)
@@ -95,7 +95,7 @@ class FleetTracker:
         from mlflow.entities import Metric, Param, RunTag
 
         from robocal.fleet.layout import campaign_dir
-        from robocal.tracking import default_tags, numeric_metrics
+        from robocal.tracking.values import default_tags, numeric_metrics
 
         existing = self._existing(serial)
         name = model_name(serial)
@@ -202,7 +202,7 @@ def alias_version(spec: str, uri: str | None = None) -> int:
     from mlflow.exceptions import MlflowException
     from mlflow.tracking import MlflowClient
 
-    from robocal.tracking import tracking_uri
+    from robocal.tracking.store import tracking_uri
 
     name, alias = parse_model_spec(spec)
     client = MlflowClient(tracking_uri=tracking_uri(uri))
@@ -219,7 +219,7 @@ def resolve_model(spec: str, uri: str | None = None, cache_dir: str | Path | Non
     from mlflow.tracking import MlflowClient
 
     from robocal.serve.bundle import MANIFEST
-    from robocal.tracking import tracking_uri
+    from robocal.tracking.store import tracking_uri
 
     name, _ = parse_model_spec(spec)
     uri = tracking_uri(uri)

@@ -29,7 +29,7 @@ import yaml
 from robocal.config import parse, setting
 from robocal.errors import ConfigError
 from robocal.io import write_json, write_text
-from robocal.sim.twin import Rows, TwinContext, register_effect
+from robocal.sim.effects import Rows, TwinContext, register_effect
 
 #: Zero offsets that can jump (identifiable for a 6R arm measured by position: theta1 is absorbed by the tracker
 #: frame, theta6 by the tool offset; theta5 is left out because its standard error is ~10x the others' on this plan,
@@ -120,7 +120,8 @@ def simulate_fleet(
     ``out_dir/truth.json``). The same arguments write the same bytes."""
     from robocal.kinematics.chain import build_chain
     from robocal.robot import load_robot
-    from robocal.sim.twin import load_scenario, simulate
+    from robocal.sim.scenario import load_scenario
+    from robocal.sim.twin import simulate
 
     if n_robots < 1:
         raise ConfigError(f"The 'n_robots' parameter of simulate_fleet must be >= 1. Got {n_robots} instead.")

@@ -42,7 +42,7 @@ from robocal.calibration.config import point_sigma
 from robocal.calibration.result import CalibrationResult
 from robocal.calibration.start import fit_data
 from robocal.config import parse, setting
-from robocal.data.contract import Campaign
+from robocal.data.campaign import Campaign
 from robocal.errors import ConfigError
 from robocal.identification.model import CalibrationModel, FitData, with_base
 from robocal.kinematics.axes import (

@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
-from robocal.data.contract import Campaign
+from robocal.data.campaign import Campaign
 from robocal.metrics import ErrorStats
 
 #: a systematic misfit holds at least this many flagged rows (fewer are a few blunders, e.g. the targets of one pose)

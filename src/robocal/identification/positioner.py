@@ -22,7 +22,7 @@ import numpy as np
 from robocal.calibration.config import point_sigma
 from robocal.calibration.result import CalibrationResult
 from robocal.calibration.start import fit_data
-from robocal.data.contract import Campaign
+from robocal.data.campaign import Campaign
 from robocal.errors import ConfigError
 from robocal.identification.model import FitData
 from robocal.kinematics.positioner import parameter_names, part_frames, part_points

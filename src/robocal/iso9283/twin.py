@@ -54,7 +54,8 @@ from robocal.kinematics.chain import build_chain, propagate
 from robocal.kinematics.transforms import homogeneous, matrix_from_rpy, matrix_to_quat, rotvec_to_matrix
 from robocal.robot import load_robot
 from robocal.sim.compliance import iso9283_cube_points
-from robocal.sim.twin import Rows, TwinContext, load_effect_modules, load_scenario, rng_factory
+from robocal.sim.effects import Rows, TwinContext, load_effect_modules
+from robocal.sim.scenario import load_scenario, rng_factory
 
 #: twin effects the ISO test reproduces (others would change the test's plan)
 SUPPORTED_EFFECTS = ("backlash", "thermal", "gear", "compliance")
@@ -293,7 +294,7 @@ def _apply_effects(
     thermal = None
     if effects.get("thermal") or effects.get("gear") or effects.get("compliance"):
         load_effect_modules()
-        from robocal.sim.twin import EFFECTS
+        from robocal.sim.effects import EFFECTS
 
         for name in ("gear", "compliance"):
             if effects.get(name):
@@ -340,7 +341,8 @@ def _compensated(
     bundle's tool), from the test configuration as the seed; ``position`` mode unless the orientation is commanded
     and the bundle's calibration has orientations."""
     from robocal.serve.bundle import load_bundle
-    from robocal.serve.protocol import Service, ServiceConfig
+    from robocal.serve.protocol import Service
+    from robocal.serve.settings import ServiceConfig
 
     b = load_bundle(bundle)
     # the closed loop's service settings: the test starts cold, at the edge of a thermal model's fitted range

@@ -1,4 +1,4 @@
-"""The compiled (numba) form of the kinematic chain: every compiled kernel of the library, in one module.
+"""The compiled (numba) form of the kinematic chain: the compiled kernels built on the chain's element code.
 
 :func:`robocal.kinematics.chain.step` is the one description of a chain element; this module writes it once
 more, on scalars, for numba, and builds every compiled kernel from it:
@@ -14,14 +14,13 @@ more, on scalars, for numba, and builds every compiled kernel from it:
   numpy reference is :func:`robocal.kinematics.gravity.gravity_regressor`'s own pass over ``chain.step``);
 * the kernels: :func:`population_positions` (target positions of a population of parameter vectors, used by
   :class:`robocal.optimizers.fastfk.PopulationPositions`), :func:`newton` (the service's compensation,
-  :func:`robocal.kinematics.ik.solve`), :func:`fk_poses`, and the rotation conversions :func:`rotvec` /
-  :func:`quat` (mirrors of :func:`robocal.kinematics.transforms.matrix_to_rotvec` / ``matrix_to_quat``).
+  :func:`robocal.kinematics.ik.solve`), :func:`fk_poses`.
 
-They live in one file on purpose: numba's on-disk cache (``cache=True``) checks only the source file of the
-function it caches, so a kernel in another file calling these would keep stale machine code after an edit here.
-
-Without numba the functions are plain (slow) Python and :data:`AVAILABLE` is False; callers then use their
-numpy paths.
+A kernel and every kernel it calls live in one file on purpose: numba's on-disk cache (``cache=True``) checks
+only the source file of the function it caches, so a kernel in another file calling these would keep stale
+machine code after an edit here. The kernels that call no other kernel live beside (``compiled_rotations``:
+:func:`rotvec` / :func:`quat`; ``compiled_harmonics``: :func:`harmonics`), numba's decorators and
+:func:`chain_arrays` in ``compiled_support``; all are importable from here, as before.
 """
 
 from __future__ import annotations
@@ -30,7 +29,10 @@ from typing import Any
 
 import numpy as np
 
-from robocal.kinematics.chain import FIXED, RX, TZ, Chain
+from robocal.kinematics.chain import FIXED, RX, TZ
+from robocal.kinematics.compiled_harmonics import harmonics
+from robocal.kinematics.compiled_rotations import quat, rotvec
+from robocal.kinematics.compiled_support import AVAILABLE, _jit, _jit_parallel, _prange, chain_arrays
 
 __all__ = [
     "AVAILABLE",
@@ -51,47 +53,8 @@ __all__ = [
     "rotvec",
 ]
 
-numba: Any
-try:  # numba is a dependency; every caller has a numpy path without it
-    import numba
-except ImportError:  # pragma: no cover - depends on the environment
-    numba = None
 
-AVAILABLE = numba is not None
-
-
-def _identity(f: Any) -> Any:
-    return f
-
-
-# compiled lazily at the first call; cache=True keeps the machine code on disk between processes
-_jit: Any = numba.njit(cache=True, nogil=True) if numba is not None else _identity
-_jit_parallel: Any = numba.njit(cache=True, nogil=True, parallel=True) if numba is not None else _identity
-_prange: Any = numba.prange if numba is not None else range
-
-
-def chain_arrays(chain: Chain) -> tuple[np.ndarray, ...]:
-    """The chain as :func:`fold` takes it: ``kinds, nominal, param, is_joint, fR (E, 3, 3), ft (E, 3)``."""
-    E = len(chain.kinds)
-    fR = np.zeros((E, 3, 3))
-    ft = np.zeros((E, 3))
-    for e, T in enumerate(chain.fixed):
-        if T is not None:
-            fR[e] = T[:3, :3]
-            ft[e] = T[:3, 3]
-    return (
-        np.array(chain.kinds, dtype=np.int64),
-        np.asarray(chain.nominal, dtype=float),
-        np.asarray(chain.param, dtype=np.int64),
-        np.asarray(chain.joint) >= 0,
-        fR,
-        ft,
-    )
-
-
-# --------------------------------------------------------------------------------------------------------
-# the element code (mirror of robocal.kinematics.chain.step)
-# --------------------------------------------------------------------------------------------------------
+# ----------------------------------------------------------- the element code (mirror of robocal.kinematics.chain.step)
 
 
 @_jit
@@ -133,9 +96,7 @@ def apply_element(R: np.ndarray, t: np.ndarray, kind: int, v: float, fR: np.ndar
         rotate_columns(R, kind - RX, np.cos(v), np.sin(v))
 
 
-# --------------------------------------------------------------------------------------------------------
-# folding and forward kinematics of a folded chain
-# --------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------- folding and forward kinematics of a folded chain
 
 
 @_jit
@@ -262,9 +223,7 @@ def fk_poses(
     return p, Rs
 
 
-# --------------------------------------------------------------------------------------------------------
-# the population kernel (robocal.optimizers.fastfk)
-# --------------------------------------------------------------------------------------------------------
+# -------------------------------------------------------------------- the population kernel (robocal.optimizers.fastfk)
 
 
 @_jit_parallel
@@ -307,9 +266,7 @@ def population_positions(
             out[i, 3 * j + 2] = wz[j] - p_meas[j, 2]
 
 
-# --------------------------------------------------------------------------------------------------------
-# the service's Newton compensation (robocal.kinematics.ik.solve)
-# --------------------------------------------------------------------------------------------------------
+# ------------------------------------------------------ the service's Newton compensation (robocal.kinematics.ik.solve)
 
 
 @_jit
@@ -433,75 +390,7 @@ def newton(  # noqa: C901, PLR0915 (one compiled per-target loop, the twin of ik
     return q, conv, iters, e0, E0, e1, E1
 
 
-# --------------------------------------------------------------------------------------------------------
-# rotation conversions (mirrors of robocal.kinematics.transforms)
-# --------------------------------------------------------------------------------------------------------
-
-
-@_jit
-def _rotvec_one(R: np.ndarray, out: np.ndarray) -> None:
-    """One rotation vector, :func:`robocal.kinematics.transforms.matrix_to_rotvec` step by step."""
-    cos = min(max((R[0, 0] + R[1, 1] + R[2, 2] - 1.0) / 2.0, -1.0), 1.0)
-    w0 = R[2, 1] - R[1, 2]
-    w1 = R[0, 2] - R[2, 0]
-    w2 = R[1, 0] - R[0, 1]
-    th = np.arctan2(np.sqrt(w0 * w0 + w1 * w1 + w2 * w2) / 2.0, cos)
-    if th < 1e-6:
-        f = 0.5 + th**2 / 12.0
-    else:
-        f = th / (2.0 * np.sin(th))
-    out[0] = w0 * f
-    out[1] = w1 * f
-    out[2] = w2 * f
-    if th > np.pi - 1e-3:
-        # axis from the symmetric part (R + R^T)/2 = cos I + (1 - cos) a a^T: its largest diagonal's column
-        best = 0
-        for k in range(1, 3):
-            if R[k, k] > R[best, best]:
-                best = k
-        a = np.empty(3)
-        for r in range(3):
-            a[r] = ((R[r, best] + R[best, r]) / 2.0 - (cos if r == best else 0.0)) / (1.0 - cos)
-        nrm = np.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
-        dot = a[0] * w0 + a[1] * w1 + a[2] * w2
-        sign = -1.0 if dot < 0.0 else 1.0
-        for r in range(3):
-            out[r] = a[r] / nrm * sign * th
-
-
-@_jit
-def rotvec(R: np.ndarray) -> np.ndarray:
-    """Rotation vectors ``(m, 3)`` (rad) of rotations ``R (m, 3, 3)``, robust near 0 and pi."""
-    m = R.shape[0]
-    out = np.empty((m, 3))
-    for i in range(m):
-        _rotvec_one(R[i], out[i])
-    return out
-
-
-@_jit
-def quat(R: np.ndarray) -> np.ndarray:
-    """Unit quaternions ``(m, 4)`` (w, x, y, z), w >= 0, of rotations ``R (m, 3, 3)``, as
-    :func:`robocal.kinematics.transforms.matrix_to_quat`: ``(cos th/2, a sin th/2)`` of the rotation vector."""
-    m = R.shape[0]
-    out = np.empty((m, 4))
-    rv = np.empty(3)
-    for i in range(m):
-        _rotvec_one(R[i], rv)
-        th = np.sqrt(rv[0] * rv[0] + rv[1] * rv[1] + rv[2] * rv[2])
-        inv = 1.0 / th if th > 0.0 else 1.0
-        c = np.cos(th / 2.0)
-        sn = np.sin(th / 2.0)
-        sign = -1.0 if c < 0.0 else 1.0
-        out[i, 0] = sign * c
-        for r in range(3):
-            out[i, r + 1] = sign * rv[r] * inv * sn
-    return out
-
-
-# --------------------------------------------------------------------------------------------------------
-# gravity regressor (robocal.kinematics.gravity.gravity_regressor)
-# --------------------------------------------------------------------------------------------------------
+# ----------------------------------------------------- gravity regressor (robocal.kinematics.gravity.gravity_regressor)
 
 
 @_jit
@@ -577,24 +466,6 @@ def gravity_regressor(
                         + u[2] * (x[0] * g[1] - x[1] * g[0])
                     )
     return Y
-
-
-@_jit
-def harmonics(z: np.ndarray, z0: np.ndarray, H: int) -> np.ndarray:
-    """``Z (m, H)`` complex: ``Z[:, 0] = z0``, ``Z[:, k] = Z[:, k - 1] z`` (``z = e^{i q}``, ``z0 = e^{i h0 q}``):
-    the consecutive harmonics of :func:`robocal.compensation.signals.fourier_signal`, the same operations."""
-    m = len(z)
-    re = np.empty((m, H))
-    im = np.empty((m, H))
-    for r in range(m):
-        a, b = z[r].real, z[r].imag
-        re[r, 0] = z0[r].real
-        im[r, 0] = z0[r].imag
-        for k in range(1, H):
-            c, d = re[r, k - 1], im[r, k - 1]
-            re[r, k] = c * a - d * b
-            im[r, k] = c * b + d * a
-    return re + 1j * im
 
 
 @_jit

@@ -8,14 +8,9 @@ the standard errors, the error map over a validation region and the poses needed
 
 from robocal.plan.config import PlanConfig
 from robocal.plan.output import run_plan, write_plan
-from robocal.plan.planner import (
-    PlanResult,
-    build_problem,
-    cell_from_scenario,
-    plan_poses,
-    predict,
-    random_poses,
-)
+from robocal.plan.planner import PlanResult, build_problem, plan_poses, random_poses
+from robocal.plan.prediction import predict
+from robocal.plan.region import cell_from_scenario
 
 __all__ = [
     "PlanConfig",

@@ -16,7 +16,8 @@ import numpy as np
 from robocal.data.columns import joint_columns
 from robocal.io import write_json, write_text
 from robocal.plan.config import PlanConfig
-from robocal.plan.planner import PlanResult, plan_poses, predict
+from robocal.plan.planner import PlanResult, plan_poses
+from robocal.plan.prediction import predict
 from robocal.robot import RobotDescription
 
 
@@ -69,7 +70,7 @@ def run_plan(
 
     The pipeline stage ``plan`` is meant to call it as
     ``run_plan(ctx.cfg["robot"], {**ctx.cfg["plan"], **cell_from_scenario(ctx.cfg["scenario"])}, ctx.out)``
-    (``robocal.plan.planner.cell_from_scenario``: the twin's tracker, targets, noise and joint ranges), and the
+    (``robocal.plan.region.cell_from_scenario``: the twin's tracker, targets, noise and joint ranges), and the
     ``simulate`` stage then measures ``reports/plan/plan.csv`` with ``scenario.poses_deg`` set to that path.
     """
     result = plan_poses(robot, config)

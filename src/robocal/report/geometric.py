@@ -16,7 +16,7 @@ from robocal.report.html import Report
 if TYPE_CHECKING:
     from robocal.calibration.result import CalibrationResult
     from robocal.calibration.validation import Validation
-    from robocal.data.contract import Campaign
+    from robocal.data.campaign import Campaign
 
 
 def _mean_rms_max(s: ErrorStats) -> str:

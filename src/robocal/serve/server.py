@@ -120,7 +120,8 @@ from typing import Any
 from robocal.config import parse, setting
 from robocal.errors import ConfigError
 from robocal.serve.bundle import MANIFEST, Bundle, load_bundle
-from robocal.serve.protocol import SERVICE_KEYS, Service, ServiceConfig
+from robocal.serve.protocol import Service
+from robocal.serve.settings import SERVICE_KEYS, ServiceConfig
 
 _TIMEOUT_REPLY = b'{"id":null,"ok":false,"error":{"code":"timeout","message":"no complete request line in time"}}\n'
 _TOO_LARGE_REPLY = b'{"id":null,"ok":false,"error":{"code":"too_large","message":"request line too long"}}\n'

@@ -27,7 +27,7 @@ import numpy as np
 
 from robocal.errors import ConfigError
 from robocal.kinematics.axes import COMPONENTS, carried_moment, legendre, travel_coordinate
-from robocal.sim.twin import Rows, TwinContext, register_effect
+from robocal.sim.effects import Rows, TwinContext, register_effect
 
 
 @register_effect("linear_axis")

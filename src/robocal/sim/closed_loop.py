@@ -65,7 +65,7 @@ def well_conditioned_targets(
 ) -> np.ndarray:
     """``n`` random joint targets (m, n) rad whose nominal 6x6 joint Jacobian (rotation rows at 1 m) has a
     condition number below 100: away from the singularities, where full-pose compensation is ill-posed."""
-    from robocal.sim.twin import sample_poses
+    from robocal.sim.scenario import sample_poses
 
     out: list[np.ndarray] = []
     cc = compile_chain(chain)
@@ -98,15 +98,16 @@ def run_closed_loop(
     defaults with a 1 degC margin around the fitted temperature range (the validation day starts 0.5 degC
     colder than the calibration day) and a 2 deg correction bound (this twin's full-pose corrections reach ~1.4 deg).
     """
-    from robocal.serve.protocol import ServiceConfig
+    from robocal.serve.settings import ServiceConfig
 
     service_config = ServiceConfig.from_mapping(
         service if service is not None else {"safety": {"temperature_margin_C": 1.0, "max_correction_deg": 2.0}}
     )
     from robocal.kinematics.chain import build_chain
     from robocal.robot import load_robot
+    from robocal.sim.scenario import load_scenario
     from robocal.sim.thermal import ThermalEffect
-    from robocal.sim.twin import load_scenario, simulate
+    from robocal.sim.twin import simulate
 
     sc = load_scenario(scenario) if isinstance(scenario, str) else dict(scenario)
     th_cfg = dict((sc.get("effects") or {}).get("thermal") or {})
@@ -219,7 +220,7 @@ def write_report(res: ClosedLoopResult, out_dir: str | Path, tracking: bool = Tr
     """Plot, HTML report and an MLflow run of a closed-loop result."""
     from robocal.report.html import Report
     from robocal.report.plots import save_figure, time_series
-    from robocal.tracking import StageRun
+    from robocal.tracking.runs import StageRun
 
     out = Path(out_dir)
     s = res.summary

@@ -25,8 +25,8 @@ from robocal.kinematics.ik import compile_chain, forward, solve
 from robocal.kinematics.transforms import homogeneous
 from robocal.serve.bundle import load_bundle, write_bundle
 from robocal.serve.client import Client
-from robocal.serve.protocol import ServiceConfig
 from robocal.serve.server import Server, ServerConfig, ServerThread
+from robocal.serve.settings import ServiceConfig
 from robocal.sim.closed_loop import well_conditioned_targets
 
 #: the default cell: the KR16-2 twin with a joint-4 gear error and a joint-2 backlash the geometry misses
@@ -63,7 +63,8 @@ def run_discovered_closed_loop(
     from robocal.data import read_campaign
     from robocal.kinematics.chain import build_chain
     from robocal.robot import load_robot
-    from robocal.sim.twin import load_scenario, simulate
+    from robocal.sim.scenario import load_scenario
+    from robocal.sim.twin import simulate
     from robocal.workflows import discovery
 
     sc = copy.deepcopy(load_scenario("geometric"))

@@ -33,7 +33,7 @@ import numpy as np
 from robocal.compensation import ActualRobot, compensate
 from robocal.errors import ConfigError
 from robocal.kinematics.gravity import gravity_torques
-from robocal.sim.twin import Rows, TwinContext, register_effect
+from robocal.sim.effects import Rows, TwinContext, register_effect
 
 
 def iso9283_cube_points(center_mm: np.ndarray, side_mm: float, inset: float = 0.1) -> np.ndarray:

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from robocal.errors import ConfigError
-from robocal.sim.twin import Rows, TwinContext, register_effect
+from robocal.sim.effects import Rows, TwinContext, register_effect
 
 
 def _vec3(cfg: Mapping[str, Any], key: str) -> np.ndarray:

@@ -30,7 +30,7 @@ import numpy as np
 
 from robocal.errors import ConfigError
 from robocal.kinematics.transforms import homogeneous, matrix_from_rpy
-from robocal.sim.twin import Rows, TwinContext, register_effect
+from robocal.sim.effects import Rows, TwinContext, register_effect
 
 DAY_S = 86400.0
 

@@ -26,7 +26,7 @@ import numpy as np
 
 from robocal.errors import ConfigError
 from robocal.kinematics.chain import fk
-from robocal.sim.twin import Rows, TwinContext, register_effect
+from robocal.sim.effects import Rows, TwinContext, register_effect
 
 G = 9.81
 

@@ -28,7 +28,7 @@ import numpy as np
 
 from robocal.errors import ConfigError
 from robocal.kinematics.chain import propagate
-from robocal.sim.twin import Rows, TwinContext, register_effect
+from robocal.sim.effects import Rows, TwinContext, register_effect
 
 DEFAULT_STATES_MIN = (0, 30, 60, 90, 120, 150, 180)
 

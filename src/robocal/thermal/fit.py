@@ -35,7 +35,7 @@ from robocal.thermal.regression import ParameterChoice, RegressionConfig, fit_dr
 
 if TYPE_CHECKING:
     from robocal.compensation.safety import SafetyPolicy
-    from robocal.data.contract import Campaign
+    from robocal.data.campaign import Campaign
 
 PROPOSED_SOURCES = ("screen", "drifting", "all")
 

@@ -27,7 +27,7 @@ from robocal.kinematics.transforms import matrix_to_rotvec, quat_to_matrix
 from robocal.metrics import ErrorStats
 
 if TYPE_CHECKING:
-    from robocal.data.contract import Campaign
+    from robocal.data.campaign import Campaign
 
 
 def find_states(campaign: Campaign, gap_s: float = 600.0) -> np.ndarray:

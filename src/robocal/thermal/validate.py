@@ -29,7 +29,7 @@ from robocal.thermal.compensate import compensate_targets, nominal_robot, true_r
 from robocal.thermal.model import ThermalModel
 
 if TYPE_CHECKING:
-    from robocal.data.contract import Campaign
+    from robocal.data.campaign import Campaign
 
 METHODS = ("none", "traditional", "proposed", "all")
 

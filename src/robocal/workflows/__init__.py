@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from robocal.data.contract import Campaign
+    from robocal.data.campaign import Campaign
     from robocal.robot import RobotDescription
 
 #: The workflows, each the module ``robocal.workflows.<name>``.
@@ -65,7 +65,8 @@ def campaign_of(
     """The campaign argument of a workflow: ``campaign`` when given, else the one read from ``data_dir``."""
     if campaign is not None:
         return campaign
-    from robocal.data.contract import SplitConfig, read_campaign
+    from robocal.data.campaign import SplitConfig
+    from robocal.data.contract import read_campaign
     from robocal.errors import ConfigError
 
     if data_dir is None:

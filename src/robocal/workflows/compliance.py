@@ -23,7 +23,7 @@ import pandas as pd
 from robocal.compensation import write_compensation_csv
 from robocal.compliance.compensate import compensation_rows
 from robocal.compliance.fit import ComplianceConfig, accuracy_by_condition, fit_compliance, geometric_step, load_table
-from robocal.data.contract import Campaign
+from robocal.data.campaign import Campaign
 from robocal.errors import ConfigError
 from robocal.io import atomic_write, write_json
 from robocal.robot import RobotDescription

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from robocal.data.contract import Campaign
+from robocal.data.campaign import Campaign
 from robocal.discovery import progress
 from robocal.discovery.config import DiscoveryConfig
 from robocal.discovery.search import DiscoveryResult, discover

@@ -15,7 +15,7 @@ from robocal.calibration.fit import calibrate, fit_with_optimizer
 from robocal.calibration.result import CalibrationResult
 from robocal.calibration.solve import is_gradient
 from robocal.calibration.validation import Validation, validate
-from robocal.data.contract import Campaign
+from robocal.data.campaign import Campaign
 from robocal.identification.acceptance import judge
 from robocal.io import atomic_write, write_json
 from robocal.metrics import ErrorStats

@@ -30,7 +30,7 @@ from robocal.thermal.model import ParameterModel, ThermalModel
 from robocal.workflows import campaign_of, robot_of
 
 if TYPE_CHECKING:
-    from robocal.data.contract import Campaign
+    from robocal.data.campaign import Campaign
     from robocal.thermal.compensate import ThermalCompensation
 
 
