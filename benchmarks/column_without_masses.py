@@ -1,7 +1,7 @@
 """A column's bending without link masses (issue 34): the column twin read with a description that has none.
 
 For each seed, the twin writes the ``column`` scenario (its truth bends under the description's masses); the
-campaign is calibrated and its axis errors fitted (:func:`robocal.identification.axes.fit_axis_errors`) three
+campaign is calibrated and its axis errors fitted (:func:`robocal.calibration.axes.fit_axis_errors`) three
 ways: with the masses (the bending's moment computed), without them (one coefficient per unknown mass parameter)
 and without any bending. Printed: the held-out mean error of each (mm; the noise floor of the mean is 0.024 mm)
 and the number of terms of the mass-free model.
@@ -16,9 +16,9 @@ import dataclasses
 import tempfile
 from pathlib import Path
 
+from robocal.calibration.axes import fit_axis_errors
 from robocal.calibration.fit import calibrate
 from robocal.data import read_campaign
-from robocal.identification.axes import fit_axis_errors
 from robocal.robot import load_robot
 from robocal.sim.scenario import load_scenario
 from robocal.sim.twin import simulate

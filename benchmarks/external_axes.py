@@ -3,7 +3,7 @@
 For each scenario (``conf/scenario/track.yaml``: a KR16-2 on a 6 m track with straightness and pitch errors;
 ``conf/scenario/column.yaml``: on a lifting column that leans as it extends and bends under the arm's weight) and
 seed, the twin writes the campaign; ``robocal.calibrate`` fits the kinematics of the axis and the arm;
-:func:`robocal.identification.axes.fit_axis_errors` fits the axis's own errors along its travel; discovery runs;
+:func:`robocal.calibration.axes.fit_axis_errors` fits the axis's own errors along its travel; discovery runs;
 :func:`robocal.compensation.axes.compensate_axes` corrects fresh targets (the axis kept), judged on the twin's truth.
 Printed per scenario and seed: held-out mean / max (mm) of the calibration alone and with the axis errors, the
 chosen order, the largest |z| of the recovered coefficients against the truth (the truth's terms, and zero for the
@@ -22,11 +22,11 @@ from pathlib import Path
 import numpy as np
 
 import robocal
+from robocal.calibration.axes import axis_errors, fit_axis_errors, term_named
 from robocal.calibration.validation import validate
 from robocal.compensation.axes import compensate_axes
 from robocal.data.contract import read_campaign
 from robocal.discovery.config import DiscoveryConfig
-from robocal.identification.axes import axis_errors, fit_axis_errors, term_named
 from robocal.kinematics.axes import augment
 from robocal.kinematics.chain import build_chain, fk, propagate
 from robocal.robot import load_robot

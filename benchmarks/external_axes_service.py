@@ -1,7 +1,7 @@
 """The compensation service for a robot on external axes (issue 34), checked against the twin's truth.
 
 For each scenario (``track``: a KR16-2 on a 6 m track; ``column``: on a lifting column) and seed, the twin writes
-a campaign, ``robocal.calibrate`` and :func:`robocal.identification.axes.fit_axis_errors` fit it, and the
+a campaign, ``robocal.calibrate`` and :func:`robocal.calibration.axes.fit_axis_errors` fit it, and the
 calibration with its ``axes`` is bundled (:func:`robocal.serve.bundle.write_bundle`). Fresh targets are sent to the
 service (:class:`robocal.serve.protocol.Service`, the ``correct`` op) as joint targets and as pose targets (the
 nominal pose, ``ext_mm`` with it), with the external axis kept and moved (``move_external``). Printed: targets not
@@ -24,8 +24,8 @@ from pathlib import Path
 import numpy as np
 
 import robocal
+from robocal.calibration.axes import axis_errors, calibration_axes, fit_axis_errors, term_named
 from robocal.data.contract import read_campaign
-from robocal.identification.axes import axis_errors, calibration_axes, fit_axis_errors, term_named
 from robocal.io import write_json
 from robocal.kinematics.axes import augment
 from robocal.kinematics.chain import build_chain, fk, propagate

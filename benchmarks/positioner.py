@@ -2,7 +2,7 @@
 
 For each seed, the twin writes the ``positioner`` scenario (``conf/scenario/positioner.yaml``: a KR16-2 beside a
 one-axis turntable whose axis is moved 0.94 mm across itself and tilted 0.058 deg); ``robocal.calibrate`` fits
-the arm on the tool's rows and :func:`robocal.identification.positioner.fit_positioner` the turntable with it on
+the arm on the tool's rows and :func:`robocal.calibration.positioner.fit_positioner` the turntable with it on
 the part's rows. Printed per seed: the recovered axis line against the truth in the tracker frame (tilt in urad
 and shift in mm across the true line, and their chi2 with 4 degrees of freedom; the 0.999 quantile is 18.5), the
 same for the declared (nominal) line, and the part's held-out mean / max error against the noise floor of the
@@ -20,8 +20,8 @@ from pathlib import Path
 import numpy as np
 
 from robocal.calibration.fit import calibrate
+from robocal.calibration.positioner import fit_positioner, line_distance, part_rows
 from robocal.data import read_campaign
-from robocal.identification.positioner import fit_positioner, line_distance, part_rows
 from robocal.kinematics.positioner import part_frames
 from robocal.robot import load_robot
 from robocal.sim.scenario import load_scenario

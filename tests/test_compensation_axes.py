@@ -7,10 +7,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from robocal.calibration.axes import axis_errors, fit_axis_errors, term_named
 from robocal.calibration.fit import calibrate
 from robocal.compensation.axes import compensate_axes, krl_e6axis, rapid_jointtarget
 from robocal.data import read_campaign
-from robocal.identification.axes import axis_errors, fit_axis_errors, term_named
 from robocal.kinematics.axes import augment
 from robocal.kinematics.chain import build_chain, fk, propagate
 from robocal.robot import load_robot, robot_from_dict

@@ -53,10 +53,7 @@ LAYERS: list[set[str]] = [
 ]
 
 #: (importer package, imported package) -> why it is allowed for now. Each one is known and to be removed.
-EXCEPTIONS: dict[tuple[str, str], str] = {
-    ("identification", "calibration"): "identification/axes.py and positioner.py fit an axis's errors and a positioner "
-    "on top of a CalibrationResult",
-}
+EXCEPTIONS: dict[tuple[str, str], str] = {}
 
 
 #: (importer module, imported module) -> why; module-level circles known and to be removed

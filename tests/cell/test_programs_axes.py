@@ -7,13 +7,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from robocal.calibration.axes import axis_errors, fit_axis_errors, term_named
 from robocal.calibration.fit import calibrate
 from robocal.cell.programs.axes import filter_krl_axes, filter_rapid_axes
 from robocal.cell.programs.common import abb_confdata, format_number, kuka_status_turn, rot_zyx_deg
 from robocal.cell.programs.krl import read_krl
 from robocal.cell.programs.make import _pose_text, _xyzabc
 from robocal.data import read_campaign
-from robocal.identification.axes import axis_errors, fit_axis_errors, term_named
 from robocal.kinematics.axes import arm_chain, augment
 from robocal.kinematics.chain import build_chain, fk, propagate
 from robocal.kinematics.ik import compile_chain

@@ -79,7 +79,7 @@ def test_discovery_finds_the_columns_bending_and_lean(tmp_path):
 def test_a_column_without_link_masses_is_offered_its_bending_per_unknown_mass_parameter(tmp_path):
     from dataclasses import replace
 
-    from robocal.identification.axes import mass_parameter_names
+    from robocal.calibration.axes import mass_parameter_names
 
     camp, robot, _ = make_campaign(tmp_path, "column", 0)  # the scenario's 120 + 40 poses (with 60 the bending is not
     # told from a gear harmonic of joint 3)

@@ -9,10 +9,10 @@ import json
 import numpy as np
 import pytest
 
+from robocal.calibration.axes import axis_errors, calibration_axes, fit_axis_errors, term_named
 from robocal.calibration.fit import calibrate
 from robocal.data import read_campaign
 from robocal.errors import ConfigError
-from robocal.identification.axes import axis_errors, calibration_axes, fit_axis_errors, term_named
 from robocal.io import write_json
 from robocal.kinematics.axes import augment
 from robocal.kinematics.chain import build_chain, fk, propagate

@@ -9,5 +9,7 @@ are ``robocal.calibrate``, ``robocal.CalibrationConfig`` ...):
 * :mod:`~robocal.calibration.result`: :class:`~robocal.calibration.result.CalibrationResult` and its statistics;
 * :mod:`~robocal.calibration.record`, :mod:`~robocal.calibration.load`: ``calibration.json`` written and read;
 * :mod:`~robocal.calibration.validation`: errors on the validation rows;
-* :mod:`~robocal.calibration.fit`: ``calibrate`` (``robocal.calibrate``), dispatching on the optimizer.
+* :mod:`~robocal.calibration.fit`: ``calibrate`` (``robocal.calibrate``), dispatching on the optimizer;
+* :mod:`~robocal.calibration.axes`, :mod:`~robocal.calibration.positioner`: on top of a calibration, an external
+  axis's own errors along its travel and a positioner carrying the part.
 """

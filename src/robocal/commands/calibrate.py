@@ -93,7 +93,7 @@ def run(args: argparse.Namespace) -> int:
         from robocal.identification import misfit
 
         print(misfit.line(fit["systematic_misfit"]))
-    if "axes" in summary:  # a track's or a column's own errors along the travel (robocal.identification.axes)
+    if "axes" in summary:  # a track's or a column's own errors along the travel (robocal.calibration.axes)
         ax = summary["axes"]
         terms = sorted({t["name"].rsplit("_P", 1)[0] for t in ax["terms"]})
         v = ax["validation"]

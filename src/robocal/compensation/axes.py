@@ -4,7 +4,7 @@ For joint targets ``q_target`` (the arm's joints and the external axes, as the n
 the pose the program means is the nominal model's: the target (reflector) at
 ``tracker_T_base · FK_nominal(q_target) · tool``, in the calibration's first tracker frame. The corrected joints
 put the *calibrated* robot there: the calibration's kinematics and, when given, the linear axes' own errors along
-their travel (:func:`robocal.identification.axes.fit_axis_errors`), re-evaluated at every Newton step since they
+their travel (:func:`robocal.calibration.axes.fit_axis_errors`), re-evaluated at every Newton step since they
 depend on the axis position and the pose. Pose = position and orientation (6 equations, rotations weighted as
 ``ROT_WEIGHT_MM`` mm per rad); the arm's six joints solve them, and with ``move_external`` the external axes
 join (least-norm steps); without it (the default: a track is often not to be moved by a correction) they keep
@@ -25,9 +25,9 @@ from typing import Any
 
 import numpy as np
 
+from robocal.calibration.axes import AxisFit, axis_errors
 from robocal.calibration.result import CalibrationResult
 from robocal.compensation.correct import zero_offsets
-from robocal.identification.axes import AxisFit, axis_errors
 from robocal.identification.model import with_base
 from robocal.kinematics.axes import augment
 from robocal.kinematics.chain import build_chain, fk, point_jacobians, propagate

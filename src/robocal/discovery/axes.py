@@ -4,7 +4,7 @@ A robot with a linear axis (a prismatic joint: a track, a lifting column) is off
 carriage along the travel (:mod:`robocal.kinematics.axes`): ``<role>:straightness_x``, ``<role>:straightness_y``,
 ``<role>:positioning``, ``<role>:pitch``, ``<role>:yaw``, ``<role>:roll`` (``role`` the joint's ``role`` key, e.g.
 ``track``), each a Legendre series over the travel from the lowest order the kinematic parameters do not hold
-(:data:`robocal.identification.axes.LOWEST_ORDER`) to :data:`robocal.identification.axes.ORDER`; and for a
+(:data:`robocal.calibration.axes.LOWEST_ORDER`) to :data:`robocal.calibration.axes.ORDER`; and for a
 column (role ``column``) ``column:bending``: the carriage turning about its x and y in proportion to the moment of
 the carried weight, and (with masses in the description) that compliance growing with the extension; without
 masses the moment is unknown but linear in the carried bodies' masses and first moments
@@ -25,8 +25,8 @@ from typing import Any
 
 import numpy as np
 
+from robocal.calibration.axes import BENDING, KNM, LOWEST_ORDER, ORDER, mass_parameter_names
 from robocal.data.contract import Campaign
-from robocal.identification.axes import BENDING, KNM, LOWEST_ORDER, ORDER, mass_parameter_names
 from robocal.identification.model import CalibrationModel, FitData, with_base
 from robocal.kinematics.axes import (
     COMPONENTS,
@@ -149,10 +149,10 @@ def axis_rows(cand: Any, base: CalibrationModel, x: np.ndarray, data: FitData, r
 
 
 def discovered_axis_fit(fit: Any, robot: RobotDescription, x: np.ndarray) -> Any:
-    """The accepted ``axis`` effects of a discovery fit as an :class:`robocal.identification.axes.AxisFit` (terms
+    """The accepted ``axis`` effects of a discovery fit as an :class:`robocal.calibration.axes.AxisFit` (terms
     named as the identification names them, their coefficients and standard errors, the calibration vector
     ``x``), for :func:`robocal.compensation.axes.compensate_axes`; None when none was accepted."""
-    from robocal.identification.axes import AxisFit, term_named
+    from robocal.calibration.axes import AxisFit, term_named
 
     terms, coef, se = [], [], []
     for acc, sl in zip(fit.model.accepted, fit.model.slices, strict=True):

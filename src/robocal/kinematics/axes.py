@@ -19,7 +19,7 @@ component           element      meaning (carriage frame)
 :func:`augment` inserts these six elements after the joint's own element, each driven by a *pseudo joint* (a
 column appended to ``q``) with nominal value 0, so the one chain engine (:func:`robocal.kinematics.chain.propagate`,
 its Jacobians) evaluates a chain whose carriage moves by per-row amounts: the twin uses it for the true errors, the
-identification (:mod:`robocal.identification.axes`) for the fitted ones (the derivative of a point by a pseudo
+identification (:mod:`robocal.calibration.axes`) for the fitted ones (the derivative of a point by a pseudo
 joint is the element's Jacobian column, :func:`robocal.kinematics.chain.point_jacobians`).
 
 The errors are smooth functions of the travel: Legendre polynomials of ``u = 2 (s - s_min) / (s_max - s_min) - 1``

@@ -6,7 +6,7 @@ calibration model (:meth:`CalibrationModel.residuals_and_jacobian`, whitened by 
 identifiable parameter set (:func:`robocal.identification.identifiability.analyse`, same priority order and
 rank tolerance as the calibration) -> exchange for the D-, A- or I-optimal design
 (:mod:`robocal.plan.design`; a robot with a linear axis, a track or a column, has its axis errors along the
-travel in the model too, Legendre orders up to :data:`robocal.identification.axes.ORDER`: the design spreads the
+travel in the model too, Legendre orders up to :data:`robocal.calibration.axes.ORDER`: the design spreads the
 poses along the travel to determine them, :func:`axis_blocks`) -> predictions: Cramér-Rao standard errors
 ``σ²(JᵀWJ)⁻¹``, the predicted error map over the validation region, and the number of poses needed for a
 stated accuracy.

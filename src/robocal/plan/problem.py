@@ -107,10 +107,10 @@ def jacobian_blocks(
 
 
 def axis_terms_of(robot: RobotDescription) -> list[Any]:
-    """The axis error terms a plan designs for (:mod:`robocal.identification.axes`): every component of every
-    linear axis up to :data:`~robocal.identification.axes.ORDER`, no bending (a property of the load, not of the
+    """The axis error terms a plan designs for (:mod:`robocal.calibration.axes`): every component of every
+    linear axis up to :data:`~robocal.calibration.axes.ORDER`, no bending (a property of the load, not of the
     travel); none for a robot without a linear axis."""
-    from robocal.identification.axes import ORDER, AxisSettings, axis_terms
+    from robocal.calibration.axes import ORDER, AxisSettings, axis_terms
 
     return axis_terms(robot, AxisSettings(), ORDER, False) if robot.has_prismatic else []
 
@@ -122,7 +122,7 @@ def axis_blocks(
     :func:`jacobian_blocks`: ``(C, K · r_t, T)``; the carriage element's column times the term's feature."""
     import copy
 
-    from robocal.identification.axes import features
+    from robocal.calibration.axes import features
     from robocal.identification.model import with_base
     from robocal.kinematics.axes import augment
 

@@ -126,7 +126,7 @@ class Bundle:
     bundle_id: str = ""
     effects: tuple[dict[str, Any], ...] = ()  # discovered joint-level effects (robocal.compensation.discovered)
     #: a robot on external axes: their own errors along the travel (the calibration's ``axes``,
-    #: :class:`robocal.identification.axes.AxisFit`), or None
+    #: :class:`robocal.calibration.axes.AxisFit`), or None
     axis_fit: Any = None
 
     @property
@@ -273,7 +273,7 @@ def _read_calibration(
     d: Path, manifest: dict[str, Any], robot: RobotDescription
 ) -> tuple[CalibrationResult, dict[str, Any] | None]:
     """The bundle's calibration, read for ``robot`` (an error names the bundle and the file), and its external
-    axes' errors (``axes``, :func:`robocal.identification.axes.calibration_axes`) or None."""
+    axes' errors (``axes``, :func:`robocal.calibration.axes.calibration_axes`) or None."""
     cal_file = d / str(manifest.get("calibration") or "calibration.json")
     try:
         data = json.loads(cal_file.read_text(encoding="utf-8"))
@@ -340,7 +340,7 @@ def _external_axes_checked(
 ) -> Any:
     """A robot on external axes (issue 34) is corrected by :func:`robocal.compensation.axes.compensate_axes`: its
     geometry and its axes' own errors along the travel (the calibration's ``axes``, returned as an
-    :class:`~robocal.identification.axes.AxisFit`, None without). A thermal or compliance model, or joint-level
+    :class:`~robocal.calibration.axes.AxisFit`, None without). A thermal or compliance model, or joint-level
     effects, are not applied on that path: such a bundle is refused by name rather than served without them."""
     if not robot.has_prismatic:
         if axes:
@@ -359,7 +359,7 @@ def _external_axes_checked(
         return None
     if not isinstance(axes, dict):
         raise ConfigError(f"bundle {d}: the calibration's 'axes' must be a mapping (robocal calibrate writes it)")
-    from robocal.identification.axes import axis_fit_of
+    from robocal.calibration.axes import axis_fit_of
 
     return axis_fit_of(robot, axes, cal.x, where=f"bundle {d}: calibration 'axes'")
 

@@ -12,7 +12,7 @@ Config (one mapping per axis, or a list of them)::
         y: [30.0, 15.0]
 
 The carriage frame, the components and the moment are those of :mod:`robocal.kinematics.axes` (the identification
-fits the same functions, :mod:`robocal.identification.axes`). The errors act on the true points through the
+fits the same functions, :mod:`robocal.calibration.axes`). The errors act on the true points through the
 augmented chain (``rows.axis_error``); the truth holds every coefficient by the identification's term names
 (``axis_errors``: ``track:straightness_y_P2`` in mm, ``column:pitch_P1`` in rad, ``column:bending_x`` /
 ``column:bending_x_ext`` in rad per kN·m).

@@ -121,9 +121,9 @@ def run(
     """Calibrate the campaign in ``data_dir`` (``settings``: a :class:`CalibrationConfig` mapping); write
     ``calibration.json``, ``summary.json``, ``residuals.csv`` and (optionally) ``report.html`` into ``out_dir``.
     Returns the summary. A robot on external axes (a prismatic joint) also gets its axes' errors along the travel
-    fitted on top (:func:`robocal.identification.axes.fit_axis_errors`): ``summary.json`` → ``axes``, and
+    fitted on top (:func:`robocal.calibration.axes.fit_axis_errors`): ``summary.json`` → ``axes``, and
     ``calibration.json`` → ``axes`` (with the calibration vector refitted with them) for the service. A robot with a
-    positioner (:mod:`robocal.identification.positioner`): the arm is fitted on the tool's rows, then the
+    positioner (:mod:`robocal.calibration.positioner`): the arm is fitted on the tool's rows, then the
     positioner's axes with it on the part's rows: ``summary.json`` / ``calibration.json`` → ``positioner``.
 
     ``optimizer``: an optimizer config (``conf/optimizer/*.yaml``), run by
@@ -135,7 +135,7 @@ def run(
     camp = campaign_of(data_dir, rob, split, campaign)
     full = camp
     if rob.positioner is not None:  # the rows of the part on a positioner are fitted after the arm's (issue 34)
-        from robocal.identification.positioner import part_rows
+        from robocal.calibration.positioner import part_rows
 
         camp = camp.subset(~part_rows(camp, rob))
     outcome = fit_with_optimizer(camp, rob, cfg, optimizer)
@@ -215,13 +215,13 @@ def _with_cell_axes(
     into ``summary``; only when the fit has no problem."""
     cal_record = result.to_dict()
     if rob.has_prismatic and not summary["problems"]:
-        from robocal.identification.axes import calibration_axes, fit_axis_errors
+        from robocal.calibration.axes import calibration_axes, fit_axis_errors
 
         axis_fit = fit_axis_errors(camp, result)
         summary["axes"] = axis_fit.record()
         cal_record["axes"] = calibration_axes(axis_fit)  # served with the calibration (robocal.serve.bundle)
     if rob.positioner is not None and not summary["problems"]:  # the axes carrying the part, with the arm
-        from robocal.identification.positioner import fit_positioner
+        from robocal.calibration.positioner import fit_positioner
 
         record = fit_positioner(full, result).record()
         summary["positioner"] = {k: v for k, v in record.items() if k != "x"}

@@ -10,11 +10,11 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from robocal.calibration.axes import AxisSettings, fit_axis_errors
 from robocal.calibration.fit import calibrate
 from robocal.calibration.validation import validate
 from robocal.data import read_campaign
 from robocal.errors import ConfigError
-from robocal.identification.axes import AxisSettings, fit_axis_errors
 from robocal.kinematics.axes import COMPONENTS, augment, carried_moment
 from robocal.kinematics.chain import build_chain, fk
 from robocal.kinematics.gravity import potential_energy
@@ -201,8 +201,8 @@ def test_robocal_calibrate_on_a_track_reports_the_axis_errors(track, tmp_path):
     assert {t["name"] for t in ax["terms"]} >= {"track:straightness_y_P2", "track:pitch_P1"}
     assert '"axes"' in (tmp_path / "cal" / "summary.json").read_text()
     # and into calibration.json, with the calibration vector refitted with them: what the service's bundle serves
+    from robocal.calibration.axes import axis_fit_of
     from robocal.calibration.load import load_calibration
-    from robocal.identification.axes import axis_fit_of
 
     data = json.loads((tmp_path / "cal" / "calibration.json").read_text())
     served = axis_fit_of(robot, data["axes"], load_calibration(data, robot).x)

@@ -14,9 +14,9 @@ import pytest
 import yaml
 
 from robocal.calibration.fit import calibrate
+from robocal.calibration.positioner import fit_positioner, line_distance, part_rows
 from robocal.data import read_campaign
 from robocal.errors import ConfigError
-from robocal.identification.positioner import fit_positioner, line_distance, part_rows
 from robocal.kinematics.positioner import parameter_names, part_frames, part_points
 from robocal.kinematics.transforms import rotvec_to_matrix
 from robocal.robot import SHIPPED_ROBOT_DIR, load_robot, robot_from_dict
