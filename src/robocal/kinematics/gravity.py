@@ -277,3 +277,35 @@ def _chain(robot: RobotDescription) -> Any:
         hit = (robot, build_chain(robot))
         _CHAINS[id(robot)] = hit
     return hit[1]
+
+
+def generic_mass_moments(robot: RobotDescription) -> np.ndarray:
+    """``pi0 (4 n,)``: a mass distribution shaped like the arm's links, for a description without masses, in the
+    gravity regressor's order (:func:`gravity_regressor`: per body its mass, then its first mass moment): each body
+    a uniform rod from its frame's origin to the next body's (the flange for the last), its mass its length (1 kg
+    per m: only the shape matters, a fit scales it). Its load torques ``Y @ pi0`` are a torque profile of the
+    right physical shape over the whole workspace: a weight model that carries to configurations the calibration
+    did not visit, where the directions the poses tell apart (:func:`robocal.discovery.physics.weight_basis`)
+    need not."""
+    chain = _chain(robot)
+    n = robot.n_joints
+    bounds = body_frame_boundaries(chain, robot.is_mdh)
+    one = np.ones((1, 1))
+    frame = (np.eye(3)[0] * one, np.eye(3)[1] * one, np.eye(3)[2] * one, np.zeros((1, 3)))
+    rec: dict[int, tuple[np.ndarray, ...]] = {}
+    for e, kind in enumerate(chain.kinds):
+        rec[e] = frame
+        if kind == FIXED:
+            frame = step(FIXED, 0.0, frame, chain.fixed[e])
+            continue
+        frame = step(kind, np.full((1, 1), chain.nominal[e]), frame)  # every joint at zero
+    rec[len(chain.kinds)] = frame
+    origins = [rec[b][3][0] * MM for b in bounds] + [rec[len(chain.kinds)][3][0] * MM]
+    pi0 = np.zeros(4 * n)
+    for i in range(n):
+        axes = np.stack([rec[bounds[i]][k][0] for k in range(3)])  # body i's axes (rows) in the base frame
+        d = axes @ (origins[i + 1] - origins[i])  # the next origin in body i's frame, m
+        length = float(np.linalg.norm(d))
+        pi0[4 * i] = length
+        pi0[4 * i + 1 : 4 * i + 4] = 0.5 * length * d
+    return pi0
