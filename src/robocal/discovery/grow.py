@@ -66,10 +66,12 @@ def physics_candidates(
     from robocal.compensation.signals import coverage_weight, fourier_signal
     from robocal.discovery.candidates import periodic_window
     from robocal.discovery.physics import (
+        bounded_columns,
         lowest_harmonic,
         visited_intervals,
         visited_span_deg,
         weight_basis,
+        workspace_sample,
     )
     from robocal.kinematics.gravity import generic_mass_moments, gravity_regressor
 
@@ -120,6 +122,7 @@ def physics_candidates(
         # whole workspace, beside the ones the poses tell apart (on a heavy robot in 17 configurations those alone
         # matched its true torque to only 40-60 %, and gear harmonics stood in for the rest)
         pi0 = generic_mass_moments(robot)
+        Yw = gravity_regressor(robot, workspace_sample(robot))
         for j in range(n):
             V, scale = weight_basis(Y[rows, j, :])
             if V.shape[1] == 0:
@@ -127,6 +130,10 @@ def physics_candidates(
             s0 = float(np.sqrt(np.mean((Y[rows, j, :] @ pi0) ** 2)))
             if s0 > 0:
                 V, scale = np.column_stack([pi0, V]), np.concatenate([[s0], scale])
+            keep = bounded_columns(Y[rows, j, :] @ V, Yw[:, j, :] @ V)
+            if not keep.any():
+                continue
+            V, scale = V[:, keep], scale[keep]
             S = Y[:, j, :] @ V / scale
             r = V.shape[1]
             cand = Candidate(
