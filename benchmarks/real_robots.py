@@ -210,6 +210,8 @@ def _session_lines(name: str, v: dict) -> None:
         verdict = "helped" if d > 0 else "hurt"
         print(f"    without {k:<24} mean {s['mean_position_mm']:.4f} mm ({verdict} {abs(d):.4f})")
     print(f"    helped: {v['helped']}  hurt: {v['hurt']}")
+    for k, why in (v.get("not_applied") or {}).items():
+        print(f"    not applied: {k} ({why})")
     cov = v.get("coverage")
     if cov:
         ins, outs = cov["inside"], cov["outside"]

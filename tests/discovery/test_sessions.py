@@ -125,3 +125,24 @@ def test_a_session_outside_the_calibrated_joint_angles_is_said(tmp_path: Path) -
     assert cov["outside"] is not None and (cov["inside"] is None) == (cov["n_outside"] == cov["n_judged"])
     # without the calibration's angles, no coverage is reported
     assert "coverage" not in session_validation(cal, camp)
+
+
+def test_an_effect_of_a_logged_signal_is_applied_with_the_sessions_values_or_said_missing(tmp_path: Path) -> None:
+    """A joint offset following a logged column (signal:<col>:jN) is evaluated with the new session's own values of
+    that column; a session that did not log it is judged without the effect, which says so (before: the session
+    validation raised, and series A's discovery, which names signal:src_row:j1, could not be judged on D)."""
+    camp, robot, _ = make_campaign(tmp_path, "geometric", 12, {}, n_poses=30, n_validation_poses=10)
+    cal = calibrate(camp, robot)
+    rec = {"key": "signal:inc:j2", "signal": "logged", "column": "inc", "centre": 0.0, "joint": 2,
+           "coefficients": [np.deg2rad(0.01)]}  # 0.01 deg of joint 2 per unit of the column  # fmt: skip
+    with_effect = replace(cal, effects=(rec,))
+    logged = replace(camp, extra={**camp.extra, "inc": np.linspace(-1.0, 1.0, camp.n_rows)})
+    applied = session_validation(with_effect, logged, cal)
+    assert "not_applied" not in applied and set(applied["without"]) == {"signal:inc:j2"}
+    # the effect moves joint 2 by up to 0.01 deg (~0.1-0.2 mm at the flange): the session is worse with it
+    assert applied["final"]["mean_position_mm"] > applied["without"]["signal:inc:j2"]["mean_position_mm"] + 0.01
+    missing = session_validation(with_effect, camp, cal)
+    assert missing["not_applied"] == {"signal:inc:j2": "the session has no column 'inc'"}
+    assert missing["final"]["mean_position_mm"] == pytest.approx(
+        session_validation(cal, camp)["final"]["mean_position_mm"]
+    )

@@ -42,7 +42,8 @@ def predicted_flanges(
     q = np.asarray(campaign.q, dtype=float)
     if records:
         pay = np.broadcast_to(np.asarray(campaign.payload_kg, dtype=float), (campaign.n_rows,))
-        q = q + joint_offsets(list(records), model.robot, q, pay)
+        signals = dict(tau_Nm=campaign.tau_Nm, current_A=campaign.current_A, direction=campaign.direction)
+        q = q + joint_offsets(list(records), model.robot, q, pay, **signals, logged=campaign.extra)
     return fk(model.chain, q, cal.kinematic_errors), np.stack([tools[str(t)] for t in campaign.target])
 
 
@@ -168,7 +169,9 @@ def session_validation(
         raise DataError(
             f"campaign {campaign.source}: {int(reg.sum())} calibration row(s); registering a tracker needs >= 3"
         )
-    records = tuple(cal.effects)
+    # an effect of a logged signal the session did not log cannot be applied there: left out, and said so
+    missing = [e for e in cal.effects if e.get("signal") == "logged" and str(e["column"]) not in campaign.extra]
+    records = tuple(e for e in cal.effects if not any(e is x for x in missing))
     final, err = _judge(cal, campaign, records, reg, val, tool, rows=True)
     out: dict[str, Any] = {
         "registered": "tracker and tool" if tool else "tracker",
@@ -178,6 +181,8 @@ def session_validation(
     }
     if note:
         out["note"] = note
+    if missing:
+        out["not_applied"] = {str(e["key"]): f"the session has no column '{e['column']}'" for e in missing}
     if calibrated_q is not None:
         out["coverage"] = _coverage(calibrated_q, campaign, val, err, cal.model.robot)
     if geometric is not None:
