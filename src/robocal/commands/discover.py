@@ -113,6 +113,8 @@ def run(args: argparse.Namespace) -> int:
             f"{f['mean_position_mm']:.4f} mm discovered; effects that helped there: {v['helped'] or 'none'}, "
             f"hurt: {v['hurt'] or 'none'}"
         )
+        for k, why in (v.get("not_applied") or {}).items():
+            print(f"  {k} not applied there: {why}")
         cov = v.get("coverage")
         if cov and cov["n_outside"]:
             joints = ", ".join(f"{j} {n}" for j, n in cov["outside_per_joint"].items() if n)
