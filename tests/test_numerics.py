@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from robocal.io import reproducible, to_json, tracked_float
-from robocal.numerics import argmax_tied, sorted_tied
+from robocal.numerics import argmax_tied, column_norms, sorted_tied
 
 
 def test_a_tie_up_to_rounding_goes_to_the_first_candidate() -> None:
@@ -28,6 +28,16 @@ def test_sorted_tied_keeps_input_order_among_ties() -> None:
     assert sorted_tied([], float) == []
     with pytest.raises(ValueError, match="empty"):
         argmax_tied([])
+
+
+@pytest.mark.parametrize("shape", [(4096, 5), (4097, 7), (12_510, 90), (20_000, 3)])
+def test_column_norms_are_numpys_bit_for_bit(shape: tuple[int, int]) -> None:
+    # the chunked sum (no (M, k) temporaries: the fits' column scales and identifiability) is np.linalg.norm's
+    rng = np.random.default_rng(shape[0])
+    A = rng.standard_normal(shape) * rng.uniform(1e-6, 1e3, shape[1])
+    assert np.array_equal(column_norms(A), np.linalg.norm(A, axis=0))
+    F = np.asfortranarray(A)  # another layout: numpy's own
+    assert np.array_equal(column_norms(F), np.linalg.norm(F, axis=0))
 
 
 def test_tracked_floats_drop_the_noise_and_keep_the_model() -> None:

@@ -1,4 +1,4 @@
-"""Discrete choices that do not depend on the last bits of a float.
+"""Discrete choices that do not depend on the last bits of a float, and column norms without a copy.
 
 Two candidates whose scores are equal in exact arithmetic (symmetric poses, an effect offered twice under two
 names) differ in floating point only by rounding noise, which changes with the BLAS kernel and the CPU; a plain
@@ -60,4 +60,21 @@ def sorted_tied(items: Iterable[T], key: Callable[[T], float]) -> list[T]:
     return [seq[i] for i in order]
 
 
-__all__ = ["TIE_ATOL", "TIE_RTOL", "argmax_tied", "sorted_tied"]
+#: rows per chunk of :func:`column_norms` (bounds its temporary: chunk x k floats)
+NORM_CHUNK = 4096
+
+
+def column_norms(A: np.ndarray, chunk: int = NORM_CHUNK) -> np.ndarray:
+    """``np.linalg.norm(A, axis=0)`` of a C-ordered ``(M, k)`` matrix, bit for bit, without its two ``(M, k)``
+    temporaries: the squares are summed over row chunks, each chunk's sum continuing from the rows before it (the
+    order numpy's reduction over the leading axis of a C-ordered array takes). Another layout: ``np.linalg.norm``."""
+    if A.ndim != 2 or not A.flags.c_contiguous or A.shape[0] <= chunk:
+        return np.asarray(np.linalg.norm(A, axis=0))
+    acc = np.add.reduce(A[:chunk] * A[:chunk], axis=0)
+    for c0 in range(chunk, A.shape[0], chunk):
+        blk = A[c0 : c0 + chunk]
+        acc = np.add.reduce(np.concatenate([acc[None, :], blk * blk]), axis=0)
+    return np.asarray(np.sqrt(acc))
+
+
+__all__ = ["NORM_CHUNK", "TIE_ATOL", "TIE_RTOL", "argmax_tied", "column_norms", "sorted_tied"]

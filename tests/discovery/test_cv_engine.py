@@ -127,6 +127,25 @@ def test_folds_read_in_place_equal_the_sorted_copy(monkeypatch):
         assert np.max(np.abs(a - b)) < 1e-12 * scale
 
 
+def test_a_fit_that_can_evaluate_its_jacobian_again_gives_it_up_for_the_sorted_copy(monkeypatch):
+    """Beyond SORTED_COPY_BYTES a fit that can evaluate its Jacobian again (``Fit.release``) lets it go and the
+    folds read the copy in fold order: the same numbers as below the threshold, one (M, k) matrix held."""
+    from robocal.discovery import cv as cv_mod
+
+    rng = np.random.default_rng(6)
+    fit, groups = fake_fit(rng, d=6)
+    Z = rng.normal(size=(len(fit.r_w), 3))
+    vs = [Variant(None, None, "")]
+    ref = FoldCV(fit, groups, 5, 7)
+    released = []
+    fit.data, fit.release = object(), lambda: released.append(True)
+    monkeypatch.setattr(cv_mod, "SORTED_COPY_BYTES", 0)
+    cv = FoldCV(fit, groups, 5, 7)
+    assert cv._A is not None and cv._J is None and released == [True]
+    assert np.array_equal(cv.base_err, ref.base_err)
+    assert np.array_equal(cv.with_variants(Z, vs)[0], ref.with_variants(Z, vs)[0])
+
+
 def test_leaving_columns_out_equals_refitting_the_reduced_fit():
     rng = np.random.default_rng(2)
     fit, groups = fake_fit(rng)

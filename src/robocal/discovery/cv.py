@@ -115,11 +115,17 @@ class FoldCV:
         ends = np.cumsum(counts)
         self.bounds = [(int(ends[k] - counts[k]), int(ends[k])) for k in self.folds]
         self.d = int(fit.d)
-        # the fit's Jacobian in fold order: a copy when it is at most SORTED_COPY_BYTES, else each fold's rows are
-        # taken when needed (:meth:`_fold`, one fold at a time: no second (M, k) matrix)
-        self._J = fit.J_w
-        self.k = int(fit.J_w.shape[1])
-        self._A = np.ascontiguousarray(fit.J_w[self.order]) if fit.J_w.nbytes <= SORTED_COPY_BYTES else None
+        # the fit's Jacobian in fold order: a copy when it is at most SORTED_COPY_BYTES or when the fit can let its
+        # own go (``Fit.release``: evaluated again if read later), else each fold's rows are taken when needed
+        # (:meth:`_fold`, one fold at a time: no second (M, k) matrix)
+        J = fit.J_w
+        self.k = int(J.shape[1])
+        swap = J.nbytes > SORTED_COPY_BYTES and getattr(fit, "data", None) is not None and hasattr(fit, "release")
+        self._A = np.ascontiguousarray(J[self.order]) if swap or J.nbytes <= SORTED_COPY_BYTES else None
+        self._J: np.ndarray | None = J if self._A is None else None
+        del J
+        if swap:
+            fit.release()
         self._r = np.asarray(fit.r_w)[self.order]
         self.prec = fit.model.prior_precision()[fit.free]
         self.th = fit.theta[fit.free]
@@ -148,7 +154,10 @@ class FoldCV:
     def _fold(self, i: int) -> np.ndarray:
         """The whitened Jacobian's rows of fold ``i`` in the sorted order (a copy of that fold only)."""
         s, e = self.bounds[i]
-        return self._A[s:e] if self._A is not None else np.asarray(self._J[self.order[s:e]])
+        if self._A is not None:
+            return self._A[s:e]
+        assert self._J is not None  # read in place
+        return np.asarray(self._J[self.order[s:e]])
 
     def _count(self, i: int) -> int:
         s, e = self.bounds[i]
@@ -170,7 +179,9 @@ class FoldCV:
         keep = np.asarray(keep, dtype=int)
         drop = np.setdiff1d(np.arange(self.k), keep)
         th_d = self.th[drop]
-        Ad = self._A[:, drop] if self._A is not None else self._J[self.order[:, None], drop[None, :]]
+        src = self._A if self._A is not None else self._J
+        assert src is not None
+        Ad = src[:, drop] if self._A is not None else src[self.order[:, None], drop[None, :]]
         r2 = self._r - Ad @ th_d if len(drop) else self._r
         Gkd = [Gi[np.ix_(keep, drop)] for Gi in self._Gf]
         bf = [bi[keep] - Gd @ th_d for bi, Gd in zip(self._bf, Gkd, strict=True)]

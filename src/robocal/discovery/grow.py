@@ -31,7 +31,7 @@ from robocal.data.contract import Campaign
 from robocal.discovery import engine, progress
 from robocal.discovery.candidates import Candidate
 from robocal.discovery.config import DiscoveryConfig
-from robocal.discovery.cv import FoldCV, fold_cv
+from robocal.discovery.cv import fold_cv
 from robocal.discovery.model import Accepted, Fit
 from robocal.discovery.scoring import Score, Step, regressor
 from robocal.discovery.session_cv import Sessions, session_own
@@ -252,10 +252,9 @@ def grow(
                               "steps": []}  # fmt: skip
     if cfg.cv_folds < 2 or not pool:
         return fit, accepted, record
-    cv = fold_cv(fit, groups, cfg.cv_folds, cfg.seed)
     for step in range(cfg.grow_max_steps):
         progress.note(f"cross-validated selection: step {step + 1} (at most {cfg.grow_max_steps})")
-        fit_new, accepted, pool, cv = _step(pool, fit, accepted, cv, rows, data, cfg, steps, record, refit, groups)
+        fit_new, accepted, pool = _step(pool, fit, accepted, rows, data, cfg, steps, record, refit, groups)
         if fit_new is fit or not pool:
             fit = fit_new
             break
@@ -284,9 +283,8 @@ def finish(
         progress.note("residual layer")
         layer_pool = layer_candidates(campaign, cfg, rows)
         if layer_pool:
-            cv = fold_cv(fit, groups, cfg.cv_folds, cfg.seed)
-            fit, accepted, _, _ = _step(layer_pool, fit, accepted, cv, rows, data, cfg, steps, record, refit, groups,
-                                        what="residual layer")  # fmt: skip
+            fit, accepted, _ = _step(layer_pool, fit, accepted, rows, data, cfg, steps, record, refit, groups,
+                                     what="residual layer")  # fmt: skip
     if sessions is not None:
         from robocal.discovery.session_cv import open_windows, opened_candidate
 
@@ -379,6 +377,7 @@ def _prune(
         if float(np.sum(e**2)) <= base:
             drop.append(a.cand.key)
     record["pruned"] = drop
+    del cv  # not held through the refit (its fit's Jacobian)
     if drop:
         accepted = [a for a in accepted if a.cand.key not in drop]
         fit = refit(accepted, fit)
@@ -389,7 +388,6 @@ def _step(
     pool: Pool,
     fit: Fit,
     accepted: list[Accepted],
-    cv: FoldCV,
     rows: np.ndarray,
     data: FitData,
     cfg: DiscoveryConfig,
@@ -398,11 +396,12 @@ def _step(
     refit: Any,
     groups: np.ndarray,
     what: str = "cross-validated selection",
-) -> tuple[Fit, list[Accepted], Pool, FoldCV]:
+) -> tuple[Fit, list[Accepted], Pool]:
     """One step of the selection: score every pool entry, accept the best significant one (refit jointly) or
-    record why nothing was accepted (then the same ``fit`` object comes back)."""
+    record why nothing was accepted (then the same ``fit`` object comes back). The fold sums are ``fit``'s
+    (:func:`robocal.discovery.cv.fold_cv`: the last step's when it accepted nothing), let go before the refit."""
     phase = "layer" if what == "residual layer" else "selection"
-
+    cv = fold_cv(fit, groups, cfg.cv_folds, cfg.seed)
     sse0 = cv.group_sse(cv.base_err)
     scores: list[tuple[float, float, Score, list[Candidate], Variant, dict[str, tuple[str, ...]]]] = []
     # the logged signals are a family of their own at the same cv_alpha (as in the F-test search)
@@ -430,6 +429,7 @@ def _step(
 
     ticker = progress.Ticker(f"{what}: candidates scored", len(pool))
     sse_all = engine.group_sse(cv, [job(i, m) for i, (m, _) in enumerate(pool)], ticker.tick)
+    del cv  # not held through the refit (its fit's Jacobian)
     for i_pool, (members, variants) in enumerate(pool):
         thr = thr_sig if members[0].effect == "signal" else thr_lib
         q_all, drifted = q_of[i_pool], drift[i_pool]
@@ -452,7 +452,7 @@ def _step(
     if not passing:
         steps.append(Step(None, f"{what}: nothing lowers the held-out error significantly", fit.rms_mm, fit.rms_mm,
                           fit.rss, fit.rss, fit.dof, [s[2] for s in scores], phase=phase))  # fmt: skip
-        return fit, accepted, pool, cv
+        return fit, accepted, pool
     _tot, lp, sc, members, v, drifted = passing[0]
     sc.status = "accepted"
     chosen = [variant_candidate(c, vv) for c, vv in _member_variants(members, v)]
@@ -468,7 +468,7 @@ def _step(
                             "cv_gain": sc.cv_gain, "members": [c.key for c in chosen]})  # fmt: skip
     taken = {c.key for c in members}
     pool = [(m, vs) for m, vs in pool if not taken & {c.key for c in m}]
-    return fit, accepted, pool, fold_cv(fit, groups, cfg.cv_folds, cfg.seed)
+    return fit, accepted, pool
 
 
 def layer_candidates(campaign: Campaign, cfg: DiscoveryConfig, rows: np.ndarray) -> Pool:

@@ -11,7 +11,7 @@ Residuals are ordered row by row, ``d`` per row: the position (mm) and, with a 6
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -278,6 +278,26 @@ class Fit:
     eliminated: tuple[str, ...]
     rows: np.ndarray | None = None  # campaign rows fitted
     w: np.ndarray | None = None  # (M,) weights (1/sigma) of every residual; None: 1/sigma for all
+    # the fit data ``J_w`` was evaluated on: with it :meth:`release` may let ``J_w`` go (evaluated again when asked)
+    data: FitData | None = field(default=None, repr=False, compare=False)
+
+    def release(self) -> None:
+        """Let go of ``J_w`` (an ``(M, k)`` matrix: the previous fit's, while the next one is fitted); the next
+        read of ``J_w`` evaluates it again at ``theta`` — the same numbers, the model's Jacobian on the free
+        columns whitened as the solver's. A fit without its data keeps its matrix."""
+        if self.data is not None and self.rows is not None and self.w is not None:
+            self.__dict__.pop("J_w", None)
+
+    def __getattr__(self, name: str) -> np.ndarray:
+        # only called when ``J_w`` was released (a field found in __dict__ never comes here)
+        d = self.__dict__
+        if name != "J_w" or d.get("data") is None:
+            raise AttributeError(name)
+        _, J, _, _ = d["model"].residuals_and_jacobian(d["theta"], d["data"], d["rows"], cols=d["free"])
+        J *= d["w"][:, None]
+        J.setflags(write=False)
+        d["J_w"] = J
+        return J
 
     @property
     def d(self) -> int:
@@ -417,4 +437,5 @@ def fit_model(
         eliminated=tuple(e.name for e in ident.eliminated) + tuple(model.names[c] for c in also),
         rows=np.asarray(rows),
         w=w,
+        data=data,
     )

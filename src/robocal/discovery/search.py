@@ -200,6 +200,7 @@ def _retest(
     from robocal.identification import misfit, robust
 
     m = cal.n_rows
+    fit.release()  # the search's Jacobian is not held through this one (every calibration row)
     progress.note(f"gross-error test: every one of the {m} calibration rows against the discovered model")
     # the free columns only, whitened in place (no (M, n) matrix, no copy)
     r, Jw, _, _ = fit.model.residuals_and_jacobian(fit.theta, data_all, rows_all, cols=fit.free)
@@ -225,6 +226,21 @@ def _retest(
         systematic, explained = misfit.find(cal, test.flagged, rp, scale, alpha)
         test = robust.RowTest(test.F, test.p_value, test.flagged & ~explained, test.threshold_F, test.alpha, test.d)
     return test, loud, systematic
+
+
+def release(prev: Fit | None) -> None:
+    """Before a refit: the previous fit's ``(M, k)`` Jacobian and the cross-validation sums kept of it let go (the
+    fit evaluates it again if it is read later, :meth:`Fit.release`), so that the refit does not hold them."""
+    clear_cache()
+    if prev is not None:
+        prev.release()
+
+
+def start(model: ExtendedModel, prev: Fit | None, geo: Any) -> np.ndarray:
+    """A refit's start: the previous fit's parameters (the geometric calibration's without one), the previous
+    fit's Jacobian let go first (:func:`release`)."""
+    release(prev)
+    return model.map_from(prev.model.names, prev.theta) if prev is not None else model.map_from(geo.names, geo.x)
 
 
 def calibration_prior(geo: Any) -> np.ndarray | None:
@@ -268,7 +284,7 @@ def _search(
 
     def refit(accepted: list[Accepted], prev: Fit | None) -> Fit:
         model = ExtendedModel(robot, targets, T_ref, accepted, like=geo.model, base_prior=base_prior)
-        theta0 = model.map_from(prev.model.names, prev.theta) if prev is not None else model.map_from(geo.names, geo.x)
+        theta0 = start(model, prev, geo)
         return fit_model(model, theta0, data, rows, sigma, fixed, cfg.rank_tol, cfg.max_iter, sigma_rad=sigma_rad,
                          held=frozenset(e.name for e in geo.eliminated))  # the geometry's: kept out  # fmt: skip
 
@@ -326,7 +342,7 @@ def _search(
                 calibration's, so where a windowed effect is off the model is the geometric one)."""
                 assert prev is not None
                 model = ExtendedModel(robot, targets, T_ref, accepted, like=geo.model, base_prior=base_prior)
-                theta0 = model.map_from(prev.model.names, prev.theta)
+                theta0 = start(model, prev, geo)
                 held = fixed | set(model.base.names)
                 return fit_model(model, theta0, data, rows, sigma, held, cfg.rank_tol, cfg.max_iter,
                                  sigma_rad=sigma_rad)  # fmt: skip
@@ -346,7 +362,7 @@ def _search(
     fit, accepted, grown = finish(campaign, cfg, rows, data, fit, accepted, steps, groups, refit, grown, sessions)
     if sessions is not None:
         grown["geometric_session_cv"] = {k: v for k, v in sessions.summary(geometric).items() if k != "sse"}
-    clear_cache()  # the last cross-validation's fold sums
+    release(geometric)  # the last cross-validation's fold sums, and the geometric fit's Jacobian (evaluated if read)
     return DiscoveryResult(
         robot=robot,
         config=cfg,

@@ -285,6 +285,20 @@ def _rows(fit: Fit) -> np.ndarray:
     return fit.rows
 
 
+def column_space(fit: Fit) -> np.ndarray:
+    """An orthonormal basis ``(M, r)`` of the column space of the fit's whitened Jacobian (the left singular vectors
+    above 1e-10 of the largest), as ``np.linalg.svd(fit.J_w)`` gives it, bit for bit (the same LAPACK routine on
+    the same Fortran-ordered matrix), holding two ``(M, k)`` matrices, not four: the fit's own is let go
+    (:meth:`Fit.release`) and the routine works in place on its Fortran copy."""
+    from scipy import linalg
+
+    a = np.asfortranarray(fit.J_w)
+    fit.release()
+    U, s, _ = linalg.svd(a, full_matrices=False, overwrite_a=True, check_finite=False, lapack_driver="gesdd")
+    del a
+    return np.ascontiguousarray(U[:, s > 1e-10 * s[0]])
+
+
 def locate(res: DiscoveryResult) -> dict[str, Any]:
     """Where the leftover lives: joints (a flexible joint-angle error per joint), workspace region, time span."""
     fit = res.final
@@ -300,8 +314,7 @@ def locate(res: DiscoveryResult) -> dict[str, Any]:
     q = camp.q
     n = q.shape[1]
     B = np.column_stack([np.ones(m)] + [f(h * q[:, k]) for k in range(n) for h in (1, 2) for f in (np.sin, np.cos)])
-    U0, s0, _ = np.linalg.svd(fit.J_w, full_matrices=False)
-    Q = U0[:, s0 > 1e-10 * s0[0]]
+    Q = column_space(fit)
     joints = []
     for j in range(n):
         Z = (fit.Jq[:, :, j][:, :, None] * B[:, None, :]).reshape(dd * m, -1) * fit.weights[:, None]

@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from robocal.errors import ConfigError
+from robocal.numerics import column_norms
 
 
 @dataclass(frozen=True)
@@ -107,7 +108,7 @@ def analyse(
     names = tuple(names)
     cand = np.asarray(candidates, dtype=int)
     Jc = J[:, cand]  # a copy (fancy index), normalised in place: one (M, k) matrix, not three
-    norms = np.linalg.norm(Jc, axis=0)
+    norms = column_norms(Jc)
     Jc /= np.where(norms > 0, norms, 1.0)
     # QR in the priority order, against the kept columns only: left[k] is the norm of the part of column k
     # that the kept columns before it cannot explain. (One Householder QR over all candidates would let each
@@ -116,6 +117,7 @@ def analyse(
     # first reduced by one QR (an orthogonal change of coordinates: distances and singular values are kept);
     # then [kept, pending] is factorised again after each dropped column: |R_jj| holds up to the next drop.
     A: np.ndarray = np.linalg.qr(Jc, mode="r")  # type: ignore[assignment]
+    del Jc  # not held beside the kept columns' copy below
     left_all = np.zeros(len(cand))
     kept_pos: list[int] = []
     pending = [k for k in range(len(cand)) if norms[k] > 0.0]
@@ -148,7 +150,7 @@ def analyse(
     Jk = J[:, kept]
     absorbed = [c for c, _, reason in weak if not reason.startswith("has no")]
     betas = np.linalg.lstsq(Jk, J[:, absorbed], rcond=None)[0] if absorbed and kept else None
-    kn = np.linalg.norm(Jk, axis=0)
+    kn = column_norms(Jk)
     for c, left, reason in weak:
         if reason.startswith("has no") or betas is None:
             eliminated.append(Eliminated(names[c], (), left, reason))

@@ -18,6 +18,7 @@ from collections.abc import Callable
 import numpy as np
 
 from robocal.identification.result import FitResult, fit_covariance, normal_inverse
+from robocal.numerics import column_norms
 
 __all__ = ["FitResult", "levenberg_marquardt", "normal_inverse"]
 
@@ -143,7 +144,7 @@ def _first(
 def _column_scale(Jf: np.ndarray, scale: np.ndarray | None, free: np.ndarray) -> np.ndarray:
     """Typical magnitude of each free variable: ``scale[free]``, by default the inverse column norms of ``Jf``."""
     if scale is None:
-        d = np.linalg.norm(Jf, axis=0)
+        d = column_norms(Jf)
         d[d == 0] = 1.0
         return 1.0 / d
     return np.asarray(scale, dtype=float)[free]

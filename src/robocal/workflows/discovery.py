@@ -418,6 +418,8 @@ def write_product(res: DiscoveryResult, summ: dict[str, Any], out: Path) -> str 
 
     fit_stats = {k: summ[k] for k in ("rms_before_mm", "rms_after_mm", "noise_floor_mm", "chi2", "dof", "outliers")}
     cal_dict = extended_calibration(res.final, res.robot, fit_stats)
+    for f in (res.final, res.geometric):  # their (M, k) Jacobians not held through the compensation's tables
+        f.release()
     if res.robot.has_prismatic:  # the discovered axis errors, served with the calibration (robocal.serve.bundle)
         from robocal.calibration.axes import calibration_axes
         from robocal.discovery.axes import discovered_axis_fit
