@@ -116,6 +116,7 @@ def test_abb_outside_the_calibrated_range_of_joint_2_the_extended_model_beats_ge
     assert svc.offsets(camp.q, Signals(np.zeros(camp.n_rows))) == pytest.approx(dq_fit, abs=1e-9)
 
 
+@pytest.mark.e2e  # series D read and its regressors compiled (~18 s): make e2e (CI), outside make test's 5 minutes
 def test_the_weight_never_deflects_a_configuration_much_beyond_what_the_calibration_poses_show(shared_dir):
     """UR10 series D (ISO cubes: joint 5 barely loaded by gravity): a joint-5 weight combination reached 189x its
     largest calibration value at the arm stretched upright (q = 0, -90, 0, 0, 0, 0, one of D's validation rows),
