@@ -170,8 +170,9 @@ def session_validation(
             f"campaign {campaign.source}: {int(reg.sum())} calibration row(s); registering a tracker needs >= 3"
         )
     # an effect of a logged signal the session did not log cannot be applied there: left out, and said so
-    missing = [e for e in cal.effects if e.get("signal") == "logged" and str(e["column"]) not in campaign.extra]
-    records = tuple(e for e in cal.effects if not any(e is x for x in missing))
+    logged = [e.get("signal") == "logged" and str(e["column"]) not in campaign.extra for e in cal.effects]
+    missing = [e for e, lost in zip(cal.effects, logged, strict=True) if lost]
+    records = tuple(e for e, lost in zip(cal.effects, logged, strict=True) if not lost)
     final, err = _judge(cal, campaign, records, reg, val, tool, rows=True)
     out: dict[str, Any] = {
         "registered": "tracker and tool" if tool else "tracker",

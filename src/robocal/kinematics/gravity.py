@@ -201,14 +201,10 @@ def gravity_regressor(robot: RobotDescription, q: np.ndarray, compiled_ok: bool 
     return _gravity_regressor_numpy(robot, q)
 
 
-def _gravity_regressor_numpy(robot: RobotDescription, q: np.ndarray) -> np.ndarray:
-    """The reference (numpy) pass of :func:`gravity_regressor`, through ``chain.step``."""
-
-    m, n = q.shape
-    chain = _chain(robot)
-    bounds = body_frame_boundaries(chain, robot.is_mdh)
-    joint_el = [int(np.flatnonzero(chain.joint == j)[0]) for j in range(n)]
-    want = set(bounds) | set(joint_el)
+def _frames(chain: Chain, q: np.ndarray, want: set[int]) -> dict[int, tuple[np.ndarray, ...]]:
+    """The chain's frames ``(x, y, z axes, origin)`` per pose, before each element in ``want`` and at the chain's
+    end (key ``len(chain.kinds)``), at joints ``q (m, n)``: one pass through ``chain.step``."""
+    m = q.shape[0]
     rec: dict[int, tuple[np.ndarray, ...]] = {}
     one = np.ones((m, 1))
     frame = (np.eye(3)[0] * one, np.eye(3)[1] * one, np.eye(3)[2] * one, np.zeros((m, 3)))
@@ -221,6 +217,17 @@ def _gravity_regressor_numpy(robot: RobotDescription, q: np.ndarray) -> np.ndarr
         v = chain.nominal[e] + (q[:, chain.joint[e]] if chain.joint[e] >= 0 else 0.0)
         frame = step(kind, np.broadcast_to(v, (m,))[:, None], frame)
     rec[len(chain.kinds)] = frame
+    return rec
+
+
+def _gravity_regressor_numpy(robot: RobotDescription, q: np.ndarray) -> np.ndarray:
+    """The reference (numpy) pass of :func:`gravity_regressor`, through ``chain.step``."""
+
+    m, n = q.shape
+    chain = _chain(robot)
+    bounds = body_frame_boundaries(chain, robot.is_mdh)
+    joint_el = [int(np.flatnonzero(chain.joint == j)[0]) for j in range(n)]
+    rec = _frames(chain, q, set(bounds) | set(joint_el))
     g = np.asarray(robot.gravity, dtype=float)
     U = np.stack([rec[joint_el[j]][chain.kinds[joint_el[j]] % 3] for j in range(n)], axis=1)  # (m, n, 3)
     Oj = np.stack([rec[joint_el[j]][3] for j in range(n)], axis=1) * MM
@@ -290,16 +297,7 @@ def generic_mass_moments(robot: RobotDescription) -> np.ndarray:
     chain = _chain(robot)
     n = robot.n_joints
     bounds = body_frame_boundaries(chain, robot.is_mdh)
-    one = np.ones((1, 1))
-    frame = (np.eye(3)[0] * one, np.eye(3)[1] * one, np.eye(3)[2] * one, np.zeros((1, 3)))
-    rec: dict[int, tuple[np.ndarray, ...]] = {}
-    for e, kind in enumerate(chain.kinds):
-        rec[e] = frame
-        if kind == FIXED:
-            frame = step(FIXED, 0.0, frame, chain.fixed[e])
-            continue
-        frame = step(kind, np.full((1, 1), chain.nominal[e]), frame)  # every joint at zero
-    rec[len(chain.kinds)] = frame
+    rec = _frames(chain, np.zeros((1, n)), set(bounds))  # every joint at zero
     origins = [rec[b][3][0] * MM for b in bounds] + [rec[len(chain.kinds)][3][0] * MM]
     pi0 = np.zeros(4 * n)
     for i in range(n):
