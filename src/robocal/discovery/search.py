@@ -34,6 +34,7 @@ from robocal.discovery.grow import finish, grow, held_out_check, physics_candida
 from robocal.discovery.model import Accepted, ExtendedModel, Fit, fit_model
 from robocal.discovery.scoring import Score, Step, regressor
 from robocal.discovery.session_cv import Sessions
+from robocal.discovery.state import DiscoveryState
 from robocal.discovery.systematic import misfit_candidates
 from robocal.errors import ConfigError
 from robocal.identification.identifiability import resolve_fixed
@@ -330,9 +331,9 @@ def _search(
         )  # fmt: skip
     # many small effects chosen together by cross-validation (physics first), then equations for what is left,
     # then the residual layer (robocal.discovery.grow)
-    grown: dict[str, Any] = {}
+    state = DiscoveryState(campaign, robot, cfg, rows, data, groups, refit, fit, accepted, steps, sessions=sessions)
     if cfg.grow_max_steps > 0:
-        taken = {a.cand.key for a in accepted}
+        taken = {a.cand.key for a in state.accepted}
         leftovers = [c for c in library if c.key not in taken and c.key not in unident]
         grow_refit = refit
         if cfg.grow_geometry == "frozen":
@@ -347,21 +348,21 @@ def _search(
                 return fit_model(model, theta0, data, rows, sigma, held, cfg.rank_tol, cfg.max_iter,
                                  sigma_rad=sigma_rad)  # fmt: skip
 
-        fit, accepted, grown = grow(
-            campaign, robot, cfg, rows, data, fit, accepted, steps, groups, grow_refit, leftovers
-        )
+        grow(state, leftovers, grow_refit)
     if cfg.dictionary:
         progress.note("proposed equations (the dictionary)")
-        fit, accepted = _propose(campaign, robot, cfg, rows, data, fit, accepted, steps, groups, refit)
-    if cfg.cv_folds >= 2 and accepted:
+        state.fit, state.accepted = _propose(
+            campaign, robot, cfg, rows, data, state.fit, state.accepted, steps, groups, refit
+        )
+    if cfg.cv_folds >= 2 and state.accepted:
         # what the parametric model keeps earns its place before the layer is offered (the layer's after it)
         progress.note("held-out check of the parametric model")
-        fit, accepted, _ = held_out_check(fit, accepted, steps, groups, refit, cfg, grown, sessions=sessions)
+        held_out_check(state)
     # the parametric model is kept for its validation (its parameters), not its (M, k) Jacobian
-    parametric = replace(fit, J_w=np.zeros((0, fit.k)))
-    fit, accepted, grown = finish(campaign, cfg, rows, data, fit, accepted, steps, groups, refit, grown, sessions)
+    parametric = replace(state.fit, J_w=np.zeros((0, state.fit.k)))
+    finish(state)
     if sessions is not None:
-        grown["geometric_session_cv"] = {k: v for k, v in sessions.summary(geometric).items() if k != "sse"}
+        state.record["geometric_session_cv"] = {k: v for k, v in sessions.summary(geometric).items() if k != "sse"}
     release(geometric)  # the last cross-validation's fold sums, and the geometric fit's Jacobian (evaluated if read)
     return DiscoveryResult(
         robot=robot,
@@ -372,14 +373,14 @@ def _search(
         skipped=skipped,
         unidentifiable=unident,
         geometric=geometric,
-        final=fit,
-        accepted=accepted,
+        final=state.fit,
+        accepted=state.accepted,
         steps=steps,
         n_tests=n_tests,
         threshold_log10_p=log_thr,
         wall_time_s=time.perf_counter() - t0,
         extra={
-            "cv": grown,
+            "cv": state.record,
             "parametric": parametric,
             "signal_tests": n_signal,
             "signal_threshold_log10_p": log_thr_signal,
