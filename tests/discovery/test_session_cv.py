@@ -96,16 +96,12 @@ class _Hurts:
 
 def test_an_effect_that_hurts_in_a_new_session_is_dropped(two):
     camp, robot, res, _s = two
-    from .test_trust import _refit
+    from .test_trust import _state
 
-    refit = _refit(res, camp, robot)
-    fit = res.final
-    groups = np.repeat(np.asarray(camp.pose_id)[res.rows].astype(str), fit.d)
-    record: dict = {}
-    _fit2, acc2, _ = held_out_check(
-        fit, list(res.accepted), [], groups, refit, res.config, record, sessions=_Hurts("backlash:j3")
-    )
-    assert "backlash:j3" not in [a.cand.key for a in acc2]
+    state = _state(res, camp, robot, res.accepted, fit=res.final, sessions=_Hurts("backlash:j3"))
+    held_out_check(state)
+    record = state.record
+    assert "backlash:j3" not in [a.cand.key for a in state.accepted]
     assert [d["key"] for d in record["dropped_no_gain"]] == ["backlash:j3"]
     assert record["dropped_no_gain"][0]["hurts_in_new_session"] is True
 

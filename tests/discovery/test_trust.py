@@ -15,6 +15,7 @@ from robocal.discovery.grow import held_out_check
 from robocal.discovery.model import Accepted, ExtendedModel, fit_model
 from robocal.discovery.scoring import PHASES
 from robocal.discovery.search import discover
+from robocal.discovery.state import DiscoveryState
 from robocal.discovery.summary import summary
 from robocal.discovery.validate import gross_errors, validation_errors
 
@@ -47,8 +48,9 @@ def four(tmp_path_factory):
     return res, s, path
 
 
-def _refit(res, camp, robot):
-    """The discovery's own joint refit on its calibration rows (as in robocal.discovery.search._search)."""
+def _state(res, camp, robot, accepted, fit=None, sessions=None):
+    """A discovery state on the run's calibration rows with the discovery's own joint refit (as in
+    robocal.discovery.search._search), its fit ``fit`` or the refit of the effects ``accepted`` from the final fit."""
     geo = res.extra["geometric_calibration"]
     cfg = res.config
     cal_rows = np.flatnonzero(camp.split == "calibration")
@@ -62,7 +64,9 @@ def _refit(res, camp, robot):
         sigma = float(res.extra["sigma_mm"])
         return fit_model(model, theta0, data, res.rows, sigma, set(), cfg.rank_tol, cfg.max_iter, sigma_rad=None)
 
-    return refit
+    fit = refit(accepted, res.final) if fit is None else fit
+    groups = np.repeat(np.asarray(camp.pose_id)[res.rows].astype(str), fit.d)
+    return DiscoveryState(camp, robot, cfg, res.rows, data, groups, refit, fit, list(accepted), sessions=sessions)
 
 
 def test_an_effect_without_held_out_gain_is_dropped(tmp_path):
@@ -72,15 +76,11 @@ def test_an_effect_without_held_out_gain_is_dropped(tmp_path):
     cfg = DiscoveryConfig.from_mapping({"dictionary": False, "layer": False, "grow_max_steps": 0})
     res = discover(camp, robot, cfg)
     assert [a.cand.key for a in res.accepted] == ["backlash:j3"]
-    refit = _refit(res, camp, robot)
     useless = next(c for c in res.library if c.key == "gear:j2:h1")
-    accepted = [*res.accepted, Accepted(useless)]
-    fit = refit(accepted, res.final)
-    groups = np.repeat(np.asarray(camp.pose_id)[res.rows].astype(str), fit.d)
-    steps: list = []
-    record: dict = {}
-    _fit2, kept, con = held_out_check(fit, accepted, steps, groups, refit, cfg, record)
-    assert [a.cand.key for a in kept] == ["backlash:j3"]
+    state = _state(res, camp, robot, [*res.accepted, Accepted(useless)])
+    con = held_out_check(state)
+    steps, record = state.steps, state.record
+    assert [a.cand.key for a in state.accepted] == ["backlash:j3"]
     (drop,) = record["dropped_no_gain"]
     assert drop["key"] == "gear:j2:h1" and drop["held_out_gain"] <= drop["threshold"] == cfg.min_held_out_gain
     assert steps[-1].phase == "held-out parametric" and steps[-1].dropped == ["gear:j2:h1"]

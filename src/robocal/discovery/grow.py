@@ -34,8 +34,8 @@ from robocal.discovery.config import DiscoveryConfig
 from robocal.discovery.cv import fold_cv
 from robocal.discovery.model import Accepted, Fit
 from robocal.discovery.scoring import Score, Step, regressor
-from robocal.discovery.session_cv import Sessions, session_own
-from robocal.identification.model import FitData
+from robocal.discovery.session_cv import session_own
+from robocal.discovery.state import DiscoveryState, Refit
 from robocal.metrics import ErrorStats
 from robocal.robot import RobotDescription
 
@@ -223,110 +223,74 @@ def cv_position_mm(fit: Fit, err_w: np.ndarray) -> np.ndarray:
     return np.asarray(np.linalg.norm(e, axis=1))
 
 
-def grow(
-    campaign: Campaign,
-    robot: RobotDescription,
-    cfg: DiscoveryConfig,
-    rows: np.ndarray,
-    data: FitData,
-    fit: Fit,
-    accepted: list[Accepted],
-    steps: list[Any],
-    groups: np.ndarray,
-    refit: Any,
-    leftovers: list[Candidate],
-) -> tuple[Fit, list[Accepted], dict[str, Any]]:
+def grow(state: DiscoveryState, leftovers: list[Candidate], refit: Refit) -> None:
     """The cross-validated selection (module docstring). ``leftovers``: library candidates not accepted by the
-    F-test search. Appends one :class:`~robocal.discovery.scoring.Step` per accepted candidate (and a final one
-    saying why it stopped); returns the fit, the accepted effects and the cross-validation record."""
-
+    F-test search; ``refit``: the selection's refit (the state's, or one holding the geometry). Appends one
+    :class:`~robocal.discovery.scoring.Step` per accepted candidate (and a final one saying why it stopped) and
+    advances the state's fit and accepted effects; the state's record becomes the cross-validation record."""
+    cfg = state.cfg
     single: list[tuple[Candidate, list[Variant]]] = [
         (c, [Variant(np.arange(c.S.shape[1]) if c.shape == "joint" else None, None, "")])
         for c in leftovers
         if c.shape in ("joint", "param", "tracker", "frame", "axis")
     ]
-    taken = {a.cand.key for a in accepted}  # the F-test search's weight effects are in ``accepted`` already
-    pool = pooled(single + [(c, v) for c, v in physics_candidates(campaign, robot, cfg, rows) if c.key not in taken])
+    taken = {a.cand.key for a in state.accepted}  # the F-test search's weight effects are accepted already
+    physics = physics_candidates(state.campaign, state.robot, cfg, state.rows)
+    pool = pooled(single + [(c, v) for c, v in physics if c.key not in taken])
     n_var = sum(len(v) for _, v in pool)
-    record: dict[str, Any] = {"candidates": ["+".join(c.key for c in m) for m, _ in pool], "n_variants": n_var,
-                              "steps": []}  # fmt: skip
+    state.record = {"candidates": ["+".join(c.key for c in m) for m, _ in pool], "n_variants": n_var, "steps": []}
     if cfg.cv_folds < 2 or not pool:
-        return fit, accepted, record
+        return
     for step in range(cfg.grow_max_steps):
         progress.note(f"cross-validated selection: step {step + 1} (at most {cfg.grow_max_steps})")
-        fit_new, accepted, pool = _step(pool, fit, accepted, rows, data, cfg, steps, record, refit, groups)
-        if fit_new is fit or not pool:
-            fit = fit_new
+        left = _step(state, pool, refit)
+        if not left:  # nothing accepted (None), or nothing left to offer
             break
-        fit = fit_new
-    fit, accepted = _prune(fit, accepted, record, groups, cfg, refit)
-    return fit, accepted, record
+        pool = left
+    _prune(state, refit)
 
 
-def finish(
-    campaign: Campaign,
-    cfg: DiscoveryConfig,
-    rows: np.ndarray,
-    data: FitData,
-    fit: Fit,
-    accepted: list[Accepted],
-    steps: list[Any],
-    groups: np.ndarray,
-    refit: Any,
-    record: dict[str, Any],
-    sessions: Sessions | None = None,
-) -> tuple[Fit, list[Accepted], dict[str, Any]]:
+def finish(state: DiscoveryState) -> None:
     """After the parametric model (library, selection, equations): the residual layer when the same
-    cross-validated test accepts it, then the cross-validated estimate and each effect's contribution."""
+    cross-validated test accepts it, then the cross-validated estimate and each effect's contribution (into the
+    state's record)."""
+    cfg, record = state.cfg, state.record
     record.setdefault("steps", [])
     if cfg.layer and cfg.cv_folds >= 2:
         progress.note("residual layer")
-        layer_pool = layer_candidates(campaign, cfg, rows)
+        layer_pool = layer_candidates(state.campaign, cfg, state.rows)
         if layer_pool:
-            fit, accepted, _ = _step(layer_pool, fit, accepted, rows, data, cfg, steps, record, refit, groups,
-                                     what="residual layer")  # fmt: skip
-    if sessions is not None:
+            _step(state, layer_pool, state.refit, what="residual layer")
+    if state.sessions is not None:
         from robocal.discovery.session_cv import open_windows, opened_candidate
 
-        opened, record["windows"] = open_windows(fit, sessions, cfg.min_held_out_gain)
+        opened, record["windows"] = open_windows(state.fit, state.sessions, cfg.min_held_out_gain)
         if opened:
-            accepted = [Accepted(opened_candidate(a.cand, campaign.q), a.params) if a.cand.key in opened else a
-                        for a in accepted]  # fmt: skip
-            fit = refit(accepted, fit)
+            state.accepted = [Accepted(opened_candidate(a.cand, state.campaign.q), a.params)
+                              if a.cand.key in opened else a for a in state.accepted]  # fmt: skip
+            state.fit = state.refit(state.accepted, state.fit)
     if cfg.cv_folds >= 2:
         progress.note("final held-out check")
-        fit, accepted, con = held_out_check(fit, accepted, steps, groups, refit, cfg, record, final=True,
-                                            sessions=sessions)  # fmt: skip
-        record.update(con)
-    return fit, accepted, record
+        record.update(held_out_check(state, final=True))
 
 
-def held_out_check(
-    fit: Fit,
-    accepted: list[Accepted],
-    steps: list[Any],
-    groups: np.ndarray,
-    refit: Any,
-    cfg: DiscoveryConfig,
-    record: dict[str, Any],
-    final: bool = False,
-    sessions: Sessions | None = None,
-) -> tuple[Fit, list[Accepted], dict[str, Any]]:
+def held_out_check(state: DiscoveryState, final: bool = False) -> dict[str, Any]:
     """An effect earns its place by its held-out gain: the pose-grouped cross-validated RMS error of the model as
     fitted (whitened positions and, with a 6-DoF probe, orientations) without it (linearised,
     :func:`contributions`) must exceed the model's own by more than the share ``cfg.min_held_out_gain``. The
     effects that do not are dropped together and the model refitted; repeated until every joint-level effect
     passes (a :class:`Step` per round, of phase ``held-out`` for the ``final`` check after the layer and
-    ``held-out parametric`` before it, and for the final check one saying that every effect passes;
-    ``record["dropped_no_gain"]`` with each one's gain and its position-only gain in mm). Returns the fit, the
-    effects and the final contributions. With ``sessions`` an effect must also not raise the leave-one-session-out
-    error by more than the same share (``session_gain >= -min_held_out_gain``): one that holds within the
-    session but hurts in the next is dropped too."""
-    dropped = record.setdefault("dropped_no_gain", [])
-    thr = cfg.min_held_out_gain
+    ``held-out parametric`` before it, and for the final check one saying that every effect passes; the state's
+    ``record["dropped_no_gain"]`` with each one's gain and its position-only gain in mm). Advances the state's fit
+    and effects; returns the final contributions. With the state's ``sessions`` an effect must also not raise the
+    leave-one-session-out error by more than the same share (``session_gain >= -min_held_out_gain``): one that
+    holds within the session but hurts in the next is dropped too."""
+    dropped = state.record.setdefault("dropped_no_gain", [])
+    thr = state.cfg.min_held_out_gain
     phase = "held-out" if final else "held-out parametric"
     for _ in range(5):
-        con = contributions(fit, accepted, groups, cfg, sessions)
+        fit = state.fit
+        con = contributions(state)
         gains = {k: float(e["held_out_gain"]) for k, e in con["effects"].items()}
         weak = sorted(k for k, g in gains.items() if not g > thr)
         s_gains = {k: float(e["session_gain"]) for k, e in con["effects"].items() if "session_gain" in e}
@@ -334,14 +298,14 @@ def held_out_check(
         weak = sorted(weak + hurts)
         if not weak:
             if final and gains:
-                steps.append(
+                state.steps.append(
                     Step(None, f"held-out check: every joint-level effect lowers the held-out error by more than "
                          f"{thr:.2%}", fit.rms_mm, fit.rms_mm, fit.rss, fit.rss, fit.dof, [], phase=phase)
                 )  # fmt: skip
-            return fit, accepted, con
+            return con
         before = fit
-        accepted = [a for a in accepted if a.cand.key not in weak]
-        fit = refit(accepted, fit)
+        state.accepted = [a for a in state.accepted if a.cand.key not in weak]
+        state.fit = fit = state.refit(state.accepted, before)
         cv_mean = float(con["cv_mean_position_mm"])
         dropped += [
             {"key": k, "held_out_gain": gains[k], "threshold": thr,
@@ -349,24 +313,23 @@ def held_out_check(
              **({"session_gain": s_gains[k], "hurts_in_new_session": k in hurts} if k in s_gains else {})}
             for k in weak
         ]  # fmt: skip
-        steps.append(
+        state.steps.append(
             Step(None, f"held-out check: dropped {', '.join(weak)} (held-out gain at most {thr:.2%}"
                  + (f"; {', '.join(hurts)}: raise the error in a session left out by more than {thr:.2%}" if hurts
                     else "") + ")",
                  before.rms_mm, fit.rms_mm, before.rss, fit.rss, fit.dof, [], weak, before.residuals_mm,
                  fit.residuals_mm, phase=phase)
         )  # fmt: skip
-    return fit, accepted, contributions(fit, accepted, groups, cfg, sessions)
+    return contributions(state)
 
 
-def _prune(
-    fit: Fit, accepted: list[Accepted], record: dict[str, Any], groups: np.ndarray, cfg: DiscoveryConfig, refit: Any
-) -> tuple[Fit, list[Accepted]]:
+def _prune(state: DiscoveryState, refit: Refit) -> None:
     """Backward check of what the selection added: an effect (a member of a pooled candidate included) whose
     removal does not raise the cross-validated error contributes nothing held-out and is dropped (one pass,
-    then the model is refitted). The library's F-test effects are left to their own Wald check."""
+    then the model is refitted with ``refit``). The library's F-test effects are left to their own Wald check."""
+    fit, record = state.fit, state.record
     added = {c for st in record["steps"] for c in st.get("members", [st["key"]])}
-    cv = fold_cv(fit, groups, cfg.cv_folds, cfg.seed)
+    cv = fold_cv(fit, state.groups, state.cfg.cv_folds, state.cfg.seed)
     base = float(np.sum(cv.base_err**2))
     drop = []
     for a, sl in zip(fit.model.accepted, fit.model.slices, strict=True):
@@ -379,29 +342,18 @@ def _prune(
     record["pruned"] = drop
     del cv  # not held through the refit (its fit's Jacobian)
     if drop:
-        accepted = [a for a in accepted if a.cand.key not in drop]
-        fit = refit(accepted, fit)
-    return fit, accepted
+        state.accepted = [a for a in state.accepted if a.cand.key not in drop]
+        state.fit = refit(state.accepted, fit)
 
 
-def _step(
-    pool: Pool,
-    fit: Fit,
-    accepted: list[Accepted],
-    rows: np.ndarray,
-    data: FitData,
-    cfg: DiscoveryConfig,
-    steps: list[Any],
-    record: dict[str, Any],
-    refit: Any,
-    groups: np.ndarray,
-    what: str = "cross-validated selection",
-) -> tuple[Fit, list[Accepted], Pool]:
-    """One step of the selection: score every pool entry, accept the best significant one (refit jointly) or
-    record why nothing was accepted (then the same ``fit`` object comes back). The fold sums are ``fit``'s
+def _step(state: DiscoveryState, pool: Pool, refit: Refit, what: str = "cross-validated selection") -> Pool | None:
+    """One step of the selection: score every pool entry, accept the best significant one (the state's fit
+    refitted jointly with ``refit``; the pool without it comes back) or record why nothing was accepted (then
+    None comes back and the state's fit is left as it was). The fold sums are the state's fit's
     (:func:`robocal.discovery.cv.fold_cv`: the last step's when it accepted nothing), let go before the refit."""
     phase = "layer" if what == "residual layer" else "selection"
-    cv = fold_cv(fit, groups, cfg.cv_folds, cfg.seed)
+    fit, cfg, rows, data = state.fit, state.cfg, state.rows, state.data
+    cv = fold_cv(fit, state.groups, cfg.cv_folds, cfg.seed)
     sse0 = cv.group_sse(cv.base_err)
     scores: list[tuple[float, float, Score, list[Candidate], Variant, dict[str, tuple[str, ...]]]] = []
     # the logged signals are a family of their own at the same cv_alpha (as in the F-test search)
@@ -450,25 +402,26 @@ def _step(
     scores.sort(key=lambda s: s[0])
     passing = [s for s in scores if s[2].passes]
     if not passing:
-        steps.append(Step(None, f"{what}: nothing lowers the held-out error significantly", fit.rms_mm, fit.rms_mm,
-                          fit.rss, fit.rss, fit.dof, [s[2] for s in scores], phase=phase))  # fmt: skip
-        return fit, accepted, pool
+        state.steps.append(
+            Step(None, f"{what}: nothing lowers the held-out error significantly", fit.rms_mm, fit.rms_mm, fit.rss,
+                 fit.rss, fit.dof, [s[2] for s in scores], phase=phase)
+        )  # fmt: skip
+        return None
     _tot, lp, sc, members, v, drifted = passing[0]
     sc.status = "accepted"
     chosen = [variant_candidate(c, vv) for c, vv in _member_variants(members, v)]
     before = fit
-    accepted = [*accepted, *(Accepted(c, drifted.get(c.key, ())) for c in chosen)]
-    fit = refit(accepted, fit)
-    steps.append(
+    state.accepted = [*state.accepted, *(Accepted(c, drifted.get(c.key, ())) for c in chosen)]
+    state.fit = fit = refit(state.accepted, before)
+    state.steps.append(
         Step(sc.key, f"{sc.label} ({v.label})" if v.label else sc.label, before.rms_mm, fit.rms_mm, before.rss,
              fit.rss, fit.dof, [s[2] for s in scores], [], before.residuals_mm, fit.residuals_mm, phase=phase)
     )  # fmt: skip
     thr = thr_sig if members[0].effect == "signal" else thr_lib
-    record["steps"].append({"key": sc.key, "variant": v.label, "log10_p": lp, "threshold_log10_p": thr,
-                            "cv_gain": sc.cv_gain, "members": [c.key for c in chosen]})  # fmt: skip
+    state.record["steps"].append({"key": sc.key, "variant": v.label, "log10_p": lp, "threshold_log10_p": thr,
+                                  "cv_gain": sc.cv_gain, "members": [c.key for c in chosen]})  # fmt: skip
     taken = {c.key for c in members}
-    pool = [(m, vs) for m, vs in pool if not taken & {c.key for c in m}]
-    return fit, accepted, pool
+    return [(m, vs) for m, vs in pool if not taken & {c.key for c in m}]
 
 
 def layer_candidates(campaign: Campaign, cfg: DiscoveryConfig, rows: np.ndarray) -> Pool:
@@ -525,14 +478,13 @@ def judged(cand: Any) -> bool:
     return cand.shape == "joint" or (cand.shape == "frame" and not session_own(cand))
 
 
-def contributions(
-    fit: Fit, accepted: list[Accepted], groups: np.ndarray, cfg: DiscoveryConfig, sessions: Sessions | None = None
-) -> dict[str, Any]:
-    """The cross-validated position error (mm) of the final model, and each joint-level effect's own
+def contributions(state: DiscoveryState) -> dict[str, Any]:
+    """The cross-validated position error (mm) of the state's fit, and each joint-level effect's own
     contribution: the held-out error with that effect's coefficients removed from the model (linearised).
-    With ``sessions`` (a campaign of several sessions) the same in leave-one-session-out cross-validation
-    (:mod:`robocal.discovery.session_cv`): ``session_cv`` and each effect's ``session_gain``."""
-    cv = fold_cv(fit, groups, max(cfg.cv_folds, 2), cfg.seed)
+    With the state's ``sessions`` (a campaign of several sessions) the same in leave-one-session-out
+    cross-validation (:mod:`robocal.discovery.session_cv`): ``session_cv`` and each effect's ``session_gain``."""
+    fit, cfg, sessions = state.fit, state.cfg, state.sessions
+    cv = fold_cv(fit, state.groups, max(cfg.cv_folds, 2), cfg.seed)
     own = sessions.summary(fit) if sessions is not None else None
     e = ErrorStats.of(cv_position_mm(fit, cv.base_err))
     out: dict[str, Any] = {

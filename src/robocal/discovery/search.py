@@ -34,6 +34,7 @@ from robocal.discovery.grow import finish, grow, held_out_check, physics_candida
 from robocal.discovery.model import Accepted, ExtendedModel, Fit, fit_model
 from robocal.discovery.scoring import Score, Step, regressor
 from robocal.discovery.session_cv import Sessions
+from robocal.discovery.state import DiscoveryState
 from robocal.discovery.systematic import misfit_candidates
 from robocal.errors import ConfigError
 from robocal.identification.identifiability import resolve_fixed
@@ -288,8 +289,7 @@ def _search(
         return fit_model(model, theta0, data, rows, sigma, fixed, cfg.rank_tol, cfg.max_iter, sigma_rad=sigma_rad,
                          held=frozenset(e.name for e in geo.eliminated))  # the geometry's: kept out  # fmt: skip
 
-    fit = refit([], None)
-    geometric = fit
+    geometric = refit([], None)
     # without link masses the compliance under the arm's own weight (robocal.discovery.physics, with its prior on
     # the deflection) is the library's compliance: tested here with it, so that a gear harmonic fitted over less
     # than its period (a smooth trend) cannot stand in for it first; the F-test takes its unpenalised directions
@@ -300,39 +300,19 @@ def _search(
     n_tests = max(len(library) - n_signal + len(weight), 1)
     log_thr = float(np.log10(cfg.alpha / n_tests))
     log_thr_signal = float(np.log10(cfg.alpha / max(n_signal, 1)))
-    accepted: list[Accepted] = []
-    steps: list[Step] = []
     unident: dict[str, float] = {}
-    remaining = list(library) + weight
-    groups = np.repeat(np.asarray(cal.pose_id).astype(str), fit.d)
     # several sessions (tracker stations): the selection is judged in a session left out too (issue 33)
     sessions = Sessions.of(
         data.station_index, geo.model.station_names, campaign.q[rows],
         periodic_window(cfg, max(cfg.transmission_orders))[0],
     ) if cfg.cv_folds >= 2 else None  # fmt: skip
-    for step in range(cfg.max_steps):
-        progress.note(f"library F-test search: step {step + 1} (at most {cfg.max_steps}), {len(remaining)} candidates")
-        scores, chosen = best_candidate(remaining, fit, rows, data, cfg, log_thr, groups, unident, log_thr_signal)
-        if chosen is None:
-            steps.append(Step(None, None, fit.rms_mm, fit.rms_mm, fit.rss, fit.rss, fit.dof, scores, phase="library"))
-            break
-        cand, params = chosen
-        before = fit
-        accepted.append(Accepted(cand, params))
-        remaining = [c for c in remaining if c.key != cand.key]
-        fit = refit(accepted, fit)
-        accepted, fit, dropped = backward_check(accepted, fit, log_thr, refit, log_thr_signal)
-        steps.append(
-            Step(
-                cand.key, cand.label, before.rms_mm, fit.rms_mm, before.rss, fit.rss, fit.dof, scores, dropped,
-                before.residuals_mm, fit.residuals_mm, phase="library",
-            )
-        )  # fmt: skip
+    groups = np.repeat(np.asarray(cal.pose_id).astype(str), geometric.d)
+    state = DiscoveryState(campaign, robot, cfg, rows, data, groups, refit, geometric, sessions=sessions)
+    _library(state, list(library) + weight, log_thr, log_thr_signal, unident)
     # many small effects chosen together by cross-validation (physics first), then equations for what is left,
     # then the residual layer (robocal.discovery.grow)
-    grown: dict[str, Any] = {}
     if cfg.grow_max_steps > 0:
-        taken = {a.cand.key for a in accepted}
+        taken = {a.cand.key for a in state.accepted}
         leftovers = [c for c in library if c.key not in taken and c.key not in unident]
         grow_refit = refit
         if cfg.grow_geometry == "frozen":
@@ -347,21 +327,19 @@ def _search(
                 return fit_model(model, theta0, data, rows, sigma, held, cfg.rank_tol, cfg.max_iter,
                                  sigma_rad=sigma_rad)  # fmt: skip
 
-        fit, accepted, grown = grow(
-            campaign, robot, cfg, rows, data, fit, accepted, steps, groups, grow_refit, leftovers
-        )
+        grow(state, leftovers, grow_refit)
     if cfg.dictionary:
         progress.note("proposed equations (the dictionary)")
-        fit, accepted = _propose(campaign, robot, cfg, rows, data, fit, accepted, steps, groups, refit)
-    if cfg.cv_folds >= 2 and accepted:
+        _propose(state)
+    if cfg.cv_folds >= 2 and state.accepted:
         # what the parametric model keeps earns its place before the layer is offered (the layer's after it)
         progress.note("held-out check of the parametric model")
-        fit, accepted, _ = held_out_check(fit, accepted, steps, groups, refit, cfg, grown, sessions=sessions)
+        held_out_check(state)
     # the parametric model is kept for its validation (its parameters), not its (M, k) Jacobian
-    parametric = replace(fit, J_w=np.zeros((0, fit.k)))
-    fit, accepted, grown = finish(campaign, cfg, rows, data, fit, accepted, steps, groups, refit, grown, sessions)
+    parametric = replace(state.fit, J_w=np.zeros((0, state.fit.k)))
+    finish(state)
     if sessions is not None:
-        grown["geometric_session_cv"] = {k: v for k, v in sessions.summary(geometric).items() if k != "sse"}
+        state.record["geometric_session_cv"] = {k: v for k, v in sessions.summary(geometric).items() if k != "sse"}
     release(geometric)  # the last cross-validation's fold sums, and the geometric fit's Jacobian (evaluated if read)
     return DiscoveryResult(
         robot=robot,
@@ -372,14 +350,14 @@ def _search(
         skipped=skipped,
         unidentifiable=unident,
         geometric=geometric,
-        final=fit,
-        accepted=accepted,
-        steps=steps,
+        final=state.fit,
+        accepted=state.accepted,
+        steps=state.steps,
         n_tests=n_tests,
         threshold_log10_p=log_thr,
         wall_time_s=time.perf_counter() - t0,
         extra={
-            "cv": grown,
+            "cv": state.record,
             "parametric": parametric,
             "signal_tests": n_signal,
             "signal_threshold_log10_p": log_thr_signal,
@@ -387,25 +365,51 @@ def _search(
     )
 
 
-def _propose(
-    campaign: Campaign,
-    robot: RobotDescription,
-    cfg: DiscoveryConfig,
-    rows: np.ndarray,
-    data: FitData,
-    fit: Fit,
-    accepted: list[Accepted],
-    steps: list[Step],
-    groups: np.ndarray,
-    refit: Any,
-) -> tuple[Fit, list[Accepted]]:
-    """The dictionary stage (:mod:`robocal.discovery.dictionary`): after the library, propose equations."""
+def _library(
+    state: DiscoveryState, remaining: list[Candidate], log_thr: float, log_thr_signal: float, unident: dict[str, float]
+) -> None:
+    """The library's F-test search (module docstring) from the state's fit, over the candidates ``remaining``, at the
+    thresholds ``log_thr`` (the library) and ``log_thr_signal`` (the logged signals); ``unident`` gathers the
+    candidates found absorbed. Each accepted effect advances the state's fit and effects (and a Wald check may drop
+    earlier ones); a :class:`Step` per step, and one saying why it stopped."""
+    cfg, refit = state.cfg, state.refit
+    for step in range(cfg.max_steps):
+        progress.note(f"library F-test search: step {step + 1} (at most {cfg.max_steps}), {len(remaining)} candidates")
+        fit = state.fit
+        scores, chosen = best_candidate(
+            remaining, fit, state.rows, state.data, cfg, log_thr, state.groups, unident, log_thr_signal
+        )
+        if chosen is None:
+            state.steps.append(
+                Step(None, None, fit.rms_mm, fit.rms_mm, fit.rss, fit.rss, fit.dof, scores, phase="library")
+            )
+            break
+        cand, params = chosen
+        before = fit
+        state.accepted.append(Accepted(cand, params))
+        remaining = [c for c in remaining if c.key != cand.key]
+        fit = refit(state.accepted, before)
+        state.accepted, fit, dropped = backward_check(state.accepted, fit, log_thr, refit, log_thr_signal)
+        state.fit = fit
+        state.steps.append(
+            Step(
+                cand.key, cand.label, before.rms_mm, fit.rms_mm, before.rss, fit.rss, fit.dof, scores, dropped,
+                before.residuals_mm, fit.residuals_mm, phase="library",
+            )
+        )  # fmt: skip
+
+
+def _propose(state: DiscoveryState) -> None:
+    """The dictionary stage (:mod:`robocal.discovery.dictionary`): after the library, propose equations (each one
+    accepted advances the state's fit and effects)."""
     from robocal.discovery.dictionary import build_dictionary, log10_threshold, reading, select
 
-    dic = build_dictionary(campaign, robot, cfg.dictionary_harmonics, cfg.dictionary_product_harmonics)
+    cfg, rows, data, groups = state.cfg, state.rows, state.data, state.groups
+    dic = build_dictionary(state.campaign, state.robot, cfg.dictionary_harmonics, cfg.dictionary_product_harmonics)
     if dic.F.shape[1] == 0:
-        return fit, accepted
+        return
     for k in range(cfg.dictionary_max_proposals):
+        fit = state.fit
         Q = basis(fit.J_w)
         props = select(
             fit.Jq,
@@ -450,16 +454,15 @@ def _propose(
             if sc.passes and sc.status == "tested" and (best is None or sc.log10_p < best[0].log10_p):
                 best = (sc, cand)
         if best is None:
-            steps.append(Step(None, "dictionary: nothing proposed", fit.rms_mm, fit.rms_mm, fit.rss, fit.rss,
-                              fit.dof, scores, phase="equations"))  # fmt: skip
+            state.steps.append(Step(None, "dictionary: nothing proposed", fit.rms_mm, fit.rms_mm, fit.rss, fit.rss,
+                                    fit.dof, scores, phase="equations"))  # fmt: skip
             break
         sc, cand = best
         sc.status = "accepted"
         before = fit
-        accepted = [*accepted, Accepted(cand)]
-        fit = refit(accepted, fit)
-        steps.append(
+        state.accepted = [*state.accepted, Accepted(cand)]
+        state.fit = fit = state.refit(state.accepted, before)
+        state.steps.append(
             Step(cand.key, f"proposed equation for joint {cand.joint}", before.rms_mm, fit.rms_mm, before.rss,
                  fit.rss, fit.dof, scores, [], before.residuals_mm, fit.residuals_mm, phase="equations")
         )  # fmt: skip
-    return fit, accepted
