@@ -37,7 +37,7 @@ from robocal.discovery.session_cv import Sessions
 from robocal.discovery.state import DiscoveryState
 from robocal.discovery.systematic import misfit_candidates
 from robocal.errors import ConfigError
-from robocal.identification.identifiability import resolve_fixed
+from robocal.identification.identifiability import ParameterSpec
 from robocal.identification.model import FitData
 from robocal.robot import RobotDescription
 
@@ -279,7 +279,8 @@ def _search(
     cal = campaign.subset(rows)
     targets = geo.model.target_names
     T_ref = geo.model.T_ref
-    fixed = resolve_fixed(geo.model.names, cfg.fixed, "discovery.fixed")
+    # the geometry's parameters as calibrate and plan see them (discovery.fixed resolved once, by the one value)
+    fixed = set(ParameterSpec.of(geo.model, cfg.fixed, "discovery.fixed").fixed)
 
     base_prior = calibration_prior(geo)
 

@@ -214,7 +214,7 @@ def _frozen_vector(value: Any, name: str, n: int) -> np.ndarray | None:
 
 @dataclass(frozen=True, eq=False)
 class ParameterSpec:
-    """Which parameters a fit has and how it treats each, as one value (calibrate, plan).
+    """Which parameters a fit has and how it treats each, as one value (calibrate, plan, discovery).
 
     names, kinds, units : one each per parameter (kinds as :attr:`robocal.identification.model.CalibrationModel.
     kinds`: ``base``, ``tool``, ``tool_rot``, ``kinematic``, or a kind of the caller's, e.g. the plan's ``axis``);
