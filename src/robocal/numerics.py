@@ -104,9 +104,14 @@ def normal_equations(J: np.ndarray, r: np.ndarray | None = None) -> tuple[np.nda
     return J.T @ J, (None if r is None else J.T @ r)
 
 
-def has_gram(J: np.ndarray) -> bool:
+def gram_of(J: np.ndarray) -> Gram | None:
+    """The gram :func:`attach_gram` gave ``J`` (this very array), or None."""
     e = _GRAMS.get(id(J))
-    return e is not None and e[0]() is J
+    return e[1] if e is not None and e[0]() is J else None
+
+
+def has_gram(J: np.ndarray) -> bool:
+    return gram_of(J) is not None
 
 
 __all__ = [
@@ -117,6 +122,7 @@ __all__ = [
     "argmax_tied",
     "attach_gram",
     "column_norms",
+    "gram_of",
     "has_gram",
     "normal_equations",
     "sorted_tied",

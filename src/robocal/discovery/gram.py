@@ -41,7 +41,29 @@ class JointGram:
         self.V = [Jq[:, :, j] * w_row[None, :] for j in self.joints]  # (m, d) whitened responses
 
     def __call__(self, J: np.ndarray, r: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
-        M, d = self.M, self.d
+        return self._gram(J, r, self.M, self.S, self.V, prior=True)
+
+    def on_rows(self, J_rows: np.ndarray, r_rows: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(AᵀA, Aᵀr)`` of the measurement rows ``rows`` (0-based among the fit's, in the order given) without the
+        prior: ``J_rows`` and ``r_rows`` are those rows' ``d`` residuals each, in the same order (a fold of
+        :class:`robocal.discovery.cv.FoldCV`)."""
+        rows = np.asarray(rows, dtype=int)
+        G, b = self._gram(
+            J_rows, r_rows, len(rows) * self.d, [S[rows] for S in self.S], [v[rows] for v in self.V], prior=False
+        )
+        assert b is not None
+        return G, b
+
+    def _gram(
+        self,
+        J: np.ndarray,
+        r: np.ndarray | None,
+        M: int,
+        Ss: list[np.ndarray],
+        Vs: list[np.ndarray],
+        prior: bool,
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        d = self.d
         m = M // d
         k = J.shape[1]
         isj = np.zeros(k, dtype=bool)
@@ -56,7 +78,7 @@ class JointGram:
         r3 = None if r is None else r[:M].reshape(m, d)
         if b is not None and r is not None:
             b[dc] = D.T @ r[:M]
-        for a, (Pa, Sa, va) in enumerate(zip(self.P, self.S, self.V, strict=True)):
+        for a, (Pa, Sa, va) in enumerate(zip(self.P, Ss, Vs, strict=True)):
             if len(dc):
                 U = np.einsum("mdk,md->mk", D3, va)
                 Gda = U.T @ Sa
@@ -66,11 +88,11 @@ class JointGram:
                 b[Pa] = Sa.T @ np.einsum("md,md->m", va, r3)
             X = Sa * np.sqrt(np.einsum("md,md->m", va, va))[:, None]
             G[np.ix_(Pa, Pa)] = X.T @ X
-            for Pb, Sb, vb in zip(self.P[a + 1 :], self.S[a + 1 :], self.V[a + 1 :], strict=True):
+            for Pb, Sb, vb in zip(self.P[a + 1 :], Ss[a + 1 :], Vs[a + 1 :], strict=True):
                 blk = (Sa * np.einsum("md,md->m", va, vb)[:, None]).T @ Sb
                 G[np.ix_(Pa, Pb)] = blk
                 G[np.ix_(Pb, Pa)] = blk.T
-        if len(self.ridge_pos):
+        if prior and len(self.ridge_pos):
             G[self.ridge_pos, self.ridge_pos] += self.sq**2
             if b is not None and r is not None:
                 b[self.ridge_pos] += self.sq * r[M:]

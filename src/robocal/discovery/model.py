@@ -20,7 +20,7 @@ from robocal.discovery.gram import JointGram
 from robocal.identification.identifiability import analyse
 from robocal.identification.model import CalibrationModel, FitData
 from robocal.metrics import ErrorStats, noise_floor
-from robocal.numerics import attach_gram
+from robocal.numerics import attach_gram, gram_of
 from robocal.optimizers.least_squares import least_squares
 from robocal.robot import RobotDescription
 
@@ -290,6 +290,8 @@ class Fit:
     w: np.ndarray | None = None  # (M,) weights (1/sigma) of every residual; None: 1/sigma for all
     # the fit data ``J_w`` was evaluated on: with it :meth:`release` may let ``J_w`` go (evaluated again when asked)
     data: FitData | None = field(default=None, repr=False, compare=False)
+    # the joint-level effects' factors of ``J_w`` (robocal.discovery.gram): the folds' Grams from them; None without
+    gram: JointGram | None = field(default=None, repr=False, compare=False)
 
     def release(self) -> None:
         """Let go of ``J_w`` (an ``(M, k)`` matrix: the previous fit's, while the next one is fitted); the next
@@ -297,6 +299,7 @@ class Fit:
         columns whitened as the solver's. A fit without its data keeps its matrix."""
         if self.data is not None and self.rows is not None and self.w is not None:
             self.__dict__.pop("J_w", None)
+            self.gram = None  # (m, q) signals and (m, d) responses per joint: not held beside the next fit's
 
     def __getattr__(self, name: str) -> np.ndarray:
         # only called when ``J_w`` was released (a field found in __dict__ never comes here)
@@ -452,4 +455,5 @@ def fit_model(
         rows=np.asarray(rows),
         w=w,
         data=data,
+        gram=g if isinstance(g := gram_of(lm.jacobian), JointGram) else None,
     )

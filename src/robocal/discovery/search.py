@@ -358,7 +358,7 @@ def _search(
         progress.note("held-out check of the parametric model")
         fit, accepted, _ = held_out_check(fit, accepted, steps, groups, refit, cfg, grown, sessions=sessions)
     # the parametric model is kept for its validation (its parameters), not its (M, k) Jacobian
-    parametric = replace(fit, J_w=np.zeros((0, fit.k)))
+    parametric = replace(fit, J_w=np.zeros((0, fit.k)), gram=None)
     fit, accepted, grown = finish(campaign, cfg, rows, data, fit, accepted, steps, groups, refit, grown, sessions)
     if sessions is not None:
         grown["geometric_session_cv"] = {k: v for k, v in sessions.summary(geometric).items() if k != "sse"}
