@@ -9,6 +9,7 @@ tie goes to the lower index (the input order, which the caller keeps determinist
 
 from __future__ import annotations
 
+import weakref
 from collections.abc import Callable, Iterable, Sequence
 from typing import TypeVar
 
@@ -77,4 +78,52 @@ def column_norms(A: np.ndarray, chunk: int = NORM_CHUNK) -> np.ndarray:
     return np.asarray(np.sqrt(acc))
 
 
-__all__ = ["NORM_CHUNK", "TIE_ATOL", "TIE_RTOL", "argmax_tied", "column_norms", "sorted_tied"]
+#: ``gram(J, r) -> (JᵀJ, Jᵀr)`` (``r`` None: ``Jᵀr`` not formed) of a Jacobian whose owner knows its structure
+Gram = Callable[[np.ndarray, np.ndarray | None], tuple[np.ndarray, np.ndarray | None]]
+_GRAMS: dict[int, tuple[weakref.ref[np.ndarray], Gram]] = {}
+
+
+def attach_gram(J: np.ndarray, gram: Gram) -> None:
+    """Let the solver form the normal equations of the Jacobian ``J`` (this very array, not a copy or a view of
+    it) by ``gram(J, r)`` instead of ``JᵀJ`` over its rows: a model whose columns have a product structure (a
+    joint-level effect's ``v ⊗ S``) forms them in fewer operations (the same numbers up to rounding). ``gram``
+    must not hold ``J`` itself: the entry goes with the array."""
+    key = id(J)
+
+    def gone(_: object, key: int = key) -> None:
+        _GRAMS.pop(key, None)
+
+    _GRAMS[key] = (weakref.ref(J, gone), gram)
+
+
+def normal_equations(J: np.ndarray, r: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+    """``(JᵀJ, Jᵀr)`` of ``J``, by its owner's :func:`attach_gram` when it has one (``Jᵀr`` None without ``r``)."""
+    e = _GRAMS.get(id(J))
+    if e is not None and e[0]() is J:
+        return e[1](J, r)
+    return J.T @ J, (None if r is None else J.T @ r)
+
+
+def gram_of(J: np.ndarray) -> Gram | None:
+    """The gram :func:`attach_gram` gave ``J`` (this very array), or None."""
+    e = _GRAMS.get(id(J))
+    return e[1] if e is not None and e[0]() is J else None
+
+
+def has_gram(J: np.ndarray) -> bool:
+    return gram_of(J) is not None
+
+
+__all__ = [
+    "NORM_CHUNK",
+    "TIE_ATOL",
+    "TIE_RTOL",
+    "Gram",
+    "argmax_tied",
+    "attach_gram",
+    "column_norms",
+    "gram_of",
+    "has_gram",
+    "normal_equations",
+    "sorted_tied",
+]

@@ -527,4 +527,5 @@ def replace_fit_columns(fit: Fit, keep: np.ndarray) -> Fit:
     th = fit.theta.copy()
     r = fit.r_w - fit.J_w[:, drop] @ th[fit.free[drop]]
     th[fit.free[drop]] = 0.0
-    return replace(fit, theta=th, free=fit.free[keep], r_w=r, J_w=fit.J_w[:, keep], cov=fit.cov[np.ix_(keep, keep)])
+    return replace(fit, theta=th, free=fit.free[keep], r_w=r, J_w=fit.J_w[:, keep], cov=fit.cov[np.ix_(keep, keep)],
+                   gram=None)  # fmt: skip

@@ -16,9 +16,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from robocal.discovery.candidates import Candidate, with_beta
+from robocal.discovery.gram import JointGram
 from robocal.identification.identifiability import analyse
 from robocal.identification.model import CalibrationModel, FitData
 from robocal.metrics import ErrorStats, noise_floor
+from robocal.numerics import attach_gram, gram_of
 from robocal.optimizers.least_squares import least_squares
 from robocal.robot import RobotDescription
 
@@ -127,6 +129,7 @@ class ExtendedModel:
         rows: np.ndarray,
         extra_rows: int = 0,
         cols: np.ndarray | None = None,
+        joint_blocks: list[tuple[np.ndarray, int, np.ndarray]] | None = None,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Residuals ``(d m,)`` row by row, Jacobian ``(d m, n)``, and the base Jacobians ``J_x (m, d, nb)``,
         ``J_q (m, d, N)`` (``d`` = :meth:`per_row`).
@@ -136,6 +139,8 @@ class ExtendedModel:
         appends rows of its own (a prior) without copying the ``(d m, n)`` matrix.
         ``cols``: only these columns of the Jacobian (sorted parameter indices: a fit's free parameters), built
         in place — the same numbers as ``J[:, cols]`` without the ``(d m, n)`` matrix.
+        ``joint_blocks``: a list to which each joint-level effect's built columns are added as ``(their positions
+        in J, the joint (0-based), S (m, q) on those columns)`` (its columns are ``J_q[:, :, joint] ⊗ S``).
         """
         x = theta[: self.nb]
         m = data.m
@@ -163,6 +168,11 @@ class ExtendedModel:
             sl: slice, block: np.ndarray | None = None, joint: int | None = None, S: np.ndarray | None = None
         ) -> None:
             put_block(Jv, pos[sl], block, None if joint is None else Jq[:, :, joint], S)
+            if joint_blocks is not None and joint is not None and S is not None:
+                p = pos[sl]
+                sel = np.flatnonzero(p >= 0)
+                if len(sel):
+                    joint_blocks.append((p[sel], joint, S if len(sel) == len(p) else S[:, sel]))
 
         for a, sl in zip(self.accepted, self.slices, strict=True):
             c = a.cand
@@ -280,6 +290,8 @@ class Fit:
     w: np.ndarray | None = None  # (M,) weights (1/sigma) of every residual; None: 1/sigma for all
     # the fit data ``J_w`` was evaluated on: with it :meth:`release` may let ``J_w`` go (evaluated again when asked)
     data: FitData | None = field(default=None, repr=False, compare=False)
+    # the joint-level effects' factors of ``J_w`` (robocal.discovery.gram): the folds' Grams from them; None without
+    gram: JointGram | None = field(default=None, repr=False, compare=False)
 
     def release(self) -> None:
         """Let go of ``J_w`` (an ``(M, k)`` matrix: the previous fit's, while the next one is fitted); the next
@@ -287,6 +299,7 @@ class Fit:
         columns whitened as the solver's. A fit without its data keeps its matrix."""
         if self.data is not None and self.rows is not None and self.w is not None:
             self.__dict__.pop("J_w", None)
+            self.gram = None  # (m, q) signals and (m, d) responses per joint: not held beside the next fit's
 
     def __getattr__(self, name: str) -> np.ndarray:
         # only called when ``J_w`` was released (a field found in __dict__ never comes here)
@@ -412,11 +425,15 @@ def fit_model(
     def fun_free(th: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         # the solver's evaluation: only the free columns, whitened in place (the same numbers as weighting
         # ``J[:, free]``, without the (M, n) matrix nor the solver's weighted copy)
-        r, J, _, _ = model.residuals_and_jacobian(th, data, rows, extra_rows=len(ridge), cols=free)
+        blocks: list[tuple[np.ndarray, int, np.ndarray]] = []
+        r, J, _, Jq = model.residuals_and_jacobian(th, data, rows, extra_rows=len(ridge), cols=free,
+                                                   joint_blocks=blocks)  # fmt: skip
         if len(ridge):
             J[len(r) + np.arange(len(ridge)), ridge_pos] = sq
             r = np.concatenate([r, sq * th[ridge]])
         J *= w_all[:, None]
+        if blocks:  # the solver's normal equations from the joint-level effects' factors (robocal.discovery.gram)
+            attach_gram(J, JointGram(M, d, w_row, Jq, blocks, ridge_pos, sq))
         return w_all * r, J
 
     lm = least_squares(fun_free, theta0, free, 1.0, max_iter=max_iter, ftol=1e-12, xtol=1e-10, jac_free=True)
@@ -438,4 +455,5 @@ def fit_model(
         rows=np.asarray(rows),
         w=w,
         data=data,
+        gram=g if isinstance(g := gram_of(lm.jacobian), JointGram) else None,
     )

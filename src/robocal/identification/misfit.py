@@ -176,7 +176,60 @@ def _log10_enrichment(k: np.ndarray, N: int, K: int, n: np.ndarray) -> np.ndarra
     if not k.size:
         return np.zeros(0)
     kn, inv = np.unique(np.stack([k, n]), axis=1, return_inverse=True)
-    return np.asarray(stats.hypergeom.logsf(kn[0] - 1, N, K, kn[1]) / np.log(10.0))[np.ravel(inv)]
+    return np.asarray(hypergeom_logsf(kn[0] - 1, N, K, kn[1]) / np.log(10.0))[np.ravel(inv)]
+
+
+#: terms of the mass function summed per block of :func:`hypergeom_logsf` (bounds its temporaries)
+_LSE_CHUNK = 1 << 20
+
+
+def hypergeom_logsf(k: np.ndarray, M: int, n: int, N: np.ndarray) -> np.ndarray:
+    """``scipy.stats.hypergeom.logsf(k, M, n, N)`` (``P(X > k)``, ``n`` of ``M`` marked, ``N`` drawn) for integer
+    arrays ``k``, ``N``, vectorised: scipy's own branches (the tail's mass function summed directly, or
+    ``log(1 - cdf)`` where the head has fewer terms) and its log-sum-exp, over all elements at once instead of a
+    Python loop per element (issue 31: at 12 000 UR10 rows scipy's loop was a fifth of discovery's time). The same
+    numbers up to the order of summation; the terms scipy adds beyond ``min(n, N)`` are ``exp(-inf) = 0``."""
+    k, N = np.broadcast_arrays(np.asarray(k, dtype=np.int64), np.asarray(N, dtype=np.int64))
+    lo, hi = np.maximum(N - (M - n), 0), np.minimum(n, N)
+    out = np.where(k < lo, 0.0, -np.inf)
+    inner = (k >= lo) & (k < hi)
+    head = inner & ((k + 0.5) * (M + 0.5) < (n - 0.5) * (N - 0.5))
+    tail = inner & ~head
+    out[tail] = _lse_pmf(k[tail] + 1, hi[tail] + 1, M, n, N[tail])
+    out[head] = np.log1p(-np.exp(_lse_pmf(np.zeros(int(head.sum()), dtype=np.int64), k[head] + 1, M, n, N[head])))
+    return out
+
+
+def _lse_pmf(start: np.ndarray, stop: np.ndarray, M: int, n: int, N: np.ndarray) -> np.ndarray:
+    """Per element, log Σ_{j = start}^{stop - 1} pmf(j; M, n, N), as scipy's logsumexp of its ``_logpmf``: the
+    largest terms (``c`` of them) apart, ``log1p(s / c) + log(c) + max``."""
+    from scipy.special import betaln
+
+    out = np.empty(len(start))
+    if not len(start):
+        return out
+    length = stop - start
+    ends = np.cumsum(length)
+    i0 = 0
+    while i0 < len(start):  # blocks of elements of at most _LSE_CHUNK terms (one element at least)
+        i1 = max(int(np.searchsorted(ends, ends[i0] - length[i0] + _LSE_CHUNK, side="right")), i0 + 1)
+        L = length[i0:i1]
+        seg = np.repeat(np.arange(i1 - i0), L)
+        offs = np.concatenate([[0], np.cumsum(L)[:-1]])
+        j = start[i0:i1][seg] + (np.arange(len(seg)) - offs[seg])
+        Nj = N[i0:i1][seg]
+        bad = M - n
+        a = (
+            betaln(n + 1, 1) + betaln(bad + 1, 1) + betaln(M - Nj + 1, Nj + 1)
+            - betaln(j + 1, n - j + 1) - betaln(Nj - j + 1, bad - Nj + j + 1) - betaln(M + 1, 1)
+        )  # fmt: skip
+        amax = np.maximum.reduceat(a, offs)
+        top = a == amax[seg]
+        c = np.add.reduceat(top.astype(float), offs)
+        s = np.add.reduceat(np.where(top, 0.0, np.exp(a - amax[seg])), offs)
+        out[i0:i1] = np.log1p(s / c) + np.log(c) + amax
+        i0 = i1
+    return out
 
 
 def _extend(

@@ -27,6 +27,8 @@ from typing import Any
 
 import numpy as np
 
+from robocal.numerics import normal_equations
+
 __all__ = ["STATUS_MESSAGES", "FitResult", "fit_covariance", "normal_inverse"]
 
 #: Status code -> message, shared by every method (scipy ``least_squares``' codes 1-3, then the others').
@@ -47,7 +49,7 @@ STATUS_MESSAGES = {
 def normal_inverse(J: np.ndarray) -> np.ndarray:
     """``(JᵀJ)⁻¹`` of a (whitened) Jacobian, the pseudo-inverse when it is singular: the covariance of the
     parameters up to the residual variance ``s²`` (every fit's standard errors come from here)."""
-    return normal_matrix_inverse(J.T @ J)
+    return normal_matrix_inverse(normal_equations(J)[0])
 
 
 def normal_matrix_inverse(N: np.ndarray) -> np.ndarray:

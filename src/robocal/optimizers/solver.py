@@ -18,7 +18,7 @@ from collections.abc import Callable
 import numpy as np
 
 from robocal.identification.result import FitResult, fit_covariance, normal_inverse
-from robocal.numerics import column_norms
+from robocal.numerics import column_norms, has_gram, normal_equations
 
 __all__ = ["FitResult", "levenberg_marquardt", "normal_inverse"]
 
@@ -176,6 +176,10 @@ def _normal_equations(Jf: np.ndarray, s: np.ndarray, r: np.ndarray) -> tuple[np.
     :data:`NORMAL_CHUNK` (``A`` is never formed whole: an ``(M, k)`` matrix the trial evaluation need not hold
     beside its own Jacobian)."""
     M = Jf.shape[0]
+    if has_gram(Jf):  # its owner forms them from its structure (robocal.numerics.attach_gram)
+        G, b = normal_equations(Jf, r)
+        assert b is not None
+        return s * b, G * s[:, None] * s[None, :]
     if M <= NORMAL_CHUNK:
         A = Jf * s
         return A.T @ r, A.T @ A
