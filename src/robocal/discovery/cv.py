@@ -338,6 +338,33 @@ class FoldCV:
 _LAST: list[tuple[Any, np.ndarray, int, int, FoldCV]] = []
 
 
+def pose_groups(pose_id: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """The cross-validation's groups, one label per row: the rows of one pose, joined with every row measured at
+    the same joint configuration under another pose id (:func:`robocal.identification.thin.configuration_groups`),
+    so that no fold is judged on a configuration another fold was fitted on. Labelled by the pose id of the
+    group's first row (a campaign without repeats keeps its pose ids)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    from robocal.identification.thin import configuration_groups
+
+    pid = np.asarray(pose_id).astype(str)
+    m = len(pid)
+    if m == 0:
+        return pid
+    _, pose = np.unique(pid, return_inverse=True)
+    n_cfg, cfg = configuration_groups(q)
+    # a graph of poses and configurations, each row an edge between its pose and its configuration
+    n_pose = int(pose.max()) + 1
+    graph = coo_matrix((np.ones(m), (pose, n_pose + cfg)), shape=(n_pose + n_cfg,) * 2)
+    _, comp = connected_components(graph, directed=False)
+    lab = comp[pose]
+    first_row: dict[int, int] = {}
+    for i, g in enumerate(lab.tolist()):
+        first_row.setdefault(g, i)
+    return pid[[first_row[g] for g in lab.tolist()]]
+
+
 def fold_cv(fit: Any, groups: np.ndarray, folds: int, seed: int) -> FoldCV:
     """:class:`FoldCV` of ``fit``, reused when the last one asked for was of the same fit object, groups, folds
     and seed (the selection, the layer and the held-out check ask for the same fit's folds in turn)."""
@@ -356,4 +383,12 @@ def clear_cache() -> None:
     _LAST.clear()
 
 
-__all__ = ["CHUNK", "FoldCV", "SymSolver", "clear_cache", "fold_cv", "gram_by_blocks"]
+__all__ = [
+    "CHUNK",
+    "FoldCV",
+    "SymSolver",
+    "clear_cache",
+    "fold_cv",
+    "gram_by_blocks",
+    "pose_groups",
+]

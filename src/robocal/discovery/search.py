@@ -28,7 +28,7 @@ from robocal.data.contract import Campaign
 from robocal.discovery import progress
 from robocal.discovery.candidates import Candidate, SkippedCandidate, build_library, periodic_window
 from robocal.discovery.config import DiscoveryConfig
-from robocal.discovery.cv import clear_cache
+from robocal.discovery.cv import clear_cache, pose_groups
 from robocal.discovery.ftest import backward_check, basis, best_candidate, cross_validation_gain, score_candidate
 from robocal.discovery.grow import finish, grow, held_out_check, physics_candidates, variant_candidate
 from robocal.discovery.model import Accepted, ExtendedModel, Fit, fit_model
@@ -307,7 +307,8 @@ def _search(
         data.station_index, geo.model.station_names, campaign.q[rows],
         periodic_window(cfg, max(cfg.transmission_orders))[0],
     ) if cfg.cv_folds >= 2 else None  # fmt: skip
-    groups = np.repeat(np.asarray(cal.pose_id).astype(str), geometric.d)
+    # grouped by pose and by configuration (a configuration measured again under another pose id is one group)
+    groups = np.repeat(pose_groups(cal.pose_id, cal.q), geometric.d)
     state = DiscoveryState(campaign, robot, cfg, rows, data, groups, refit, geometric, sessions=sessions)
     _library(state, list(library) + weight, log_thr, log_thr_signal, unident)
     # many small effects chosen together by cross-validation (physics first), then equations for what is left,
