@@ -402,7 +402,10 @@ def fit_model(
     order += [i for i, k in enumerate(kinds) if k in ("tool", "tool_rot")]
     order += [i for i, k in enumerate(kinds) if k == "kinematic"]
     order += [i for i, k in enumerate(kinds) if k == "effect" and prec[i] == 0]
-    order = [i for i in order if model.names[i] not in fixed]
+    # a parameter under a prior (an effect's ridge, the geometry's prior toward nominal on a thin campaign) is
+    # determined by it: always fitted (``ridge`` below), not offered to the rank test (kept there too, it was
+    # listed twice among the free parameters)
+    order = [i for i in order if model.names[i] not in fixed and prec[i] == 0]
     # the geometry's eliminated parameters are not offered to the rank test (not eliminated after it: where a
     # redundancy has several representatives, the test here would keep the one the geometry dropped and drop
     # the one it kept, and both would be lost)
