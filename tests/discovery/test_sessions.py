@@ -146,3 +146,17 @@ def test_an_effect_of_a_logged_signal_is_applied_with_the_sessions_values_or_sai
     assert missing["final"]["mean_position_mm"] == pytest.approx(
         session_validation(cal, camp)["final"]["mean_position_mm"]
     )
+
+
+def test_an_effect_that_moves_the_other_session_by_round_off_neither_helped_nor_hurt(tmp_path: Path) -> None:
+    """A windowed effect off in the other session changes its error by ~1e-14 mm: it was listed as "hurt"."""
+    from robocal.discovery.sessions import SAME_ERROR_MM
+
+    camp, robot, _ = make_campaign(tmp_path, "geometric", 13, {}, n_poses=40, n_validation_poses=15)
+    cal = calibrate(camp, robot)
+    # a joint-1 harmonic of 1e-15 rad: it moves the tool by ~1e-12 mm, round-off
+    tiny = {"key": "gear:j1:h1", "signal": "angle", "joint": 1, "harmonic": 1, "coefficients": [1e-15, 1e-15]}
+    v = session_validation(replace(cal, effects=(tiny,)), camp)
+    d = v["without"]["gear:j1:h1"]["mean_position_mm"] - v["final"]["mean_position_mm"]
+    assert d != 0.0 and abs(d) < SAME_ERROR_MM  # it moves the figure, by round-off only
+    assert v["helped"] == [] and v["hurt"] == []

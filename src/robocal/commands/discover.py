@@ -86,6 +86,8 @@ def run(args: argparse.Namespace) -> int:
             f"{vd['mean_position_mm']:.4f} mm discovered -> {vf['mean_position_mm']:.4f} mm final "
             f"(residual layer: {vf['layer']}); max {vg['max_position_mm']:.4f} -> {vf['max_position_mm']:.4f} mm"
         )
+        for w in s.get("warnings", []):
+            print(f"WARNING: {w}")
         ge = s["validation"]["gross_errors"]["rows"]
         if ge:
             w = vf["without_gross_errors"]

@@ -25,6 +25,9 @@ from robocal.kinematics.transforms import kabsch
 from robocal.metrics import ErrorStats
 from robocal.robot import RobotDescription
 
+#: an effect whose removal moves the other session's mean error by less than this (mm) neither helped nor hurt
+SAME_ERROR_MM = 1e-4
+
 
 def predicted_flanges(
     cal: CalibrationResult, campaign: Campaign, records: tuple[dict[str, Any], ...]
@@ -194,8 +197,9 @@ def session_validation(
         without[str(rec["key"])] = _judge(cal, campaign, rest, reg, val, tool).to_dict()
     out["without"] = without
     m = final.mean_mm
-    out["helped"] = sorted(k for k, s in without.items() if s["mean_position_mm"] > m)
-    out["hurt"] = sorted(k for k, s in without.items() if s["mean_position_mm"] < m)
+    # a change below SAME_ERROR_MM (the figures' last printed digit) is neither: round-off is not evidence
+    out["helped"] = sorted(k for k, s in without.items() if s["mean_position_mm"] > m + SAME_ERROR_MM)
+    out["hurt"] = sorted(k for k, s in without.items() if s["mean_position_mm"] < m - SAME_ERROR_MM)
     return out
 
 

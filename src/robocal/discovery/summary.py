@@ -523,6 +523,14 @@ def summary(res: DiscoveryResult, validation: dict[str, Any] | None = None) -> d
         out["cross_validation"] = {k: v for k, v in cv.items() if k != "effects"}
     if validation is not None:
         out["validation"] = validation
+        vg, vf = validation["geometric"], validation["final"]
+        # a result worse than its start is said (by more than the figures' last digit, 0.1 um)
+        if float(vf["mean_position_mm"]) > float(vg["mean_position_mm"]) + 1e-4:
+            out["warnings"] = [
+                f"on the {vf['n_rows']} validation rows the final model ({float(vf['mean_position_mm']):.4f} mm mean) "
+                f"is worse than the geometric calibration ({float(vg['mean_position_mm']):.4f} mm) on these poses "
+                "the fit did not see: robocal calibrate's calibration.json is the better model for this campaign"
+            ]
     return out
 
 

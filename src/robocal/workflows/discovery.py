@@ -40,6 +40,8 @@ def write_report(res: DiscoveryResult, summ: dict[str, Any], path: Path) -> Path
     _verdict_section(rep, summ)
     if "validation" in summ:
         _validation_table(rep, summ["validation"])
+        for w in summ.get("warnings", []):
+            rep.paragraph(f"Warning: {w}.")
     if summ["named"]:
         _named_section(rep, summ)
     if summ.get("proposed"):
