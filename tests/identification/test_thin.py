@@ -186,5 +186,6 @@ def test_a_sparse_campaign_takes_the_prior_only_where_it_clearly_beats_none(seed
         # measured 0.0263 vs 0.0298 mm (benchmarks/thin_campaigns.py, seed 4): the prior's fit holds better
         assert validate(auto, val)["mean_position_mm"] < validate(off, val)["mean_position_mm"]
     else:
-        assert rec is None  # no prior: the record (and the bytes) of a plain fit
+        # no prior: the fit of a plain one, and its record says so (a newcomer's 15 configurations got no word)
+        assert rec is not None and rec["sparse"] and not float(rec["prior"].get("strength") or 0.0) > 0, rec
         assert np.array_equal(auto.x, off.x)

@@ -229,11 +229,10 @@ def thin_campaign(start: CalibrationStart, res: CalibrationResult, solve: Solve)
     prior = None
     if why is not None and design["enough"]:
         prior, rec = thin.choose_prior(start, why, clear_only=clear_only)
-        if not clear_only or prior is not None:
-            design["prior"] = rec
+        design["prior"] = rec  # also when the cross-validation declined it: the status says what was done
     if prior is not None:
         res = fit_from(replace(start, prior=prior), solve)
-    if design["thin"] or not design["enough"] or prior is not None:
+    if design["thin"] or not design["enough"] or "prior" in design:
         res = res.with_statistics(configurations=design)
     return res, prior
 

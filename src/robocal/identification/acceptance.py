@@ -131,7 +131,8 @@ def judge(
     if isinstance(design, Mapping):
         if not design.get("enough", True):
             found.append(("problem", too_few_configurations(design)))
-        else:
+        elif design.get("thin") or float((design.get("prior") or {}).get("strength") or 0.0) > 0:
+            # a sparse campaign whose prior the cross-validation declined is recorded, not warned about
             found.append((r.thin, thin_campaign(design)))
     if fit.get("success") is False:
         found.append(
