@@ -71,6 +71,23 @@ class DiscoveryResult:
         return bool(self.chi2_p_value < self.config.chi2_alpha)
 
 
+def _arm_rows(campaign: Campaign, robot: RobotDescription) -> tuple[Campaign, int]:
+    """The campaign without the rows of a part on a positioner (they are calibrate's: the positioner's axes, issue
+    34) and how many were left out; discovery models the arm on the other rows."""
+    if robot.positioner is None:
+        return campaign, 0
+    from robocal.calibration.positioner import part_rows
+
+    part = part_rows(campaign, robot)
+    if not part.any():
+        return campaign, 0
+    progress.note(
+        f"{int(part.sum())} rows measure the part on the positioner: left out (robocal calibrate fits the "
+        "positioner's axes); discovery models the arm on the other rows"
+    )
+    return campaign.subset(~part), int(part.sum())
+
+
 def discover(campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig | None = None) -> DiscoveryResult:
     """Run the discovery on the campaign's calibration rows (all rows when there is no validation split).
 
@@ -88,6 +105,7 @@ def discover(campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig |
 
     cfg = cfg or DiscoveryConfig()
     t0 = time.perf_counter()
+    campaign, n_part = _arm_rows(campaign, robot)
     has_val = bool(np.any(campaign.split == "validation"))
     rows_all = np.flatnonzero(campaign.split == "calibration") if has_val else np.arange(campaign.n_rows)
     if len(rows_all) == 0:
@@ -186,6 +204,7 @@ def discover(campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig |
         uses_orientation=use_rot,
         geometric_calibration=geo,
         kept_rows=rows_all[kept],
+        **({"positioner_part_rows_left_out": n_part} if n_part else {}),
     )
     res.wall_time_s = time.perf_counter() - t0
     return res

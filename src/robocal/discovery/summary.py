@@ -504,6 +504,8 @@ def summary(res: DiscoveryResult, validation: dict[str, Any] | None = None) -> d
     logged = res.extra.get("logged_signals")
     if logged is not None:
         out["logged_signals"] = logged
+    if "positioner_part_rows_left_out" in res.extra:  # the part's rows: robocal calibrate's positioner fit
+        out["positioner_part_rows_left_out"] = res.extra["positioner_part_rows_left_out"]
     if res.unexplained:
         out["unexplained_where"] = locate(res)
     geo = res.extra.get("geometric_calibration")
