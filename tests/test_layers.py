@@ -24,6 +24,7 @@ LAYERS: list[set[str]] = [
         "io",
         "tracking",
         "robot",
+        "robot_dh",
         "pipeline",
         "kinematics",
         "metrics",

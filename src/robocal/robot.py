@@ -13,7 +13,9 @@ YAML format (keys not listed are kept in ``extra`` and ignored)::
 
     name: kr16_2
     n_joints: 6
-    convention: mdh_rx_tx_rz_tz_ry      # or: poe
+    convention: mdh_rx_tx_rz_tz_ry      # or: poe, or dh (standard Denavit-Hartenberg a, alpha, d, theta of each
+                                        # joint, Rz Tz Tx Rx: read as MD-H, or as POE when the last joint has a or
+                                        # alpha, see dh_description)
     joints:                             # one entry per joint, base -> flange (external axes before the arm first)
       - {name: A1, a_mm: 0, alpha_deg: 0, d_mm: 675, theta_offset_deg: 0,
          beta_deg: 0, beta_free: false, q_min_deg: -180, q_max_deg: 180}
@@ -70,6 +72,7 @@ import yaml
 
 from robocal.errors import ConfigError
 from robocal.logged_signals import SignalDeclaration, parse_declarations
+from robocal.robot_dh import DH, dh_description
 
 #: The MD-H convention string accepted in robot files.
 MDH = "mdh_rx_tx_rz_tz_ry"
@@ -235,8 +238,11 @@ def robot_from_dict(data: dict[str, Any], source: str = "<dict>") -> RobotDescri
     if "n_joints" in data and int(data["n_joints"]) != n:
         raise ConfigError(f"{source}: n_joints = {data['n_joints']} but {n} joints are listed")
     convention = str(data.get("convention", MDH))
+    if convention == DH:
+        data = dh_description(data, source, MDH, POE)
+        joints, convention = data["joints"], data["convention"]
     if convention not in (MDH, POE):
-        raise ConfigError(f"{source}: convention must be {MDH!r} or {POE!r}, got {convention!r}")
+        raise ConfigError(f"{source}: convention must be {MDH!r}, {POE!r} or {DH!r}, got {convention!r}")
     names, a, alpha, d, th, beta, bfree, lim, types = _joint_table(joints, convention, source)
     poe_w, poe_p, poe_f = _poe_model(data, n, source) if convention == POE else (None, None, None)
     coupling = _coupling(data.get("coupling"), types, source)
