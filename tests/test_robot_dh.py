@@ -56,3 +56,10 @@ def test_a_dh_joint_without_its_table_is_named():
         robot_from_dict({"convention": "dh", "joints": [
             {"a_mm": 0, "alpha_deg": 90, "d_mm": 100, "q_min_deg": -1, "q_max_deg": 1},
             {"a_mm": 0, "d_mm": 100, "q_min_deg": -1, "q_max_deg": 1}]}, "test.yaml")  # fmt: skip
+
+
+def test_a_description_in_other_units_is_refused_not_misread():
+    rows = [{"a_mm": 0, "alpha_deg": 0, "d_mm": 0.4, "q_min_deg": -3, "q_max_deg": 3}]
+    with pytest.raises(ConfigError, match="units must be"):
+        robot_from_dict({"units": {"length": "m", "angle": "rad"}, "joints": rows}, "test.yaml")
+    assert robot_from_dict({"units": {"length": "mm", "angle": "deg"}, "joints": rows}, "t.yaml").d_mm[0] == 0.4

@@ -237,6 +237,15 @@ def robot_from_dict(data: dict[str, Any], source: str = "<dict>") -> RobotDescri
     n = len(joints)
     if "n_joints" in data and int(data["n_joints"]) != n:
         raise ConfigError(f"{source}: n_joints = {data['n_joints']} but {n} joints are listed")
+    units = data.get("units")
+    stated = {str(k): str(v) for k, v in units.items()} if isinstance(units, dict) else None
+    if units is not None and (
+        stated is None or any(stated.get(k, u) != u for k, u in (("length", "mm"), ("angle", "deg")))
+    ):
+        raise ConfigError(
+            f"{source}: key 'units' is {units!r}: a robot file's numbers are in the units their keys name (a_mm, "
+            "alpha_deg, q_min_deg ...): units must be {length: mm, angle: deg}; convert the values"
+        )
     convention = str(data.get("convention", MDH))
     if convention == DH:
         data = dh_description(data, source, MDH, POE)
