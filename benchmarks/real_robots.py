@@ -205,9 +205,11 @@ def _session_lines(name: str, v: dict) -> None:
         s = v[key]
         print(f"    {label:<20} mean {s['mean_position_mm']:.4f}  RMS {s['rms_position_mm']:.4f}  "
               f"max {s['max_position_mm']:.4f} mm")  # fmt: skip
+    from robocal.discovery.sessions import SAME_ERROR_MM
+
     for k, s in v["without"].items():
         d = s["mean_position_mm"] - v["final"]["mean_position_mm"]
-        verdict = "helped" if d > 0 else "hurt"
+        verdict = "neither" if abs(d) < SAME_ERROR_MM else ("helped" if d > 0 else "hurt")
         print(f"    without {k:<24} mean {s['mean_position_mm']:.4f} mm ({verdict} {abs(d):.4f})")
     print(f"    helped: {v['helped']}  hurt: {v['hurt']}")
     for k, why in (v.get("not_applied") or {}).items():
