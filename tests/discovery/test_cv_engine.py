@@ -101,49 +101,43 @@ def test_fold_sums_equal_the_dense_cross_validation(d):
         assert np.max(np.abs(got - ref)) < TOL * scale
 
 
-def test_folds_read_in_place_equal_the_sorted_copy(monkeypatch):
-    """A fit Jacobian beyond SORTED_COPY_BYTES is read fold by fold from the fit's own matrix (no second (M, k)
-    matrix): the same products on the same numbers as with the copy in fold order (to round-off: a fold's rows
-    in another place in memory may take another BLAS kernel path)."""
-    from robocal.discovery import cv as cv_mod
-
+def test_folds_read_in_place_from_the_fit_jacobian():
+    """A fit that cannot evaluate its Jacobian again keeps it: the folds read it where it is (no second (M, k)
+    matrix in fold order), a fold's rows the fit's rows of that fold."""
     rng = np.random.default_rng(5)
     fit, groups = fake_fit(rng, d=6)
-    m = fit.Jq.shape[0]
-    Z = rng.normal(size=(len(fit.r_w), 4))
-    blocks = [(1, rng.normal(size=(m, 3))), (3, rng.normal(size=(m, 2)))]
-    vs = [Variant(None, None, ""), Variant(np.array([0, 2]), 0.5, "")]
-
-    def run():
-        cv = FoldCV(fit, groups, 5, 7)
-        return [cv.base_err, *cv.with_variants(Z, vs), *cv.with_joint_variants(blocks, vs),
-                cv.base_err_without(np.array([0, 1, 2, 4, 6, 7]))]  # fmt: skip
-
-    copied = run()
-    monkeypatch.setattr(cv_mod, "SORTED_COPY_BYTES", 0)
-    assert FoldCV(fit, groups, 5, 7)._A is None
-    scale = float(np.sqrt(np.mean(fit.r_w**2)))
-    for a, b in zip(copied, run(), strict=True):
-        assert np.max(np.abs(a - b)) < 1e-12 * scale
+    cv = FoldCV(fit, groups, 5, 7)
+    assert cv._A is None and cv._J is fit.J_w
+    for i, (s, e) in enumerate(cv.bounds):
+        assert np.array_equal(cv._fold(i), fit.J_w[cv.order[s:e]])
 
 
-def test_a_fit_that_can_evaluate_its_jacobian_again_gives_it_up_for_the_sorted_copy(monkeypatch):
-    """Beyond SORTED_COPY_BYTES a fit that can evaluate its Jacobian again (``Fit.release``) lets it go and the
-    folds read the copy in fold order: the same numbers as below the threshold, one (M, k) matrix held."""
-    from robocal.discovery import cv as cv_mod
-
+def test_a_fit_that_can_evaluate_its_jacobian_again_gives_it_up_sorted_in_place():
+    """A fit that can evaluate its Jacobian again (``Fit.release``) gives it up; its rows are put in fold order in
+    its own memory (one (M, k) matrix held): the same numbers as the folds read from the fit's matrix."""
     rng = np.random.default_rng(6)
     fit, groups = fake_fit(rng, d=6)
+    m = fit.Jq.shape[0]
     Z = rng.normal(size=(len(fit.r_w), 3))
-    vs = [Variant(None, None, "")]
+    blocks = [(1, rng.normal(size=(m, 3)))]
+    vs = [Variant(None, None, ""), Variant(np.array([0, 2]), 0.5, "")]
     ref = FoldCV(fit, groups, 5, 7)
+    want = [ref.base_err, *ref.with_variants(Z, vs), *ref.with_joint_variants(blocks, vs),
+            ref.base_err_without(np.array([0, 1, 2, 4, 6, 7]))]  # fmt: skip
+    J = np.array(fit.J_w)
+    own = np.vstack([fit.J_w, np.zeros((2, J.shape[1]))])  # a view of the solver's matrix, as Fit.J_w is
+    own.setflags(write=False)
     released = []
-    fit.data, fit.release = object(), lambda: released.append(True)
-    monkeypatch.setattr(cv_mod, "SORTED_COPY_BYTES", 0)
+    fit.J_w, fit.data, fit.rows, fit.w = own[: len(J)], object(), np.arange(m), np.ones(len(J))
+    fit.release = lambda: released.append(True)
     cv = FoldCV(fit, groups, 5, 7)
     assert cv._A is not None and cv._J is None and released == [True]
-    assert np.array_equal(cv.base_err, ref.base_err)
-    assert np.array_equal(cv.with_variants(Z, vs)[0], ref.with_variants(Z, vs)[0])
+    assert np.shares_memory(cv._A, own) and np.array_equal(cv._A, J[cv.order])
+    got = [cv.base_err, *cv.with_variants(Z, vs), *cv.with_joint_variants(blocks, vs),
+           cv.base_err_without(np.array([0, 1, 2, 4, 6, 7]))]  # fmt: skip
+    scale = float(np.sqrt(np.mean(fit.r_w**2)))
+    for a, b in zip(want, got, strict=True):
+        assert np.max(np.abs(a - b)) < 1e-12 * scale
 
 
 def test_leaving_columns_out_equals_refitting_the_reduced_fit():

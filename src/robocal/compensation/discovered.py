@@ -253,6 +253,9 @@ TABLE_SIZE = 1 << 17
 #: a tenth of the Newton solver's tolerance (a stiffer effect is evaluated exactly).
 TABLE_TOL_RAD = 1e-8
 
+#: angles per chunk of a table's evaluation (a multiple of 64: every row's products as in one evaluation)
+TABLE_CHUNK = 1 << 14
+
 
 @dataclass(frozen=True)
 class DiscoveredEffects:
@@ -366,7 +369,9 @@ class DiscoveredEffects:
             mid = 0.5 * (grid[:-1] + grid[1:])
             Q = np.zeros((len(grid) + len(mid), n))
             Q[:, j] = np.concatenate([grid, mid])
-            v = joint_offsets(recs, self.robot, Q)[:, j]
+            # in chunks of the grid: the signals of tens of harmonics over 2^18 angles are hundreds of MB at once
+            v = np.concatenate([joint_offsets(recs, self.robot, Q[a : a + TABLE_CHUNK])[:, j]
+                                for a in range(0, len(Q), TABLE_CHUNK)])  # fmt: skip
             vals, exact = v[: len(grid)], v[len(grid) :]
             if float(np.abs(0.5 * (vals[:-1] + vals[1:]) - exact).max()) <= TABLE_TOL_RAD:
                 cols.append(j)

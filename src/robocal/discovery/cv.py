@@ -30,10 +30,6 @@ from scipy import linalg
 #: residual rows per chunk of an accumulation (bounds the temporaries: chunk x k floats)
 CHUNK = 8192
 
-#: the largest fit Jacobian (bytes) FoldCV copies in fold order (each candidate then reads its folds' rows in place);
-#: a larger one is read fold by fold from the fit's own matrix (a gather per fold and candidate: slower, no copy)
-SORTED_COPY_BYTES = 128 * 2**20
-
 #: joints whose per-row projections FoldCV keeps (each an ``m x k`` matrix)
 U_CACHE = 2
 
@@ -115,17 +111,16 @@ class FoldCV:
         ends = np.cumsum(counts)
         self.bounds = [(int(ends[k] - counts[k]), int(ends[k])) for k in self.folds]
         self.d = int(fit.d)
-        # the fit's Jacobian in fold order: a copy when it is at most SORTED_COPY_BYTES or when the fit can let its
-        # own go (``Fit.release``: evaluated again if read later), else each fold's rows are taken when needed
-        # (:meth:`_fold`, one fold at a time: no second (M, k) matrix)
+        # the fit's Jacobian in fold order, never a second (M, k) matrix: a fit that can evaluate it again
+        # (``Fit.release``) gives up its own, whose rows are put in fold order in place (the folds then read
+        # contiguous rows); any other is read fold by fold where it is (:meth:`_fold`, one fold at a time)
         J = fit.J_w
-        gram = getattr(fit, "gram", None)  # taken before the fit may let its Jacobian go (and the factors)
+        gram = getattr(fit, "gram", None)  # taken before the fit lets its Jacobian go (and the factors)
         self.k = int(J.shape[1])
-        swap = J.nbytes > SORTED_COPY_BYTES and getattr(fit, "data", None) is not None and hasattr(fit, "release")
-        self._A = np.ascontiguousarray(J[self.order]) if swap or J.nbytes <= SORTED_COPY_BYTES else None
+        self._A = _sorted_in_place(J, self.order) if _can_release(fit) and len(J) == len(self.order) else None
         self._J: np.ndarray | None = J if self._A is None else None
         del J
-        if swap:
+        if self._A is not None:
             fit.release()
         self._r = np.asarray(fit.r_w)[self.order]
         self.prec = fit.model.prior_precision()[fit.free]
@@ -185,9 +180,11 @@ class FoldCV:
         keep = np.asarray(keep, dtype=int)
         drop = np.setdiff1d(np.arange(self.k), keep)
         th_d = self.th[drop]
-        src = self._A if self._A is not None else self._J
-        assert src is not None
-        Ad = src[:, drop] if self._A is not None else src[self.order[:, None], drop[None, :]]
+        if self._A is not None:
+            Ad = self._A[:, drop]
+        else:
+            assert self._J is not None
+            Ad = self._J[self.order[:, None], drop[None, :]]
         r2 = self._r - Ad @ th_d if len(drop) else self._r
         Gkd = [Gi[np.ix_(keep, drop)] for Gi in self._Gf]
         bf = [bi[keep] - Gd @ th_d for bi, Gd in zip(self._bf, Gkd, strict=True)]
@@ -333,6 +330,42 @@ class FoldCV:
             # held-out response to the candidate with the model refitted: Z_t dz - A_t (W dz), every variant
             errs[s:e] += apply_z(i, DZ) - self._fold(i) @ (W @ DZ)
         return [self._unsort(errs[:, vi]) for vi in range(len(variants))]
+
+
+def _can_release(fit: Any) -> bool:
+    """Whether ``fit`` lets its ``J_w`` go on :meth:`robocal.discovery.model.Fit.release` (evaluated again when
+    read later)."""
+    return hasattr(fit, "release") and all(getattr(fit, a, None) is not None for a in ("data", "rows", "w"))
+
+
+def _sorted_in_place(J: np.ndarray, order: np.ndarray) -> np.ndarray | None:
+    """``J[order]`` in ``J``'s own memory (the rows moved along the permutation's cycles, one row's buffer),
+    or None when ``J`` cannot be written (not C-contiguous, or its owner read-only to the end)."""
+    owner = J if J.base is None else J.base
+    if not (J.flags.c_contiguous and isinstance(owner, np.ndarray) and owner.base is None):
+        return None
+    try:
+        owner.setflags(write=True)
+        J.setflags(write=True)
+    except ValueError:
+        return None
+    done = np.zeros(len(order), dtype=bool)
+    for i in range(len(order)):
+        if done[i] or order[i] == i:
+            continue
+        tmp = J[i].copy()
+        j = i
+        while True:
+            done[j] = True
+            src = int(order[j])
+            if src == i:
+                J[j] = tmp
+                break
+            J[j] = J[src]
+            j = src
+    J.setflags(write=False)
+    owner.setflags(write=False)
+    return J
 
 
 _LAST: list[tuple[Any, np.ndarray, int, int, FoldCV]] = []

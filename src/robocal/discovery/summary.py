@@ -289,14 +289,16 @@ def column_space(fit: Fit) -> np.ndarray:
     """An orthonormal basis ``(M, r)`` of the column space of the fit's whitened Jacobian (the left singular vectors
     above 1e-10 of the largest), as ``np.linalg.svd(fit.J_w)`` gives it, bit for bit (the same LAPACK routine on
     the same Fortran-ordered matrix), holding two ``(M, k)`` matrices, not four: the fit's own is let go
-    (:meth:`Fit.release`) and the routine works in place on its Fortran copy."""
+    (:meth:`Fit.release`) and the routine works in place on its Fortran copy; the basis is returned as LAPACK
+    gives it (Fortran-ordered), not copied."""
     from scipy import linalg
 
     a = np.asfortranarray(fit.J_w)
     fit.release()
     U, s, _ = linalg.svd(a, full_matrices=False, overwrite_a=True, check_finite=False, lapack_driver="gesdd")
     del a
-    return np.ascontiguousarray(U[:, s > 1e-10 * s[0]])
+    # the singular values descend: the kept vectors are U's leading columns, a view (no C-ordered copy of U)
+    return U[:, : int(np.count_nonzero(s > 1e-10 * s[0]))]
 
 
 def locate(res: DiscoveryResult) -> dict[str, Any]:

@@ -70,6 +70,8 @@ class Whitened:
     def _at(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         key = np.ascontiguousarray(z, dtype=float).tobytes()
         if key != self._key:
+            # the last point's pair let go first: its Jacobian is not held while the next is built
+            self._key, self._pair = None, (np.empty(0), np.empty((0, 0)))
             self._pair = self.evaluate(z)
             self._key = key
         return self._pair

@@ -82,8 +82,7 @@ def levenberg_marquardt(
     history = [cost]
     s = _column_scale(Jf, scale, free)
     lam = (1e-6 if lam0 is None else float(lam0)) if damped else 0.0
-    status = 0
-    nit = 0
+    status, nit = 0, 0
     if not (np.all(np.isfinite(r)) and np.all(np.isfinite(Jf))):
         return _result(method, x, free, w, r, Jf, cost, 0, nfev, njev, -1, t0, history)
     for nit in range(1, max_iter + 1):
@@ -95,7 +94,9 @@ def levenberg_marquardt(
             status = 1
             nit -= 1
             break
-        alpha = 1.0
+        # the trials need only g and H: the accepted Jacobian is let go before a trial builds its own (one (M, k)
+        # matrix at a time), read again at x if no trial is accepted
+        alpha, Jf = 1.0, None  # type: ignore[assignment]
         for _ in range(30):
             if damped or alpha == 1.0:
                 dz_full = _damped_step(H, g, lam)
@@ -112,7 +113,7 @@ def levenberg_marquardt(
             else:
                 alpha /= 2.0
         if not accepted:
-            status = 3
+            status, J_new = 3, None  # (the rejected trial's Jacobian let go)
             break
         if damped:
             lam = lam / 10.0 if lam > 1e-12 else 0.0
@@ -127,7 +128,20 @@ def levenberg_marquardt(
         if np.linalg.norm(dz) <= xtol * (xtol + np.linalg.norm(x[free] / s)):
             status = 2
             break
+    Jf = _kept_or_again(Jf, fun, x, weighted, weighted_jacobian)
     return _result(method, x, free, w, r, Jf, cost, nit, nfev, njev, status, t0, history, own=jac_free)
+
+
+def _kept_or_again(
+    Jf: np.ndarray | None,
+    fun: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
+    x: np.ndarray,
+    weighted: Callable[[np.ndarray], np.ndarray],
+    weighted_jacobian: Callable[[np.ndarray], np.ndarray],
+) -> np.ndarray:
+    """The Jacobian at ``x``: ``Jf`` when held, else (no trial accepted: the last one was let go before the
+    trials) evaluated again — the same numbers, not counted as an evaluation."""
+    return Jf if Jf is not None else _first(fun, x, weighted, weighted_jacobian)[1]
 
 
 def _first(
