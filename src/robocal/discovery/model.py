@@ -390,7 +390,9 @@ def fit_model(
     compensation 4.9 deg off on that joint)."""
 
     prec = model.prior_precision()
-    ridge = np.flatnonzero(prec > 0)
+    # a parameter the geometry held (eliminated) or the user fixed stays so under a prior too (as in calibrate)
+    out = np.array([nm in held or nm in fixed for nm in model.names], dtype=bool)
+    ridge = np.flatnonzero((prec > 0) & ~out)
     sq = np.sqrt(prec[ridge])
 
     d = model.per_row(data)
