@@ -102,11 +102,10 @@ def run(args: argparse.Namespace) -> int:
             line += f"; validation mean {v['mean_position_mm']:.4f} / max {v['max_position_mm']:.4f} mm"
         print(line)
     design = fit.get("configurations")
-    if isinstance(design, dict) and design.get("enough") and not design.get("thin"):
-        prior = design.get("prior") or {}
-        if not float(prior.get("strength") or 0.0) > 0:  # recorded, not warned about (identification.acceptance)
-            from robocal.identification.acceptance import thin_campaign
+    if isinstance(design, dict) and design.get("enough"):
+        from robocal.identification.acceptance import thin_campaign, thin_is_warned
 
+        if not thin_is_warned(design):  # recorded, not warned about: said here
             print(f"configurations: {thin_campaign(design)}")
     problems = summary.get("problems", [])
     for text in problems:

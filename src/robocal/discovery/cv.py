@@ -391,11 +391,8 @@ def pose_groups(pose_id: np.ndarray, q: np.ndarray) -> np.ndarray:
     n_pose = int(pose.max()) + 1
     graph = coo_matrix((np.ones(m), (pose, n_pose + cfg)), shape=(n_pose + n_cfg,) * 2)
     _, comp = connected_components(graph, directed=False)
-    lab = comp[pose]
-    first_row: dict[int, int] = {}
-    for i, g in enumerate(lab.tolist()):
-        first_row.setdefault(g, i)
-    return pid[[first_row[g] for g in lab.tolist()]]
+    _, first, group = np.unique(comp[pose], return_index=True, return_inverse=True)
+    return pid[first[group]]
 
 
 def fold_cv(fit: Any, groups: np.ndarray, folds: int, seed: int) -> FoldCV:

@@ -528,8 +528,10 @@ def summary(res: DiscoveryResult, validation: dict[str, Any] | None = None) -> d
     if validation is not None:
         out["validation"] = validation
         vg, vf = validation["geometric"], validation["final"]
-        # a result worse than its start is said (by more than the figures' last digit, 0.1 um)
-        if float(vf["mean_position_mm"]) > float(vg["mean_position_mm"]) + 1e-4:
+        # a result worse than its start is said (by more than round-off: the figures' last digit)
+        from robocal.discovery.sessions import SAME_ERROR_MM
+
+        if float(vf["mean_position_mm"]) > float(vg["mean_position_mm"]) + SAME_ERROR_MM:
             out["warnings"] = [
                 f"on the {vf['n_rows']} validation rows the final model ({float(vf['mean_position_mm']):.4f} mm mean) "
                 f"is worse than the geometric calibration ({float(vg['mean_position_mm']):.4f} mm) on these poses "

@@ -34,7 +34,7 @@ from typing import Any
 
 from robocal.config import parse, setting
 
-__all__ = ["FLEET", "AcceptanceRules", "Verdict", "judge"]
+__all__ = ["FLEET", "AcceptanceRules", "Verdict", "judge", "thin_campaign", "thin_is_warned", "too_few_configurations"]
 
 LEVELS = ("problem", "warning", "ignore")
 
@@ -90,6 +90,12 @@ def too_few_configurations(design: Mapping[str, Any]) -> str:
     )
 
 
+def thin_is_warned(design: Mapping[str, Any]) -> bool:
+    """Whether a campaign's ``fit.configurations`` record is a warning: thin, or identified with a prior (a sparse
+    campaign whose prior the cross-validation declined is recorded, not warned about)."""
+    return bool(design.get("thin")) or float((design.get("prior") or {}).get("strength") or 0.0) > 0
+
+
 def thin_campaign(design: Mapping[str, Any]) -> str:
     """The warning of a thin campaign, or one identified with a prior: the configurations, what the model needs
     and what was done (its ``fit.configurations`` record)."""
@@ -131,8 +137,7 @@ def judge(
     if isinstance(design, Mapping):
         if not design.get("enough", True):
             found.append(("problem", too_few_configurations(design)))
-        elif design.get("thin") or float((design.get("prior") or {}).get("strength") or 0.0) > 0:
-            # a sparse campaign whose prior the cross-validation declined is recorded, not warned about
+        elif thin_is_warned(design):
             found.append((r.thin, thin_campaign(design)))
     if fit.get("success") is False:
         found.append(
