@@ -51,6 +51,9 @@ class DiscoveryConfig:
     noise_deg : orientation noise per axis (1 sigma) when the campaign has orientations.
     use_orientation : use measured orientations when present (``None`` = when present), as ``calibrate`` does.
     outliers, outlier_alpha : gross errors, as in the geometric calibration (``auto`` / ``off`` / file rows).
+    outlier_screen_rows : with ``outliers: auto``, a campaign of more calibration rows than this is first searched
+        on a pose-grouped sample of this many rows, only to find the gross errors (the search on every kept row
+        follows); 0: never.
     effects : which effects of the library to try (subset of :data:`EFFECT_NAMES`); ``signal``: every logged signal
         (a numeric column of the campaign beyond the contract) as a driver (:mod:`robocal.discovery.logged`);
         ``session``: in a campaign of several sessions (tracker stations), a tool re-seated in each session.
@@ -102,6 +105,7 @@ class DiscoveryConfig:
         _D["outliers"], choices=("auto", "off"), convert=outlier_rule, check=data_rows
     )
     outlier_alpha: float = setting(_D["outlier_alpha"], gt=0, lt=1)
+    outlier_screen_rows: int = setting(_D["outlier_screen_rows"], ge=0)
     effects: tuple[str, ...] = setting(_tuple("effects"), choices=EFFECT_NAMES)
     gear_harmonics: tuple[int, ...] = setting(_tuple("gear_harmonics"), ge=1)
     thermal_components: int = setting(_D["thermal_components"], ge=1)

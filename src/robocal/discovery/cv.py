@@ -30,8 +30,9 @@ from scipy import linalg
 #: residual rows per chunk of an accumulation (bounds the temporaries: chunk x k floats)
 CHUNK = 8192
 
-#: joints whose per-row projections FoldCV keeps (each an ``m x k`` matrix)
-U_CACHE = 2
+#: bytes of per-row projections (one ``m x k`` matrix per joint) FoldCV keeps: every joint's on the campaigns met
+#: (12 000 UR10 rows: 6 x 7 MB), the most recent first beyond it (at least two joints)
+U_CACHE_BYTES = 256 * 2**20
 
 #: reciprocal condition (of the Jacobi-scaled matrix, estimated from the Cholesky diagonal) below which the
 #: pseudo-inverse is used instead of the factorisation
@@ -225,8 +226,9 @@ class FoldCV:
         return np.asarray(self.order[s : e : self.d] // self.d)
 
     def _u(self, j: int, v: np.ndarray) -> list[np.ndarray]:
-        """Per fold, ``U = Σ_d A_row v_row`` (rows x k) for joint ``j`` (0-based) with ``v (m, d)``: the last
-        :data:`U_CACHE` joints' kept (the pool lists a joint's candidates together; each is ``m x k``)."""
+        """Per fold, ``U = Σ_d A_row v_row`` (rows x k) for joint ``j`` (0-based) with ``v (m, d)``: kept for the
+        joints met last within :data:`U_CACHE_BYTES` (the pool visits the joints in turn, and a pooled candidate
+        all of them; each is ``m x k``)."""
         if j in self._U:
             self._U.move_to_end(j)
             return self._U[j]
@@ -235,7 +237,8 @@ class FoldCV:
             A3 = self._fold(i).reshape((e - s) // self.d, self.d, -1)
             out.append(np.einsum("rdk,rd->rk", A3, v[self._rows_of_fold(i)], optimize=True))
         self._U[j] = out
-        while len(self._U) > U_CACHE:
+        size = sum(u.nbytes for u in out)
+        while len(self._U) > max(2, U_CACHE_BYTES // max(size, 1)):
             self._U.popitem(last=False)
         return out
 

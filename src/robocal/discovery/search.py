@@ -95,13 +95,19 @@ def discover(campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig |
     search runs on them; every calibration row is then tested again against the *extended* model (a row the
     geometric model could not explain may be explained now, and a blunder hidden by a large model error
     stands out once the effects are modelled), and the search is repeated from scratch on the new kept rows
-    until the set is stable (at most three rounds). No effect is ever fitted to a flagged row.
+    until the set is stable (at most three rounds). No effect is ever fitted to a flagged row. A campaign of more
+    than ``cfg.outlier_screen_rows`` kept rows (issue 31) runs its first search on a pose-grouped sample of that
+    many rows (:func:`screen_sample`), only to find the gross errors; that search's effects refitted on the kept
+    rows settle the set (:func:`_settle`: one joint fit per pass, a row left out stays out), and one search on
+    every settled row follows; the rows its own test then flags among those it fitted are reported
+    (``flagged_by_final_model``), not searched again (12 000 rows of the UR10 grid series: three searches on
+    8 300 rows before, one on 3 000 and one on 8 300 now).
 
     Noise: the search weights positions by the noise the data show (the calibration's ``fit.noise.used_mm``:
     the configured value or, when the campaign allows a model-free estimate, the larger of the two), and
     "unexplained" is judged against it.
     """
-    from robocal.identification import misfit, robust
+    from robocal.identification import misfit
 
     cfg = cfg or DiscoveryConfig()
     t0 = time.perf_counter()
@@ -130,28 +136,10 @@ def discover(campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig |
     # a systematic misfit the geometric calibration named is offered to the search (issue 33 item 4)
     library += misfit_candidates(campaign, geo.fit.get("systematic_misfit") or [])
     assert geo.start is not None  # a fit of calibrate, with its start
-    kept = np.asarray(geo.start.kept, dtype=bool).copy()
     m = cal.n_rows
-    res: DiscoveryResult | None = None
-    test = None
-    rounds = 0
-    systematic: list[dict[str, Any]] = []
-    loud = np.ones(m, dtype=bool)
-    for rounds in range(1, 4):
-        idx = np.flatnonzero(kept)
-        res = _search(campaign, robot, cfg, rows_all[idx], data_all.rows(idx), geo, library, skipped, sigma, sigma_rad)
-        if cfg.outliers != "auto":
-            break
-        test, loud, systematic = _retest(res.final, data_all, rows_all, cal, kept, ccfg.outlier_alpha)
-        if test.flagged.sum() > ccfg.outlier_max_share * m:
-            # more rows stand out than gross errors can be: a model error the library cannot name, not blunders
-            test = robust.RowTest(test.F, test.p_value, ~kept, test.threshold_F, test.alpha, test.d)
-            break
-        if np.array_equal(~test.flagged, kept) or rounds == 3:
-            # converged, or the last round: `kept` stays the set the search ran on, so the rows reported as left
-            # out of the fit are the ones it left out (the UR10 reported 18 of 1 046 out while fitting 1 035)
-            break
-        kept, res = ~test.flagged, None  # the round's fits (their Jacobians) let go before the next search
+    res, kept, test, loud, systematic, rounds, n_search, large = _rounds(
+        campaign, robot, cfg, ccfg, cal, rows_all, data_all, geo, library, skipped, sigma, sigma_rad
+    )
     assert res is not None
     # every calibration row's residual under the final model, for the outlier list
     fit = res.final
@@ -165,7 +153,13 @@ def discover(campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig |
             if not test.flagged[i]:  # left out by the previous round, no longer standing out: say so
                 o["reason"] = (
                     f"left out by the previous round's test; against the final model F = {test.F[i]:.4g} <= "
-                    f"{test.threshold_F:.4g} (the gross-error rounds did not settle in {rounds})"
+                    f"{test.threshold_F:.4g} ("
+                    + (
+                        "left out by the gross-error screen before the search"
+                        if large
+                        else f"the gross-error rounds did not settle in {rounds}"
+                    )
+                    + ")"
                 )
     else:
         outliers = []
@@ -199,6 +193,8 @@ def discover(campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig |
             + (f"; {misfit.RULE}" if systematic else "")
         ),
         outlier_rounds=rounds,
+        outlier_searches=n_search,
+        **({"flagged_by_final_model": rows_all[kept & test.flagged].tolist()} if large and test is not None else {}),
         noise=noise,
         sigma_mm=sigma,
         uses_orientation=use_rot,
@@ -208,6 +204,77 @@ def discover(campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig |
     )
     res.wall_time_s = time.perf_counter() - t0
     return res
+
+
+def _rounds(
+    campaign: Campaign,
+    robot: RobotDescription,
+    cfg: DiscoveryConfig,
+    ccfg: CalibrationConfig,
+    cal: Campaign,
+    rows_all: np.ndarray,
+    data_all: FitData,
+    geo: Any,
+    library: list[Candidate],
+    skipped: list[SkippedCandidate],
+    sigma: float,
+    sigma_rad: float,
+) -> tuple[DiscoveryResult, np.ndarray, Any, np.ndarray, list[dict[str, Any]], int, int, bool]:
+    """The searches and the gross-error rounds of :func:`discover` (its docstring): the last search's result, the
+    rows it ran on (``kept``, calibration-row mask), its row test, the rows standing out from the rows' own
+    scatter, the systematic misfits, the rounds, the searches run and whether the campaign was screened."""
+    from robocal.identification import robust
+
+    m = cal.n_rows
+    kept = np.asarray(geo.start.kept, dtype=bool).copy()
+    res: DiscoveryResult | None = None
+    test = None
+    rounds = 0
+    systematic: list[dict[str, Any]] = []
+    loud = np.ones(m, dtype=bool)
+    n_search = 0
+    # a large campaign finds its gross errors first by a search on a pose-grouped sample: the rounds then cost one
+    # full search, not up to three
+    large = cfg.outliers == "auto" and 0 < cfg.outlier_screen_rows < int(kept.sum())
+    for rounds in range(1, 4):
+        idx = np.flatnonzero(kept)
+        screen = large and rounds == 1
+        if screen:
+            idx = screen_sample(cal.pose_id, cal.q, idx, cfg.outlier_screen_rows, cfg.seed)
+            progress.note(f"gross-error screen: the search on a pose-grouped sample of {len(idx)} of the "
+                          f"{int(kept.sum())} kept rows, to find the gross errors")  # fmt: skip
+        res = _search(campaign, robot, cfg, rows_all[idx], data_all.rows(idx), geo, library, skipped, sigma, sigma_rad)
+        n_search += 1
+        if cfg.outliers != "auto":
+            break
+        used = np.zeros(m, dtype=bool)
+        used[idx] = True
+        test, loud, systematic = _retest(res.final, data_all, rows_all, cal, used, ccfg.outlier_alpha)
+        if test.flagged.sum() > ccfg.outlier_max_share * m:
+            if screen:  # the sample's model cannot tell: the search on every kept row judges (as without a screen)
+                res = None
+                continue
+            # more rows stand out than gross errors can be: a model error the library cannot name, not blunders
+            test = robust.RowTest(test.F, test.p_value, ~kept, test.threshold_F, test.alpha, test.d)
+            break
+        if large and not screen:
+            # the one full search of a large campaign: rows its own test flags among those it fitted are reported
+            # (flagged_by_final_model), not searched again
+            break
+        if not screen and (np.array_equal(~test.flagged, kept) or rounds == 3):
+            # converged, or the last round: `kept` stays the set the search ran on, so the rows reported as left
+            # out of the fit are the ones it left out (the UR10 reported 18 of 1 046 out while fitting 1 035)
+            break
+        if screen:
+            # the sample's effects refitted on the kept rows and every row tested again until no row the refit
+            # used stands out: the full search runs on a settled set
+            kept = _settle(res, kept & ~test.flagged, robot, cfg, geo, data_all, rows_all, cal, sigma, sigma_rad,
+                           ccfg.outlier_alpha, ccfg.outlier_max_share)  # fmt: skip
+        else:
+            kept = ~test.flagged
+        res = None  # the round's fits (their Jacobians) let go before the next search
+    assert res is not None
+    return res, kept, test, loud, systematic, rounds, n_search, large
 
 
 def _retest(
@@ -246,6 +313,78 @@ def _retest(
         systematic, explained = misfit.find(cal, test.flagged, rp, scale, alpha)
         test = robust.RowTest(test.F, test.p_value, test.flagged & ~explained, test.threshold_F, test.alpha, test.d)
     return test, loud, systematic
+
+
+def screen_sample(pose_id: np.ndarray, q: np.ndarray, idx: np.ndarray, n_max: int, seed: int) -> np.ndarray:
+    """Of the rows ``idx`` (positions in the calibration rows), whole cross-validation groups (poses joined with
+    the configurations measured again, :func:`robocal.discovery.cv.pose_groups`) drawn at random (``seed``) until
+    the next would pass ``n_max`` rows; sorted."""
+    groups = pose_groups(np.asarray(pose_id)[idx], q[idx])
+    uniq, g, counts = np.unique(groups, return_inverse=True, return_counts=True)
+    order = np.random.default_rng(seed).permutation(len(uniq))
+    take = np.zeros(len(uniq), dtype=bool)
+    take[order[np.cumsum(counts[order]) <= n_max]] = True
+    return np.asarray(idx[take[g]])
+
+
+def _settle(
+    res: DiscoveryResult,
+    kept: np.ndarray,
+    robot: RobotDescription,
+    cfg: DiscoveryConfig,
+    geo: Any,
+    data_all: FitData,
+    rows_all: np.ndarray,
+    cal: Campaign,
+    sigma: float,
+    sigma_rad: float,
+    alpha: float,
+    max_share: float,
+    passes: int = 6,
+) -> np.ndarray:
+    """The kept rows after a search's row test (``kept``), settled: the search's effects refitted on them (one
+    joint fit, no search) and every calibration row tested again, until no row the refit used stands out (a row
+    left out stays out, so the rounds cannot cycle; at most ``passes`` fits). A test that flags more rows than
+    gross errors can be stops it at the last set."""
+    accepted = list(res.final.model.accepted)
+    prev: Fit | None = res.final
+    for _ in range(passes):
+        idx = np.flatnonzero(kept)
+        refit = _refitter(robot, cfg, geo, data_all.rows(idx), rows_all[idx], sigma, sigma_rad)
+        fit = refit(accepted, prev)
+        test, _, _ = _retest(fit, data_all, rows_all, cal, kept, alpha)
+        if test.flagged.sum() > max_share * len(kept):
+            break
+        if not np.any(kept & test.flagged):  # no row the refit used stands out
+            break
+        kept, prev = kept & ~test.flagged, fit  # a row left out stays out (the rounds cannot cycle)
+    return kept
+
+
+def _refitter(
+    robot: RobotDescription,
+    cfg: DiscoveryConfig,
+    geo: Any,
+    data: FitData,
+    rows: np.ndarray,
+    sigma: float,
+    sigma_rad: float,
+) -> Any:
+    """The joint refit of the search on the campaign rows ``rows`` (their fit data ``data``): geometry and the
+    accepted effects, from the previous fit's parameters (:func:`start`), the geometry's eliminated parameters
+    held and the user's ``discovery.fixed`` fixed, the calibration's prior kept (:func:`calibration_prior`)."""
+    targets, T_ref = geo.model.target_names, geo.model.T_ref
+    fixed = set(ParameterSpec.of(geo.model, cfg.fixed, "discovery.fixed").fixed)
+    base_prior = calibration_prior(geo)
+    held = frozenset(e.name for e in geo.eliminated)
+
+    def refit(accepted: list[Accepted], prev: Fit | None) -> Fit:
+        model = ExtendedModel(robot, targets, T_ref, accepted, like=geo.model, base_prior=base_prior)
+        theta0 = start(model, prev, geo)
+        return fit_model(model, theta0, data, rows, sigma, fixed, cfg.rank_tol, cfg.max_iter, sigma_rad=sigma_rad,
+                         held=held)  # the geometry's: kept out  # fmt: skip
+
+    return refit
 
 
 def release(prev: Fit | None) -> None:
@@ -303,12 +442,7 @@ def _search(
 
     base_prior = calibration_prior(geo)
 
-    def refit(accepted: list[Accepted], prev: Fit | None) -> Fit:
-        model = ExtendedModel(robot, targets, T_ref, accepted, like=geo.model, base_prior=base_prior)
-        theta0 = start(model, prev, geo)
-        return fit_model(model, theta0, data, rows, sigma, fixed, cfg.rank_tol, cfg.max_iter, sigma_rad=sigma_rad,
-                         held=frozenset(e.name for e in geo.eliminated))  # the geometry's: kept out  # fmt: skip
-
+    refit = _refitter(robot, cfg, geo, data, rows, sigma, sigma_rad)
     geometric = refit([], None)
     # without link masses the compliance under the arm's own weight (robocal.discovery.physics, with its prior on
     # the deflection) is the library's compliance: tested here with it, so that a gear harmonic fitted over less
