@@ -30,9 +30,9 @@ from scipy import linalg
 #: residual rows per chunk of an accumulation (bounds the temporaries: chunk x k floats)
 CHUNK = 8192
 
-#: bytes of per-row projections (one ``m x k`` matrix per joint) FoldCV keeps: every joint's on the campaigns met
-#: (12 000 UR10 rows: 6 x 7 MB), the most recent first beyond it (at least two joints)
-U_CACHE_BYTES = 256 * 2**20
+#: bytes of per-row projections (one ``m x k`` matrix per joint) FoldCV keeps: every joint's up to ~12 000 rows
+#: (UR10 A: 6 x ~20 MB), the most recent beyond that (at least two joints: 80 000 twin rows 3 x 38 MB)
+U_CACHE_BYTES = 128 * 2**20
 
 #: reciprocal condition (of the Jacobi-scaled matrix, estimated from the Cholesky diagonal) below which the
 #: pseudo-inverse is used instead of the factorisation
@@ -257,17 +257,21 @@ class FoldCV:
         offs = np.cumsum([0] + [S.shape[1] for _, S in blocks])
         q = int(offs[-1])
         Ct, Z2t, bzt = [], [], []
-        per_fold: list[list[tuple[np.ndarray, np.ndarray]]] = []  # (v_t, S_t) per block
-        for i, (s, e) in enumerate(self.bounds):
+
+        def fold_blocks(i: int) -> list[tuple[np.ndarray, np.ndarray]]:
+            """``(v_t, S_t)`` per block on fold ``i``'s rows: gathered again where needed, not kept for every fold
+            (the residual layer's six 100-column blocks are 0.4 GB at 80 000 rows)."""
             rows = self._rows_of_fold(i)
+            return [(vs[ja][rows], Sa[rows]) for ja, Sa in blocks]
+
+        for i, (s, e) in enumerate(self.bounds):
             r3 = self._r[s:e].reshape(-1, self.d)
             C = np.empty((self.k, q))
             Z2 = np.empty((q, q))
             bz = np.empty(q)
-            fb = []
-            for a, (ja, Sa) in enumerate(blocks):
-                va, Sat = vs[ja][rows], Sa[rows]
-                fb.append((va, Sat))
+            fb = fold_blocks(i)
+            for a, (ja, _) in enumerate(blocks):
+                va, Sat = fb[a]
                 C[:, offs[a] : offs[a + 1]] = self._u(ja, vs[ja])[i].T @ Sat
                 bz[offs[a] : offs[a + 1]] = Sat.T @ np.einsum("rd,rd->r", va, r3)
             for a in range(len(blocks)):
@@ -281,10 +285,10 @@ class FoldCV:
             Ct.append(C)
             Z2t.append(Z2)
             bzt.append(bz)
-            per_fold.append(fb)
+            del fb
 
         def apply_z(i: int, DZ: np.ndarray) -> np.ndarray:
-            fb = per_fold[i]
+            fb = fold_blocks(i)
             out = np.zeros((*fb[0][0].shape, DZ.shape[1]))
             for a, (va, Sat) in enumerate(fb):
                 Da = DZ[offs[a] : offs[a + 1]]

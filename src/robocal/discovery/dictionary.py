@@ -30,6 +30,7 @@ import numpy as np
 
 from robocal.compensation.signals import Factor, evaluate_factor, factor_label
 from robocal.data.contract import Campaign
+from robocal.discovery.cv import CHUNK
 from robocal.robot import RobotDescription
 
 
@@ -183,7 +184,12 @@ def select(
     B = np.empty((k, n * K))  # Qᵀ Z
     for j in range(n):
         B[:, j * K : (j + 1) * K] = np.einsum("rdk,rd->rk", Q3, V[:, :, j], optimize=True).T @ F
-    norms = np.sqrt(((np.sum(V**2, axis=1)).T @ F**2).reshape(-1))  # (n K,) norms of Z's columns
+    # (n K,) norms of Z's columns, summed over row chunks (no (m, K) square of the dictionary held at once)
+    V2 = np.sum(V**2, axis=1)
+    sq = np.zeros((n, K))
+    for c0 in range(0, m, CHUNK):
+        sq += V2[c0 : c0 + CHUNK].T @ F[c0 : c0 + CHUNK] ** 2
+    norms = np.sqrt(sq.reshape(-1))
     pn = np.sqrt(np.clip(norms**2 - np.sum(B**2, axis=0), 0.0, None))  # of Z - Q Qᵀ Z
     keep = pn > absorbed_tol * np.maximum(norms, 1e-300)
     idx = np.flatnonzero(keep)
