@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from robocal.discovery.config import DiscoveryConfig
-from robocal.discovery.search import discover, screen_sample
+from robocal.discovery.gross import screen_sample
+from robocal.discovery.search import discover
 
 from .conftest import make_campaign, named
 

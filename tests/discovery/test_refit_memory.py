@@ -154,7 +154,7 @@ def test_the_gross_error_test_takes_the_prior_so_round_off_cannot_decide(problem
     the fit's prior into its leverages (as calibrate's does) and its verdict no longer follows the round-off of
     the Jacobian (on the UR10's 3 000 rows, without the prior, a relative change of 1e-15 changed 61 of 2 094
     verdicts)."""
-    from robocal.discovery import search
+    from robocal.discovery import gross
 
     model, theta0, data, rows = problem
     wide = model.accepted[1].cand
@@ -183,5 +183,5 @@ def test_the_gross_error_test_takes_the_prior_so_round_off_cannot_decide(problem
 
     monkeypatch.setattr(robust, "row_test", spy)
     cal = type("Cal", (), {"n_rows": m})()
-    search._retest(fit, data, rows, cal, kept, 0.01)
+    gross.retest(fit, data, rows, cal, kept, 0.01)
     assert np.array_equal(seen["prior"], prec)

@@ -28,10 +28,12 @@ from robocal.data.contract import Campaign
 from robocal.discovery import progress
 from robocal.discovery.candidates import Candidate, SkippedCandidate, build_library, periodic_window
 from robocal.discovery.config import DiscoveryConfig
-from robocal.discovery.cv import clear_cache, pose_groups
+from robocal.discovery.cv import pose_groups
 from robocal.discovery.ftest import backward_check, basis, best_candidate, cross_validation_gain, score_candidate
+from robocal.discovery.gross import retest, screen_sample, settle
 from robocal.discovery.grow import finish, grow, held_out_check, physics_candidates, variant_candidate
 from robocal.discovery.model import Accepted, ExtendedModel, Fit, fit_model
+from robocal.discovery.refit import calibration_prior, refitter, release, start
 from robocal.discovery.scoring import Score, Step, regressor
 from robocal.discovery.session_cv import Sessions
 from robocal.discovery.state import DiscoveryState
@@ -97,11 +99,11 @@ def discover(campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig |
     stands out once the effects are modelled), and the search is repeated from scratch on the new kept rows
     until the set is stable (at most three rounds). No effect is ever fitted to a flagged row. A campaign of more
     than ``cfg.outlier_screen_rows`` kept rows (issue 31) runs its first search on a pose-grouped sample of that
-    many rows (:func:`screen_sample`), only to find the gross errors; that search's effects refitted on the kept
-    rows settle the set (:func:`_settle`: one joint fit per pass, a row left out stays out), and one search on
-    every settled row follows; the rows its own test then flags among those it fitted are reported
-    (``flagged_by_final_model``), not searched again (12 000 rows of the UR10 grid series: three searches on
-    8 300 rows before, one on 3 000 and one on 8 300 now).
+    many rows (:func:`robocal.discovery.gross.screen_sample`), only to find the gross errors; that search's
+    effects refitted on the kept rows settle the set (:func:`robocal.discovery.gross.settle`: one joint fit per
+    pass, a row left out stays out), and one search on every settled row follows; the rows its own test then
+    flags among those it fitted are reported (``flagged_by_final_model``), not searched again (12 000 rows of
+    the UR10 grid series: three searches on 8 300 rows before, one on 3 000 and one on 8 300 now).
 
     Noise: the search weights positions by the noise the data show (the calibration's ``fit.noise.used_mm``:
     the configured value or, when the campaign allows a model-free estimate, the larger of the two), and
@@ -249,7 +251,7 @@ def _rounds(
             break
         used = np.zeros(m, dtype=bool)
         used[idx] = True
-        test, loud, systematic = _retest(res.final, data_all, rows_all, cal, used, ccfg.outlier_alpha)
+        test, loud, systematic = retest(res.final, data_all, rows_all, cal, used, ccfg.outlier_alpha)
         if test.flagged.sum() > ccfg.outlier_max_share * m:
             if screen:  # the sample's model cannot tell: the search on every kept row judges (as without a screen)
                 res = None
@@ -268,155 +270,13 @@ def _rounds(
         if screen:
             # the sample's effects refitted on the kept rows and every row tested again until no row the refit
             # used stands out: the full search runs on a settled set
-            kept = _settle(res, kept & ~test.flagged, robot, cfg, geo, data_all, rows_all, cal, sigma, sigma_rad,
+            kept = settle(res.final, kept & ~test.flagged, robot, cfg, geo, data_all, rows_all, cal, sigma, sigma_rad,
                            ccfg.outlier_alpha, ccfg.outlier_max_share)  # fmt: skip
         else:
             kept = ~test.flagged
         res = None  # the round's fits (their Jacobians) let go before the next search
     assert res is not None
     return res, kept, test, loud, systematic, rounds, n_search, large
-
-
-def _retest(
-    fit: Fit, data_all: FitData, rows_all: np.ndarray, cal: Campaign, kept: np.ndarray, alpha: float
-) -> tuple[Any, np.ndarray, list[dict[str, Any]]]:
-    """Every calibration row tested against the extended model ``fit``: the row test, then the flagged rows that
-    share a condition taken off as a systematic misfit. Returns the test (``flagged``: the rows left out of the
-    fit), the rows that stand out from the rows' own scatter (a flagged row is a gross error only when it does)
-    and the systematic misfits."""
-    from robocal.identification import misfit, robust
-
-    m = cal.n_rows
-    fit.release()  # the search's Jacobian is not held through this one (every calibration row)
-    progress.note(f"gross-error test: every one of the {m} calibration rows against the discovered model")
-    # the free columns only, whitened in place (no (M, n) matrix, no copy)
-    r, Jw, _, _ = fit.model.residuals_and_jacobian(fit.theta, data_all, rows_all, cols=fit.free)
-    w = np.tile(fit.weights[: fit.d], m)
-    row_of = np.repeat(np.arange(m), fit.d)
-    Jw *= w[:, None]
-    # the leverages of the fit with its prior (the effects a prior determines, the residual layer's: without it the
-    # kept rows' JᵀJ is singular and the test's verdict is round-off: on the UR10's 3 000 rows a change of 1e-15 in
-    # the Jacobian changed 61 of its 2 094 verdicts)
-    prec = fit.model.prior_precision()[fit.free]
-    test = robust.row_test(r * w, Jw, row_of, m, kept, alpha, prior=prec if np.any(prec > 0) else None)
-    # a row is a gross error only when it also stands out from the rows' own scatter (robust scale: the median
-    # row sum of squares, the same Bonferroni rate): a row that only the extended model's leverage singles out
-    # (a 0.04 mm row among 0.1 mm ones, issue 30 item 9) is not a blunder. Such rows are still left out of the
-    # fit (on the UR10 keeping them costs 0.025 mm held-out: they pull the flexible effects), reported apart
-    loud = robust.robust_screen(r * w, row_of, m, alpha, len(fit.free))
-    systematic: list[dict[str, Any]] = []
-    if test.flagged.sum() >= misfit.MIN_ROWS:
-        # rows that misfit together under one condition are a systematic misfit of the model: kept, named
-        rp = r.reshape(m, fit.d)[:, :3]
-        e2 = np.sum(rp**2, axis=1)
-        scale = float(np.sqrt(np.median(e2[kept]) / stats.chi2.ppf(0.5, 3)))
-        systematic, explained = misfit.find(cal, test.flagged, rp, scale, alpha)
-        test = robust.RowTest(test.F, test.p_value, test.flagged & ~explained, test.threshold_F, test.alpha, test.d)
-    return test, loud, systematic
-
-
-def screen_sample(pose_id: np.ndarray, q: np.ndarray, idx: np.ndarray, n_max: int, seed: int) -> np.ndarray:
-    """Of the rows ``idx`` (positions in the calibration rows), whole cross-validation groups (poses joined with
-    the configurations measured again, :func:`robocal.discovery.cv.pose_groups`) drawn at random (``seed``) until
-    the next would pass ``n_max`` rows; sorted."""
-    groups = pose_groups(np.asarray(pose_id)[idx], q[idx])
-    uniq, g, counts = np.unique(groups, return_inverse=True, return_counts=True)
-    order = np.random.default_rng(seed).permutation(len(uniq))
-    take = np.zeros(len(uniq), dtype=bool)
-    take[order[np.cumsum(counts[order]) <= n_max]] = True
-    return np.asarray(idx[take[g]])
-
-
-def _settle(
-    res: DiscoveryResult,
-    kept: np.ndarray,
-    robot: RobotDescription,
-    cfg: DiscoveryConfig,
-    geo: Any,
-    data_all: FitData,
-    rows_all: np.ndarray,
-    cal: Campaign,
-    sigma: float,
-    sigma_rad: float,
-    alpha: float,
-    max_share: float,
-    passes: int = 6,
-) -> np.ndarray:
-    """The kept rows after a search's row test (``kept``), settled: the search's effects refitted on them (one
-    joint fit, no search) and every calibration row tested again, until no row the refit used stands out (a row
-    left out stays out, so the rounds cannot cycle; at most ``passes`` fits). A test that flags more rows than
-    gross errors can be stops it at the last set."""
-    accepted = list(res.final.model.accepted)
-    prev: Fit | None = res.final
-    for _ in range(passes):
-        idx = np.flatnonzero(kept)
-        refit = _refitter(robot, cfg, geo, data_all.rows(idx), rows_all[idx], sigma, sigma_rad)
-        fit = refit(accepted, prev)
-        test, _, _ = _retest(fit, data_all, rows_all, cal, kept, alpha)
-        if test.flagged.sum() > max_share * len(kept):
-            break
-        if not np.any(kept & test.flagged):  # no row the refit used stands out
-            break
-        kept, prev = kept & ~test.flagged, fit  # a row left out stays out (the rounds cannot cycle)
-    return kept
-
-
-def _refitter(
-    robot: RobotDescription,
-    cfg: DiscoveryConfig,
-    geo: Any,
-    data: FitData,
-    rows: np.ndarray,
-    sigma: float,
-    sigma_rad: float,
-) -> Any:
-    """The joint refit of the search on the campaign rows ``rows`` (their fit data ``data``): geometry and the
-    accepted effects, from the previous fit's parameters (:func:`start`), the geometry's eliminated parameters
-    held and the user's ``discovery.fixed`` fixed, the calibration's prior kept (:func:`calibration_prior`)."""
-    targets, T_ref = geo.model.target_names, geo.model.T_ref
-    fixed = set(ParameterSpec.of(geo.model, cfg.fixed, "discovery.fixed").fixed)
-    base_prior = calibration_prior(geo)
-    held = frozenset(e.name for e in geo.eliminated)
-
-    def refit(accepted: list[Accepted], prev: Fit | None) -> Fit:
-        model = ExtendedModel(robot, targets, T_ref, accepted, like=geo.model, base_prior=base_prior)
-        theta0 = start(model, prev, geo)
-        return fit_model(model, theta0, data, rows, sigma, fixed, cfg.rank_tol, cfg.max_iter, sigma_rad=sigma_rad,
-                         held=held)  # the geometry's: kept out  # fmt: skip
-
-    return refit
-
-
-def release(prev: Fit | None) -> None:
-    """Before a refit: the previous fit's ``(M, k)`` Jacobian and the cross-validation sums kept of it let go (the
-    fit evaluates it again if it is read later, :meth:`Fit.release`), so that the refit does not hold them."""
-    clear_cache()
-    if prev is not None:
-        prev.release()
-
-
-def start(model: ExtendedModel, prev: Fit | None, geo: Any) -> np.ndarray:
-    """A refit's start: the previous fit's parameters (the geometric calibration's without one), the previous
-    fit's Jacobian let go first (:func:`release`)."""
-    release(prev)
-    return model.map_from(prev.model.names, prev.theta) if prev is not None else model.map_from(geo.names, geo.x)
-
-
-def calibration_prior(geo: Any) -> np.ndarray | None:
-    """The precision ``(n,)`` of the geometric calibration's prior toward the nominal robot on its joint-level
-    parameters (a thin or sparse campaign, :mod:`robocal.identification.thin`: ``strength / width²`` from the
-    fit's ``configurations.prior`` record), for the discovery's joint refits to keep it (issue 33 item 3: the same
-    regularised geometry under the effects); None without a prior. Frames and tools keep none (their prior is a
-    weak bound around the rigid fit, not toward the nominal)."""
-    rec = ((geo.fit or {}).get("configurations") or {}).get("prior") or {}
-    strength = float(rec.get("strength") or 0.0)
-    if strength <= 0.0:
-        return None
-    w = rec["widths"]
-    model = geo.model
-    joint = np.array([k == "kinematic" for k in model.kinds])
-    width = np.where(np.array([u == "mm" for u in model.units]), w["length_mm"], np.deg2rad(w["angle_deg"]))
-    return np.where(joint, strength / width**2, 0.0)
 
 
 def _search(
@@ -433,7 +293,7 @@ def _search(
 ) -> DiscoveryResult:
     """Forward selection on the campaign rows ``rows`` (their fit data ``data``), from the geometric fit ``geo``."""
     t0 = time.perf_counter()
-    progress.note(f"the search on {len(rows)} rows (the gross-error rounds repeat it, at most 3 times)")
+    progress.note(f"the search on {len(rows)} rows (at most 3 searches: the gross-error rounds)")
     cal = campaign.subset(rows)
     targets = geo.model.target_names
     T_ref = geo.model.T_ref
@@ -442,7 +302,7 @@ def _search(
 
     base_prior = calibration_prior(geo)
 
-    refit = _refitter(robot, cfg, geo, data, rows, sigma, sigma_rad)
+    refit = refitter(robot, cfg, geo, data, rows, sigma, sigma_rad)
     geometric = refit([], None)
     # without link masses the compliance under the arm's own weight (robocal.discovery.physics, with its prior on
     # the deflection) is the library's compliance: tested here with it, so that a gear harmonic fitted over less

@@ -1,0 +1,77 @@
+"""The joint refit of discovery's search: geometry and accepted effects from the previous fit's parameters, with
+the geometric calibration's eliminated parameters held, the user's ``discovery.fixed`` fixed and the calibration's
+prior toward the nominal robot kept (a thin campaign's)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from robocal.discovery.config import DiscoveryConfig
+from robocal.discovery.cv import clear_cache
+from robocal.discovery.model import Accepted, ExtendedModel, Fit, fit_model
+from robocal.identification.identifiability import ParameterSpec
+from robocal.identification.model import FitData
+from robocal.robot import RobotDescription
+
+
+def refitter(
+    robot: RobotDescription,
+    cfg: DiscoveryConfig,
+    geo: Any,
+    data: FitData,
+    rows: np.ndarray,
+    sigma: float,
+    sigma_rad: float,
+) -> Any:
+    """The joint refit of the search on the campaign rows ``rows`` (their fit data ``data``): geometry and the
+    accepted effects, from the previous fit's parameters (:func:`start`), the geometry's eliminated parameters
+    held and the user's ``discovery.fixed`` fixed, the calibration's prior kept (:func:`calibration_prior`)."""
+    targets, T_ref = geo.model.target_names, geo.model.T_ref
+    fixed = set(ParameterSpec.of(geo.model, cfg.fixed, "discovery.fixed").fixed)
+    base_prior = calibration_prior(geo)
+    held = frozenset(e.name for e in geo.eliminated)
+
+    def refit(accepted: list[Accepted], prev: Fit | None) -> Fit:
+        model = ExtendedModel(robot, targets, T_ref, accepted, like=geo.model, base_prior=base_prior)
+        theta0 = start(model, prev, geo)
+        return fit_model(model, theta0, data, rows, sigma, fixed, cfg.rank_tol, cfg.max_iter, sigma_rad=sigma_rad,
+                         held=held)  # the geometry's: kept out  # fmt: skip
+
+    return refit
+
+
+def release(prev: Fit | None) -> None:
+    """Before a refit: the previous fit's ``(M, k)`` Jacobian and the cross-validation sums kept of it let go (the
+    fit evaluates it again if it is read later, :meth:`Fit.release`), so that the refit does not hold them."""
+    clear_cache()
+    if prev is not None:
+        prev.release()
+
+
+def start(model: ExtendedModel, prev: Fit | None, geo: Any) -> np.ndarray:
+    """A refit's start: the previous fit's parameters (the geometric calibration's without one), the previous
+    fit's Jacobian let go first (:func:`release`)."""
+    release(prev)
+    return model.map_from(prev.model.names, prev.theta) if prev is not None else model.map_from(geo.names, geo.x)
+
+
+def calibration_prior(geo: Any) -> np.ndarray | None:
+    """The precision ``(n,)`` of the geometric calibration's prior toward the nominal robot on its joint-level
+    parameters (a thin or sparse campaign, :mod:`robocal.identification.thin`: ``strength / width²`` from the
+    fit's ``configurations.prior`` record), for the discovery's joint refits to keep it (issue 33 item 3: the same
+    regularised geometry under the effects); None without a prior. Frames and tools keep none (their prior is a
+    weak bound around the rigid fit, not toward the nominal)."""
+    rec = ((geo.fit or {}).get("configurations") or {}).get("prior") or {}
+    strength = float(rec.get("strength") or 0.0)
+    if strength <= 0.0:
+        return None
+    w = rec["widths"]
+    model = geo.model
+    joint = np.array([k == "kinematic" for k in model.kinds])
+    width = np.where(np.array([u == "mm" for u in model.units]), w["length_mm"], np.deg2rad(w["angle_deg"]))
+    return np.where(joint, strength / width**2, 0.0)
+
+
+__all__ = ["calibration_prior", "refitter", "release", "start"]
