@@ -91,8 +91,10 @@ def settle(
     gross errors can be stops it at the last set."""
     accepted = list(final.model.accepted)
     prev: Fit | None = final
-    for _ in range(passes):
+    for i in range(passes):
         idx = np.flatnonzero(kept)
+        progress.note(f"gross-error screen: the sample's {len(accepted)} effects refitted on the {len(idx)} kept rows "
+                      f"(pass {i + 1}, at most {passes})")  # fmt: skip
         refit = refitter(robot, cfg, geo, data_all.rows(idx), rows_all[idx], sigma, sigma_rad)
         fit = refit(accepted, prev)
         test, _, _ = retest(fit, data_all, rows_all, cal, kept, alpha)
