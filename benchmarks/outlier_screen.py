@@ -9,7 +9,7 @@ Each seed writes the twin's ``geometric`` scenario with ``--rows`` rows (80 % ca
 ``bench_scale.py``'s twin); ``robocal.discover`` runs with the defaults (a campaign over
 ``discovery.outlier_screen_rows`` kept rows is screened on a sample first). Printed per seed: the searches run,
 the effects named, how many planted gross errors were listed and how many other rows were, and the rows the
-final search's own test flagged among those it fitted (``flagged_by_final_model``).
+final search's own test flagged among those it fitted (``gross_error_screen.flagged_by_final_model``).
 """
 
 from __future__ import annotations
@@ -56,12 +56,13 @@ def main() -> None:
         planted = {g["pose_id"] for g in truth["gross_errors"]}
         listed = {o["pose_id"] for o in res.extra["outliers"]}
         named = [a_.cand.key for a_ in res.accepted]
+        flagged = res.extra.get("gross_error_screen", {}).get("flagged_by_final_model", [])
         right += set(named) == (PLANTED if a.effects else set())
         found_all += planted <= listed
         print(
             f"seed {seed}: {camp.n_rows} rows, {res.extra['outlier_searches']} searches, named {named}, planted gross "
             f"errors listed {len(planted & listed)}/{len(planted)}, other rows listed {len(listed - planted)}, "
-            f"flagged by the final model {len(res.extra.get('flagged_by_final_model', []))}",
+            f"flagged by the final model {len(flagged)}",
             flush=True,
         )
     what = "named exactly the planted effects" if a.effects else "named nothing"

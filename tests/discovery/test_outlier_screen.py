@@ -9,6 +9,8 @@ import pytest
 from robocal.discovery.config import DiscoveryConfig
 from robocal.discovery.gross import screen_sample
 from robocal.discovery.search import discover
+from robocal.discovery.summary import summary
+from robocal.discovery.validate import validation_errors
 
 from .conftest import make_campaign, named
 
@@ -48,7 +50,10 @@ def test_a_large_campaign_screens_then_searches_once(gross):
     res = discover(camp, robot, DiscoveryConfig.from_mapping({**FAST, "outlier_screen_rows": n_cal // 3}))
     # one search on the sample, one on every kept row (without the screen: up to three on every row)
     assert res.extra["outlier_searches"] == 2
-    assert "flagged_by_final_model" in res.extra
+    # discovery.json says so: the sample, the searches and the rows the final model flags among those it fitted
+    scr = summary(res, validation_errors(res))["gross_error_screen"]
+    assert scr["searches"] == 2 and 0 < scr["sample_rows"] <= n_cal // 3 < scr["kept_rows"]
+    assert isinstance(scr["flagged_by_final_model"], list)
     assert len(res.rows) > n_cal // 3  # the final search ran on every kept row, not on the sample
     planted = {g["pose_id"] for g in truth["gross_errors"]}
     found = {o["pose_id"] for o in res.extra["outliers"]}
@@ -59,7 +64,7 @@ def test_a_large_campaign_screens_then_searches_once(gross):
 def test_a_campaign_within_the_size_keeps_its_rounds(gross):
     camp, robot, truth = gross
     res = discover(camp, robot, DiscoveryConfig.from_mapping(FAST))  # 3000 rows by default: no screen here
-    assert "flagged_by_final_model" not in res.extra
+    assert "gross_error_screen" not in res.extra
     assert 1 <= res.extra["outlier_searches"] <= 3
     planted = {g["pose_id"] for g in truth["gross_errors"]}
     assert planted <= {o["pose_id"] for o in res.extra["outliers"]}

@@ -72,6 +72,14 @@ def run(args: argparse.Namespace) -> int:
             "prediction stands out, their error does not stand out from the rows' own scatter): rows "
             + ", ".join(str(o["row"]) for o in quiet)
         )
+    scr = s.get("gross_error_screen")
+    if scr:
+        fl = scr["flagged_by_final_model"]
+        print(
+            f"  gross-error screen: the first search on a sample of {scr['sample_rows']} of the {scr['kept_rows']} "
+            f"kept rows, then {scr['searches'] - 1} on every kept row"
+            + (f"; fitted by it and standing out against it: rows {', '.join(map(str, fl))}" if fl else "")
+        )
     from robocal.identification.misfit import line
 
     seen = s.get("systematic_misfit") or (g or {}).get("systematic_misfit") or []

@@ -69,6 +69,23 @@ def screen_sample(pose_id: np.ndarray, q: np.ndarray, idx: np.ndarray, n_max: in
     return np.asarray(idx[take[g]])
 
 
+def screen_record(
+    cfg: DiscoveryConfig, geo: Any, cal: Campaign, fitted_flagged: np.ndarray, searches: int, sample: int
+) -> dict[str, Any]:
+    """``discovery.json``'s ``gross_error_screen`` of a screened campaign: the kept rows, the sample's size, the
+    searches run and the file rows the final search fitted that its own row test flags (``fitted_flagged``)."""
+    return {
+        "kept_rows": int(np.count_nonzero(geo.start.kept)),
+        "sample_rows": int(sample),
+        "searches": int(searches),
+        "flagged_by_final_model": [int(v) for v in np.asarray(cal.row_number)[fitted_flagged]],
+        "rule": f"more than outlier_screen_rows = {cfg.outlier_screen_rows} kept rows: the first search ran on a "
+        "pose-grouped sample of at most that many rows, only to find the gross errors; its effects refitted on "
+        "every kept row settled the set (a row left out stays out); one search on every kept row followed. "
+        "flagged_by_final_model: file rows that search fitted and its own row test flags (not searched again)",
+    }
+
+
 def settle(
     final: Fit,
     kept: np.ndarray,
@@ -106,4 +123,4 @@ def settle(
     return kept
 
 
-__all__ = ["retest", "screen_sample", "settle"]
+__all__ = ["retest", "screen_record", "screen_sample", "settle"]

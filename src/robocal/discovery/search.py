@@ -30,7 +30,7 @@ from robocal.discovery.candidates import Candidate, SkippedCandidate, build_libr
 from robocal.discovery.config import DiscoveryConfig
 from robocal.discovery.cv import pose_groups
 from robocal.discovery.ftest import backward_check, basis, best_candidate, cross_validation_gain, score_candidate
-from robocal.discovery.gross import retest, screen_sample, settle
+from robocal.discovery.gross import retest, screen_record, screen_sample, settle
 from robocal.discovery.grow import finish, grow, held_out_check, physics_candidates, variant_candidate
 from robocal.discovery.model import Accepted, ExtendedModel, Fit, fit_model
 from robocal.discovery.refit import calibration_prior, refitter, release, start
@@ -102,7 +102,7 @@ def discover(campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig |
     many rows (:func:`robocal.discovery.gross.screen_sample`), only to find the gross errors; that search's
     effects refitted on the kept rows settle the set (:func:`robocal.discovery.gross.settle`: one joint fit per
     pass, a row left out stays out), and one search on every settled row follows; the rows its own test then
-    flags among those it fitted are reported (``flagged_by_final_model``), not searched again (12 000 rows of
+    flags among those it fitted are reported (``gross_error_screen``), not searched again (12 000 rows of
     the UR10 grid series: three searches on 8 300 rows before, one on 3 000 and one on 8 300 now).
 
     Noise: the search weights positions by the noise the data show (the calibration's ``fit.noise.used_mm``:
@@ -139,7 +139,7 @@ def discover(campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig |
     library += misfit_candidates(campaign, geo.fit.get("systematic_misfit") or [])
     assert geo.start is not None  # a fit of calibrate, with its start
     m = cal.n_rows
-    res, kept, test, loud, systematic, rounds, n_search, large = _rounds(
+    res, kept, test, loud, systematic, rounds, n_search, sample = _rounds(
         campaign, robot, cfg, ccfg, cal, rows_all, data_all, geo, library, skipped, sigma, sigma_rad
     )
     assert res is not None
@@ -158,7 +158,7 @@ def discover(campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig |
                     f"{test.threshold_F:.4g} ("
                     + (
                         "left out by the gross-error screen before the search"
-                        if large
+                        if sample
                         else f"the gross-error rounds did not settle in {rounds}"
                     )
                     + ")"
@@ -196,7 +196,11 @@ def discover(campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig |
         ),
         outlier_rounds=rounds,
         outlier_searches=n_search,
-        **({"flagged_by_final_model": rows_all[kept & test.flagged].tolist()} if large and test is not None else {}),
+        **(
+            {"gross_error_screen": screen_record(cfg, geo, cal, kept & test.flagged, n_search, sample)}
+            if sample
+            else {}
+        ),
         noise=noise,
         sigma_mm=sigma,
         uses_orientation=use_rot,
@@ -221,10 +225,11 @@ def _rounds(
     skipped: list[SkippedCandidate],
     sigma: float,
     sigma_rad: float,
-) -> tuple[DiscoveryResult, np.ndarray, Any, np.ndarray, list[dict[str, Any]], int, int, bool]:
+) -> tuple[DiscoveryResult, np.ndarray, Any, np.ndarray, list[dict[str, Any]], int, int, int]:
     """The searches and the gross-error rounds of :func:`discover` (its docstring): the last search's result, the
     rows it ran on (``kept``, calibration-row mask), its row test, the rows standing out from the rows' own
-    scatter, the systematic misfits, the rounds, the searches run and whether the campaign was screened."""
+    scatter, the systematic misfits, the rounds, the searches run and the screen's sample size (0: not
+    screened)."""
     from robocal.identification import robust
 
     m = cal.n_rows
@@ -234,7 +239,7 @@ def _rounds(
     rounds = 0
     systematic: list[dict[str, Any]] = []
     loud = np.ones(m, dtype=bool)
-    n_search = 0
+    n_search = sample = 0
     # a large campaign finds its gross errors first by a search on a pose-grouped sample: the rounds then cost one
     # full search, not up to three
     large = cfg.outliers == "auto" and 0 < cfg.outlier_screen_rows < int(kept.sum())
@@ -243,6 +248,7 @@ def _rounds(
         screen = large and rounds == 1
         if screen:
             idx = screen_sample(cal.pose_id, cal.q, idx, cfg.outlier_screen_rows, cfg.seed)
+            sample = len(idx)
             progress.note(f"gross-error screen: the search on a pose-grouped sample of {len(idx)} of the "
                           f"{int(kept.sum())} kept rows, to find the gross errors")  # fmt: skip
         res = _search(campaign, robot, cfg, rows_all[idx], data_all.rows(idx), geo, library, skipped, sigma, sigma_rad)
@@ -276,7 +282,7 @@ def _rounds(
             kept = ~test.flagged
         res = None  # the round's fits (their Jacobians) let go before the next search
     assert res is not None
-    return res, kept, test, loud, systematic, rounds, n_search, large
+    return res, kept, test, loud, systematic, rounds, n_search, sample
 
 
 def _search(

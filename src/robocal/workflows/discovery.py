@@ -86,6 +86,16 @@ def _verdict_section(rep: Report, summ: dict[str, Any]) -> None:
             "prediction of them stands out, their error does not stand out from the rows' own scatter: "
             + ", ".join(f"row {o['row']} ({o['residual_mm']:.3f} mm)" for o in quiet)
         )
+    scr = summ.get("gross_error_screen")
+    if scr:
+        fl = scr["flagged_by_final_model"]
+        rep.note(
+            f"A large campaign: the first search ran on a pose-grouped sample of {scr['sample_rows']} of the "
+            f"{scr['kept_rows']} kept rows, only to find the gross errors; the search on every kept row followed"
+            + (f"; rows it fitted that stand out against it (not searched again): {', '.join(map(str, fl))}" if fl
+               else "")
+            + "."
+        )  # fmt: skip
     geo_sys = (summ.get("geometric_calibration") or {}).get("systematic_misfit") or []
     for label, found in (("the final model", summ.get("systematic_misfit") or []), ("the geometric model", geo_sys)):
         if found:
