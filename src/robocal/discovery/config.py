@@ -85,8 +85,10 @@ class DiscoveryConfig:
         this share (0.001: 0.1 %); the others are dropped, also the residual layer's joints (the held-out check,
         after the parametric model and after the layer).
     grow_max_steps : at most this many effects are added by the cross-validated selection.
-    grow_geometry : ``joint`` (the geometry is refitted with the effects the selection adds) or ``frozen`` (held
-        at the model found before the selection: where a windowed effect is off, the model is that one).
+    grow_geometry : ``joint`` (the geometry is refitted with the effects the selection adds), ``frozen`` (held
+        at the model found before the selection: where a windowed effect is off, the model is that one) or
+        ``auto`` (both searched; the one with the lower pose-grouped cross-validated error is kept, both figures in
+        ``discovery.json`` ``grow_geometry``; twice the search's time).
     layer : offer the residual layer after the parametric model (kernel ridge on the joint angles, accepted only
         when the cross-validated selection says it helps); layer_centres : kernel centres (k-means of the
         calibration poses); layer_length_deg : kernel length scales tried; layer_prior_deg : prior widths tried.
@@ -128,7 +130,7 @@ class DiscoveryConfig:
     cv_alpha: float = setting(_D["cv_alpha"], gt=0, lt=1)
     min_held_out_gain: float = setting(_D["min_held_out_gain"], ge=0, lt=1)
     grow_max_steps: int = setting(_D["grow_max_steps"], ge=0)
-    grow_geometry: str = setting(_D["grow_geometry"], choices=("joint", "frozen"))
+    grow_geometry: str = setting(_D["grow_geometry"], choices=("joint", "frozen", "auto"))
     layer: bool = _D["layer"]
     layer_centres: int = setting(_D["layer_centres"], ge=4)
     layer_length_deg: tuple[float, ...] = setting(_tuple("layer_length_deg"), gt=0)

@@ -251,7 +251,10 @@ def _rounds(
             sample = len(idx)
             progress.note(f"gross-error screen: the search on a pose-grouped sample of {len(idx)} of the "
                           f"{int(kept.sum())} kept rows, to find the gross errors")  # fmt: skip
-        res = _search(campaign, robot, cfg, rows_all[idx], data_all.rows(idx), geo, library, skipped, sigma, sigma_rad)
+        args = (rows_all[idx], data_all.rows(idx), geo, library, skipped, sigma, sigma_rad)
+        # grow_geometry auto: both searches, the screen's joint only (it only finds the gross errors)
+        auto = cfg.grow_geometry == "auto" and not screen
+        res = _either(campaign, robot, cfg, args) if auto else _search(campaign, robot, cfg, *args)
         n_search += 1
         if cfg.outliers != "auto":
             break
@@ -283,6 +286,32 @@ def _rounds(
         res = None  # the round's fits (their Jacobians) let go before the next search
     assert res is not None
     return res, kept, test, loud, systematic, rounds, n_search, sample
+
+
+def _either(
+    campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig, args: tuple[Any, ...]
+) -> DiscoveryResult:
+    """``grow_geometry: auto``: the search with the geometry refitted jointly and with it frozen, the one with the
+    lower pose-grouped cross-validated mean position error kept (``extra["grow_geometry"]``: both figures and the
+    choice; joint without a cross-validation)."""
+    out: dict[str, DiscoveryResult] = {}
+    cv: dict[str, float] = {}
+    for mode in ("joint", "frozen"):
+        progress.note(f"grow_geometry auto: the search with the geometry {mode}")
+        out[mode] = _search(campaign, robot, replace(cfg, grow_geometry=mode), *args)
+        cv[mode] = float(out[mode].extra["cv"].get("cv_mean_position_mm", float("nan")))
+    chosen = "frozen" if cv["frozen"] < cv["joint"] else "joint"  # a NaN (no cross-validation) keeps joint
+    other = out.pop("frozen" if chosen == "joint" else "joint")
+    release(other.final)  # the other search's fits let go (their Jacobians)
+    res = out[chosen]
+    res.config = cfg
+    res.extra["grow_geometry"] = {
+        "chosen": chosen,
+        "cv_mean_position_mm": cv,
+        "rule": "grow_geometry auto: the selection searched with the geometry refitted jointly and with it frozen "
+        "at the model found before it; the lower pose-grouped cross-validated mean position error is kept",
+    }
+    return res
 
 
 def _search(

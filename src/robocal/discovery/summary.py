@@ -506,6 +506,8 @@ def summary(res: DiscoveryResult, validation: dict[str, Any] | None = None) -> d
     logged = res.extra.get("logged_signals")
     if logged is not None:
         out["logged_signals"] = logged
+    if "grow_geometry" in res.extra:  # grow_geometry auto: which search was kept, and both CV figures
+        out["grow_geometry"] = res.extra["grow_geometry"]
     if "gross_error_screen" in res.extra:  # a large campaign: its first search on a sample (issue 31)
         out["gross_error_screen"] = res.extra["gross_error_screen"]
     if "positioner_part_rows_left_out" in res.extra:  # the part's rows: robocal calibrate's positioner fit
