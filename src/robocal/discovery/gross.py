@@ -102,10 +102,9 @@ def settle(
     passes: int = 6,
 ) -> np.ndarray:
     """The kept rows after a search's row test (``kept``), settled: the search's effects (its ``final`` fit)
-    refitted on them (one
-    joint fit, no search) and every calibration row tested again, until no row the refit used stands out (a row
-    left out stays out, so the rounds cannot cycle; at most ``passes`` fits). A test that flags more rows than
-    gross errors can be stops it at the last set."""
+    refitted on them (one joint fit, no search) and every calibration row tested again, until no row the refit
+    used stands out (a row left out stays out, so the rounds cannot cycle; at most ``passes`` fits). A test that
+    flags more rows than gross errors can be stops it at the last set."""
     accepted = list(final.model.accepted)
     prev: Fit | None = final
     for i in range(passes):

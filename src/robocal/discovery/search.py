@@ -268,19 +268,17 @@ def _rounds(
             # more rows stand out than gross errors can be: a model error the library cannot name, not blunders
             test = robust.RowTest(test.F, test.p_value, ~kept, test.threshold_F, test.alpha, test.d)
             break
-        if large and not screen:
-            # the one full search of a large campaign: rows its own test flags among those it fitted are reported
-            # (flagged_by_final_model), not searched again
-            break
-        if not screen and (np.array_equal(~test.flagged, kept) or rounds == 3):
-            # converged, or the last round: `kept` stays the set the search ran on, so the rows reported as left
-            # out of the fit are the ones it left out (the UR10 reported 18 of 1 046 out while fitting 1 035)
-            break
         if screen:
             # the sample's effects refitted on the kept rows and every row tested again until no row the refit
             # used stands out: the full search runs on a settled set
             kept = settle(res.final, kept & ~test.flagged, robot, cfg, geo, data_all, rows_all, cal, sigma, sigma_rad,
                            ccfg.outlier_alpha, ccfg.outlier_max_share)  # fmt: skip
+        elif large or np.array_equal(~test.flagged, kept) or rounds == 3:
+            # the one full search of a large campaign (rows its own test flags among those it fitted are reported,
+            # not searched again), converged, or the last round: `kept` stays the set the search ran on, so the
+            # rows reported as left out of the fit are the ones it left out (the UR10 reported 18 of 1 046 out
+            # while fitting 1 035)
+            break
         else:
             kept = ~test.flagged
         res = None  # the round's fits (their Jacobians) let go before the next search
