@@ -89,6 +89,25 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 os.environ.setdefault("MLFLOW_DISABLE_TELEMETRY", "1")
 
+
+def project_python(start: Path) -> Path | None:
+    """The project's ``.venv/bin/python`` in ``start`` or the nearest folder above it that has one (a ``dvc exp
+    run`` workspace under ``.dvc/tmp`` finds the repository's), or None."""
+    for d in (start, *start.parents):
+        py = d / ".venv" / "bin" / "python"
+        if py.exists():
+            return py
+    return None
+
+
+try:  # dvc.yaml says ``python stages/<name>.py``: run as ``.venv/bin/dvc repro`` that is the PATH's python
+    import robocal  # noqa: F401
+except ModuleNotFoundError:
+    _py = project_python(Path(__file__).resolve().parent)
+    if _py is None or Path(sys.prefix) == _py.parent.parent:
+        raise
+    os.execv(str(_py), [str(_py), *sys.argv])  # the same stage under the project's environment
+
 from robocal.errors import ConfigError, RobocalError  # noqa: E402
 from robocal.io import reproducible, write_json, write_text  # noqa: E402
 from robocal.pipeline import (  # noqa: E402

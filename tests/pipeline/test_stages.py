@@ -318,3 +318,14 @@ def test_runs_are_named_by_stage_campaign_and_experiment_and_skips_are_not_succe
     done = runs["thermal_fit · twin thermal · warm-start"]
     assert done.info.status == "FINISHED" and done.data.tags["robocal.status"] == "ok"
     assert "robocal.skipped" not in done.data.tags
+
+
+def test_a_stage_finds_the_projects_environment_from_any_folder_below_it(common: ModuleType, tmp_path: Path) -> None:
+    # `.venv/bin/dvc repro` runs dvc.yaml's `python stages/<name>.py` with the PATH's python, which may not have
+    # robocal: the stage then runs again under the project's .venv (found from a `dvc exp run` workspace too)
+    py = tmp_path / "repo" / ".venv" / "bin" / "python"
+    py.parent.mkdir(parents=True)
+    py.touch()
+    assert common.project_python(tmp_path / "repo" / "stages") == py
+    assert common.project_python(tmp_path / "repo" / ".dvc" / "tmp" / "exps" / "x" / "stages") == py
+    assert common.project_python(tmp_path / "elsewhere") is None
