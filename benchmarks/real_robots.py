@@ -93,6 +93,10 @@ def bench(path: Path, campaign=None, settings: dict | None = None) -> dict:  # t
         print(f"  named {n['key']:<18} ({n['side']}) RMS of effect {n['rms_of_effect_mm']:.4f} mm{extra}")
     if cv.get("pruned"):
         print(f"  dropped by the cross-validated backward check: {cv['pruned']}")
+    gg = summ.get("grow_geometry")
+    if gg:
+        print("  grow_geometry auto: kept {} (CV mean {})".format(gg["chosen"], ", ".join(
+            f"{k} {v:.4f}" for k, v in gg["cv_mean_position_mm"].items())))  # fmt: skip
     return val
 
 

@@ -34,6 +34,11 @@ CHUNK = 8192
 #: (UR10 A: 6 x ~20 MB), the most recent beyond that (at least two joints: 80 000 twin rows 3 x 38 MB)
 U_CACHE_BYTES = 128 * 2**20
 
+#: an effect of ``|D|`` columns is left out of the fold systems by bordering the whole model's factorisation
+#: (``|D| + 1`` solves, ``2 k²`` each) while ``_BORDER |D|`` is below the kept columns (a new factorisation
+#: costs ``k³/3``)
+_BORDER = 6
+
 #: reciprocal condition (of the Jacobi-scaled matrix, estimated from the Cholesky diagonal) below which the
 #: pseudo-inverse is used instead of the factorisation
 _RCOND = 1e-12
@@ -187,6 +192,8 @@ class FoldCV:
             assert self._J is not None
             Ad = self._J[self.order[:, None], drop[None, :]]
         r2 = self._r - Ad @ th_d if len(drop) else self._r
+        if 0 < len(drop) and _BORDER * len(drop) < len(keep) and all(s.chol is not None for s in self._solver):
+            return self._unsort(self._bordered(r2, drop, th_d))
         Gkd = [Gi[np.ix_(keep, drop)] for Gi in self._Gf]
         bf = [bi[keep] - Gd @ th_d for bi, Gd in zip(self._bf, Gkd, strict=True)]
         b = np.sum(bf, axis=0)
@@ -200,6 +207,26 @@ class FoldCV:
             y[keep] = SymSolver(H).solve(g)
             err[s:e] = r2[s:e] - self._fold(i) @ y
         return self._unsort(err)
+
+    def _bordered(self, r2: np.ndarray, drop: np.ndarray, th_d: np.ndarray) -> np.ndarray:
+        """:meth:`base_err_without` (sorted order) from each fold's factorisation of the whole model: the step on
+        the kept columns is the whole system's solution constrained to zero on the dropped ones (bordering:
+        ``y = u - W (W_D)⁻¹ u_D``, ``u = H⁻¹ g'``, ``W = H⁻¹ E_D``), ``|D| + 1`` solves instead of a new
+        factorisation of the kept columns (the same numbers to round-off)."""
+        err = np.empty_like(self._r)
+        nd = len(drop)
+        E = np.zeros((self.k, nd))
+        E[drop, np.arange(nd)] = 1.0
+        for i, (s, e) in enumerate(self.bounds):
+            sol = self._solver[i]
+            Hd = self.G[:, drop] - self._Gf[i][:, drop]
+            Hd[drop, np.arange(nd)] += self.prec[drop]
+            u = sol.solve(self._g[i] - Hd @ th_d)  # the kept columns' right-hand side (g_K - H_KD th_D)
+            W = sol.solve(E)
+            y = u - W @ np.linalg.solve(W[drop], u[drop])
+            y[drop] = 0.0
+            err[s:e] = r2[s:e] - self._fold(i) @ y
+        return err
 
     # -- candidates ------------------------------------------------------------------------------------------
     def with_variants(self, Z: np.ndarray, variants: Sequence[_Variant]) -> list[np.ndarray]:
