@@ -155,6 +155,21 @@ def test_leaving_columns_out_equals_refitting_the_reduced_fit():
     assert np.max(np.abs(got - base)) < TOL * float(np.sqrt(np.mean(fit.r_w**2)))
 
 
+@pytest.mark.parametrize("drop", [[7], [30, 38]])  # a plain column; one plain and one under the ridge
+def test_leaving_a_small_block_out_by_bordering_equals_refitting_the_reduced_fit(drop):
+    # 6 |D| below the kept columns: the bordered solve of the whole model's factorisation, not a new one
+    rng = np.random.default_rng(4)
+    fit, groups = fake_fit(rng, m=400, k=40, prior=5)
+    keep = np.setdiff1d(np.arange(40), drop)
+    th = fit.theta.copy()
+    r2 = fit.r_w - fit.J_w[:, drop] @ th[drop]
+    th[drop] = 0.0
+    reduced = SimpleNamespace(**{**vars(fit), "J_w": fit.J_w[:, keep], "r_w": r2, "free": fit.free[keep], "theta": th})
+    base, _ = dense_cv(reduced, groups, 5, 3)
+    got = FoldCV(fit, groups, 5, 3).base_err_without(keep)
+    assert np.max(np.abs(got - base)) < TOL * float(np.sqrt(np.mean(fit.r_w**2)))
+
+
 def test_chunked_gram_equals_the_dense_one_and_its_memory_does_not_grow_with_rows():
     rng = np.random.default_rng(3)
     A = rng.normal(size=(5000, 12))
