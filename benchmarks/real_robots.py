@@ -95,8 +95,10 @@ def bench(path: Path, campaign=None, settings: dict | None = None) -> dict:  # t
         print(f"  dropped by the cross-validated backward check: {cv['pruned']}")
     gg = summ.get("grow_geometry")
     if gg:
-        print("  grow_geometry auto: kept {} (CV mean {})".format(gg["chosen"], ", ".join(
-            f"{k} {v:.4f}" for k, v in gg["cv_mean_position_mm"].items())))  # fmt: skip
+        cvs = ", ".join(f"{k} {v:.4f}" for k, v in gg["cv_mean_position_mm"].items())
+        lp = gg.get("frozen_lower_log10_p")
+        print(f"  grow_geometry auto: kept {gg['chosen']} (CV mean {cvs}"
+              + ("" if lp is None else f"; frozen lower: log10 p {lp:.2f}") + ")")  # fmt: skip
     return val
 
 

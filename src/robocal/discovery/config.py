@@ -87,8 +87,9 @@ class DiscoveryConfig:
     grow_max_steps : at most this many effects are added by the cross-validated selection.
     grow_geometry : ``joint`` (the geometry is refitted with the effects the selection adds), ``frozen`` (held
         at the model found before the selection: where a windowed effect is off, the model is that one) or
-        ``auto`` (both searched; the one with the lower pose-grouped cross-validated error is kept, both figures in
-        ``discovery.json`` ``grow_geometry``; twice the search's time).
+        ``auto`` (both searched on the first search's rows; frozen kept only when its pose-grouped cross-validated
+        error is lower by the paired test per pose group at ``cv_alpha``, else joint; both figures and the test in
+        ``discovery.json`` ``grow_geometry``; about twice the search's time).
     layer : offer the residual layer after the parametric model (kernel ridge on the joint angles, accepted only
         when the cross-validated selection says it helps); layer_centres : kernel centres (k-means of the
         calibration poses); layer_length_deg : kernel length scales tried; layer_prior_deg : prior widths tried.

@@ -28,10 +28,17 @@ from robocal.data.contract import Campaign
 from robocal.discovery import progress
 from robocal.discovery.candidates import Candidate, SkippedCandidate, build_library, periodic_window
 from robocal.discovery.config import DiscoveryConfig
-from robocal.discovery.cv import pose_groups
+from robocal.discovery.cv import fold_cv, pose_groups
 from robocal.discovery.ftest import backward_check, basis, best_candidate, cross_validation_gain, score_candidate
 from robocal.discovery.gross import retest, screen_record, screen_sample, settle
-from robocal.discovery.grow import finish, grow, held_out_check, physics_candidates, variant_candidate
+from robocal.discovery.grow import (
+    finish,
+    grow,
+    held_out_check,
+    paired_log10_p,
+    physics_candidates,
+    variant_candidate,
+)
 from robocal.discovery.model import Accepted, ExtendedModel, Fit, fit_model
 from robocal.discovery.refit import calibration_prior, refitter, release, start
 from robocal.discovery.scoring import Score, Step, regressor
@@ -240,6 +247,7 @@ def _rounds(
     systematic: list[dict[str, Any]] = []
     loud = np.ones(m, dtype=bool)
     n_search = sample = 0
+    decided: dict[str, Any] | None = None  # grow_geometry auto: the mode the first search chose, and its record
     # a large campaign finds its gross errors first by a search on a pose-grouped sample: the rounds then cost one
     # full search, not up to three
     large = cfg.outliers == "auto" and 0 < cfg.outlier_screen_rows < int(kept.sum())
@@ -252,9 +260,17 @@ def _rounds(
             progress.note(f"gross-error screen: the search on a pose-grouped sample of {len(idx)} of the "
                           f"{int(kept.sum())} kept rows, to find the gross errors")  # fmt: skip
         args = (rows_all[idx], data_all.rows(idx), geo, library, skipped, sigma, sigma_rad)
-        # grow_geometry auto: both searches, the screen's joint only (it only finds the gross errors)
-        auto = cfg.grow_geometry == "auto" and not screen
-        res = _either(campaign, robot, cfg, args) if auto else _search(campaign, robot, cfg, *args)
+        if cfg.grow_geometry == "auto" and decided is None:
+            # grow_geometry auto: both searches on the first search's rows (a large campaign's sample), the mode
+            # with the lower cross-validated error kept for the later rounds (a few rows fewer) and the full search
+            res = _either(campaign, robot, cfg, args)
+            decided = {**res.extra["grow_geometry"], "decided_on_rows": len(idx)}
+        else:
+            res = _search(campaign, robot, cfg if decided is None else replace(cfg, grow_geometry=decided["chosen"]),
+                          *args)  # fmt: skip
+        if decided is not None:
+            res.config = cfg
+            res.extra["grow_geometry"] = decided
         n_search += 1
         if cfg.outliers != "auto":
             break
@@ -291,14 +307,25 @@ def _either(
 ) -> DiscoveryResult:
     """``grow_geometry: auto``: the search with the geometry refitted jointly and with it frozen, the one with the
     lower pose-grouped cross-validated mean position error kept (``extra["grow_geometry"]``: both figures and the
-    choice; joint without a cross-validation)."""
+    choice; joint without a cross-validation). Run on the first search's rows only (:func:`_rounds`)."""
     out: dict[str, DiscoveryResult] = {}
     cv: dict[str, float] = {}
+    sse: dict[str, np.ndarray] = {}
+    cal = campaign.subset(args[0])
     for mode in ("joint", "frozen"):
         progress.note(f"grow_geometry auto: the search with the geometry {mode}")
         out[mode] = _search(campaign, robot, replace(cfg, grow_geometry=mode), *args)
         cv[mode] = float(out[mode].extra["cv"].get("cv_mean_position_mm", float("nan")))
-    chosen = "frozen" if cv["frozen"] < cv["joint"] else "joint"  # a NaN (no cross-validation) keeps joint
+        if cfg.cv_folds >= 2:  # the held-out error per pose group, for the paired test
+            fit = out[mode].final
+            f = fold_cv(fit, np.repeat(pose_groups(cal.pose_id, cal.q), fit.d), cfg.cv_folds, cfg.seed)
+            sse[mode] = f.group_sse(f.base_err)
+            del f
+            release(fit)
+    # the frozen geometry must lower the held-out error significantly, as an effect must (the paired test per pose
+    # group at cv_alpha): a near tie keeps the joint refit (a NaN, no cross-validation, keeps it too)
+    lp = paired_log10_p(sse["joint"], sse["frozen"]) if sse else 0.0
+    chosen = "frozen" if cv["frozen"] < cv["joint"] and lp < np.log10(cfg.cv_alpha) else "joint"
     other = out.pop("frozen" if chosen == "joint" else "joint")
     release(other.final)  # the other search's fits let go (their Jacobians)
     res = out[chosen]
@@ -306,8 +333,12 @@ def _either(
     res.extra["grow_geometry"] = {
         "chosen": chosen,
         "cv_mean_position_mm": cv,
+        "frozen_lower_log10_p": lp,
         "rule": "grow_geometry auto: the selection searched with the geometry refitted jointly and with it frozen "
-        "at the model found before it; the lower pose-grouped cross-validated mean position error is kept",
+        "at the model found before it; frozen is kept when its pose-grouped cross-validated error is lower by the "
+        "paired test per pose group at cv_alpha (frozen_lower_log10_p), else joint; decided "
+        "on the first search's rows (decided_on_rows: a large campaign's gross-error sample) and kept for the "
+        "gross-error rounds and the full search",
     }
     return res
 
