@@ -98,6 +98,27 @@ def test_a_temperature_log_that_is_not_a_warm_up_skips_the_thermal_chain(tmp_pat
     assert json.loads((root / "reports/compliance/result.json").read_text())["status"] == "skipped"
 
 
+def test_a_campaign_measured_over_several_days_is_not_a_warm_up(tmp_path: Path) -> None:
+    """Pauses split the rows into temperature states, but each state measures other poses (the UR10's series A:
+    thermal_fit failed, "temperature state 1 shares only 0 pose/target pairs with the reference state")."""
+    camp = _campaign(tmp_path, n_poses=18)
+    poses = pd.read_csv(camp / "poses.csv")
+    t = pd.to_datetime(poses["timestamp"])
+    day = (pd.Series(range(len(poses))) * 3 // len(poses)).to_numpy()  # three blocks, other poses in each
+    poses["timestamp"] = (t + pd.to_timedelta(day, unit="D")).dt.strftime("%Y-%m-%dT%H:%M:%SZ")
+    poses.to_csv(camp / "poses.csv", index=False)
+    stamps = sorted(set(poses["timestamp"]))
+    pd.DataFrame({"timestamp": stamps, "T_j1_C": [21.5] * len(stamps)}).to_csv(camp / "temperatures.csv", index=False)
+    root = tmp_path / "repo"
+    root.mkdir()
+    _params(root, **{"data.campaign": str(camp)})
+    assert _run("prepare", root) == 0
+    assert _run("thermal_fit", root) == 0  # before: exit 255 from the state identification
+    result = json.loads((root / "reports/thermal/result.json").read_text())
+    assert result["status"] == "skipped"
+    assert "not a warm-up" in result["reason"] and "measure again" in result["reason"], result["reason"]
+
+
 def test_a_skip_does_not_outlive_a_later_run_of_the_same_folder(tmp_path: Path) -> None:
     """The skipped result is what the later stages read: a stale one must not stop them after a real run."""
     _stage("screen")
