@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from typing import Any
 
 from robocal.commands import parse_overrides
 
@@ -62,31 +63,7 @@ def run(args: argparse.Namespace) -> int:
             f"gross-error rows {g['outlier_rows'] or 'none'}; the search weights by the noise the data show "
             f"({g['noise_used_mm']:.4f} mm)"
         )
-    from robocal.identification.robust import outlier_line
-
-    print(outlier_line(s.get("outliers", []), s.get("n_rows_total")))
-    quiet = s.get("left_out_poorly_predicted") or []
-    if quiet:
-        print(
-            f"  {len(quiet)} more row(s) left out of the fit, not gross errors (the final model's leave-one-out "
-            "prediction stands out, their error does not stand out from the rows' own scatter): rows "
-            + ", ".join(str(o["row"]) for o in quiet)
-        )
-    scr = s.get("gross_error_screen")
-    if scr:
-        fl = scr["flagged_by_final_model"]
-        print(
-            f"  gross-error screen: the first search on a sample of {scr['sample_rows']} of the {scr['kept_rows']} "
-            f"kept rows, then {scr['searches'] - 1} on every kept row"
-            + (f"; fitted by it and standing out against it: rows {', '.join(map(str, fl))}" if fl else "")
-        )
-    from robocal.identification.misfit import line
-
-    seen = s.get("systematic_misfit") or (g or {}).get("systematic_misfit") or []
-    if seen:
-        print(
-            line(seen) + ("" if s.get("systematic_misfit") else " [geometric model; the discovered model explains it]")
-        )
+    _left_out_lines(s, g)
     if "validation" in s:
         vg, vd, vf = (s["validation"][k] for k in ("geometric", "discovered", "final"))
         print(
@@ -140,3 +117,38 @@ def run(args: argparse.Namespace) -> int:
     for name, why in s["not_written"].items():
         print(f"no {name}: {why}")
     return 0
+
+
+def _left_out_lines(s: dict[str, Any], g: dict[str, Any] | None) -> None:
+    """The console lines of the rows left out of the fit (gross errors, poorly predicted, of a systematic misfit),
+    the gross-error screen and the systematic misfits."""
+    from robocal.identification.robust import outlier_line
+
+    print(outlier_line(s.get("outliers", []), s.get("n_rows_total")))
+    quiet = s.get("left_out_poorly_predicted") or []
+    if quiet:
+        print(
+            f"  {len(quiet)} more row(s) left out of the fit, not gross errors (the final model's leave-one-out "
+            "prediction stands out, their error does not stand out from the rows' own scatter): rows "
+            + ", ".join(str(o["row"]) for o in quiet)
+        )
+    sys_out = s.get("left_out_systematic") or []
+    if sys_out:
+        print(
+            f"  {len(sys_out)} more row(s) left out of the fit before the final model, not gross errors: its test "
+            "puts them in a systematic misfit (below): rows " + ", ".join(str(o["row"]) for o in sys_out)
+        )
+    scr = s.get("gross_error_screen")
+    if scr:
+        fl = scr["flagged_by_final_model"]
+        print(
+            f"  gross-error screen: the first search on a sample of {scr['sample_rows']} of the {scr['kept_rows']} "
+            f"kept rows, then {scr['searches'] - 1} on every kept row"
+            + (f"; fitted by it and standing out against it: rows {', '.join(map(str, fl))}" if fl else "")
+        )
+    from robocal.identification.misfit import line
+
+    if s.get("systematic_misfit"):
+        print(line(s["systematic_misfit"], "against the discovered model: not gross errors, a model error there"))
+    elif (g or {}).get("systematic_misfit"):
+        print(line(g["systematic_misfit"], "against the geometric model, none against the discovered one"))

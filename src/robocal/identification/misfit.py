@@ -319,7 +319,7 @@ def find(
         named = members & ~apart
         if int(named.sum()) < MIN_ROWS:
             break
-        offset = resid_mm[inside].mean(axis=0)
+        offset = resid_mm[named].mean(axis=0)  # the rows named: over a broad condition the mean of all is ~0
         found.append(
             {
                 "condition": cond.text(),
@@ -356,11 +356,11 @@ def public(found: list[dict[str, Any]]) -> list[dict[str, Any]]:
     return [{k: v for k, v in f.items() if not k.startswith("_")} for f in found]
 
 
-def line(found: list[dict[str, Any]]) -> str:
-    """One console line per systematic misfit, or the empty string."""
+def line(found: list[dict[str, Any]], what: str = "not gross errors: kept, and offered to discovery") -> str:
+    """One console line per systematic misfit, or the empty string (``what``: what becomes of its rows)."""
     return "\n".join(
         f"systematic misfit: {f['n_rows']} row(s) with {f['condition']} misfit together by {f['size_mm']:.3f} mm "
-        f"(offset {f['offset_mm']} mm; not gross errors: kept, and offered to discovery)"
+        f"(offset {f['offset_mm']} mm; {what})"
         for f in found
     )
 

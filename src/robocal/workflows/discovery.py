@@ -79,13 +79,18 @@ def _verdict_section(rep: Report, summ: dict[str, Any]) -> None:
             ),
             kind="warn",
         )
-    quiet = summ.get("left_out_poorly_predicted") or []
-    if quiet:
-        rep.note(
-            f"{len(quiet)} calibration row(s) left out of the fit, not gross errors: the final model's leave-one-out "
-            "prediction of them stands out, their error does not stand out from the rows' own scatter: "
-            + ", ".join(f"row {o['row']} ({o['residual_mm']:.3f} mm)" for o in quiet)
-        )
+    for key, why in (
+        ("left_out_poorly_predicted", "the final model's leave-one-out prediction of them stands out, their error "
+         "does not stand out from the rows' own scatter"),
+        ("left_out_systematic", "left out before the final model, whose test puts them in a systematic misfit "
+         "(below)"),
+    ):  # fmt: skip
+        rows = summ.get(key) or []
+        if rows:
+            rep.note(
+                f"{len(rows)} calibration row(s) left out of the fit, not gross errors: {why}: "
+                + ", ".join(f"row {o['row']} ({o['residual_mm']:.3f} mm)" for o in rows)
+            )
     scr = summ.get("gross_error_screen")
     if scr:
         fl = scr["flagged_by_final_model"]
