@@ -382,3 +382,29 @@ def test_robot_descriptions_ship_with_the_package():
         assert Path(load_robot(f.stem).source).resolve() == f.resolve()
         assert (repo_conf / f.name).resolve() == f.resolve()
     assert {f.stem for f in pkg.glob("*.yaml")} >= {"kr16_2", "sr210", "abb_irb120"}
+
+
+@pytest.mark.parametrize(
+    ("where", "typo", "meant"),
+    [(None, "conventon", "convention"), (None, "n_joint", "n_joints"), (2, "beta_fre", "beta_free"),
+     (3, "q_mx_deg", "q_max_deg")],
+)  # fmt: skip
+def test_a_misspelt_key_is_refused_by_name(where: int | None, typo: str, meant: str) -> None:
+    # before: `beta_fre: true` was ignored (the joint's beta held, the model changed silently) and `conventon: dh`
+    # read a DH table as MD-H
+    d = copy.deepcopy(_raw("kr16_2"))
+    block = d if where is None else d["joints"][where - 1]
+    block[typo] = block.pop(meant) if meant in block else True
+    with pytest.raises(ConfigError) as info:
+        robot_from_dict(d, source="cell/robot.yaml")
+    msg = str(info.value)
+    assert "cell/robot.yaml" in msg and repr(typo) in msg and repr(meant) in msg, msg
+    if where is not None:
+        assert f"joints[{where}]" in msg
+
+
+def test_keys_of_ones_own_are_left_alone() -> None:
+    d = copy.deepcopy(_raw("kr16_2"))
+    d.update(source="IPA, 2020", notes="re-mastered in May", manufacturer="KUKA")
+    d["joints"][0]["comment"] = "base axis"
+    assert robot_from_dict(d, source="r.yaml").n_joints == 6

@@ -63,6 +63,7 @@ converts the reported values once, ``q_kinematic = coupling @ q_reported``; insi
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -227,13 +228,37 @@ def _vec(value: Any, n: int, where: str) -> np.ndarray:
     return arr
 
 
+#: the keys a robot description reads (top level, and per joint): a key one letter away from one of them is a
+#: misspelling, refused (``beta_fre: true`` was ignored and the joint's beta held; ``conventon: dh`` read a DH table
+#: as MD-H); any other key is the user's own (``source``, ``notes`` ...) and left alone
+ROBOT_KEYS = ("name", "n_joints", "units", "convention", "joints", "poe", "coupling", "dynamics", "T0_C",
+              "temperature_sensors", "signals", "positioner")  # fmt: skip
+JOINT_KEYS = ("name", "type", "role", "a_mm", "alpha_deg", "d_mm", "theta_offset_deg", "beta_deg", "beta_free",
+              "q_min_deg", "q_max_deg", "q_min_mm", "q_max_mm")  # fmt: skip
+
+
+def _misspelt(keys: Any, known: Sequence[str], where: str) -> None:
+    """Refuse a key of ``keys`` that is not in ``known`` but close to one of them (a misspelling)."""
+    from difflib import get_close_matches
+
+    for k in keys:
+        if isinstance(k, str) and k not in known:
+            if get_close_matches(k, known, n=1, cutoff=0.8):
+                like = " or ".join(repr(c) for c in get_close_matches(k, known, n=2, cutoff=0.6))
+                raise ConfigError(f"{where}: unknown key {k!r}: did you mean {like}? (a misspelt key would be ignored)")
+
+
 def robot_from_dict(data: dict[str, Any], source: str = "<dict>") -> RobotDescription:
     """Build a :class:`RobotDescription` from a parsed YAML mapping; errors name ``source`` and the key."""
     if not isinstance(data, dict):
         raise ConfigError(f"{source}: a robot description must be a mapping")
+    _misspelt(data, ROBOT_KEYS, source)
     joints = data.get("joints")
     if not isinstance(joints, list) or not joints:
         raise ConfigError(f"{source}: 'joints' must be a non-empty list")
+    for i, j in enumerate(joints, start=1):
+        if isinstance(j, dict):
+            _misspelt(j, JOINT_KEYS, f"{source}: joints[{i}]")
     n = len(joints)
     if "n_joints" in data and int(data["n_joints"]) != n:
         raise ConfigError(f"{source}: n_joints = {data['n_joints']} but {n} joints are listed")
