@@ -46,3 +46,18 @@ def test_discover_says_what_it_wrote_and_why_not_compensation_csv(abb, tmp_path,
     assert "compensation.csv" in next(line for line in text.splitlines() if line.startswith("wrote ")), text
     assert "no compensation.csv" not in text
     assert (out / "compensation.csv").is_file()
+
+
+def test_the_final_figure_says_what_changed_after_the_parametric_model():
+    # a campaign of two stations: a transmission window opened by the sessions' evidence changed the final model
+    # without a layer, and the console said only "(residual layer: none)"
+    from robocal.commands.discover import _after_parametric
+
+    s = {
+        "cross_validation": {"windows": {"transmission:j4": {"opened": True}, "transmission:j2": {"opened": False}}},
+        "steps": [{"phase": "held-out", "dropped": ["weight:j6"]}, {"phase": "selection", "dropped": ["x"]}],
+    }
+    text = _after_parametric(s)
+    assert "transmission:j4" in text and "transmission:j2" not in text
+    assert "weight:j6" in text and "x" not in text.replace("by the", "")
+    assert _after_parametric({}) == ""

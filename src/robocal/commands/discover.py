@@ -69,7 +69,8 @@ def run(args: argparse.Namespace) -> int:
         print(
             f"validation ({vd['n_rows']} rows): mean {vg['mean_position_mm']:.4f} mm geometric -> "
             f"{vd['mean_position_mm']:.4f} mm discovered -> {vf['mean_position_mm']:.4f} mm final "
-            f"(residual layer: {vf['layer']}); max {vg['max_position_mm']:.4f} -> {vf['max_position_mm']:.4f} mm"
+            f"(residual layer: {vf['layer']}{_after_parametric(s)}); max {vg['max_position_mm']:.4f} -> "
+            f"{vf['max_position_mm']:.4f} mm"
         )
         for w in s.get("warnings", []):
             print(f"WARNING: {w}")
@@ -152,3 +153,14 @@ def _left_out_lines(s: dict[str, Any], g: dict[str, Any] | None) -> None:
         print(line(s["systematic_misfit"], "against the discovered model: not gross errors, a model error there"))
     elif (g or {}).get("systematic_misfit"):
         print(line(g["systematic_misfit"], "against the geometric model, none against the discovered one"))
+
+
+def _after_parametric(s: dict[str, Any]) -> str:
+    """What changed the model after the parametric one besides the layer (the final figure differs from the
+    discovered one without a layer): the transmission windows the sessions' evidence opened, the effects the final
+    held-out check dropped."""
+    cv = s.get("cross_validation") or {}
+    opened = [k for k, v in (cv.get("windows") or {}).items() if v.get("opened")]
+    dropped = [k for st in s.get("steps", []) if st.get("phase") == "held-out" for k in st.get("dropped") or []]
+    return (f"; window opened by the sessions' evidence: {', '.join(opened)}" if opened else "") + (
+        f"; dropped by the final held-out check: {', '.join(dropped)}" if dropped else "")  # fmt: skip
