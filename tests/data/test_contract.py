@@ -206,6 +206,24 @@ def test_partial_quaternion(tmp_path, kr16):
     expect_error(tmp_path, kr16, file=f, row=1, column="qz")
 
 
+def test_orientation_on_some_rows_only_is_refused_saying_what_to_do(tmp_path, kr16):
+    # a 6-DoF probe's rows with a point reflector's (no orientation): before, "missing or non-finite value in a
+    # required column" for an optional column
+    df = _with_quaternions(good_poses(kr16))
+    df.loc[[3, 9], ["qw", "qx", "qy", "qz"]] = np.nan
+    f = write(tmp_path, df)
+    err = expect_error(tmp_path, kr16, file=f, row=5, column="qw", match="every row or of none")
+    assert "2 row(s)" in err.reason
+
+
+def test_orientation_columns_empty_in_every_row_are_positions_only(tmp_path, kr16):
+    df = good_poses(kr16)
+    for c in ("qw", "qx", "qy", "qz"):
+        df[c] = np.nan
+    write(tmp_path, df)
+    assert read_campaign(tmp_path, kr16).quat is None
+
+
 def test_positions_in_metres(tmp_path, kr16):
     df = good_poses(kr16)
     df[["x_mm", "y_mm", "z_mm"]] /= 1000.0

@@ -117,7 +117,21 @@ def _read_orientation(df: pd.DataFrame, path: Path, quat_norm_tol: float) -> np.
     if len(present) != len(qcols_o):
         missing_o = [c for c in qcols_o if c not in present]
         raise DataError(f"has {present} but not all of {qcols_o}", file=path, row=1, column=missing_o[0])
-    quat = np.column_stack([_numeric(df, c, path) for c in qcols_o])
+    quat = np.column_stack([_numeric(df, c, path, required=False) for c in qcols_o])
+    empty = ~np.isfinite(quat).all(axis=1)
+    if empty.all():  # the columns are there, every row empty: positions only
+        return None
+    if empty.any():
+        i = _first(empty)
+        col = qcols_o[int(np.flatnonzero(~np.isfinite(quat[i]))[0])]
+        raise DataError(
+            f"{int(empty.sum())} row(s) have no orientation while the others do: robocal uses the orientation of every "
+            f"row or of none; give {qcols_o} in every row, or leave them empty in every row (positions only; a "
+            "point reflector's rows with a 6-DoF probe's are fitted on positions then)",
+            file=path,
+            row=_row(i),
+            column=col,
+        )
     norm = np.linalg.norm(quat, axis=1)
     bad = np.abs(norm - 1.0) > quat_norm_tol
     if bad.any():
