@@ -61,3 +61,14 @@ def test_the_final_figure_says_what_changed_after_the_parametric_model():
     assert "transmission:j4" in text and "transmission:j2" not in text
     assert "weight:j6" in text and "x" not in text.replace("by the", "")
     assert _after_parametric({}) == ""
+
+
+def test_the_console_names_the_logged_signals(capsys):
+    # before: discover's console never said which extra columns it offered, and a declared column absent from the
+    # campaign (signals.yaml's incl_x) was silently ignored
+    from robocal.commands.discover import _logged_line
+
+    _logged_line({"used": [{"column": "acc_tip_x_g"}], "not_used": [{"column": "operator", "reason": "use: false"}],
+                  "declared_not_in_campaign": ["incl_x"]})  # fmt: skip
+    out = capsys.readouterr().out
+    assert "offered to the search: acc_tip_x_g" in out and "operator" in out and "not in this campaign: incl_x" in out

@@ -64,6 +64,7 @@ def run(args: argparse.Namespace) -> int:
             f"({g['noise_used_mm']:.4f} mm)"
         )
     _left_out_lines(s, g)
+    _logged_line(s.get("logged_signals"))
     if "validation" in s:
         vg, vd, vf = (s["validation"][k] for k in ("geometric", "discovered", "final"))
         print(
@@ -164,3 +165,18 @@ def _after_parametric(s: dict[str, Any]) -> str:
     dropped = [k for st in s.get("steps", []) if st.get("phase") == "held-out" for k in st.get("dropped") or []]
     return (f"; window opened by the sessions' evidence: {', '.join(opened)}" if opened else "") + (
         f"; dropped by the final held-out check: {', '.join(dropped)}" if dropped else "")  # fmt: skip
+
+
+def _logged_line(rec: dict[str, Any] | None) -> None:
+    """One console line on the campaign's logged signals (its extra columns): offered to the search, not used (and
+    why), declared but not in this campaign."""
+    if not rec:
+        return
+    used = [u.get("column", "?") for u in rec.get("used", [])]
+    parts = [f"offered to the search: {', '.join(used)}" if used else "none offered to the search"]
+    if rec.get("not_used"):
+        names = ", ".join(n["column"] for n in rec["not_used"])
+        parts.append(f"not used (why: discovery.json logged_signals): {names}")
+    if rec.get("declared_not_in_campaign"):
+        parts.append("declared but not in this campaign: " + ", ".join(rec["declared_not_in_campaign"]))
+    print("logged signals: " + "; ".join(parts))

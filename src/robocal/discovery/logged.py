@@ -231,10 +231,13 @@ def screen(campaign: Campaign, robot: RobotDescription) -> tuple[list[LoggedSign
 def record(campaign: Campaign, robot: RobotDescription) -> dict[str, Any] | None:
     """``discovery.json``'s ``logged_signals``: the signals offered (with their declarations) and the extra columns
     not used with the reason; None when the campaign has no extra column."""
+    decl = merged(robot.signals, campaign.signal_declarations)
+    absent = sorted(k for k in decl if k not in campaign.extra)  # declared for the robot, not logged here
     if not any(c not in known_columns(campaign.n_joints) for c in campaign.extra):
-        return None
+        return {"used": [], "not_used": [], "declared_not_in_campaign": absent} if absent else None
     used, skipped = screen(campaign, robot)
-    return {"used": [s.to_dict() for s in used], "not_used": skipped}
+    return {"used": [s.to_dict() for s in used], "not_used": skipped,
+            **({"declared_not_in_campaign": absent} if absent else {})}  # fmt: skip
 
 
 def _group_columns(names: tuple[str, ...], suffix: str, kind: str) -> list[int]:
