@@ -152,7 +152,7 @@ def _left_out_lines(s: dict[str, Any], g: dict[str, Any] | None) -> None:
 
     if s.get("systematic_misfit"):
         print(line(s["systematic_misfit"], "against the discovered model: not gross errors, a model error there"))
-    elif (g or {}).get("systematic_misfit"):
+    elif g and g.get("systematic_misfit"):
         print(line(g["systematic_misfit"], "against the geometric model, none against the discovered one"))
 
 
