@@ -53,6 +53,9 @@ class PlainFormatter(argparse.HelpFormatter):
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="robocal", description=DESCRIPTION, formatter_class=PlainFormatter)
+    from robocal import __version__
+
+    parser.add_argument("--version", action="version", version=f"robocal {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, (module, help_text) in COMMANDS.items():
         p = sub.add_parser(name, help=help_text, description=help_text, formatter_class=PlainFormatter)

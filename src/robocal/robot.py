@@ -257,8 +257,8 @@ def robot_from_dict(data: dict[str, Any], source: str = "<dict>") -> RobotDescri
     if not isinstance(joints, list) or not joints:
         raise ConfigError(f"{source}: 'joints' must be a non-empty list")
     for i, j in enumerate(joints, start=1):
-        if isinstance(j, dict):
-            _misspelt(j, JOINT_KEYS, f"{source}: joints[{i}]")
+        if isinstance(j, dict):  # joints[i] counts from 1: the joint's name said too
+            _misspelt(j, JOINT_KEYS, f"{source}: joints[{i}] (joint {i}" + (f", {j['name']})" if "name" in j else ")"))
     n = len(joints)
     if "n_joints" in data and int(data["n_joints"]) != n:
         raise ConfigError(f"{source}: n_joints = {data['n_joints']} but {n} joints are listed")

@@ -135,8 +135,15 @@ def test_the_rows_reported_left_out_are_the_rows_the_fit_left_out(tmp_path: Path
     cfg = DiscoveryConfig.from_mapping({"cv_folds": 0, "dictionary": False, "layer": False, "grow_max_steps": 0})
     res = robocal.discover(camp, robot, cfg)
     s = summary(res, None)
-    # left out = gross errors + rows left out that do not stand out from the rows' own scatter (issue 30 item 9)
-    out_rows = {o["row"] for o in s["outliers"] + s.get("left_out_poorly_predicted", [])}
+    # left out = gross errors + rows left out that do not stand out from the rows' own scatter (issue 30 item 9) +
+    # rows of a systematic misfit + rows an earlier round left out that the final model does not single out
+    kinds = ("outliers", "left_out_poorly_predicted", "left_out_systematic", "left_out_earlier")
+    out_rows = {o["row"] for k in kinds for o in s.get(k, [])}
     fitted_rows = {int(camp.row_number[i]) for i in res.rows}
     assert out_rows and not out_rows & fitted_rows
     assert s["n_rows_total"] == camp.n_rows == len(fitted_rows) + len(out_rows)
+    # a row an earlier round left out that the final model does not flag is not called a gross error, and no reason
+    # contradicts itself (before: listed among the gross errors, "F = 20.61 <= 7.159" / "F = 0.66 > 7.159")
+    earlier = s.get("left_out_earlier", [])
+    assert earlier and all("does not stand out" in o["reason"] for o in earlier)
+    assert not any("does not stand out" in o["reason"] for o in s["outliers"])

@@ -35,3 +35,7 @@ def parse_overrides(items: list[str] | None) -> dict[str, Any]:
                 raise ConfigError(f"override {item!r} conflicts with an earlier one")
         node[parts[-1]] = value
     return out
+
+
+#: the --robot option's help, one text for every command
+ROBOT_HELP = "robot name (conf/robot/<name>.yaml), a YAML path, or a URDF as file.urdf#BASE:TIP"

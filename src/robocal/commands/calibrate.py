@@ -8,14 +8,18 @@ from typing import Any
 
 import yaml
 
-from robocal.commands import parse_overrides
+from robocal.commands import ROBOT_HELP, parse_overrides
 from robocal.config import unknown_choice, unknown_setting
 from robocal.errors import ConfigError
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("data_dir", help="campaign directory in the data contract")
-    p.add_argument("--robot", required=True, help="robot name (conf/robot/<name>.yaml) or a YAML path")
+    p.add_argument(
+        "--robot",
+        required=True,
+        help=ROBOT_HELP,
+    )
     p.add_argument(
         "--out", required=True, help="output directory: calibration.json, residuals.csv, summary.json, report.html"
     )

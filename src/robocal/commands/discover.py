@@ -5,12 +5,16 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from robocal.commands import parse_overrides
+from robocal.commands import ROBOT_HELP, parse_overrides
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("data_dir", help="campaign directory in the data contract")
-    p.add_argument("--robot", required=True, help="robot name (conf/robot/<name>.yaml) or a YAML path")
+    p.add_argument(
+        "--robot",
+        required=True,
+        help=ROBOT_HELP,
+    )
     p.add_argument("--out", required=True, help="output directory: discovery.json, report.html")
     p.add_argument("--no-report", action="store_true", help="skip the HTML report")
     p.add_argument(
@@ -134,12 +138,15 @@ def _left_out_lines(s: dict[str, Any], g: dict[str, Any] | None) -> None:
             "prediction stands out, their error does not stand out from the rows' own scatter): rows "
             + ", ".join(str(o["row"]) for o in quiet)
         )
-    sys_out = s.get("left_out_systematic") or []
-    if sys_out:
-        print(
-            f"  {len(sys_out)} more row(s) left out of the fit before the final model, not gross errors: its test "
-            "puts them in a systematic misfit (below): rows " + ", ".join(str(o["row"]) for o in sys_out)
-        )
+    for key, why in (
+        ("left_out_systematic", "left out before the final model, whose test puts them in a systematic misfit (below)"),
+        ("left_out_earlier", "left out by the gross-error screen or an earlier round; the final model does not single "
+         "them out"),
+    ):  # fmt: skip
+        rows = s.get(key) or []
+        if rows:
+            print(f"  {len(rows)} more row(s) left out of the fit, not gross errors ({why}): rows "
+                  + ", ".join(str(o["row"]) for o in rows))  # fmt: skip
     scr = s.get("gross_error_screen")
     if scr:
         fl = scr["flagged_by_final_model"]

@@ -123,3 +123,51 @@ def settle(
 
 
 __all__ = ["retest", "screen_record", "screen_sample", "settle"]
+
+
+def left_out(
+    cal: Campaign,
+    kept: np.ndarray,
+    loud: np.ndarray,
+    test: Any,
+    systematic: list[dict[str, Any]],
+    rr: np.ndarray,
+    sample: int,
+    rounds: int,
+) -> tuple[list[dict[str, Any]], list[dict[str, Any]], list[dict[str, Any]], list[dict[str, Any]]]:
+    """The calibration rows left out of the final fit (``~kept``), by what the final model's row ``test`` says of
+    them (``rr``: every row's residuals against it): gross errors (flagged and standing out from the rows' own
+    scatter, ``loud``), poorly predicted (flagged, not loud), of a systematic misfit the final test names, and left
+    out earlier (by the gross-error screen of a large campaign, ``sample`` > 0, or rounds that did not settle) that
+    the final model does not single out. Each row with its reason."""
+    from robocal.calibration.screening import describe_outliers
+
+    out = ~np.asarray(kept, dtype=bool)
+    pos, rot = rr[:, :3], (rr[:, 3:] if rr.shape[1] == 6 else None)
+    in_misfit = np.zeros(len(out), dtype=bool)
+    for f in systematic:
+        in_misfit |= np.asarray(f["_mask"], dtype=bool)
+    by = "the gross-error screen" if sample else f"an earlier round (the gross-error rounds did not settle in {rounds})"
+    gross = describe_outliers(cal, out & loud & test.flagged & ~in_misfit, pos, rot, test)
+    quiet = describe_outliers(cal, out & ~loud & test.flagged & ~in_misfit, pos, rot, test)
+    for o in quiet:
+        o["reason"] = (
+            "left out of the fit, not a gross error: " + o["reason"] + ", but its error does not stand out from "
+            "the rows' own scatter (robust scale)"
+        )
+    misfit_rows = []
+    for f in systematic:
+        for o in describe_outliers(cal, np.asarray(f["_mask"], dtype=bool) & out, pos, rot, test):
+            o["reason"] = (
+                f"left out of the fit by {by}, not a gross error: the final model's test puts it in the systematic "
+                f"misfit of the rows with {f['condition']}"
+            )
+            misfit_rows.append(o)
+    stale = out & ~test.flagged & ~in_misfit
+    earlier = describe_outliers(cal, stale, pos, rot, test)
+    for o, i in zip(earlier, np.flatnonzero(stale), strict=True):
+        o["reason"] = (
+            f"left out of the fit by {by}, not a gross error: against the final model it does not stand out (p = "
+            f"{test.p_value[i]:.3g}, F = {test.F[i]:.4g})"
+        )
+    return gross, quiet, misfit_rows, earlier

@@ -30,7 +30,7 @@ from robocal.discovery.candidates import Candidate, SkippedCandidate, build_libr
 from robocal.discovery.config import DiscoveryConfig
 from robocal.discovery.cv import fold_cv, pose_groups
 from robocal.discovery.ftest import backward_check, basis, best_candidate, cross_validation_gain, score_candidate
-from robocal.discovery.gross import retest, screen_record, screen_sample, settle
+from robocal.discovery.gross import left_out, retest, screen_record, screen_sample, settle
 from robocal.discovery.grow import (
     finish,
     grow,
@@ -154,57 +154,26 @@ def discover(campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig |
     fit = res.final
     r, _, _, _ = fit.model.residuals_and_jacobian(fit.theta, data_all, rows_all, cols=np.zeros(0, dtype=int))
     rr = r.reshape(m, fit.d)
+    # the rows left out of the final fit, by kind (robocal.discovery.gross.left_out)
+    quiet: list[dict[str, Any]] = []
+    in_misfit_out: list[dict[str, Any]] = []
+    earlier: list[dict[str, Any]] = []
+    outliers: list[dict[str, Any]] = []
     if isinstance(cfg.outliers, tuple):
         outliers = describe_outliers(cal, ~kept, rr[:, :3], rr[:, 3:] if fit.d == 6 else None, None, listed=True)
     elif test is not None:
-        # a row left out before the final model that this model's test puts in a systematic misfit is not a gross
-        # error (issue 33 item 4: UR10 A's screen left out 18 rows of two such clusters, reported as blunders)
-        in_misfit = np.zeros(m, dtype=bool)
-        for f in systematic:
-            in_misfit |= np.asarray(f["_mask"], dtype=bool)
-        gross = ~kept & loud & ~in_misfit
-        before = "left out by the gross-error screen before the search" if sample else (
-            f"the gross-error rounds did not settle in {rounds}")  # fmt: skip
-        outliers = describe_outliers(cal, gross, rr[:, :3], rr[:, 3:] if fit.d == 6 else None, test)
-        for o, i in zip(outliers, np.flatnonzero(gross), strict=True):
-            if not test.flagged[i]:  # left out by the previous round, no longer standing out: say so
-                o["reason"] = (
-                    f"left out by the previous round's test; against the final model it does not stand out (p = "
-                    f"{test.p_value[i]:.3g}, F = {test.F[i]:.4g}; {before})"
-                )
-    else:
-        outliers = []
+        outliers, quiet, in_misfit_out, earlier = left_out(cal, kept, loud, test, systematic, rr, sample, rounds)
     if "signal" in cfg.effects:
         from robocal.discovery.logged import record
 
         logged = record(campaign, robot)
         if logged is not None:
             res.extra["logged_signals"] = logged
-    # left out of the fit, not gross errors: the extended model's leave-one-out prediction of the row stands out,
-    # its error does not stand out from the rows' own scatter
-    quiet = (
-        []
-        if test is None or isinstance(cfg.outliers, tuple)
-        else describe_outliers(cal, ~kept & ~loud, rr[:, :3], rr[:, 3:] if fit.d == 6 else None, test)
-    )
-    for o in quiet:
-        o["reason"] = (
-            "left out of the fit, not a gross error: " + o["reason"] + ", but its error does not stand out from "
-            "the rows' own scatter (robust scale)"
-        )
-    in_misfit_out: list[dict[str, Any]] = []  # left out before the final model named their systematic misfit
-    for f in systematic if test is not None and not isinstance(cfg.outliers, tuple) else []:
-        mask = np.asarray(f["_mask"], dtype=bool) & ~kept & loud
-        for o in describe_outliers(cal, mask, rr[:, :3], rr[:, 3:] if fit.d == 6 else None, test):
-            o["reason"] = (
-                f"left out of the fit by {'the gross-error screen' if sample else 'an earlier round'}, not a gross "
-                f"error: the final model's test puts it in the systematic misfit of the rows with {f['condition']}"
-            )
-            in_misfit_out.append(o)
     res.extra.update(
         outliers=outliers,
         left_out_poorly_predicted=quiet,
         **({"left_out_systematic": in_misfit_out} if in_misfit_out else {}),
+        **({"left_out_earlier": earlier} if earlier else {}),
         systematic_misfit=misfit.public(systematic),
         outlier_rule=(
             f"a calibration row is left out of the fit when its studentised residual against the final model stands "

@@ -458,13 +458,14 @@ def summary(res: DiscoveryResult, validation: dict[str, Any] | None = None) -> d
         "outliers": res.extra.get("outliers", []),
         "outlier_rule": res.extra.get("outlier_rule"),
         "left_out_poorly_predicted": res.extra.get("left_out_poorly_predicted", []),
-        **({"left_out_systematic": res.extra["left_out_systematic"]} if res.extra.get("left_out_systematic") else {}),
+        **{k: res.extra[k] for k in ("left_out_systematic", "left_out_earlier") if res.extra.get(k)},
         # rows that misfit together under one condition against the final model (robocal.identification.misfit)
         "systematic_misfit": res.extra.get("systematic_misfit", []),
         "n_rows_total": len(res.rows)
         + len(res.extra.get("outliers", []))
         + len(res.extra.get("left_out_poorly_predicted", []))
-        + len(res.extra.get("left_out_systematic", [])),
+        + len(res.extra.get("left_out_systematic", []))
+        + len(res.extra.get("left_out_earlier", [])),
         "uses_orientation": bool(res.extra.get("uses_orientation", False)),
         "chi2": fit.rss,
         "dof": fit.dof,

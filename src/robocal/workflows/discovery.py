@@ -84,6 +84,8 @@ def _verdict_section(rep: Report, summ: dict[str, Any]) -> None:
          "does not stand out from the rows' own scatter"),
         ("left_out_systematic", "left out before the final model, whose test puts them in a systematic misfit "
          "(below)"),
+        ("left_out_earlier", "left out by the gross-error screen or an earlier round; the final model does not "
+         "single them out"),
     ):  # fmt: skip
         rows = summ.get(key) or []
         if rows:
