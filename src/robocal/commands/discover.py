@@ -104,7 +104,9 @@ def run(args: argparse.Namespace) -> int:
             f"another session {where} ({v['n_registration_rows']} rows register its tracker, "
             f"{v['n_validation_rows']} judge): mean {g['mean_position_mm']:.4f} mm geometric -> "
             f"{f['mean_position_mm']:.4f} mm discovered; effects that helped there: {v['helped'] or 'none'}, "
-            f"hurt: {v['hurt'] or 'none'}"
+            f"hurt: {v['hurt'] or 'none'} (each left out in turn there; a judgement only: the model is not changed — "
+            "to let another session choose the effects, discover over both sessions as one campaign with a station "
+            "column)"
         )
         for k, why in (v.get("not_applied") or {}).items():
             print(f"  {k} not applied there: {why}")
