@@ -140,12 +140,10 @@ def test_a_fit_that_can_evaluate_its_jacobian_again_gives_it_up_sorted_in_place(
         assert np.max(np.abs(a - b)) < 1e-12 * scale
 
 
-def test_leaving_columns_out_equals_refitting_the_reduced_fit():
-    rng = np.random.default_rng(2)
-    fit, groups = fake_fit(rng)
-    keep = np.array([0, 1, 2, 3, 5, 8])
-    # the reduced fit as robocal.discovery.grow.replace_fit_columns forms it (first order)
-    drop = np.setdiff1d(np.arange(9), keep)
+def _leaving_out_equals_the_reduced_refit(fit, groups, keep) -> None:
+    """``FoldCV.base_err_without(keep)`` equals the dense cross-validation of the reduced fit as
+    robocal.discovery.grow.replace_fit_columns forms it (first order)."""
+    drop = np.setdiff1d(np.arange(len(fit.free)), keep)
     th = fit.theta.copy()
     r2 = fit.r_w - fit.J_w[:, drop] @ th[drop]
     th[drop] = 0.0
@@ -153,21 +151,18 @@ def test_leaving_columns_out_equals_refitting_the_reduced_fit():
     base, _ = dense_cv(reduced, groups, 5, 3)
     got = FoldCV(fit, groups, 5, 3).base_err_without(keep)
     assert np.max(np.abs(got - base)) < TOL * float(np.sqrt(np.mean(fit.r_w**2)))
+
+
+def test_leaving_columns_out_equals_refitting_the_reduced_fit():
+    fit, groups = fake_fit(np.random.default_rng(2))
+    _leaving_out_equals_the_reduced_refit(fit, groups, np.array([0, 1, 2, 3, 5, 8]))
 
 
 @pytest.mark.parametrize("drop", [[7], [30, 38]])  # a plain column; one plain and one under the ridge
 def test_leaving_a_small_block_out_by_bordering_equals_refitting_the_reduced_fit(drop):
     # 6 |D| below the kept columns: the bordered solve of the whole model's factorisation, not a new one
-    rng = np.random.default_rng(4)
-    fit, groups = fake_fit(rng, m=400, k=40, prior=5)
-    keep = np.setdiff1d(np.arange(40), drop)
-    th = fit.theta.copy()
-    r2 = fit.r_w - fit.J_w[:, drop] @ th[drop]
-    th[drop] = 0.0
-    reduced = SimpleNamespace(**{**vars(fit), "J_w": fit.J_w[:, keep], "r_w": r2, "free": fit.free[keep], "theta": th})
-    base, _ = dense_cv(reduced, groups, 5, 3)
-    got = FoldCV(fit, groups, 5, 3).base_err_without(keep)
-    assert np.max(np.abs(got - base)) < TOL * float(np.sqrt(np.mean(fit.r_w**2)))
+    fit, groups = fake_fit(np.random.default_rng(4), m=400, k=40, prior=5)
+    _leaving_out_equals_the_reduced_refit(fit, groups, np.setdiff1d(np.arange(40), drop))
 
 
 def test_chunked_gram_equals_the_dense_one_and_its_memory_does_not_grow_with_rows():

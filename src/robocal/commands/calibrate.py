@@ -15,11 +15,7 @@ from robocal.errors import ConfigError
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("data_dir", help="campaign directory in the data contract")
-    p.add_argument(
-        "--robot",
-        required=True,
-        help=ROBOT_HELP,
-    )
+    p.add_argument("--robot", required=True, help=ROBOT_HELP)
     p.add_argument(
         "--out", required=True, help="output directory: calibration.json, residuals.csv, summary.json, report.html"
     )

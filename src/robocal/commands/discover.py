@@ -10,11 +10,7 @@ from robocal.commands import ROBOT_HELP, parse_overrides
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("data_dir", help="campaign directory in the data contract")
-    p.add_argument(
-        "--robot",
-        required=True,
-        help=ROBOT_HELP,
-    )
+    p.add_argument("--robot", required=True, help=ROBOT_HELP)
     p.add_argument("--out", required=True, help="output directory: discovery.json, report.html")
     p.add_argument("--no-report", action="store_true", help="skip the HTML report")
     p.add_argument(
@@ -133,14 +129,9 @@ def _left_out_lines(s: dict[str, Any], g: dict[str, Any] | None) -> None:
     from robocal.identification.robust import outlier_line
 
     print(outlier_line(s.get("outliers", []), s.get("n_rows_total")))
-    quiet = s.get("left_out_poorly_predicted") or []
-    if quiet:
-        print(
-            f"  {len(quiet)} more row(s) left out of the fit, not gross errors (the final model's leave-one-out "
-            "prediction stands out, their error does not stand out from the rows' own scatter): rows "
-            + ", ".join(str(o["row"]) for o in quiet)
-        )
     for key, why in (
+        ("left_out_poorly_predicted", "the final model's leave-one-out prediction stands out, their error does not "
+         "stand out from the rows' own scatter"),
         ("left_out_systematic", "left out before the final model, whose test puts them in a systematic misfit (below)"),
         ("left_out_earlier", "left out by the gross-error screen or an earlier round; the final model does not single "
          "them out"),

@@ -12,11 +12,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "campaign", nargs="?", help="ISO test campaign (data contract + iso_pose, cycle, cmd_x_mm .. columns)"
     )
-    p.add_argument(
-        "--robot",
-        required=True,
-        help=ROBOT_HELP,
-    )
+    p.add_argument("--robot", required=True, help=ROBOT_HELP)
     p.add_argument("--calibration", help="calibration.json (robocal calibrate): registers the tracker to the base")
     p.add_argument("--out", help="output directory: iso9283.json, iso9283_after.json, report.html")
     p.add_argument(

@@ -9,11 +9,7 @@ from robocal.commands import ROBOT_HELP
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument(
-        "--robot",
-        required=True,
-        help=ROBOT_HELP,
-    )
+    p.add_argument("--robot", required=True, help=ROBOT_HELP)
     p.add_argument("--n", type=int, default=None, help="number of poses (default: the config's n_poses)")
     p.add_argument("--out", required=True, help="output directory: plan.csv, plan.json, report.html")
     p.add_argument("--config", default=None, help="plan settings YAML (default: conf/plan/default.yaml)")

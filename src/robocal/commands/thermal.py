@@ -16,11 +16,7 @@ from robocal.commands import ROBOT_HELP, parse_overrides
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("data_dir", help="campaign directory in the data contract, with temperatures.csv")
-    p.add_argument(
-        "--robot",
-        required=True,
-        help=ROBOT_HELP,
-    )
+    p.add_argument("--robot", required=True, help=ROBOT_HELP)
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--no-report", action="store_true", help="skip the HTML report")
     p.add_argument(

@@ -155,14 +155,13 @@ def discover(campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig |
     r, _, _, _ = fit.model.residuals_and_jacobian(fit.theta, data_all, rows_all, cols=np.zeros(0, dtype=int))
     rr = r.reshape(m, fit.d)
     # the rows left out of the final fit, by kind (robocal.discovery.gross.left_out)
-    quiet: list[dict[str, Any]] = []
-    in_misfit_out: list[dict[str, Any]] = []
-    earlier: list[dict[str, Any]] = []
-    outliers: list[dict[str, Any]] = []
+    kinds: tuple[list[dict[str, Any]], ...] = ([], [], [], [])
     if isinstance(cfg.outliers, tuple):
-        outliers = describe_outliers(cal, ~kept, rr[:, :3], rr[:, 3:] if fit.d == 6 else None, None, listed=True)
+        listed = describe_outliers(cal, ~kept, rr[:, :3], rr[:, 3:] if fit.d == 6 else None, None, listed=True)
+        kinds = (listed, [], [], [])
     elif test is not None:
-        outliers, quiet, in_misfit_out, earlier = left_out(cal, kept, loud, test, systematic, rr, sample, rounds)
+        kinds = left_out(cal, kept, loud, test, systematic, rr, sample, rounds)
+    outliers, quiet, in_misfit_out, earlier = kinds
     if "signal" in cfg.effects:
         from robocal.discovery.logged import record
 

@@ -166,8 +166,7 @@ def states_problem(part: Campaign, state: np.ndarray, which: str) -> str | None:
             f"at >= {MIN_LATER_STATES} later states (states are separated by pauses > thermal.state_gap_s or by a "
             "pose measured again)"
         )
-    pairs = [str(p) + "\x00" + str(t) for p, t in zip(part.pose_id, part.target, strict=True)]
-    key = np.asarray(pairs)
+    key = np.asarray([f"{p}\x00{t}" for p, t in zip(part.pose_id, part.target, strict=True)])
     first = set(key[state == 0].tolist())
     shared = [len(first & set(key[state == s].tolist())) for s in range(1, n_states)]
     need = max(MIN_SHARED_PAIRS, (len(first) + 1) // 2)
