@@ -185,3 +185,22 @@ def test_the_gross_error_test_takes_the_prior_so_round_off_cannot_decide(problem
     cal = type("Cal", (), {"n_rows": m})()
     gross.retest(fit, data, rows, cal, kept, 0.01)
     assert np.array_equal(seen["prior"], prec)
+
+
+def test_the_column_basis_is_numpys_svd_without_holding_the_fits_jacobian(problem):
+    """The F-tests' and the dictionary's basis of the model's column space (``ftest.basis``) is numpy's SVD of the
+    fit's Jacobian bit for bit, while the fit gives its own matrix up (evaluated again, the same numbers, when read
+    later) and keeps the joint-level factors its folds' sums are formed from. numpy's ``svd`` held the Jacobian,
+    its copy, ``U`` and a workspace of two more: 0.9 GB at UR10 A's 12 000 rows, the search's peak."""
+    from robocal.discovery.ftest import basis
+
+    fit = _fit(problem)
+    J = np.array(fit.J_w)
+    U, s, _ = np.linalg.svd(J, full_matrices=False)
+    want = U[:, s > 1e-10 * s[0]]
+    gram = fit.gram
+    assert gram is not None  # the fit has joint-level effects
+    Q = basis(fit)
+    assert "J_w" not in fit.__dict__ and fit.gram is gram
+    assert np.array_equal(Q, want)
+    assert np.array_equal(fit.J_w, J)  # evaluated again at the fit's parameters

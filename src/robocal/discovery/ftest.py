@@ -18,10 +18,23 @@ from robocal.identification.model import FitData
 from robocal.numerics import sorted_tied
 
 
-def basis(J_w: np.ndarray) -> np.ndarray:
-    U, s, _ = np.linalg.svd(J_w, full_matrices=False)
-    keep = s > 1e-10 * (s[0] if len(s) else 1.0)
-    return U[:, keep]
+def basis(fit: Fit) -> np.ndarray:
+    """An orthonormal basis ``(M, r)`` of the column space of the fit's whitened Jacobian (the left singular vectors
+    above 1e-10 of the largest), as ``np.linalg.svd(fit.J_w)`` gives it, bit for bit (the same LAPACK routine on
+    the same Fortran-ordered matrix), holding two ``(M, k)`` matrices where numpy's ``svd`` holds five (its copy,
+    ``U`` and a workspace of two; 0.9 GB at UR10 A's 12 000 rows, the search's peak, issue 31): the fit's own is
+    let go (:meth:`Fit.release_jacobian`, evaluated again when read later) and the routine works in place on its
+    Fortran copy; the basis is returned as LAPACK gives it (Fortran-ordered), not copied."""
+    from scipy import linalg
+
+    a = np.asfortranarray(fit.J_w)
+    fit.release_jacobian()
+    if a.shape[1] == 0:
+        return a
+    U, s, _ = linalg.svd(a, full_matrices=False, overwrite_a=True, check_finite=False, lapack_driver="gesdd")
+    del a
+    # the singular values descend: the kept vectors are U's leading columns, a view (no C-ordered copy of U)
+    return U[:, : int(np.count_nonzero(s > 1e-10 * s[0]))]
 
 
 def score_candidate(
@@ -126,7 +139,7 @@ def best_candidate(
 ) -> tuple[list[Score], tuple[Candidate, tuple[str, ...]] | None]:
     """One forward step: every remaining candidate scored against ``fit`` (the unidentifiable ones noted in
     ``unident``), and the most significant one that also lowers the pose-grouped cross-validated error, or None."""
-    Q = basis(fit.J_w)
+    Q = basis(fit)
     scored: list[tuple[Score, Candidate, np.ndarray, tuple[str, ...]]] = []
     for cand in remaining:
         Z, params = regressor(cand, fit, rows, data)

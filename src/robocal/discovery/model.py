@@ -297,9 +297,16 @@ class Fit:
         """Let go of ``J_w`` (an ``(M, k)`` matrix: the previous fit's, while the next one is fitted); the next
         read of ``J_w`` evaluates it again at ``theta`` — the same numbers, the model's Jacobian on the free
         columns whitened as the solver's. A fit without its data keeps its matrix."""
+        if self.release_jacobian():
+            self.gram = None  # (m, q) signals and (m, d) responses per joint: not held beside the next fit's
+
+    def release_jacobian(self) -> bool:
+        """Let go of ``J_w`` only (the joint-level factors kept); whether it was let go (a fit without its data
+        keeps its matrix)."""
         if self.data is not None and self.rows is not None and self.w is not None:
             self.__dict__.pop("J_w", None)
-            self.gram = None  # (m, q) signals and (m, d) responses per joint: not held beside the next fit's
+            return True
+        return False
 
     def __getattr__(self, name: str) -> np.ndarray:
         # only called when ``J_w`` was released (a field found in __dict__ never comes here)

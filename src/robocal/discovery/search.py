@@ -469,7 +469,7 @@ def _propose(state: DiscoveryState) -> None:
         return
     for k in range(cfg.dictionary_max_proposals):
         fit = state.fit
-        Q = basis(fit.J_w)
+        Q = basis(fit)
         props = select(
             fit.Jq,
             fit.weights,

@@ -7,6 +7,7 @@ from typing import Any
 
 import numpy as np
 
+from robocal.discovery.ftest import basis
 from robocal.discovery.model import Accepted, Fit, tracker_columns
 from robocal.discovery.scoring import Step
 from robocal.discovery.search import DiscoveryResult
@@ -285,22 +286,6 @@ def _rows(fit: Fit) -> np.ndarray:
     return fit.rows
 
 
-def column_space(fit: Fit) -> np.ndarray:
-    """An orthonormal basis ``(M, r)`` of the column space of the fit's whitened Jacobian (the left singular vectors
-    above 1e-10 of the largest), as ``np.linalg.svd(fit.J_w)`` gives it, bit for bit (the same LAPACK routine on
-    the same Fortran-ordered matrix), holding two ``(M, k)`` matrices, not four: the fit's own is let go
-    (:meth:`Fit.release`) and the routine works in place on its Fortran copy; the basis is returned as LAPACK
-    gives it (Fortran-ordered), not copied."""
-    from scipy import linalg
-
-    a = np.asfortranarray(fit.J_w)
-    fit.release()
-    U, s, _ = linalg.svd(a, full_matrices=False, overwrite_a=True, check_finite=False, lapack_driver="gesdd")
-    del a
-    # the singular values descend: the kept vectors are U's leading columns, a view (no C-ordered copy of U)
-    return U[:, : int(np.count_nonzero(s > 1e-10 * s[0]))]
-
-
 def locate(res: DiscoveryResult) -> dict[str, Any]:
     """Where the leftover lives: joints (a flexible joint-angle error per joint), workspace region, time span."""
     fit = res.final
@@ -316,7 +301,8 @@ def locate(res: DiscoveryResult) -> dict[str, Any]:
     q = camp.q
     n = q.shape[1]
     B = np.column_stack([np.ones(m)] + [f(h * q[:, k]) for k in range(n) for h in (1, 2) for f in (np.sin, np.cos)])
-    Q = column_space(fit)
+    fit.gram = None  # the joint-level factors: not needed beyond here, not held beside the SVD
+    Q = basis(fit)
     joints = []
     for j in range(n):
         Z = (fit.Jq[:, :, j][:, :, None] * B[:, None, :]).reshape(dd * m, -1) * fit.weights[:, None]
