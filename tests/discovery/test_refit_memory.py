@@ -187,11 +187,12 @@ def test_the_gross_error_test_takes_the_prior_so_round_off_cannot_decide(problem
     assert np.array_equal(seen["prior"], prec)
 
 
-def test_the_column_basis_is_numpys_svd_without_holding_the_fits_jacobian(problem):
-    """The F-tests' and the dictionary's basis of the model's column space (``ftest.basis``) is numpy's SVD of the
-    fit's Jacobian bit for bit, while the fit gives its own matrix up (evaluated again, the same numbers, when read
-    later) and keeps the joint-level factors its folds' sums are formed from. numpy's ``svd`` held the Jacobian,
-    its copy, ``U`` and a workspace of two more: 0.9 GB at UR10 A's 12 000 rows, the search's peak."""
+def test_the_column_basis_spans_numpys_svd_without_holding_the_fits_jacobian(problem):
+    """The F-tests' and the dictionary's basis of the model's column space (``ftest.basis``, a QR in place) spans
+    what numpy's SVD of the fit's Jacobian spans (orthonormal, the same projections to round-off), while the fit
+    gives its own matrix up (evaluated again, the same numbers, when read later) and keeps the joint-level factors
+    its folds' sums are formed from. numpy's ``svd`` held the Jacobian, its copy, ``U`` and a workspace of two more:
+    0.9 GB at UR10 A's 12 000 rows, the search's peak. A rank-deficient matrix keeps the rank the SVD keeps."""
     from robocal.discovery.ftest import basis
 
     fit = _fit(problem)
@@ -202,5 +203,26 @@ def test_the_column_basis_is_numpys_svd_without_holding_the_fits_jacobian(proble
     assert gram is not None  # the fit has joint-level effects
     Q = basis(fit)
     assert "J_w" not in fit.__dict__ and fit.gram is gram
-    assert np.array_equal(Q, want)
+    assert Q.shape == want.shape
+    # orthonormal, and the same projector as the SVD's (1e-12: round-off of a QR against an SVD of a matrix whose
+    # condition number is ~1e6 here; a wrong subspace differs by O(1))
+    assert np.allclose(Q.T @ Q, np.eye(Q.shape[1]), atol=1e-12)
+    Z = np.random.default_rng(3).normal(size=(len(J), 5))
+    assert np.max(np.abs(Q @ (Q.T @ Z) - want @ (want.T @ Z))) < 1e-12 * np.max(np.abs(Z))
     assert np.array_equal(fit.J_w, J)  # evaluated again at the fit's parameters
+
+
+def test_the_column_basis_of_a_rank_deficient_jacobian_keeps_the_svds_rank():
+    from types import SimpleNamespace
+
+    from robocal.discovery.ftest import basis
+
+    rng = np.random.default_rng(4)
+    A = rng.normal(size=(300, 6))
+    J = np.column_stack([A, A[:, :2] @ np.array([[1.0], [2.0]])])  # 7 columns of rank 6
+    fit = SimpleNamespace(J_w=J, release_jacobian=lambda: True)
+    Q = basis(fit)
+    U, s, _ = np.linalg.svd(J, full_matrices=False)
+    want = U[:, s > 1e-10 * s[0]]
+    assert Q.shape == (300, 6) == want.shape
+    assert np.max(np.abs(Q @ Q.T - want @ want.T)) < 1e-12

@@ -19,22 +19,25 @@ from robocal.numerics import sorted_tied
 
 
 def basis(fit: Fit) -> np.ndarray:
-    """An orthonormal basis ``(M, r)`` of the column space of the fit's whitened Jacobian (the left singular vectors
-    above 1e-10 of the largest), as ``np.linalg.svd(fit.J_w)`` gives it, bit for bit (the same LAPACK routine on
-    the same Fortran-ordered matrix), holding two ``(M, k)`` matrices where numpy's ``svd`` holds five (its copy,
-    ``U`` and a workspace of two; 0.9 GB at UR10 A's 12 000 rows, the search's peak, issue 31): the fit's own is
-    let go (:meth:`Fit.release_jacobian`, evaluated again when read later) and the routine works in place on its
-    Fortran copy; the basis is returned as LAPACK gives it (Fortran-ordered), not copied."""
+    """An orthonormal basis ``(M, r)`` of the column space of the fit's whitened Jacobian: the directions whose
+    singular value is above 1e-10 of the largest. From a Householder QR of the matrix's Fortran copy, in place
+    (LAPACK ``geqrf`` / ``orgqr``), while the fit gives its own up (:meth:`Fit.release_jacobian`, evaluated again
+    when read later; its joint-level factors kept): one ``(M, k)`` matrix held besides the basis itself, where
+    numpy's ``svd`` held five (0.9 GB at UR10 A's 12 000 rows, the search's peak; issue 31) and took a third
+    longer. The rank is decided by the singular values of ``R`` (those of the matrix): at full rank the basis is
+    ``Q`` itself; otherwise ``Q`` times ``R``'s kept left singular vectors. The same subspace as the left singular
+    vectors of ``np.linalg.svd`` (projections equal to ~1e-15)."""
     from scipy import linalg
 
     a = np.asfortranarray(fit.J_w)
     fit.release_jacobian()
     if a.shape[1] == 0:
         return a
-    U, s, _ = linalg.svd(a, full_matrices=False, overwrite_a=True, check_finite=False, lapack_driver="gesdd")
+    Q, R = linalg.qr(a, mode="economic", overwrite_a=True, check_finite=False)
     del a
-    # the singular values descend: the kept vectors are U's leading columns, a view (no C-ordered copy of U)
-    return U[:, : int(np.count_nonzero(s > 1e-10 * s[0]))]
+    U, s, _ = np.linalg.svd(R)
+    keep = s > 1e-10 * s[0]
+    return Q if keep.all() else Q @ U[:, keep]
 
 
 def score_candidate(
