@@ -104,20 +104,28 @@ def apply_robot_file(cfg: Mapping[str, Any], root: str | Path) -> dict[str, Any]
     if value is None or value == "":
         return out
     if not isinstance(value, str | Path):
-        raise ConfigError(f"The config key '{ROBOT_FILE}' must be a path to a robot YAML. Got {value!r} instead.")
+        raise ConfigError(f"The config key '{ROBOT_FILE}' must be a path to a robot YAML or URDF. Got {value!r} instead.")
     from robocal.robot import robot_from_dict
 
-    path = resolve_path(root, value)
+    text = str(value)
+    urdf = text.endswith(".urdf") or ".urdf#" in text  # a URDF, optionally path.urdf#BASE:TIP (as --robot takes)
+    path = resolve_path(root, text.split("#", 1)[0] if urdf else value)
     if not path.is_file():
         raise ConfigError(
             f"The config key '{ROBOT_FILE}' points at {str(value)!r}, which is not a file ({path}; a relative path "
             "is relative to the repository root)"
         )
-    try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except yaml.YAMLError as exc:
-        first = str(exc).splitlines()[0] if str(exc) else "invalid"
-        raise ConfigError(f"{ROBOT_FILE} {value}: not valid YAML: {first}") from None
+    if urdf:
+        from robocal.cell.urdf import robot_dict_from_urdf, split_ref
+
+        _, base, tip = split_ref(text)
+        data: Any = robot_dict_from_urdf(path, base, tip)  # the URDF as the robot YAML it describes (POE)
+    else:
+        try:
+            data = yaml.safe_load(path.read_text(encoding="utf-8"))
+        except yaml.YAMLError as exc:
+            first = str(exc).splitlines()[0] if str(exc) else "invalid"
+            raise ConfigError(f"{ROBOT_FILE} {value}: not valid YAML: {first}") from None
     if isinstance(data, dict) and "joints" not in data and isinstance(data.get("robot"), dict):
         data = data["robot"]  # a Hydra group file may nest the description under 'robot:'
     if isinstance(data, dict):

@@ -16,6 +16,7 @@ from pathlib import Path
 from types import ModuleType
 from typing import Any
 
+import numpy as np
 import pandas as pd
 import pytest
 import yaml
@@ -207,6 +208,20 @@ def test_robot_file_gives_every_stage_that_robot(tmp_path: Path) -> None:
     cfg = apply_robot_file(cfg, root)
     assert cfg["robot"]["name"] == "kr16-cell7" and cfg["scenario"]["robot"] == "kr16-cell7"
     assert apply_robot_file({"robot": {"name": "a"}, ROBOT_FILE: None}, root)["robot"] == {"name": "a"}
+
+
+def test_a_urdf_robot_file_is_read_as_robocal_discover_reads_it(tmp_path: Path) -> None:
+    """``robot_file`` may name a URDF (``path.urdf`` or ``path.urdf#BASE:TIP``), as ``--robot`` does: a newcomer's
+    pipeline stopped at its first stage on one ("a robot description must be a mapping", issue 33)."""
+    from robocal.cell.urdf import robot_from_ref
+    from robocal.robot import robot_from_dict
+
+    urdf = REPO / "tests/cell/data/ur5_robot.urdf"
+    for ref in (f"{urdf}#:tool0", f"{urdf}#base_link:tool0"):
+        cfg = apply_robot_file({"robot": {"name": "kr16_2"}, "scenario": {"robot": "kr16_2"}, ROBOT_FILE: ref}, REPO)
+        got, want = robot_from_dict(cfg["robot"], source=ref), robot_from_ref(ref)
+        assert got.n_joints == want.n_joints == 6 and cfg["scenario"]["robot"] == got.name
+        assert np.array_equal(got.poe_p_mm, want.poe_p_mm) and np.array_equal(got.poe_flange0, want.poe_flange0)
 
 
 def test_a_missing_robot_file_is_one_line_naming_the_key(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
