@@ -104,7 +104,9 @@ def apply_robot_file(cfg: Mapping[str, Any], root: str | Path) -> dict[str, Any]
     if value is None or value == "":
         return out
     if not isinstance(value, str | Path):
-        raise ConfigError(f"The config key '{ROBOT_FILE}' must be a path to a robot YAML or URDF. Got {value!r} instead.")
+        raise ConfigError(
+            f"The config key '{ROBOT_FILE}' must be a path to a robot YAML or URDF. Got {value!r} instead."
+        )
     from robocal.robot import robot_from_dict
 
     text = str(value)
