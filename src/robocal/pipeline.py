@@ -117,11 +117,14 @@ def apply_robot_file(cfg: Mapping[str, Any], root: str | Path) -> dict[str, Any]
             f"The config key '{ROBOT_FILE}' points at {str(value)!r}, which is not a file ({path}; a relative path "
             "is relative to the repository root)"
         )
-    if urdf:
-        from robocal.cell.urdf import robot_dict_from_urdf, split_ref
+    if urdf:  # the URDF as the robot YAML it describes (POE), by robocal.robot's reader (imported only then)
+        import importlib
 
-        _, base, tip = split_ref(text)
-        data: Any = robot_dict_from_urdf(path, base, tip)  # the URDF as the robot YAML it describes (POE)
+        from robocal.robot import URDF_DICT_READER
+
+        mod, func = URDF_DICT_READER.split(":")
+        frag = text.split("#", 1)[1] if "#" in text else None
+        data: Any = getattr(importlib.import_module(mod), func)(str(path) + (f"#{frag}" if frag is not None else ""))
     else:
         try:
             data = yaml.safe_load(path.read_text(encoding="utf-8"))

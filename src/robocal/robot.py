@@ -94,6 +94,9 @@ COUPLINGS: dict[str, dict[int, dict[int, float]]] = {
 #: robocal.serve.bundle.DEFAULT_LOADERS): the pipeline stages build robots from params with robot_from_dict and
 #: never read a URDF, so they do not depend on robocal.cell.urdf
 URDF_READER = "robocal.cell.urdf:robot_from_ref"
+#: the same URDF as the description mapping (``path, base, tip`` -> dict), for a pipeline's ``robot_file``: resolved
+#: when one is a URDF, so that a stage depends on robocal.cell.urdf only then (as on the file robot_file names)
+URDF_DICT_READER = "robocal.cell.urdf:robot_dict_from_ref"
 
 
 @dataclass(frozen=True)

@@ -191,7 +191,7 @@ def robot_dict_from_urdf(path: str | Path, base_link: str | None = None, tip_lin
             lo, hi = math.degrees(j.lower), math.degrees(j.upper)
         entries.append({"name": j.name, "q_min_deg": lo, "q_max_deg": hi})
         twists.append({"w": w.tolist(), "p_mm": T[:3, 3].tolist()})
-    return {
+    out: dict[str, Any] = {
         "name": str(getattr(urdf.robot, "name", None) or p.stem),
         "n_joints": len(entries),
         "convention": POE,
@@ -199,12 +199,74 @@ def robot_dict_from_urdf(path: str | Path, base_link: str | None = None, tip_lin
         "poe": {"twists": twists, "flange_at_zero_mm": T[:3, 3].tolist(), "flange_R_at_zero": T[:3, :3].tolist()},
         "urdf": {"file": str(p), "base_link": base, "tip_link": tip},
     }
+    links, why = _body_inertials(urdf, joints, twists)
+    out["urdf"]["inertials"] = why
+    if links is not None:
+        out["dynamics"] = {"links": links}
+    return out
+
+
+def _body_inertials(urdf: Any, joints: list[UrdfJoint], twists: list[dict[str, Any]]) -> tuple[Any, str]:
+    """The description's ``dynamics.links`` from the URDF's ``<inertial>`` elements: each moving body (the links
+    from one actuated joint to the next on the path, with the links fixed to them off the path) as one mass and
+    centre of mass, in body ``i``'s frame (:mod:`robocal.kinematics.gravity`: the POE axis frame at q = 0).
+    None, and why, when the file has no usable masses: a moving body without mass, or the placeholder pattern of
+    equal masses all at their link origins (a file written without dynamics), which would give a wrong torque
+    shape where robocal's mass-free weight model does better. The second value says what was done."""
+    from robocal.kinematics.chain import poe_axis_frames
+
+    children: dict[str, list[Any]] = {}
+    for j in urdf.joint_map.values():
+        children.setdefault(j.parent, []).append(j)
+    on_path = {j.name for j in joints}
+    mass: list[float] = []
+    moment: list[np.ndarray] = []
+    per_link: list[tuple[float, np.ndarray]] = []  # (mass, centre in its link frame, mm) of every link used
+
+    def add(link: str, T: np.ndarray) -> None:
+        inertial = getattr(urdf.link_map[link], "inertial", None)
+        m = float(getattr(inertial, "mass", 0.0) or 0.0) if inertial is not None else 0.0
+        c_local = _origin_mm(getattr(inertial, "origin", None))[:3, 3] if inertial is not None else np.zeros(3)
+        if m > 0 and mass:
+            mass[-1] += m
+            moment[-1] = moment[-1] + m * (T[:3, :3] @ c_local + T[:3, 3])
+        per_link.append((m, c_local))
+        for jf in children.get(link, []):  # the links fixed to it off the path belong to the same body
+            if jf.name not in on_path and jf.type == "fixed":
+                add(jf.child, T @ _origin_mm(jf.origin))
+
+    T = np.eye(4)
+    for j in joints:
+        T = T @ j.origin
+        if j.type in _ACTUATED:
+            mass.append(0.0)
+            moment.append(np.zeros(3))
+        if mass:
+            add(j.child, T)
+    if not mass or min(mass) <= 0.0:
+        return None, "not used: a moving body has no <inertial> mass (the weight is modelled without masses)"
+    ms = np.array([m for m, _ in per_link if m > 0])
+    if len(ms) > 1 and np.ptp(ms) == 0.0 and all(not np.any(c) for m, c in per_link if m > 0):
+        return None, ("not used: every link's <inertial> is the same mass at its link origin, a placeholder (the "
+                      "weight is modelled without masses)")  # fmt: skip
+    frames = poe_axis_frames(np.array([t["w"] for t in twists]), np.array([t["p_mm"] for t in twists]))
+    links = []
+    for m, mom, F in zip(mass, moment, frames, strict=True):
+        c = F[:3, :3].T @ (mom / m - F[:3, 3])
+        links.append({"mass_kg": float(m), "com_mm": [float(v) for v in c]})
+    return links, "used: the <inertial> masses and centres of the links each joint moves"
 
 
 def robot_from_urdf(path: str | Path, base_link: str | None = None, tip_link: str | None = None) -> RobotDescription:
     """A POE :class:`RobotDescription` of the URDF's path from ``base_link`` to ``tip_link``."""
     data = robot_dict_from_urdf(path, base_link, tip_link)
     return robot_from_dict(data, source=f"{path}#{data['urdf']['base_link']}:{data['urdf']['tip_link']}")
+
+
+def robot_dict_from_ref(ref: str | Path) -> dict[str, Any]:
+    """:func:`robot_dict_from_urdf` of a name ``path.urdf`` or ``path.urdf#BASE:TIP``."""
+    p, base, tip = split_ref(ref)
+    return robot_dict_from_urdf(p, base, tip)
 
 
 def robot_from_ref(ref: str | Path) -> RobotDescription:

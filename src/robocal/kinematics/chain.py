@@ -127,6 +127,22 @@ def _axis_frame(z: np.ndarray, x_hint: np.ndarray) -> np.ndarray:
     return np.column_stack([x, np.cross(z, x), z])
 
 
+def poe_axis_frames(w: np.ndarray, p_mm: np.ndarray) -> list[np.ndarray]:
+    """The frame ``(4, 4)`` a POE description puts on each joint axis at q = 0 (base frame): z along the axis
+    ``w[i]``, origin at ``p_mm[i]``, x as close as possible to the previous axis frame's x (the first: base x).
+    With zero joint offsets it is also body ``i``'s frame at q = 0 (:mod:`robocal.kinematics.gravity`)."""
+    frames = []
+    x_hint = np.array([1.0, 0.0, 0.0])
+    for wi, pi in zip(np.asarray(w, dtype=float), np.asarray(p_mm, dtype=float), strict=True):
+        R = _axis_frame(wi, x_hint)
+        x_hint = R[:, 0]
+        F = np.eye(4)
+        F[:3, :3] = R
+        F[:3, 3] = pi
+        frames.append(F)
+    return frames
+
+
 def build_chain(robot: RobotDescription) -> Chain:
     """Compile a robot description (MD-H or POE) into a :class:`Chain`."""
     b = _Builder()
@@ -146,15 +162,7 @@ def build_chain(robot: RobotDescription) -> Chain:
         return b.build(n)
 
     assert robot.poe_w is not None and robot.poe_p_mm is not None and robot.poe_flange0 is not None
-    frames = []
-    x_hint = np.array([1.0, 0.0, 0.0])
-    for i in range(n):
-        R = _axis_frame(robot.poe_w[i], x_hint)
-        x_hint = R[:, 0]
-        F = np.eye(4)
-        F[:3, :3] = R
-        F[:3, 3] = robot.poe_p_mm[i]
-        frames.append(F)
+    frames = poe_axis_frames(robot.poe_w, robot.poe_p_mm)
     prev = np.eye(4)
     for i in range(n):
         rel = np.linalg.inv(prev) @ frames[i]
