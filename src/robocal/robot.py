@@ -94,6 +94,9 @@ COUPLINGS: dict[str, dict[int, dict[int, float]]] = {
 #: robocal.serve.bundle.DEFAULT_LOADERS): the pipeline stages build robots from params with robot_from_dict and
 #: never read a URDF, so they do not depend on robocal.cell.urdf
 URDF_READER = "robocal.cell.urdf:robot_from_ref"
+#: a linear axis whose travel is within this angle of gravity is a lifting column (its bending under the arm's
+#: weight modelled) when its description gives it no role: a column given as a URDF or a DH table lost that model
+COLUMN_TILT_DEG = 15.0
 #: the same URDF as the description mapping (``path, base, tip`` -> dict), for a pipeline's ``robot_file``: resolved
 #: when one is a URDF, so that a stage depends on robocal.cell.urdf only then (as on the file robot_file names)
 URDF_DICT_READER = "robocal.cell.urdf:robot_dict_from_ref"
@@ -166,8 +169,35 @@ class RobotDescription:
     positioner: Positioner | None = None
 
     def role(self, j: int) -> str:
-        """The role of joint ``j`` (0-based; e.g. ``track``, ``column``): its ``role`` key, else its name."""
-        return self.joint_roles[j] if self.joint_roles and self.joint_roles[j] else self.joint_names[j]
+        """The role of joint ``j`` (0-based; e.g. ``track``, ``column``): its ``role`` key, else ``column`` for a
+        linear axis that travels along gravity (within :data:`COLUMN_TILT_DEG`: a lifting column, whatever its
+        name in a URDF or a DH table), else its name."""
+        if self.joint_roles and self.joint_roles[j]:
+            return self.joint_roles[j]
+        if self.prismatic[j] and self.travels_along_gravity(j):
+            return "column"
+        return self.joint_names[j]
+
+    def travels_along_gravity(self, j: int) -> bool:
+        """Whether joint ``j``'s axis at q = 0 (base frame) is within :data:`COLUMN_TILT_DEG` of gravity."""
+        if self.poe_w is not None:
+            z = np.asarray(self.poe_w[j], dtype=float)
+        else:  # MD-H: the z axis of the frame the joint's own Rot_z / Trans_z act in
+            R = np.eye(3)
+            for k in range(j + 1):
+                ca, sa = np.cos(self.alpha[k]), np.sin(self.alpha[k])
+                R = R @ np.array([[1.0, 0.0, 0.0], [0.0, ca, -sa], [0.0, sa, ca]])
+                if k == j:
+                    break
+                ct, st = np.cos(self.theta_offset[k]), np.sin(self.theta_offset[k])
+                R = R @ np.array([[ct, -st, 0.0], [st, ct, 0.0], [0.0, 0.0, 1.0]])
+                cb, sb = np.cos(self.beta[k]), np.sin(self.beta[k])
+                R = R @ np.array([[cb, 0.0, sb], [0.0, 1.0, 0.0], [-sb, 0.0, cb]])
+            z = R[:, 2]
+        g = np.asarray(self.gravity, dtype=float)
+        if not (np.linalg.norm(z) > 0 and np.linalg.norm(g) > 0):
+            return False
+        return bool(abs(z @ g) / (np.linalg.norm(z) * np.linalg.norm(g)) >= np.cos(np.deg2rad(COLUMN_TILT_DEG)))
 
     @property
     def n_joints(self) -> int:

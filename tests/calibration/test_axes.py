@@ -209,3 +209,17 @@ def test_robocal_calibrate_on_a_track_reports_the_axis_errors(track, tmp_path):
     assert [t.name for t in served.terms] == [t["name"] for t in ax["terms"]]
     assert np.allclose(served.coef[[t.unit == "mm" for t in served.terms]],
                        [t["value"] for t in ax["terms"] if t["unit"] == "mm"])  # fmt: skip
+
+
+def test_a_vertical_linear_axis_without_a_role_is_a_column(column):
+    """A lifting column described without ``role: column`` (a URDF or a DH table has none) is still a column: a
+    linear axis along gravity gets the column's bending model (before: '0 terms of none', and discovery named a gear
+    harmonic in its place); a horizontal one keeps its name, and a declared role wins."""
+    robot, camp, _, _ = column
+    bare = replace(robot, joint_roles=())
+    assert bare.role(0) == "column" and bare.role(1) == bare.joint_names[1]
+    fit = fit_axis_errors(camp, calibrate(camp, bare), {"max_order": 2})
+    assert fit.bending and any(t.name.startswith("column:bending") for t in fit.terms)
+    track = load_robot("kr16_2_track")
+    assert replace(track, joint_roles=()).role(0) == track.joint_names[0]
+    assert replace(bare, joint_roles=("lift",) + ("",) * (bare.n_joints - 1)).role(0) == "lift"
