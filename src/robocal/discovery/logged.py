@@ -185,9 +185,8 @@ def screen(campaign: Campaign, robot: RobotDescription) -> tuple[list[LoggedSign
         if d is not None and not d.use:
             skip("declared not to be used (use: false)")
             continue
-        try:
-            x = np.asarray(raw, dtype=float)
-        except (TypeError, ValueError):
+        x = _numeric(raw)
+        if x is None:
             skip("not numeric")
             continue
         bad = np.flatnonzero(~np.isfinite(x))
@@ -276,6 +275,23 @@ def frame_columns(
         if d == 6:
             out[:, 3:, i] = Rf[:, :, i]
     return out
+
+
+def _numeric(raw: Any) -> np.ndarray | None:
+    """A logged column as numbers, its empty cells NaN (a gap in a numeric column is read as text: it was reported
+    "not numeric" instead of where its values are missing); None when some filled cell is not a number."""
+    try:
+        return np.asarray(raw, dtype=float)
+    except (TypeError, ValueError):
+        pass
+    import pandas as pd
+
+    col = pd.Series(raw, dtype=object)
+    blank = col.isna() | col.astype(str).str.strip().eq("")
+    num = pd.to_numeric(col.where(~blank), errors="coerce")
+    if not bool((~blank).any()) or bool(num[~blank].isna().any()):
+        return None
+    return np.asarray(num, dtype=float)
 
 
 def frame_rows(

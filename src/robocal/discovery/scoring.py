@@ -87,6 +87,9 @@ def regressor(cand: Candidate, fit: Fit, rows: np.ndarray, data: FitData) -> tup
         x = fit.theta[: fit.model.nb]
         d = data.with_q(data.q + fit.model.joint_offsets(fit.theta, rows, 0))
         return axis_rows(cand, fit.model.base, x, d, rows, dd).reshape(dd * m, -1) * w, ()
+    if cand.shape == "pair":  # two candidates scored together (accepted as the two)
+        Zs = [regressor(c, fit, rows, data) for c in cand.extra["members"]]
+        return np.hstack([z for z, _ in Zs]), tuple(p for _, prm in Zs for p in prm)
     if cand.shape == "frame":
         from robocal.discovery.logged import frame_rows
 

@@ -445,8 +445,11 @@ def _library(
             break
         cand, params = chosen
         before = fit
-        state.accepted.append(Accepted(cand, params))
-        remaining = [c for c in remaining if c.key != cand.key]
+        members = list(cand.extra["members"]) if cand.shape == "pair" else [cand]
+        state.accepted.extend(Accepted(c, params if c is cand else ()) for c in members)
+        gone = {c.key for c in members} | {cand.key}
+        remaining = [c for c in remaining if c.key not in gone
+                     and not (c.shape == "pair" and gone & {m.key for m in c.extra["members"]})]  # fmt: skip
         fit = refit(state.accepted, before)
         state.accepted, fit, dropped = backward_check(state.accepted, fit, log_thr, refit, log_thr_signal)
         state.fit = fit
