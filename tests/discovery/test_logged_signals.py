@@ -117,8 +117,9 @@ def test_screen_names_each_column_not_used_with_its_reason(tmp_path):
         "distance_mm": np.linalg.norm(camp.p_mm, axis=1),  # the tracker's own distance: a function of the measurement
         "gappy": np.where(np.arange(m) == 7, np.nan, rng.normal(size=m)),
         # the same as the CSV reader gives it: text, an empty cell where a value is missing (was "not numeric")
-        "gappy_text": np.array(["" if i in (3, 4) else f"{v:.4f}" for i, v in enumerate(rng.normal(size=m))],
-                               dtype=object),
+        "gappy_text": np.array(
+            ["" if i in (3, 4) else f"{v:.4f}" for i, v in enumerate(rng.normal(size=m))], dtype=object
+        ),
         "constant": np.full(m, 3.0),
         "comment": np.array(["x"] * m, dtype=object),
         "skip_me": rng.normal(size=m),
