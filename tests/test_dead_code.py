@@ -24,7 +24,7 @@ USERS = ["src", "stages", "tests", "benchmarks", "experiments"]
 ALLOWED: dict[tuple[str, str], str] = {
     ("__init__.py", "__getattr__"): "the lazy public API: Python calls it",
     ("__init__.py", "__dir__"): "the lazy public API: Python calls it",
-    ("cell/urdf.py", "robot_from_ref"): "named by string in robot.URDF_READER",
+    ("cell/urdf.py", "robot_dict_from_ref"): "named by string in robot.URDF_DICT_READER",
     **{
         effect: "a twin effect, registered by name (register_effect)"
         for effect in (

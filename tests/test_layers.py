@@ -25,6 +25,7 @@ LAYERS: list[set[str]] = [
         "tracking",
         "robot",
         "robot_dh",
+        "robot_files",
         "pipeline",
         "kinematics",
         "metrics",

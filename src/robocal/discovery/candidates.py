@@ -512,39 +512,23 @@ def _signal_candidates(campaign: Campaign, robot: RobotDescription, cfg: Discove
                     coef_names=("c",), coef_units=(f"rad/{unit}",), extra={**info, "frame": None},
                 )
             )  # fmt: skip
-    if len(used) <= MAX_PAIRED_SIGNALS:
-        _signal_pairs(out, [s.name for s in used])
+    # every two signals moving one frame, offered together (shape ``pair``: scored on both members' columns, accepted
+    # as the two): a tilt a two-axis inclinometer reads splits over its two columns, each alone explaining only its
+    # axis's share (a stand tilting ~1 mrad: 21 % each), and the compliance of joint 2 (50 %) was named instead
+    frames = [c for c in out.cands if c.shape == "frame" and c.effect == "signal"] if len(used) <= MAX_PAIRED else []
+    for k, ca in enumerate(frames):
+        for cb in (c for c in frames[k + 1 :] if c.extra["frame"] == ca.extra["frame"]):
+            a, b = ca.extra["column"], cb.extra["column"]
+            out.cands.append(Candidate(
+                f"signal:{a}+{b}:{ca.extra['frame']}", "signal", None, None, cause=f"{ca.cause}; and with {b}",
+                signal=f"{ca.signal} and {cb.signal}", shape="pair", S=np.column_stack([ca.S, cb.S]),
+                coef_names=tuple(f"{a}:{n}" for n in ca.coef_names) + tuple(f"{b}:{n}" for n in cb.coef_names),
+                coef_units=ca.coef_units + cb.coef_units, extra={"members": (ca, cb), "frame": ca.extra["frame"]},
+            ))  # fmt: skip
 
 
-#: the logged signals are offered in pairs (a frame moving with two of them at once) when there are at most this many
-MAX_PAIRED_SIGNALS = 6
-
-
-def _signal_pairs(out: _Library, names: list[str]) -> None:
-    """Every two logged signals driving the same frame effect, offered together (shape ``pair``: scored on both
-    members' columns, accepted as the two members). A tilt a two-axis inclinometer reads splits over its two
-    columns: each alone explains only its axis's share (a stand tilting ~1 mrad under the arm's moment: 21 % of
-    the excess each, under ``min_excess_share``), and a pose function such as the compliance of joint 2 (50 %)
-    was named in their place (held-out 0.51 mm where the pair gives the floor, 0.026)."""
-    by_key = {c.key: c for c in out.cands if c.effect == "signal" and c.shape == "frame"}
-    from robocal.discovery.logged import FRAMES
-
-    for frame in FRAMES:
-        for i, a in enumerate(names):
-            for b in names[i + 1 :]:
-                ca, cb = by_key.get(f"signal:{a}:{frame}"), by_key.get(f"signal:{b}:{frame}")
-                if ca is None or cb is None:
-                    continue
-                out.cands.append(
-                    Candidate(
-                        f"signal:{a}+{b}:{frame}", "signal", None, None,
-                        cause=f"{ca.cause}; and with {b}", signal=f"{ca.signal} and {cb.signal}", shape="pair",
-                        S=np.column_stack([ca.S, cb.S]),
-                        coef_names=tuple(f"{a}:{n}" for n in ca.coef_names) + tuple(f"{b}:{n}" for n in cb.coef_names),
-                        coef_units=ca.coef_units + cb.coef_units,
-                        extra={"members": (ca, cb), "frame": frame, "side": ca.extra.get("side")},
-                    )
-                )  # fmt: skip
+#: the logged signals are offered in pairs (a frame moving with two of them) when there are at most this many
+MAX_PAIRED = 6
 
 
 #: a session (tracker station) is offered its own tool with at least this many rows (the sessions that the
