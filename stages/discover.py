@@ -1,8 +1,8 @@
 """discover: name the effects the geometric model is missing (robocal.workflows.discovery.run).
 
 Reads ``robot`` and ``discovery``; the interim campaign (split fixed by ``prepare``); writes
-``reports/discovery/`` (discovery.json, report.html), metrics (RMS before / after, noise floor, what was named,
-per-step RMS) and a plot of the RMS per step. The MLflow run logs the steps as a metric series (``step_rms_mm``).
+``reports/discovery/`` (discovery.json, report.html), metrics (RMS before / after, the final model's held-out mean
+``disc_val_mean_mm``, noise floor, what was named, per-step RMS) and a plot of the RMS per step. The MLflow run logs the steps as a metric series (``step_rms_mm``).
 
     python stages/discover.py discovery.alpha=0.0001
 """
@@ -66,6 +66,9 @@ def compute(ctx: Context) -> Metrics:
             ctx.artifact(ctx.out / name)
     details = metrics_of(summary)
     headline = {"disc_rms_mm": details["rms_after_mm"], "disc_named": details["n_named"]}
+    final = (summary.get("validation") or {}).get("final") or {}
+    if "mean_position_mm" in final:  # the held-out figure of the model the service applies (the one to judge by)
+        headline["disc_val_mean_mm"] = final["mean_position_mm"]
     return Metrics(headline, details)
 
 

@@ -23,6 +23,7 @@ HEADLINE = (
     ("thermal_resid_rms_mm", "thermal"),
     ("comp_proposed_mean_mm", "comp"),
     ("disc_rms_mm", "discover"),
+    ("disc_val_mean_mm", "disc val"),
 )
 #: parameter sections shown by name only (their ``name`` key): the rest of a robot or scenario is its file's
 BY_NAME = ("robot", "scenario")

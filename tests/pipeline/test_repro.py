@@ -375,3 +375,5 @@ def test_own_data_in_one_step_as_the_readme_says(copy: dict[str, Any]) -> None:
     # calibrated beats nominal on the held-out poses (upstream's test set: 10 configurations of T4)
     assert geo["val_mean_mm"] < geo["val_nominal_mean_mm"], geo
     assert status["discover"]["discover"] == "ok"
+    # the discovered model's held-out mean is the stage's headline too (a newcomer found it only in the details)
+    assert 0 < status["discover"]["disc_val_mean_mm"] < geo["val_mean_mm"], status["discover"]
