@@ -1,8 +1,9 @@
 """discover: name the effects the geometric model is missing (robocal.workflows.discovery.run).
 
 Reads ``robot`` and ``discovery``; the interim campaign (split fixed by ``prepare``); writes
-``reports/discovery/`` (discovery.json, report.html), metrics (RMS before / after, the final model's held-out mean
-``disc_val_mean_mm``, noise floor, what was named, per-step RMS) and a plot of the RMS per step. The MLflow run logs the steps as a metric series (``step_rms_mm``).
+``reports/discovery/`` (discovery.json, report.html), metrics (RMS before / after, the final model's held-out
+mean ``disc_val_mean_mm``, noise floor, what was named, per-step RMS) and a plot of the RMS per step. The MLflow
+run logs the steps as a metric series (``step_rms_mm``).
 
     python stages/discover.py discovery.alpha=0.0001
 """
