@@ -72,3 +72,14 @@ def test_the_console_names_the_logged_signals(capsys):
                   "declared_not_in_campaign": ["incl_x"]})  # fmt: skip
     out = capsys.readouterr().out
     assert "offered to the search: acc_tip_x_g" in out and "operator" in out and "not in this campaign: incl_x" in out
+
+
+def test_the_console_line_names_signals_by_key_and_counts_proposed_equations():
+    from robocal.commands.discover import _named
+
+    s = {"named": [{"effect": "signal", "key": "signal:incl_x:base_rot", "joint": None, "harmonic": None},
+                   {"effect": "gear", "key": "gear:j2:h1", "joint": 2, "harmonic": 1}],
+         "proposed": [{"equation": "dθ3 = 0.0100° ± 0.0010° · sin(q2)"}]}  # fmt: skip
+    assert _named(s) == "named [signal:incl_x:base_rot, gear j2 h1] and 1 proposed equation(s): dθ3 = 0.0100° ± " \
+        "0.0010° · sin(q2)"  # fmt: skip
+    assert _named({"named": [], "proposed": []}) == "named [nothing]"

@@ -48,12 +48,8 @@ def run(args: argparse.Namespace) -> int:
         s = discovery.run(
             args.data_dir, args.robot, args.out, ov, split=split, report=not args.no_report, sessions=args.validate_on
         )
-    named = ", ".join(
-        n["effect"] + (f" j{n['joint']}" if n["joint"] else "") + (f" h{n['harmonic']}" if n["harmonic"] else "")
-        for n in s["named"]
-    )
     print(
-        f"discover: named [{named or 'nothing'}]; RMS {s['rms_before_mm']:.4f} -> {s['rms_after_mm']:.4f} mm "
+        f"discover: {_named(s)}; RMS {s['rms_before_mm']:.4f} -> {s['rms_after_mm']:.4f} mm "
         f"(noise floor {s['noise_floor_mm']:.4f}); unexplained: {s['unexplained']}"
     )
     g = s.get("geometric_calibration")
@@ -154,6 +150,20 @@ def _left_out_lines(s: dict[str, Any], g: dict[str, Any] | None) -> None:
         print(line(s["systematic_misfit"], "against the discovered model: not gross errors, a model error there"))
     elif g and g.get("systematic_misfit"):
         print(line(g["systematic_misfit"], "against the geometric model, none against the discovered one"))
+
+
+def _named(s: dict[str, Any]) -> str:
+    """``named [...]`` of the console: a logged signal's effect by its key (which column moves which frame:
+    "signal" alone said nothing), the others by effect and joint, and the accepted proposed equations (the console
+    said "named [nothing]" while an equation had taken the RMS from 1.03 to 0.44 mm)."""
+    named = ", ".join(
+        n["key"] if n["effect"] == "signal" else
+        n["effect"] + (f" j{n['joint']}" if n["joint"] else "") + (f" h{n['harmonic']}" if n["harmonic"] else "")
+        for n in s["named"]
+    )  # fmt: skip
+    props = [p["equation"] for p in s.get("proposed") or []]
+    return f"named [{named or 'nothing'}]" + (f" and {len(props)} proposed equation(s): {'; '.join(props)}"
+                                               if props else "")  # fmt: skip
 
 
 def _after_parametric(s: dict[str, Any]) -> str:
