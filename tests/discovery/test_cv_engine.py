@@ -15,7 +15,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from robocal.discovery.cv import FoldCV, SymSolver, gram_by_blocks
+from robocal.discovery.cv import FoldCV, SymSolver, gram_by_blocks, group_labels
 from robocal.discovery.grow import Variant
 
 TOL = 1e-10  # relative to the residuals' RMS: float sums in another order, Cholesky vs pinv (see the docstring)
@@ -40,7 +40,7 @@ def fake_fit(rng: np.random.Generator, m: int = 240, d: int = 3, k: int = 9, n_j
 
 def dense_cv(fit, groups, folds, seed):
     """The dense reference: base errors, and a function giving each variant's held-out errors for a dense Z."""
-    uniq, gidx = np.unique(groups, return_inverse=True)
+    uniq, gidx, _ = group_labels(groups)  # the folds' order of the groups (natural: "2" before "10")
     perm = np.random.default_rng(seed).permutation(len(uniq))
     fold = (perm % folds)[gidx]
     A, r = fit.J_w, fit.r_w

@@ -36,3 +36,20 @@ def test_a_campaign_without_repeats_keeps_its_pose_ids():
     pid = np.array(["x", "y", "z", "y", "w"])  # y: two rows (targets) at one pose
     q[3] = q[1]
     assert pose_groups(pid, q).tolist() == pid.tolist()
+
+
+def test_the_folds_do_not_depend_on_how_the_pose_ids_are_written():
+    """A campaign whose pose ids are integers (0, 1, ..., 139) falls in the folds its zero-padded ids (p0000, ...)
+    fall in: np.unique sorted them as text ("10" before "2"), and on a near tie another effect was named (a
+    newcomer's column campaign: four effects at 0.816 mm, or two at 0.438, by the ids' spelling alone)."""
+    from robocal.discovery.cv import group_labels
+
+    n = 140
+    padded = np.array([f"p{i:04d}" for i in range(n)])
+    plain = np.array([str(i) for i in range(n)])
+    for ids in (padded, plain):
+        uniq, inv, counts = group_labels(np.repeat(ids, 3))
+        assert uniq.tolist() == ids.tolist() and (counts == 3).all() and np.array_equal(inv, np.repeat(np.arange(n), 3))
+    # ids of one padded width keep np.unique's order (the folds of every campaign so written are unchanged)
+    mixed = np.array(["B00856", "A00002", "B00010", "c00", "c01"])
+    assert group_labels(mixed)[0].tolist() == np.unique(mixed).tolist()

@@ -20,6 +20,7 @@ to the pseudo-inverse (``rcond`` 1e-12), which is what the search used before.
 
 from __future__ import annotations
 
+import re
 from collections import OrderedDict
 from collections.abc import Callable, Sequence
 from typing import Any, Protocol
@@ -105,7 +106,7 @@ class FoldCV:
 
     def __init__(self, fit: Any, groups: np.ndarray, folds: int, seed: int) -> None:
         self.fit = fit
-        uniq, gidx = np.unique(groups, return_inverse=True)
+        uniq, gidx, _ = group_labels(groups)
         self.gidx = gidx
         self.n_groups = len(uniq)
         perm = np.random.default_rng(seed).permutation(len(uniq))
@@ -405,6 +406,23 @@ def _sorted_in_place(J: np.ndarray, order: np.ndarray) -> np.ndarray | None:
 _LAST: list[tuple[Any, np.ndarray, int, int, FoldCV]] = []
 
 
+def group_labels(groups: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``np.unique(groups, return_inverse=True, return_counts=True)`` with the labels in natural order (runs of
+    digits compared as numbers), the order the folds are drawn in: a campaign whose pose ids are integers (0, 1, 2,
+    ..., 10) gets the folds its zero-padded ids (p00, p01, ...) get. ``np.unique`` sorts them as text ("10" before
+    "2"), so the same poses fell in other folds and, on a near tie, other effects were named. Ids of one padded
+    width keep ``np.unique``'s order."""
+    uniq, inv, counts = np.unique(np.asarray(groups).astype(str), return_inverse=True, return_counts=True)
+
+    def key(label: str) -> tuple[tuple[int, int, str], ...]:
+        return tuple((0, int(t), "") if t.isdigit() else (1, 0, t) for t in re.split(r"(\d+)", label) if t)
+
+    order = sorted(range(len(uniq)), key=lambda i: key(str(uniq[i])))
+    rank = np.empty(len(uniq), dtype=int)
+    rank[order] = np.arange(len(uniq))
+    return uniq[order], rank[inv], counts[order]
+
+
 def pose_groups(pose_id: np.ndarray, q: np.ndarray) -> np.ndarray:
     """The cross-validation's groups, one label per row: the rows of one pose, joined with every row measured at
     the same joint configuration under another pose id (:func:`robocal.identification.thin.configuration_groups`),
@@ -454,5 +472,6 @@ __all__ = [
     "clear_cache",
     "fold_cv",
     "gram_by_blocks",
+    "group_labels",
     "pose_groups",
 ]

@@ -197,7 +197,9 @@ def select(
         return []
     X = _Projected(V, F, Q, B, idx, pn[idx])
     rng = np.random.default_rng(seed)
-    uniq = np.unique(groups)
+    from robocal.discovery.cv import group_labels
+
+    uniq = group_labels(groups)[0]
     counts = np.zeros(len(idx))
     picks: list[np.ndarray] = []
     for _ in range(n_resamples):

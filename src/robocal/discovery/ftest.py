@@ -12,6 +12,7 @@ from scipy import stats
 
 from robocal.discovery.candidates import Candidate
 from robocal.discovery.config import DiscoveryConfig
+from robocal.discovery.cv import group_labels
 from robocal.discovery.model import Accepted, Fit
 from robocal.discovery.scoring import Score, regressor
 from robocal.identification.model import FitData
@@ -82,10 +83,9 @@ def cross_validation_gain(fit: Fit, Uk: np.ndarray, groups: np.ndarray, folds: i
     A0 = fit.J_w
     A1 = np.hstack([A0, Uk])
     rng = np.random.default_rng(seed)
-    uniq = np.unique(groups)
+    uniq, gidx, _ = group_labels(groups)
     perm = rng.permutation(len(uniq))
-    fold_of = {g: int(perm[i] % folds) for i, g in enumerate(uniq)}
-    f = np.array([fold_of[g] for g in groups])
+    f = (perm % folds)[gidx]
     sse0 = sse1 = 0.0
     for k in range(folds):
         test = f == k

@@ -12,7 +12,7 @@ from scipy import stats
 from robocal.data.contract import Campaign
 from robocal.discovery import progress
 from robocal.discovery.config import DiscoveryConfig
-from robocal.discovery.cv import pose_groups
+from robocal.discovery.cv import group_labels, pose_groups
 from robocal.discovery.model import Fit
 from robocal.discovery.refit import refitter
 from robocal.identification.model import FitData
@@ -62,7 +62,7 @@ def screen_sample(pose_id: np.ndarray, q: np.ndarray, idx: np.ndarray, n_max: in
     the configurations measured again, :func:`robocal.discovery.cv.pose_groups`) drawn at random (``seed``) until
     the next would pass ``n_max`` rows; sorted."""
     groups = pose_groups(np.asarray(pose_id)[idx], q[idx])
-    uniq, g, counts = np.unique(groups, return_inverse=True, return_counts=True)
+    uniq, g, counts = group_labels(groups)
     order = np.random.default_rng(seed).permutation(len(uniq))
     take = np.zeros(len(uniq), dtype=bool)
     take[order[np.cumsum(counts[order]) <= n_max]] = True
