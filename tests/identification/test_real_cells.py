@@ -148,6 +148,31 @@ def test_validation_station_not_in_calibration_is_registered_on_half(tmp_path_fa
     assert v["mean_position_mm"] < 0.05
 
 
+def test_a_station_its_calibration_rows_cannot_fix_is_judged_on_its_own_and_a_tiny_one_is_not_judged(
+    tmp_path_factory, kr16
+):
+    """A station with 2 calibration rows has a frame the fit cannot turn (its rotation eliminated): judged with it,
+    its validation rows were metres off (a newcomer's 12 stations: mean 31.5 mm, max 1 990 mm). It is now registered
+    on its own validation rows like a station never seen; and a validation station too small to register is left
+    out of the figures saying so (it stopped calibrate, discover and the pipeline with exit 2)."""
+    camp, _ = _campaign(tmp_path_factory, kr16, 4, stations=STATION2, n_validation_poses=20)
+    st = camp.station.copy()
+    cal_s1 = np.flatnonzero((camp.split == "calibration") & (st == "S1"))
+    val_s1 = np.flatnonzero((camp.split == "validation") & (st == "S1"))
+    st[cal_s1[:2]] = "S7"  # two calibration rows of S1's frame under a station of their own
+    st[val_s1[:8]] = "S7"  # and eight validation rows: registered on half
+    st[val_s1[8:10]] = "S8"  # a validation-only station of two rows: too small to register
+    moved = camp.subset(np.ones(camp.n_rows, dtype=bool))
+    object.__setattr__(moved, "station", st)
+    res = calibrate(moved, kr16)
+    v = validate(res, moved)
+    src = v["station_source"]
+    assert src["S7"].startswith("in calibration, but its 2 calibration point(s) do not determine its frame")
+    assert "registered on 4 of its 8 poses" in src["S7"] and "not evaluated" in src["S8"]
+    assert v["n_rows"] == 20 - 8 - 2 + 4  # S2's, S1's left, S7's other half; S8's none
+    assert v["mean_position_mm"] < 0.05  # at the floor (0.015 mm noise per coordinate)
+
+
 def test_noise_the_data_imply(tmp_path_factory, kr16):
     # two targets on one rigid tool: their distance is model-free evidence of the tracker noise
     camp, _ = _campaign(

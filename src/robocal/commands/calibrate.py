@@ -86,6 +86,10 @@ def run(args: argparse.Namespace) -> int:
         v = summary["validation"]
         line += f"; validation mean {v['mean_position_mm']:.4f} / max {v['max_position_mm']:.4f} mm"
     print(line)
+    src = (summary.get("validation") or {}).get("station_source") or {}
+    for st, how in src.items():  # a station judged otherwise than by the calibration's frame says so
+        if how != "calibration":
+            print(f"  validation station {st}: {how}")
     from robocal.identification.robust import outlier_line
 
     print(outlier_line(fit.get("outliers", []), fit.get("n_rows_total")))

@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from robocal.calibration.validation import Validation, validate_rows
+from robocal.calibration.validation import Validation, determined_stations, validate_rows
 from robocal.discovery.model import Fit, tracker_columns
 from robocal.discovery.search import DiscoveryResult
 from robocal.identification.model import FitData
@@ -74,6 +74,7 @@ def _validate_fit(res: DiscoveryResult, fit: Fit) -> Validation:
     q = val.q + model.joint_offsets(fit.theta, vrows, 0)
     base_T_flange = fk(base.chain, q, x[: base.chain.n_params])
     stations = {s: base.base_transform(x, k) for k, s in enumerate(base.station_names)}
+    stations, why = determined_stations(stations, res.campaign.subset(res.rows))
     tools = {t: base.tools(x)[k] for k, t in enumerate(base.target_names)}
     tool_R = None
     if base.orientation:
@@ -111,7 +112,7 @@ def _validate_fit(res: DiscoveryResult, fit: Fit) -> Validation:
         if a.cand.shape == "tracker":  # the tracker's scale of the measured points (measurement side)
             dpt = np.einsum("mij,j->mi", tracker_columns(a.cand, vrows), fit.theta[sl])
             dp = dpt if dp is None else dp + dpt
-    v = validate_rows(val, base_T_flange, stations, tools, tool_R, dp_mm=dp)
+    v = validate_rows(val, base_T_flange, stations, tools, tool_R, dp_mm=dp, why=why)
     return v
 
 
