@@ -56,6 +56,29 @@ def test_a_session_of_unknown_targets_or_too_few_rows_is_refused(tmp_path: Path)
         session_validation(cal, replace(few, split=np.full(2, "calibration", dtype=object)))
 
 
+def test_a_session_of_two_tracker_placements_registers_each_on_its_own_rows(tmp_path: Path) -> None:
+    """Another session measured from two tracker placements (a ``station`` column): each placement is registered
+    on its own calibration rows, so the figure is the one-placement session's (one frame for both put a newcomer's
+    session 3 958 mm off); a placement with fewer than 3 calibration rows is not judged, and said so."""
+    camp, robot, _ = make_campaign(tmp_path, "geometric", 11, {}, n_poses=40, n_validation_poses=15)
+    cal = calibrate(camp, robot)
+    here = session_validation(cal, camp, cal)
+    half = np.arange(camp.n_rows) % 2 == 1
+    T = homogeneous(rotvec_to_matrix(np.array([0.3, -1.2, 2.0])), np.array([2500.0, -800.0, 40.0]))
+    p = np.where(half[:, None], camp.p_mm @ T[:3, :3].T + T[:3, 3], camp.p_mm)
+    two = replace(camp, p_mm=p, station=np.where(half, "S2", "S1").astype(object))
+    there = session_validation(cal, two, cal)
+    # each placement's frame from half the rows: the same model errors, registered a little differently (1e-3 mm)
+    assert there["final"]["mean_position_mm"] == pytest.approx(here["final"]["mean_position_mm"], abs=2e-3)
+    assert "2 stations registered on its own rows" in there["stations"]
+    st = np.where(half, "S2", "S1").astype(object)
+    st[np.flatnonzero(camp.split == "calibration")[:2]] = "S3"  # two calibration rows of S3 ...
+    st[np.flatnonzero(camp.split == "validation")[:3]] = "S3"  # ... and three to judge: too few to register
+    small = session_validation(cal, replace(two, station=st), cal)
+    assert small["stations_not_judged"] == {"S3": "fewer than 3 calibration rows to register it"}
+    assert small["n_validation_rows"] == int(np.sum(camp.split == "validation")) - 3
+
+
 def test_discover_validate_on_writes_and_prints_the_session(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     import copy
     import json

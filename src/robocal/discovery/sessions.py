@@ -95,12 +95,24 @@ def _judge(
 ) -> Any:
     """The model's errors on the rows ``val`` with the tracker (and with ``tool`` the tools) registered on ``reg``:
     their :class:`ErrorStats`, with ``rows`` also each row's 3-D error (mm)."""
-    T, off = predicted_flanges(cal, campaign, records)
+    T, off0 = predicted_flanges(cal, campaign, records)
     meas = np.asarray(campaign.p_mm, dtype=float)
-    X, off = _register(T, off, np.asarray(campaign.target).astype(str), meas, reg, tool)
-    pts = np.einsum("mij,mj->mi", T[val, :3, :3], off[val]) + T[val, :3, 3]
-    e = pts @ X[:3, :3].T + X[:3, 3] - meas[val]
+    targets = np.asarray(campaign.target).astype(str)
+    st = _stations(campaign)
+    e = np.zeros((campaign.n_rows, 3))
+    for s in dict.fromkeys(st[val].tolist()):  # each tracker placement of the session registered on its own rows
+        on = st == s
+        X, off = _register(T, off0, targets, meas, reg & on, tool)
+        v = val & on
+        pts = np.einsum("mij,mj->mi", T[v, :3, :3], off[v]) + T[v, :3, 3]
+        e[v] = pts @ X[:3, :3].T + X[:3, 3] - meas[v]
+    e = e[val]
     return (ErrorStats.of(e), np.linalg.norm(e, axis=1)) if rows else ErrorStats.of(e)
+
+
+def _stations(campaign: Campaign) -> np.ndarray:
+    """Each row's tracker station (one label for a campaign without a ``station`` column)."""
+    return np.full(campaign.n_rows, "") if campaign.station is None else np.asarray(campaign.station).astype(str)
 
 
 #: visits of a joint closer than this (deg) make one calibrated interval; a row within COVERAGE_TOL_DEG (deg, or mm
@@ -172,6 +184,14 @@ def session_validation(
         raise DataError(
             f"campaign {campaign.source}: {int(reg.sum())} calibration row(s); registering a tracker needs >= 3"
         )
+    # a session of several tracker placements (a station column): each registered on its own calibration rows
+    # (one frame for all of them put a two-station session metres off); a station with fewer than 3 is not judged
+    st = _stations(campaign)
+    small = sorted(s for s in set(st[val].tolist()) if int(np.count_nonzero(reg & (st == s))) < 3)
+    if small:
+        val = val & ~np.isin(st, small)
+        if not val.any():
+            raise DataError(f"campaign {campaign.source}: no station has >= 3 calibration rows to register it")
     # an effect of a logged signal the session did not log cannot be applied there: left out, and said so
     logged = [e.get("signal") == "logged" and str(e["column"]) not in campaign.extra for e in cal.effects]
     missing = [e for e, lost in zip(cal.effects, logged, strict=True) if lost]
@@ -185,6 +205,10 @@ def session_validation(
     }
     if note:
         out["note"] = note
+    if len(set(st.tolist())) > 1:
+        out["stations"] = f"each of the session's {len(set(st.tolist()))} stations registered on its own rows"
+    if small:
+        out["stations_not_judged"] = {s: "fewer than 3 calibration rows to register it" for s in small}
     if missing:
         out["not_applied"] = {str(e["key"]): f"the session has no column '{e['column']}'" for e in missing}
     if calibrated_q is not None:
