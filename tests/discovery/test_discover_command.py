@@ -83,3 +83,5 @@ def test_the_console_line_names_signals_by_key_and_counts_proposed_equations():
     assert _named(s) == "named [signal:incl_x:base_rot, gear j2 h1] and 1 proposed equation(s): dθ3 = 0.0100° ± " \
         "0.0010° · sin(q2)"  # fmt: skip
     assert _named({"named": [], "proposed": []}) == "named [nothing]"
+    axes = [{"effect": "axis", "key": f"track:{c}", "joint": 1, "harmonic": None} for c in ("pitch", "yaw")]
+    assert _named({"named": axes}) == "named [track:pitch, track:yaw]"

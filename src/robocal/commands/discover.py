@@ -152,12 +152,17 @@ def _left_out_lines(s: dict[str, Any], g: dict[str, Any] | None) -> None:
         print(line(g["systematic_misfit"], "against the geometric model, none against the discovered one"))
 
 
+#: effects the console names by their key: "signal", "axis", "session" or "scale" alone say nothing of which
+#: column, which carriage error, which session (the console printed "axis j1, axis j1, axis j1")
+KEYED = ("signal", "axis", "session", "scale", "drift", "air", "regap")
+
+
 def _named(s: dict[str, Any]) -> str:
     """``named [...]`` of the console: a logged signal's effect by its key (which column moves which frame:
     "signal" alone said nothing), the others by effect and joint, and the accepted proposed equations (the console
     said "named [nothing]" while an equation had taken the RMS from 1.03 to 0.44 mm)."""
     named = ", ".join(
-        n["key"] if n["effect"] == "signal" else
+        n["key"] if n["effect"] in KEYED else
         n["effect"] + (f" j{n['joint']}" if n["joint"] else "") + (f" h{n['harmonic']}" if n["harmonic"] else "")
         for n in s["named"]
     )  # fmt: skip
