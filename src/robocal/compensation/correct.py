@@ -298,12 +298,17 @@ def _judged(
     notes: list[list[str]],
     iterations: int = 0,
     command: np.ndarray | None = None,
+    to_reported: Any = None,
 ) -> Corrected:
-    """The :class:`Corrected` of a solved batch, judged by ``policy`` (arguments as :meth:`SafetyPolicy.judge`)."""
+    """The :class:`Corrected` of a solved batch, judged by ``policy`` (arguments as :meth:`SafetyPolicy.judge`).
+    ``to_reported``: a coupled robot's kinematic -> controller joints (:meth:`RobotDescription.to_reported`): its
+    limits are the controller's, so the joints are judged (and named in the reasons) as the controller reports them
+    (a FANUC J3 judged kinematic refused 24 of 100 targets inside the limits)."""
     res_n = np.sqrt((res_mm * res_mm).sum(axis=1))
     res_deg = np.rad2deg(np.sqrt((res_rad * res_rad).sum(axis=1)))
+    qt_j, q_j = (q_target, q) if to_reported is None else (to_reported(q_target), to_reported(q))
     status, reasons = policy.judge(
-        converged, res_n, res_deg, excess, rest, q_target, q, q_limits, joint_names, request_reasons, unreachable
+        converged, res_n, res_deg, excess, rest, qt_j, q_j, q_limits, joint_names, request_reasons, unreachable
     )
     return Corrected(
         q_target,
@@ -427,9 +432,11 @@ def correct(
     if not isinstance(robot, ActualRobot):
         command = fk(robot.model.chain, comp.q) @ T_tool
     notes = hook.notes(q_target) if isinstance(hook, JointOffsets) else [[] for _ in range(m)]
+    rob = None if isinstance(robot, ActualRobot) else robot.model.robot
     return _judged(
         pol, q_target, comp.q, comp.converged, comp.error_before_mm, comp.error_before_rad, comp.residual_mm,
         comp.residual_rad, excess, rest, ql, names, request_reasons, None, notes, comp.iterations, command,
+        to_reported=None if rob is None or rob.coupling is None else rob.to_reported,
     )  # fmt: skip
 
 

@@ -497,6 +497,8 @@ def write_product(res: DiscoveryResult, summ: dict[str, Any], out: Path) -> str 
         status[rows], reason[rows] = comp.status, ["; ".join(x) for x in comp.reasons]
         corr_max[rows] = np.rad2deg(np.abs(comp.correction_rad).max(axis=1))
     ids = [f"{p}/{t}" for p, t in zip(first, tgt, strict=True)]
+    # the joints as the controller takes them (a coupled robot's J3 is reported relative to J2: fanuc_j2j3)
+    qc = res.robot.to_reported(qc)
     write_compensation_csv(out / "compensation.csv", ids, qc, cmd, res_mm, None, status, reason, corr_max)
     return None
 
