@@ -411,7 +411,10 @@ def group_labels(groups: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray
     digits compared as numbers), the order the folds are drawn in: a campaign whose pose ids are integers (0, 1, 2,
     ..., 10) gets the folds its zero-padded ids (p00, p01, ...) get. ``np.unique`` sorts them as text ("10" before
     "2"), so the same poses fell in other folds and, on a near tie, other effects were named. Ids of one padded
-    width keep ``np.unique``'s order."""
+    width keep ``np.unique``'s order. The last array asked for is answered again without sorting (the search asks
+    for its one ``groups`` at every fold set: 16 ms a time at 12 000 rows)."""
+    if _LABELS and _LABELS[0][0] is groups:
+        return _LABELS[0][1]
     uniq, inv, counts = np.unique(np.asarray(groups).astype(str), return_inverse=True, return_counts=True)
 
     def key(label: str) -> tuple[tuple[int, int, str], ...]:
@@ -420,7 +423,14 @@ def group_labels(groups: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray
     order = sorted(range(len(uniq)), key=lambda i: key(str(uniq[i])))
     rank = np.empty(len(uniq), dtype=int)
     rank[order] = np.arange(len(uniq))
-    return uniq[order], rank[inv], counts[order]
+    out = (uniq[order], rank[inv], counts[order])
+    if isinstance(groups, np.ndarray) and not groups.flags.writeable:  # an array nobody can change: kept
+        _LABELS[:] = [(groups, out)]
+    return out
+
+
+#: the last read-only ``groups`` array :func:`group_labels` sorted, and its answer
+_LABELS: list[tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]]] = []
 
 
 def pose_groups(pose_id: np.ndarray, q: np.ndarray) -> np.ndarray:

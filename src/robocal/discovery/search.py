@@ -366,6 +366,7 @@ def _search(
     ) if cfg.cv_folds >= 2 else None  # fmt: skip
     # grouped by pose and by configuration (a configuration measured again under another pose id is one group)
     groups = np.repeat(pose_groups(cal.pose_id, cal.q), geometric.d)
+    groups.setflags(write=False)  # one array for the whole search (its sorted labels kept, cv.group_labels)
     state = DiscoveryState(campaign, robot, cfg, rows, data, groups, refit, geometric, sessions=sessions)
     _library(state, list(library) + weight, log_thr, log_thr_signal, unident)
     # many small effects chosen together by cross-validation (physics first), then equations for what is left,
