@@ -104,6 +104,13 @@ def test_discover_validate_on_writes_and_prints_the_session(tmp_path: Path, caps
     assert set(v) >= {"geometric", "final", "without", "helped", "hurt", "n_registration_rows"}
     printed = capsys.readouterr().out
     assert "another session" in printed and "sessions.json" in printed
+    assert "register its tracker (the tool as calibrated)" in printed and v["registered"] == "tracker"
+    # --validate-tool: the tool re-measured there too (a re-seated tool), and said so
+    rc = main(["discover", str(data), "--robot", sc["robot"], "--out", str(out), "--no-report", "--validate-on",
+               str(data), "--validate-tool"])  # fmt: skip
+    assert rc == 0 and "register its tracker and tool" in capsys.readouterr().out
+    (v,) = json.loads((out / "sessions.json").read_text()).values()
+    assert v["registered"] == "tracker and tool"
 
 
 def test_a_reseated_tool_is_measured_again_when_asked(tmp_path: Path) -> None:

@@ -22,6 +22,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "registered on its own calibration rows, each effect left out in turn (sessions.json)",
     )
     p.add_argument(
+        "--validate-tool",
+        action="store_true",
+        help="with --validate-on: re-measure the tool in the other session too, with its tracker (a tool taken off "
+        "and put back, a new reflector nest); default: the tool as calibrated",
+    )
+    p.add_argument(
         "--engine",
         choices=("local", "ray"),
         default="local",
@@ -46,7 +52,14 @@ def run(args: argparse.Namespace) -> int:
 
     with engine.use(args.engine, args.workers, args.ray_address):
         s = discovery.run(
-            args.data_dir, args.robot, args.out, ov, split=split, report=not args.no_report, sessions=args.validate_on
+            args.data_dir,
+            args.robot,
+            args.out,
+            ov,
+            split=split,
+            report=not args.no_report,
+            sessions=args.validate_on,
+            session_tool=args.validate_tool,
         )
     print(
         f"discover: {_named(s)}; RMS {s['rms_before_mm']:.4f} -> {s['rms_after_mm']:.4f} mm "
@@ -92,8 +105,9 @@ def run(args: argparse.Namespace) -> int:
               + (f" (geometric model {gc['mean_position_mm']:.4f} mm)" if gc else ""))  # fmt: skip
     for where, v in s.get("sessions", {}).items():
         g, f = v["geometric"], v["final"]
+        what = "tracker and tool" if v.get("registered") == "tracker and tool" else "tracker (the tool as calibrated)"
         print(
-            f"another session {where} ({v['n_registration_rows']} rows register its tracker, "
+            f"another session {where} ({v['n_registration_rows']} rows register its {what}, "
             f"{v['n_validation_rows']} judge): mean {g['mean_position_mm']:.4f} mm geometric -> "
             f"{f['mean_position_mm']:.4f} mm discovered; effects that helped there: {v['helped'] or 'none'}, "
             f"hurt: {v['hurt'] or 'none'} (each left out in turn there; a judgement only: the model is not changed — "

@@ -513,6 +513,7 @@ def run(
     campaign: Campaign | None = None,
     report: bool = True,
     sessions: Sequence[str | Path] | None = None,
+    session_tool: bool = False,
 ) -> dict[str, Any]:
     """Discover the effects in the campaign (``settings``: a :class:`DiscoveryConfig` mapping); write
     ``discovery.json``, the product (:func:`write_product`) and ``report.html`` into ``out_dir``. Returns the
@@ -521,7 +522,8 @@ def run(
     ``sessions``: campaign folders of other sessions of the same robot (another day, tracker placement,
     region): the geometric and the discovered model are judged on each (its tracker registered on its own
     calibration rows, :func:`robocal.discovery.sessions.session_validation`), with every effect left out in
-    turn; written as ``sessions.json`` and returned under ``sessions``."""
+    turn; written as ``sessions.json`` and returned under ``sessions``. ``session_tool``: the tool re-measured there
+    too (a re-seated tool; ``robocal discover --validate-tool``)."""
     rob = robot_of(robot)
     cfg = DiscoveryConfig.from_mapping(settings)
     camp = campaign_of(data_dir, rob, split, campaign)
@@ -557,7 +559,9 @@ def run(
         geo = res.extra.get("geometric_calibration")
         for folder in sessions:
             other = campaign_of(folder, rob, None, None)
-            judged[display_path(folder)] = session_validation(cal, other, geo, calibrated_q=camp.q[res.rows])
+            judged[display_path(folder)] = session_validation(
+                cal, other, geo, tool=session_tool, calibrated_q=camp.q[res.rows]
+            )
         write_json(out / "sessions.json", judged)
         written.append("sessions.json")
     extra = {"sessions": judged} if judged else {}
