@@ -139,6 +139,7 @@ def test_a_coupled_robots_compensation_csv_carries_the_controllers_joints(tmp_pa
     data = {**(data.get("robot") or data), "coupling": "fanuc_j2j3", "name": "kr16_2_coupled"}
     robot = robot_from_dict(data, source="test")
     assert robot.coupling is not None
+    (tmp_path / "kr16_2_coupled.yaml").write_text(yaml.safe_dump(data))
     sc = copy.deepcopy(load_scenario("geometric"))
     sc.update(n_poses=60, n_validation_poses=20, robot="kr16_2")
     simulate(sc, tmp_path / "camp", seed=3, robot=robot)
@@ -153,3 +154,21 @@ def test_a_coupled_robots_compensation_csv_carries_the_controllers_joints(tmp_pa
     assert len(ok) >= 15  # (a target near a wrist singularity may be refused for its correction's size)
     for j in range(1, 7):  # the corrections of a twin of 0.3 mm / 0.02 deg errors: well under 1 deg
         assert np.abs(ok[f"q{j}_deg"] - ok[f"q{j}_deg_campaign"]).max() < 1.0, j
+    # the service takes and gives the controller's joints too (it took them as kinematic: predicted errors 1.31 /
+    # 1.16 / 0.82 mm where the library gives 0.67 / 1.11 / 0.39), the same as the offline correction
+    b = load_bundle(
+        write_bundle(tmp_path / "bundle", tmp_path / "kr16_2_coupled.yaml", tmp_path / "out" / "calibration.json")
+    )
+    cfg = ServiceConfig(solver=SolverConfig(max_iter=50, tol_mm=1e-11, tol_deg=1e-11))
+    q_rep = ok[[f"q{j}_deg_campaign" for j in range(1, 7)]].to_numpy()[:5]
+    reply = json.loads(
+        Service(b, cfg).handle_line(json.dumps({"targets": [{"q_deg": q.tolist()} for q in q_rep]}).encode())
+    )
+    assert reply["ok"], reply
+    cal = load_calibration(json.loads((tmp_path / "out" / "calibration.json").read_text()), robot)
+    comp = correct(cal, robot.to_kinematic(np.deg2rad(q_rep)), max_iter=50, tol_mm=1e-11, tol_rad=1e-13)
+    got = np.array([r["q_deg"] for r in reply["results"]])
+    assert np.abs(got - np.rad2deg(robot.to_reported(comp.q))).max() < 1e-6  # deg: the wire's rounding
+    assert (
+        np.abs(np.array([r["predicted_error_mm"] for r in reply["results"]]) - comp.error_before_norm_mm).max() < 1e-5
+    )

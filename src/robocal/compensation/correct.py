@@ -204,8 +204,10 @@ def correct_targets(
     request_reasons: Sequence[str] = (),
     unreachable: np.ndarray | None = None,
     frames: tuple[np.ndarray, np.ndarray] | None = None,
+    to_reported: Any = None,
 ) -> Corrected:
-    """Correct the targets ``q_target`` (m, n) rad and judge them.
+    """Correct the targets ``q_target`` (m, n) rad and judge them (a coupled robot's joints as the controller
+    reports them: ``to_reported``, see :func:`_judged`).
 
     cc / cc_nom : the calibrated (at the moment's temperatures) and the nominal compiled chains; tool_true /
     tool_nominal : (4, 4) or (m, 4, 4) the tool on the calibrated flange and the tool the nominal controller
@@ -276,7 +278,7 @@ def correct_targets(
     notes = offsets.notes(q_target) if offsets is not None else [[] for _ in range(m)]
     return _judged(
         sf, q_target, q, conv, eb_mm, eb_rad, res_mm, res_rad, excess, rest, q_limits, joint_names,
-        request_reasons, unreachable, notes,
+        request_reasons, unreachable, notes, to_reported=to_reported,
     )  # fmt: skip
 
 

@@ -47,7 +47,12 @@ FREED_NOTE = (
 
 
 def _nominal_joints(
-    cc_nom: CompiledChain, tool_T: np.ndarray, tg: Targets, solver: SolverConfig, position: bool = False
+    cc_nom: CompiledChain,
+    tool_T: np.ndarray,
+    tg: Targets,
+    solver: SolverConfig,
+    position: bool = False,
+    to_kinematic: Any = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The joints (m, n) rad the nominal controller uses: a joint target as given, a pose target through the
     nominal inverse kinematics from its seed; whether each was reached; and which targets stated an orientation
@@ -57,8 +62,11 @@ def _nominal_joints(
     does not reach at its position from the seed, is solved for the position only from its seed (the Newton
     steps are least-norm, so the joints, and the orientation with them, stay nearest the seed); the orientation
     is free in this mode, so it never makes a target unreachable. The last array marks the targets whose stated
-    orientation was given up that way."""
+    orientation was given up that way. ``to_kinematic``: a coupled robot's controller joints (``q_deg`` as the
+    controller reports them, FANUC's J3 relative to J2) to the kinematic ones the chain takes."""
     seed = np.deg2rad(tg.q_deg)
+    if to_kinematic is not None:
+        seed = to_kinematic(seed)
     q_target = seed.copy()
     m = len(tg.kind)
     ik_ok = np.ones(m, dtype=bool)
@@ -82,22 +90,24 @@ def _nominal_joints(
 
 
 def _target_replies(
-    c: Any, cc_nom: CompiledChain, tool_T: np.ndarray, q_target: np.ndarray, kind: np.ndarray
+    c: Any, cc_nom: CompiledChain, tool_T: np.ndarray, q_target: np.ndarray, kind: np.ndarray, to_reported: Any = None
 ) -> list[dict[str, Any]]:
     """One reply object per target: status, predicted error, reasons and notes; the corrected joints and the
-    command for the nominal controller unless refused; the nominal joints of a pose target."""
+    command for the nominal controller unless refused; the nominal joints of a pose target. ``to_reported``: a
+    coupled robot's joints given back as its controller takes them (the correction too)."""
     cmd_p, cmd_R, _, _ = forward(cc_nom, c.q, tool_T)  # what the nominal controller must be sent
     # rounded once for the whole batch (the wire's digits)
     eb_r = np.round(c.error_before_norm_mm, 7).tolist()
     ebx_r = np.round(c.error_before_mm, 7).tolist()
     ebd_r = np.round(np.rad2deg(np.linalg.norm(c.error_before_rad, axis=1)), 9).tolist()
-    qc_l = np.rad2deg(c.q).round(9).tolist()
-    dq_l = c.correction_deg.round(9).tolist()
+    q_c, q_t = (c.q, q_target) if to_reported is None else (to_reported(c.q), to_reported(q_target))
+    qc_l = np.rad2deg(q_c).round(9).tolist()
+    dq_l = (c.correction_deg if to_reported is None else np.rad2deg(q_c - q_t)).round(9).tolist()
     cmd_p_l = cmd_p.round(7).tolist()
     cmd_q_l = quaternions(cmd_R).round(12).tolist()
     resid_l = c.residual_norm_mm.tolist()
     resid_deg_l = c.residual_norm_deg.tolist()
-    qt_l = np.rad2deg(q_target).round(9).tolist()
+    qt_l = np.rad2deg(q_t).round(9).tolist()
     results = []
     for k in range(len(q_target)):
         reasons = c.reasons[k]

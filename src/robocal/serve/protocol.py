@@ -164,13 +164,18 @@ class Service:
         offsets = _joint_offsets(bundle, r.targets, r.payload_kg)
         # the base or the tool moving with a logged signal (its value given with each target; checked above)
         frames = frame_transforms(list(bundle.effects), r.targets.logged, m)
-        q_target, ik_ok, freed = _nominal_joints(cc_nom, r.tool_T, r.targets, cfg.solver, r.mode == "position")
+        # a coupled robot (FANUC's J3 relative to J2): the controller's joints in and out, judged by its limits
+        rob = bundle.robot
+        to_kin, to_rep = (None, None) if rob.coupling is None else (rob.to_kinematic, rob.to_reported)
+        q_target, ik_ok, freed = _nominal_joints(
+            cc_nom, r.tool_T, r.targets, cfg.solver, r.mode == "position", to_kinematic=to_kin
+        )
         c = correct_targets(
-            cc, cc_nom, r.tool_T, r.tool_T, q_target, zero_off, offsets, bundle.robot.q_limits,
-            bundle.robot.joint_names, orientation=r.mode == "pose", solver=cfg.solver, policy=cfg.safety,
-            request_reasons=r.reasons, unreachable=~ik_ok, frames=frames,
+            cc, cc_nom, r.tool_T, r.tool_T, q_target, zero_off, offsets, rob.q_limits, rob.joint_names,
+            orientation=r.mode == "pose", solver=cfg.solver, policy=cfg.safety, request_reasons=r.reasons,
+            unreachable=~ik_ok, frames=frames, to_reported=to_rep,
         )  # fmt: skip
-        results = _target_replies(c, cc_nom, r.tool_T, q_target, r.targets.kind)
+        results = _target_replies(c, cc_nom, r.tool_T, q_target, r.targets.kind, to_reported=to_rep)
         for k in np.flatnonzero(freed):
             results[k].setdefault("notes", []).append(FREED_NOTE)
         return self._reply(bundle, r, results, {}, t_start)
