@@ -24,7 +24,12 @@ COMMON = [
     ("report", P.KEYWORD_ONLY, True, "bool"),
 ]
 #: each workflow's keyword-only extras (all default None)
-EXTRAS = {"geometric": ["optimizer"], "thermal": ["screen"], "compliance": ["truth"], "discovery": ["sessions", "session_tool"]}
+EXTRAS = {
+    "geometric": ["optimizer"],
+    "thermal": ["screen"],
+    "compliance": ["truth"],
+    "discovery": ["sessions", "session_tool"],
+}
 
 
 def test_the_registry_names_every_workflow_module() -> None:

@@ -513,7 +513,7 @@ def run(
     campaign: Campaign | None = None,
     report: bool = True,
     sessions: Sequence[str | Path] | None = None,
-    session_tool: bool = False,
+    session_tool: bool | None = None,
 ) -> dict[str, Any]:
     """Discover the effects in the campaign (``settings``: a :class:`DiscoveryConfig` mapping); write
     ``discovery.json``, the product (:func:`write_product`) and ``report.html`` into ``out_dir``. Returns the
@@ -560,7 +560,7 @@ def run(
         for folder in sessions:
             other = campaign_of(folder, rob, None, None)
             judged[display_path(folder)] = session_validation(
-                cal, other, geo, tool=session_tool, calibrated_q=camp.q[res.rows]
+                cal, other, geo, tool=bool(session_tool), calibrated_q=camp.q[res.rows]
             )
         write_json(out / "sessions.json", judged)
         written.append("sessions.json")
