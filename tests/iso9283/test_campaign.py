@@ -111,3 +111,31 @@ def test_program_is_what_the_twin_runs(small_test: Path, tmp_path: Path, capsys)
     first = prog["approach"] == "-x"
     # approached moving along -x: the pre-position is 100 mm further along +x
     assert abs(back[first.to_numpy()] - [-100.0, 0.0, 0.0]).max() < 1e-5
+
+
+def test_a_coupled_robots_program_gives_the_controllers_joints(tmp_path: Path) -> None:
+    """A FANUC-coupled robot (J3 reported relative to J2): iso_program.csv's joints are the controller's, so that
+    the controller's J3 taken back to the kinematic one reaches each commanded point (the kinematic J3 was written:
+    read back through the data reader, P1 landed 199 mm off). The seed is the controller's too: KUKA's usual
+    [0, -90, 90, 0, 60, 0] kinematic is [0, -90, 0, 0, 60, 0] as a FANUC controller states it."""
+    import numpy as np
+    import yaml
+
+    from robocal.iso9283.program import write_program
+    from robocal.kinematics.chain import build_chain, fk
+    from robocal.robot import find_robot, robot_from_dict
+
+    data = yaml.safe_load(find_robot("kr16_2").read_text())
+    robot = robot_from_dict({**(data.get("robot") or data), "coupling": "fanuc_j2j3"}, source="test")
+    from robocal.iso9283.settings import IsoSettings
+
+    st = IsoSettings.from_mapping(
+        {"test": {"cycles": 2, "tcp_mm": [35, -20, 120]}, "twin": {"seed_q_deg": [0, -90, 0, 0, 60, 0]}}
+    )
+    prog = pd.read_csv(write_program(tmp_path, robot, st))
+    q_rep = np.deg2rad(prog[[f"q{j}_deg" for j in range(1, 7)]].to_numpy())
+    T = fk(build_chain(robot), robot.to_kinematic(q_rep))
+    tcp = T[:, :3, 3] + np.einsum("mij,j->mi", T[:, :3, :3], np.array([35.0, -20.0, 120.0]))
+    # the joints are written to 1e-6 deg: ~1e-5 mm at the tool of a 1.6 m arm
+    assert np.abs(tcp - prog[["cmd_x_mm", "cmd_y_mm", "cmd_z_mm"]].to_numpy()).max() < 1e-3
+    assert np.abs(q_rep[:, 2] - robot.to_kinematic(q_rep)[:, 2]).max() > 0.1  # the coupling really moved J3

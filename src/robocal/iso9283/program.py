@@ -33,7 +33,7 @@ def cube_joints(nominal: ActualRobot, robot: Any, pts: np.ndarray, seed_deg: Any
         seed = np.asarray(seed_deg, dtype=float)
         if seed.shape != (n,):
             raise ConfigError(f"iso9283.twin.seed_q_deg: must be {n} joint angles (deg); got {list(seed)}")
-    q0 = np.deg2rad(seed)[None, :]
+    q0 = robot.to_kinematic(np.deg2rad(seed)[None, :])  # the seed as the controller states it (a coupled J3)
     c1 = compensate(nominal, q0, pts[:1], max_iter=80, tol_mm=1e-6, stall=False)
     c = compensate(nominal, np.tile(c1.q, (5, 1)), pts, max_iter=80, tol_mm=1e-6, stall=False)
     if not (c1.converged.all() and c.converged.all()):
@@ -41,15 +41,18 @@ def cube_joints(nominal: ActualRobot, robot: Any, pts: np.ndarray, seed_deg: Any
             f"iso9283.test.volume: the cube (centre {list(pts[0])}) is out of reach of {robot.name} from "
             f"seed_q_deg {seed.tolist()}; move the cube or give twin.seed_q_deg"
         )
-    q = np.deg2rad(np.round(np.rad2deg(c.q), 6))
+    # the program's joints are the controller's (a coupled robot's J3 relative to J2), rounded as written; judged
+    # by its limits, and returned kinematic (what the chain takes)
+    q_rep = np.deg2rad(np.round(np.rad2deg(robot.to_reported(c.q)), 6))
     lim = robot.q_limits
-    bad = (q < lim[:, 0]) | (q > lim[:, 1])
+    bad = (q_rep < lim[:, 0]) | (q_rep > lim[:, 1])
     if bad.any():
         k, j = (int(v[0]) for v in np.nonzero(bad))
         raise ConfigError(
-            f"iso9283.test.volume: P{k + 1} needs joint {j + 1} at {np.rad2deg(q[k, j]):.1f} deg, outside its limits"
+            f"iso9283.test.volume: P{k + 1} needs joint {j + 1} at {np.rad2deg(q_rep[k, j]):.1f} deg, outside its "
+            "limits; give twin.seed_q_deg (a seed nearer the cube, in the controller's joints)"
         )
-    return q
+    return np.asarray(robot.to_kinematic(q_rep))
 
 
 def joint_directions(nominal: ActualRobot, q: np.ndarray, dirs: list[np.ndarray]) -> np.ndarray:
@@ -103,8 +106,9 @@ def write_program(out_dir: str | Path, robot: Any, settings: IsoSettings | None 
                 visit += 1
                 vals = [str(visit), str(c + 1), lab, f"P{k + 1}"]
                 vals += [f"{v:.6f}" for v in p[k]] + [f"{v:.9f}" for v in quat[k]]
-                vals += [f"{v:.6f}" for v in np.rad2deg(q[k])]
-                vals += [f"{v:.6f}" for v in pre_p[k, a]] + [f"{v:.6f}" for v in np.rad2deg(pre_q[k, a])]
+                vals += [f"{v:.6f}" for v in np.rad2deg(robot.to_reported(q[k]))]  # the controller's joints
+                vals += [f"{v:.6f}" for v in pre_p[k, a]]
+                vals += [f"{v:.6f}" for v in np.rad2deg(robot.to_reported(pre_q[k, a]))]
                 lines.append(",".join(vals))
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

@@ -364,7 +364,7 @@ def _compensated(
             t: dict[str, Any] = {
                 "xyz_mm": cmd_p[i].tolist(),
                 "quat_wxyz": quat[i].tolist(),
-                "q_seed_deg": np.rad2deg(rows.q_cmd[i]).tolist(),
+                "q_seed_deg": np.rad2deg(b.robot.to_reported(rows.q_cmd[i])).tolist(),  # the service's joints
             }
             if b.effects:
                 t["dir"] = dirs[i].tolist()
@@ -379,7 +379,7 @@ def _compensated(
         for k, r in zip(idx, reply["results"], strict=True):
             if r["status"] == "refused":
                 raise ConfigError(f"the service refused ISO target {rows.pose_id[k]}: {r.get('reasons')}")
-            q[k] = np.deg2rad(np.asarray(r["q_deg"], dtype=float))
+            q[k] = b.robot.to_kinematic(np.deg2rad(np.asarray(r["q_deg"], dtype=float)))
     return q
 
 
