@@ -63,3 +63,27 @@ def test_a_description_in_other_units_is_refused_not_misread():
     with pytest.raises(ConfigError, match="units must be"):
         robot_from_dict({"units": {"length": "m", "angle": "rad"}, "joints": rows}, "test.yaml")
     assert robot_from_dict({"units": {"length": "mm", "angle": "deg"}, "joints": rows}, "t.yaml").d_mm[0] == 0.4
+
+
+def test_a_dh_track_states_its_gravity_and_is_not_taken_for_a_column() -> None:
+    """A DH table's base frame is axis 1's: for a floor track its z runs along the travel, and the default gravity
+    (-z) made the track a lifting column with the arm's weight along the rails. Gravity alone may be stated in a DH
+    description; masses still may not (their centres are in MD-H link frames)."""
+    import pytest as _pytest
+
+    from robocal.errors import ConfigError
+    from robocal.robot import robot_from_dict
+
+    joints = [
+        {"name": "E1", "type": "prismatic", "a_mm": 0.0, "alpha_deg": 90.0, "d_mm": 0.0, "theta_offset_deg": 90.0,
+         "q_min_mm": 0.0, "q_max_mm": 4000.0},
+        {"name": "J1", "a_mm": 50.0, "alpha_deg": -90.0, "d_mm": 478.0, "q_min_deg": -180.0, "q_max_deg": 180.0},
+        {"name": "J2", "a_mm": 425.0, "alpha_deg": 0.0, "d_mm": 50.0, "q_min_deg": -130.0, "q_max_deg": 147.5},
+        {"name": "J3", "a_mm": 0.0, "alpha_deg": 0.0, "d_mm": 0.0, "q_min_deg": -145.0, "q_max_deg": 145.0},
+    ]  # fmt: skip
+    base = {"name": "track", "convention": "dh", "joints": joints}
+    assert robot_from_dict(base, source="t").role(0) == "column"  # gravity -z: along the travel
+    track = robot_from_dict({**base, "dynamics": {"gravity_mps2": [0.0, -9.81, 0.0]}}, source="t")
+    assert track.role(0) == "E1" and list(track.gravity) == [0.0, -9.81, 0.0] and not track.has_dynamics
+    with _pytest.raises(ConfigError, match=r"dynamics\.links"):
+        robot_from_dict({**base, "dynamics": {"links": [{"mass_kg": 1.0, "com_mm": [0, 0, 0]}] * 4}}, source="t")

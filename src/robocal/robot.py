@@ -561,8 +561,8 @@ def _dynamics(
         )
         if "payload_com_mm" in dyn:
             payload_com = _vec(dyn["payload_com_mm"], 3, f"{source}: dynamics.payload_com_mm")
-        if "gravity_mps2" in dyn:
-            gravity = _vec(dyn["gravity_mps2"], 3, f"{source}: dynamics.gravity_mps2")
+    if isinstance(dyn, dict) and "gravity_mps2" in dyn:  # stated with or without masses (a DH table's base is
+        gravity = _vec(dyn["gravity_mps2"], 3, f"{source}: dynamics.gravity_mps2")  # axis 1's frame: a track's)
     return mass, com, payload_com, gravity
 
 

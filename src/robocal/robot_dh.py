@@ -43,9 +43,11 @@ def dh_description(data: dict[str, Any], source: str, mdh: str, poe: str) -> dic
     description of the chain at q = 0 (axis i: the z axis of DH frame i - 1). The same flange pose for every q.
     ``mdh``, ``poe``: the convention names of :mod:`robocal.robot`, which reads the result."""
     joints = data["joints"]
-    if data.get("dynamics") is not None:
-        raise ConfigError(f"{source}: convention dh with 'dynamics': give link masses with an MD-H description "
-                          "(their centres of mass are in its link frames)")  # fmt: skip
+    dyn = data.get("dynamics")
+    if dyn is not None and (not isinstance(dyn, dict) or dyn.get("links")):
+        raise ConfigError(f"{source}: convention dh with 'dynamics.links': give link masses with an MD-H "
+                          "description (their centres of mass are in its link frames); gravity alone may be stated "
+                          "(dynamics: {gravity_mps2: [gx, gy, gz]}, in the base frame: DH's is axis 1's)")  # fmt: skip
     rows = []
     for i, j in enumerate(joints, start=1):
         where = f"{source}: joints[{i}]"
