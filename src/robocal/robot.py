@@ -186,17 +186,12 @@ class RobotDescription:
         if self.poe_w is not None:
             z = np.asarray(self.poe_w[j], dtype=float)
         else:  # MD-H: the z axis of the frame the joint's own Rot_z / Trans_z act in
+            from scipy.spatial.transform import Rotation  # (robocal.kinematics imports this module)
+
             R = np.eye(3)
-            for k in range(j + 1):
-                ca, sa = np.cos(self.alpha[k]), np.sin(self.alpha[k])
-                R = R @ np.array([[1.0, 0.0, 0.0], [0.0, ca, -sa], [0.0, sa, ca]])
-                if k == j:
-                    break
-                ct, st = np.cos(self.theta_offset[k]), np.sin(self.theta_offset[k])
-                R = R @ np.array([[ct, -st, 0.0], [st, ct, 0.0], [0.0, 0.0, 1.0]])
-                cb, sb = np.cos(self.beta[k]), np.sin(self.beta[k])
-                R = R @ np.array([[cb, 0.0, sb], [0.0, 1.0, 0.0], [-sb, 0.0, cb]])
-            z = R[:, 2]
+            for k in range(j):  # intrinsic x, z, y: Rot_x(alpha) Rot_z(theta) Rot_y(beta)
+                R = R @ Rotation.from_euler("XZY", [self.alpha[k], self.theta_offset[k], self.beta[k]]).as_matrix()
+            z = (R @ Rotation.from_euler("X", self.alpha[j]).as_matrix())[:, 2]
         g = np.asarray(self.gravity, dtype=float)
         if not (np.linalg.norm(z) > 0 and np.linalg.norm(g) > 0):
             return False

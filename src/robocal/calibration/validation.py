@@ -90,8 +90,9 @@ def determined_stations(stations: dict[str, np.ndarray], cal: Campaign) -> tuple
     for s, T in stations.items():
         pts = cal.p_mm if st is None else cal.p_mm[st == s]
         pts = np.unique(np.round(pts, 6), axis=0)
-        spread = np.linalg.svd(pts - pts.mean(axis=0), compute_uv=False) if len(pts) >= 3 else np.zeros(1)
-        if len(pts) >= 3 and len(spread) >= 2 and spread[1] > 1e-3 * max(float(spread[0]), 1e-9) and spread[1] > 1.0:
+        # off one line: the points' second singular value (mm) clear of zero, absolutely and against the first
+        sv = np.linalg.svd(pts - pts.mean(axis=0), compute_uv=False) if len(pts) >= 3 else np.zeros(2)
+        if sv[1] > max(1.0, 1e-3 * float(sv[0])):
             keep[s] = T
         else:
             why[s] = f"its {len(pts)} calibration point(s) do not determine its frame (3 not on one line needed)"

@@ -205,8 +205,9 @@ def session_validation(
     }
     if note:
         out["note"] = note
-    if len(set(st.tolist())) > 1:
-        out["stations"] = f"each of the session's {len(set(st.tolist()))} stations registered on its own rows"
+    n_st = len(set(st.tolist()))
+    if n_st > 1:
+        out["stations"] = f"each of the session's {n_st} stations registered on its own rows"
     if small:
         out["stations_not_judged"] = {s: "fewer than 3 calibration rows to register it" for s in small}
     if missing:
