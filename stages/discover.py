@@ -70,6 +70,13 @@ def compute(ctx: Context) -> Metrics:
     final = (summary.get("validation") or {}).get("final") or {}
     if "mean_position_mm" in final:  # the held-out figure of the model the service applies (the one to judge by)
         headline["disc_val_mean_mm"] = final["mean_position_mm"]
+    problems = list(summary.get("problems", []))
+    for text in problems:  # the fit had nothing to start from (as geometric_fit says it)
+        print(f"stage discover: FAILED: {text}")
+    if problems:
+        details["reason"] = "; ".join(problems)
+        ctx.tracker.set_tags({"robocal.failure": details["reason"]})
+        return Metrics(headline, details, status="failed")
     return Metrics(headline, details)
 
 

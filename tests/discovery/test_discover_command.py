@@ -85,3 +85,30 @@ def test_the_console_line_names_signals_by_key_and_counts_proposed_equations():
     assert _named({"named": [], "proposed": []}) == "named [nothing]"
     axes = [{"effect": "axis", "key": f"track:{c}", "joint": 1, "harmonic": None} for c in ("pitch", "yaw")]
     assert _named({"named": axes}) == "named [track:pitch, track:yaw]"
+
+
+def test_discover_fails_as_calibrate_when_the_fit_cannot_start(tmp_path, capsys):
+    """An arm on a lifting column given as the arm alone, the column's position logged as an extra column: the
+    nominal model misses by a tenth of the cell. robocal calibrate said FAILED; robocal discover ran on from that
+    start, named the column as a base translation and exited 0 with a held-out error of 35 mm (and a
+    compensation.csv). Now both fail with the same reason, which names the column as an axis carrying the robot."""
+    from robocal.sim.scenario import load_scenario
+    from robocal.sim.twin import simulate
+
+    sc = dict(load_scenario("column"), n_poses=40, n_validation_poses=10, effects={})
+    simulate(sc, tmp_path / "twin", seed=1)
+    df = pd.read_csv(tmp_path / "twin" / "poses.csv", dtype=str, keep_default_na=False)
+    df = df.rename(columns={"q1_mm": "column_mm", **{f"q{j}_deg": f"q{j - 1}_deg" for j in range(2, 8)}})
+    camp = tmp_path / "arm_alone"
+    camp.mkdir()
+    df.to_csv(camp / "poses.csv", index=False)
+    codes, texts = [], []
+    for cmd in ("calibrate", "discover"):
+        codes.append(main([cmd, str(camp), "--robot", "kr16_2", "--out", str(tmp_path / cmd), "--no-report"]))
+        texts.append(capsys.readouterr().out)
+    assert codes == [1, 1], texts
+    for cmd, text in zip(("calibrate", "discover"), texts, strict=True):
+        line = next(x for x in text.splitlines() if x.startswith(f"robocal {cmd}: FAILED: the fit cannot start"))
+        assert "The extra column column_mm spans" in line and "type: prismatic" in line, line
+    assert not (tmp_path / "discover" / "compensation.csv").exists()  # nothing fitted from nowhere is sent on
+    assert "no compensation.csv: the fit cannot start" in texts[1]

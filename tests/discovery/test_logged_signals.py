@@ -15,7 +15,7 @@ import yaml
 
 from robocal.data.contract import read_campaign
 from robocal.discovery.config import DiscoveryConfig
-from robocal.discovery.logged import frame_columns, screen
+from robocal.discovery.logged import fill_gaps, frame_columns, joint_basis, screen
 from robocal.discovery.search import discover
 from robocal.discovery.summary import summary
 from robocal.discovery.validate import validation_errors
@@ -120,6 +120,7 @@ def test_screen_names_each_column_not_used_with_its_reason(tmp_path):
         "gappy_text": np.array(
             ["" if i in (3, 4) else f"{v:.4f}" for i, v in enumerate(rng.normal(size=m))], dtype=object
         ),
+        "mostly_empty": np.where(np.arange(m) % 3 == 0, rng.normal(size=m), np.nan),  # two rows in three missing
         "constant": np.full(m, 3.0),
         "comment": np.array(["x"] * m, dtype=object),
         "skip_me": rng.normal(size=m),
@@ -134,14 +135,19 @@ def test_screen_names_each_column_not_used_with_its_reason(tmp_path):
     decl = parse_declarations({"skip_me": {"use": False}, "declared_std": {"unit": "mm"}}, "test")
     camp = replace(camp, extra=extra, signal_declarations=decl)
     used, skipped = screen(camp, robot)
-    assert [u.name for u in used] == ["sensor", "declared_std"]  # declared: offered, whatever its name
+    # declared: offered, whatever its name; a few missing readings: filled (one empty cell dropped the column)
+    assert [u.name for u in used] == ["sensor", "gappy", "gappy_text", "declared_std"]
+    fills = {u.name: u.to_dict()["filled"] for u in used if u.filled}
+    assert fills["gappy"]["rows"] == 1 and fills["gappy"]["file_rows"] == [9]
+    assert fills["gappy_text"]["rows"] == 2 and fills["gappy_text"]["file_rows"] == [5, 6]
+    assert all(np.isfinite(u.values).all() for u in used)
     why = {s["column"]: s["reason"] for s in skipped}
     assert why["sensor_copy"].startswith("a copy of the logged signal sensor")
     assert why["distance_mm"].startswith("a function of the measured position")
-    assert why["gappy"] == "missing or non-finite values in 1 row(s) (file rows [9])"
+    assert why["mostly_empty"].startswith("missing or non-finite values in ")
+    assert why["mostly_empty"].endswith("more than 50% of the rows, not filled")
     assert why["constant"] == "does not vary over the calibration rows"
     assert why["comment"] == "not numeric"
-    assert why["gappy_text"] == "missing or non-finite values in 2 row(s) (file rows [5, 6])"
     assert why["skip_me"] == "declared not to be used (use: false)"
     assert why["std_y_mm"].startswith("the instrument's stated uncertainty of the measurement")
     assert why["goal_roll_rad"].startswith("a commanded pose or set point")
@@ -270,3 +276,52 @@ def test_random_channels_leave_the_library_search_unchanged(tmp_path):
     assert with_channels["selection"]["signal_tests"] == 2 * 11 + 4
     assert "signal_tests" not in without["selection"]
     assert with_channels["rms_after_mm"] == pytest.approx(without["rms_after_mm"], rel=1e-9)
+
+
+def test_missing_readings_are_filled_the_way_that_predicts_the_column_best(tmp_path):
+    """A column's gaps filled by interpolation in time (a slow drift), by its fit on the joint-angle basis (a tilt
+    that follows the pose) or by both (the pose's part and a slow wander): the way whose leave-one-out error on
+    the column's own readings is smallest, and its filled values near the truth."""
+    camp, robot, _ = make_campaign(tmp_path, "geometric", 5, {})
+    m = camp.n_rows
+    rng = np.random.default_rng(1)
+    t = camp.timestamp_s
+    B = joint_basis(camp, robot)
+    walk = np.cumsum(rng.normal(size=m))[np.argsort(np.argsort(t))]  # a random walk in time order
+    pose = B @ rng.normal(size=B.shape[1])
+    gap = np.arange(m) % 9 == 4
+    for truth, way in ((walk, "linear interpolation in time"), (pose, "regression on the joint-angle basis "
+                       "(the column"), (pose + 0.05 * np.std(pose) / np.std(walk) * walk, "regression on the "
+                       "joint-angle basis, its leftover interpolated in time")):  # fmt: skip
+        x = np.where(gap, np.nan, truth + 1e-3 * np.std(truth) * rng.normal(size=m))
+        filled, rec = fill_gaps(x, t, B)
+        assert rec["way"].startswith(way), rec
+        assert rec["rows"] == int(gap.sum())
+        err = np.sqrt(np.mean((filled[gap] - truth[gap]) ** 2))
+        # the fill's own estimate of its error is what it makes: within a factor 3 (a few dozen filled rows)
+        assert err <= 3.0 * rec["loo_rms"] + 1e-12 and err <= 0.3 * np.std(truth), (way, err, rec)
+        assert np.array_equal(filled[~gap], x[~gap])  # the readings themselves untouched
+
+
+def test_a_stand_tilting_with_the_pose_is_found_from_its_declared_inclinometer(tmp_path):
+    """An inclinometer under a stand that tilts ~2 mrad with the arm's weight and barely wanders reads a function
+    of the pose to R² > 0.99999: it was taken for a commanded value logged beside the joints and not used (the
+    held-out error 10x the floor, the tilt fitted as compliance). Declared (the twin's signals.yaml) it is offered
+    and both tilts are named; undeclared, the same column is still not used (a commanded pose reads the same)."""
+    stand = {"compliant_stand": {"arm_mass_kg": 250.0, "compliance_mrad_per_kNm": 2.0, "wander_mrad": 0.0,
+                                 "sensor_noise_mrad": 0.0005}}  # fmt: skip
+    camp, robot, truth = make_campaign(tmp_path, "geometric", 2, stand, n_poses=105, n_validation_poses=35)
+    assert max(truth["effects"]["compliant_stand"]["tilt_rms_mrad"]) > 1.5
+    used, _ = screen(camp, robot)
+    assert [u.name for u in used] == ["incl_x", "incl_y"]
+    assert all(u.filled["note"].startswith("mostly a function of the pose (R² = 1 - ") for u in used)
+    res = discover(camp, robot, FAST)
+    s = summary(res, validation_errors(res))
+    keys = {n["key"] for n in s["named"]}
+    assert {"signal:incl_x:base_rot", "signal:incl_y:base_rot"} <= keys, sorted(keys)
+    ref_camp, ref_robot, _ = make_campaign(tmp_path, "geometric", 2, {}, n_poses=105, n_validation_poses=35)
+    floor = validation_errors(discover(ref_camp, ref_robot, replace(FAST, effects=())))["geometric"]
+    assert s["validation"]["final"]["mean_position_mm"] <= FLOOR_FACTOR * floor["mean_position_mm"]
+    _, skipped = screen(replace(camp, signal_declarations=()), robot)
+    assert {x["column"] for x in skipped} == {"incl_x", "incl_y"}
+    assert all(x["reason"].startswith("a function of the joint angles") for x in skipped)

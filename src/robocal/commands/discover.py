@@ -130,7 +130,9 @@ def run(args: argparse.Namespace) -> int:
     print(f"wrote {args.out}/" + ", ".join(shown.get(f, f) for f in s["written"]))
     for name, why in s["not_written"].items():
         print(f"no {name}: {why}")
-    return 0
+    for text in s.get("problems", []):
+        print(f"robocal discover: FAILED: {text}")
+    return 1 if s.get("problems") else 0
 
 
 def _left_out_lines(s: dict[str, Any], g: dict[str, Any] | None) -> None:
@@ -201,7 +203,15 @@ def _logged_line(rec: dict[str, Any] | None) -> None:
     why), declared but not in this campaign."""
     if not rec:
         return
-    used = [u.get("column", "?") for u in rec.get("used", [])]
+    used = [
+        u.get("column", "?")
+        + (
+            f" ({u['filled']['rows']} missing readings filled: {u['filled']['way']})"
+            if (u.get("filled") or {}).get("rows")
+            else ""
+        )
+        for u in rec.get("used", [])
+    ]
     parts = [f"offered to the search: {', '.join(used)}" if used else "none offered to the search"]
     if rec.get("not_used"):
         names = ", ".join(n["column"] for n in rec["not_used"])

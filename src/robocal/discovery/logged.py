@@ -3,14 +3,22 @@
 A numeric column of ``poses.csv`` the data contract does not name (:mod:`robocal.logged_signals`: an
 inclinometer, an accelerometer, an external axis position, a load cell, a time counter) is first screened:
 
-* a column that does not vary, holds missing values, or is not numeric is not used (said, with the reason);
+* a column that does not vary or is not numeric is not used (said, with the reason);
+* a column with a few missing readings (a sensor sampled more slowly than the poses, dropped samples: at most
+  :data:`MAX_MISSING_SHARE` of the rows) has them filled (:func:`fill_gaps`), by linear interpolation in time or
+  by its regression on the joint-angle basis, whichever predicts the column's own readings better left out one at
+  a time (a tilt that follows the arm's weight is a function of the pose, a slow drift one of time); the rows
+  filled, the way and its error are reported. Before, one empty cell dropped the signal;
 * a column that is a function of the joints — a commanded pose logged beside the joints, a copy of a joint — is
   recognised by regressing it on a joint-angle basis (the angles, their first two harmonics and the nominal
   flange pose) and not used: R² of at least :data:`FUNCTION_R2` (it carries nothing the joints do not, and an
-  effect driven by it would be a joint-angle effect under another name);
+  effect driven by it would be a joint-angle effect under another name). A sensor reads its cause with its own
+  noise: an inclinometer under a stand tilting with the arm's weight follows the pose to R² ~0.9996 (a commanded
+  value logged beside the joints to 1 - 1e-7 and closer), and a *declared* sensor is offered whatever its R²
+  (said: "mostly a function of the pose");
 * a column that is a function of the measurement itself (the tracker's own distance, angles or coordinates) is
   recognised by regressing it on the measured position (linear, quadratic and spherical terms) and not used: an
-  effect driven by it would fit the measurement with itself;
+  effect driven by it would fit the measurement with itself (a declared sensor is offered, as above);
 * a column equal to an earlier usable one (|r| >= :data:`FUNCTION_R2`) is a copy and not used twice;
 * a column whose name says it logs a commanded pose or set point (``goal_roll_rad``, ``cmd_x_mm``:
   :func:`commanded_column`) is a function of the joints even where the regression cannot show it (angles that wrap,
@@ -51,7 +59,14 @@ from robocal.robot import RobotDescription
 #: column: a logged sensor carries its own noise and its own cause, so it never reaches this on a joint basis of
 #: ~40 functions over a few hundred rows (a random column's R² is about 40 / rows), while a commanded value
 #: logged beside the joints, rounded to 1e-6, is at 1 - 1e-9.
-FUNCTION_R2 = 0.999
+#: (was 0.999: a declared inclinometer under a stand tilting 3 mrad with the arm's weight, 0.005 mrad of sensor noise
+#: and 0.05 mrad of wander, reaches 0.9996 and was not used; the UR10's commanded goal_x/y/z_mm reach 1 - 2e-7 to
+#: 1 - 3e-8 and its goal_pitch_rad 1 - 5e-6)
+FUNCTION_R2 = 0.99999
+#: |r| at or above which a column is a copy of an earlier usable one
+COPY_R = 0.999
+#: a column missing more than this share of its rows' readings is not used (its gaps are not filled)
+MAX_MISSING_SHARE = 0.5
 #: the basis must have at most this share of the rows to judge R² (else the lower harmonics only)
 BASIS_MAX_SHARE = 0.5
 #: the frame effects a signal may drive, with their coefficient names and units (per unit of the signal)
@@ -78,6 +93,7 @@ class LoggedSignal:
     values: np.ndarray
     centre: float
     declaration: SignalDeclaration | None
+    filled: dict[str, Any] | None = None  # missing readings filled (fill_gaps): how many, which way, its error
 
     @property
     def unit(self) -> str:
@@ -98,6 +114,7 @@ class LoggedSignal:
             "side": self.side,
             "centre": self.centre,
             "std": float(np.std(self.values)),
+            **({"filled": self.filled} if self.filled else {}),
         }
 
 
@@ -110,6 +127,58 @@ def _r2(y: np.ndarray, B: np.ndarray) -> float:
     coef, *_ = np.linalg.lstsq(B, y, rcond=1e-12)
     e = y - B @ coef
     return float(1.0 - (e @ e) / ss)
+
+
+def fill_gaps(x: np.ndarray, t_s: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, dict[str, Any]]:
+    """A logged column's missing readings (NaN) filled, and how: by linear interpolation in time between the
+    readings (the first and last held beyond them), or by the column's least-squares fit on the joint-angle basis
+    ``B`` (rows x functions), or by that fit with its leftover interpolated in time, whichever predicts the
+    readings better when each is left out in turn (the interpolation from its neighbours in time, the fit by its
+    leave-one-out residual ``e / (1 - h)``, the leftover's interpolation from its neighbours). Returns the
+    filled column and ``{"rows", "way", "loo_rms"}`` (the chosen way's leave-one-out RMS error, in the column's
+    unit, beside which its spread ``std`` says how good a fill it is)."""
+    ok = np.isfinite(x)
+    t = np.asarray(t_s, dtype=float)
+    miss = ~ok
+    rms_time, fill_time = _by_time(t[ok], x[ok], t[miss])
+    best = (rms_time, fill_time, "linear interpolation in time between the readings")
+    if B.shape[1] < 0.5 * ok.sum():
+        Bk = B[ok]
+        coef, *_ = np.linalg.lstsq(Bk, x[ok], rcond=1e-12)
+        e = x[ok] - Bk @ coef
+        Q, _ = np.linalg.qr(Bk)
+        h = np.clip(np.sum(Q**2, axis=1), 0.0, 1.0 - 1e-9)
+        rms_joint = float(np.sqrt(np.mean((e / (1.0 - h)) ** 2)))
+        if rms_joint < best[0]:
+            best = (rms_joint, B[miss] @ coef, "regression on the joint-angle basis (the column follows the pose)")
+        # the pose's part and, between the readings in time, what it leaves (a stand that tilts with the arm's
+        # weight and wanders slowly): the leftover's own leave-one-out interpolation
+        rms_both, fill_e = _by_time(t[ok], e, t[miss], e / (1.0 - h))
+        if rms_both < best[0]:
+            best = (rms_both, B[miss] @ coef + fill_e, "regression on the joint-angle basis, its leftover "
+                    "interpolated in time between the readings")  # fmt: skip
+    rms, fill, way = best
+    out = x.copy()
+    out[miss] = fill
+    return out, {"rows": int(miss.sum()), "way": way, "loo_rms": float(f"{rms:.3g}")}
+
+
+def _by_time(
+    t: np.ndarray, x: np.ndarray, t_new: np.ndarray, x_self: np.ndarray | None = None
+) -> tuple[float, np.ndarray]:
+    """Linear interpolation in time of readings ``x`` at times ``t`` (held beyond the first and the last): the RMS
+    error of each reading (``x_self``, default ``x``: a fit's leftover left out is its leave-one-out residual)
+    predicted from its neighbours in time, and the values at ``t_new``."""
+    o = np.argsort(t, kind="stable")
+    ts, xs = t[o], x[o]
+    own = xs if x_self is None else x_self[o]
+    pred = np.empty_like(xs)
+    if len(xs) > 2:
+        dt = ts[2:] - ts[:-2]
+        w = np.divide(ts[1:-1] - ts[:-2], dt, out=np.full(len(dt), 0.5), where=dt > 0)
+        pred[1:-1] = xs[:-2] + w * (xs[2:] - xs[:-2])
+    pred[0], pred[-1] = (xs[1], xs[-2]) if len(xs) > 1 else (xs[0], xs[0])
+    return float(np.sqrt(np.mean((own - pred) ** 2))), np.interp(t_new, ts, xs)
 
 
 def joint_basis(campaign: Campaign, robot: RobotDescription) -> np.ndarray:
@@ -163,6 +232,28 @@ def uncertainty_column(name: str) -> bool:
     return bool(_UNCERTAINTY.search(name))
 
 
+def _function_of(
+    x: np.ndarray, Bj: np.ndarray, Bm: np.ndarray, declared: bool
+) -> tuple[str | None, float | None, str | None]:
+    """Whether a column's readings ``x`` are a function of the joints (basis ``Bj``) or of the measured position
+    (``Bm``) to R² >= :data:`FUNCTION_R2`: ``(why not used, its R², None)`` for an undeclared column, ``(None,
+    None, note)`` for a declared one (offered, the note saying so), ``(None, None, None)`` otherwise."""
+    for B, what in ((Bj, "joint"), (Bm, "measurement")):
+        r2 = _r2(x, B) if B.shape[1] < len(x) else float("nan")
+        if not r2 >= FUNCTION_R2:
+            continue
+        if declared:
+            basis = "on a joint-angle basis" if what == "joint" else "on the measured position"
+            return None, None, f"mostly a function of the pose (R² = 1 - {1 - r2:.1e} {basis}); offered: declared"
+        if what == "joint":
+            why = ("a function of the joint angles (a commanded pose or joint logged beside the joints): "
+                   f"R² = {r2:.6f} on a joint-angle basis")  # fmt: skip
+        else:
+            why = f"a function of the measured position (the tracker's own reading): R² = {r2:.6f}"
+        return why, r2, None
+    return None, None, None
+
+
 def screen(campaign: Campaign, robot: RobotDescription) -> tuple[list[LoggedSignal], list[dict[str, Any]]]:
     """The campaign's usable logged signals and the extra columns not used, each with the reason."""
     decl = merged(robot.signals, campaign.signal_declarations)
@@ -189,26 +280,27 @@ def screen(campaign: Campaign, robot: RobotDescription) -> tuple[list[LoggedSign
         if x is None:
             skip("not numeric")
             continue
-        bad = np.flatnonzero(~np.isfinite(x))
-        if len(bad):
-            rows = campaign.row_number[bad[:5]].tolist()
-            more = " ..." if len(bad) > 5 else ""
-            skip(f"missing or non-finite values in {len(bad)} row(s) (file rows {rows}{more})")
-            continue
-        if float(np.std(x[cal])) <= 1e-12 * max(1.0, float(np.abs(x).max())):
-            skip("does not vary over the calibration rows")
-            continue
+        ok = np.isfinite(x)  # the R² tests below judge the column's own readings, not the filled ones
+        bad = np.flatnonzero(~ok)
+        filled = None
         if Bj is None:
             Bj, Bm = joint_basis(campaign, robot), measurement_basis(campaign)
         assert Bm is not None
-        r2j = _r2(x, Bj) if Bj.shape[1] < campaign.n_rows else float("nan")
-        if r2j >= FUNCTION_R2:
-            skip("a function of the joint angles (a commanded pose or joint logged beside the joints): "
-                 f"R² = {r2j:.6f} on a joint-angle basis", r2j)  # fmt: skip
+        if len(bad):
+            rows = campaign.row_number[bad[:5]].tolist()
+            more = " ..." if len(bad) > 5 else ""
+            if len(bad) > MAX_MISSING_SHARE * len(x) or not np.any(np.isfinite(x[cal])):
+                skip(f"missing or non-finite values in {len(bad)} row(s) (file rows {rows}{more}): more than "
+                     f"{MAX_MISSING_SHARE:.0%} of the rows, not filled")  # fmt: skip
+                continue
+            x, filled = fill_gaps(x, campaign.timestamp_s, Bj)
+            filled["file_rows"] = campaign.row_number[bad[:20]].tolist()  # the first 20 (``rows``: how many)
+        if float(np.std(x[cal])) <= 1e-12 * max(1.0, float(np.abs(x).max())):
+            skip("does not vary over the calibration rows")
             continue
-        r2m = _r2(x, Bm) if Bm.shape[1] < campaign.n_rows else float("nan")
-        if r2m >= FUNCTION_R2:
-            skip(f"a function of the measured position (the tracker's own reading): R² = {r2m:.6f}", r2m)
+        why, r2, pose_note = _function_of(x[ok], Bj[ok], Bm[ok], declared=d is not None)
+        if why is not None:
+            skip(why, r2)
             continue
         if d is None and commanded_column(name):
             skip("a commanded pose or set point (its name): a function of the joints the controller was sent, which "
@@ -219,11 +311,13 @@ def screen(campaign: Campaign, robot: RobotDescription) -> tuple[list[LoggedSign
             skip("the instrument's stated uncertainty of the measurement (a noise figure, not a cause of an error): "
                  "declare it in signals.yaml to offer it anyway")  # fmt: skip
             continue
-        copy = next((s for s in used if abs(float(np.corrcoef(s.values, x)[0, 1])) >= FUNCTION_R2), None)
+        copy = next((s for s in used if abs(float(np.corrcoef(s.values, x)[0, 1])) >= COPY_R), None)
         if copy is not None:
-            skip(f"a copy of the logged signal {copy.name} (|r| >= {FUNCTION_R2})")
+            skip(f"a copy of the logged signal {copy.name} (|r| >= {COPY_R})")
             continue
-        used.append(LoggedSignal(name, x, float(x[cal].mean()), d))
+        if pose_note is not None:
+            filled = {**(filled or {}), "note": pose_note}
+        used.append(LoggedSignal(name, x, float(x[cal].mean()), d, filled))
     return used, skipped
 
 

@@ -23,6 +23,7 @@ from robocal.io import as_written, write_json
 from robocal.robot import RobotDescription
 from robocal.status import TargetStatus
 from robocal.workflows import campaign_of, robot_of
+from robocal.workflows.geometric import result_cannot_start as geometric_cannot_start
 
 if TYPE_CHECKING:
     from robocal.report.html import Report
@@ -531,6 +532,11 @@ def run(
     res = discover(camp, rob, cfg)
     progress.note(f"discovery done ({len(res.accepted)} effects): writing {out_dir}")
     summ = summary(res, validation_errors(res))
+    # nothing to start from, as robocal calibrate says it (it ran on: an arm on a lifting column given without the
+    # column named effects with a held-out error of 35 mm where calibrate said FAILED)
+    why_failed = geometric_cannot_start(res.extra.get("geometric_calibration"), camp, rob)
+    if why_failed:  # the key only then: as robocal calibrate's summary (a clean run's discovery.json unchanged)
+        summ["problems"] = [why_failed]
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     # written into a staging folder, then moved into place together: an interrupted run (Ctrl-C) leaves the
@@ -538,6 +544,9 @@ def run(
     staging = Path(tempfile.mkdtemp(prefix=".discover-", dir=out))
     try:
         why_not = write_product(res, summ, staging)
+        if why_failed:  # a model fitted from nowhere is not sent to a controller
+            (staging / "compensation.csv").unlink(missing_ok=True)
+            why_not = why_failed
         write_json(staging / "discovery.json", summ)
         if report:
             write_report(res, as_written(summ), staging / "report.html")

@@ -85,7 +85,37 @@ def cannot_start(campaign: Campaign, robot: RobotDescription, start_rms_mm: floa
             f"{text}. Read as radians, {cols[0]}..{cols[-1]} fit the nominal model to {rad_rms:.2f} mm: the joint "
             "angles look like radians; the contract wants degrees (multiply radians by 180/pi)"
         )
+    axis = _carrying_column(campaign, limit)
+    if axis:
+        return f"{text}. {axis}"
     return f"{text}. Check the joint angles' unit (degrees), the robot (--robot) and the targets"
+
+
+def result_cannot_start(result: CalibrationResult | None, campaign: Campaign, robot: RobotDescription) -> str | None:
+    """:func:`cannot_start` of a fitted calibration (its start's "before" residuals), or None without one."""
+    start = None if result is None else result.start
+    if start is None or not len(start.residuals_before_mm):
+        return None
+    return cannot_start(campaign, robot, ErrorStats.of(start.residuals_before_mm).rms_mm)
+
+
+def _carrying_column(campaign: Campaign, limit_mm: float) -> str | None:
+    """A hint when an extra column of lengths (``*_mm`` / ``*_m``) spans more than the start's limit: an axis
+    carrying the robot (a track, a lifting column) logged beside the arm's joints, which the robot must hold as
+    a joint (the fit cannot start while the base moves by that much)."""
+    for name, raw in campaign.extra.items():
+        unit = 1000.0 if name.endswith("_m") else 1.0 if name.endswith("_mm") else None
+        if unit is None:
+            continue
+        v = pd.to_numeric(pd.Series(raw), errors="coerce").to_numpy(dtype=float) * unit
+        if np.isfinite(v).any() and float(np.nanmax(v) - np.nanmin(v)) > limit_mm:
+            span = float(np.nanmax(v) - np.nanmin(v))
+            return (
+                f"The extra column {name} spans {span:.0f} mm: an axis carrying the robot (a track, a lifting "
+                "column) logged beside the arm's joints? Give it to the robot description as its first joint "
+                "(type: prismatic, the column q1_mm; docs/own-data.md, external axes)"
+            )
+    return None
 
 
 def result_warnings(summary: Mapping[str, Any]) -> list[str]:
