@@ -666,3 +666,33 @@ def test_a_decimal_comma_in_a_comma_separated_file_is_named(tmp_path, kr16):
     df.loc[2, "z_mm"] = "1523,4"
     f = write(tmp_path, df)
     expect_error(tmp_path, kr16, file=f, row=4, column="z_mm", match="expected a number, got '1523,4'")
+
+
+def test_rows_of_bare_separators_at_the_end_are_not_rows(tmp_path, kr16):
+    """A spreadsheet saves the rows it once formatted as bare separators (",,,,"): refused as a missing pose_id
+    before; now the table ends at its last filled row. Such a row inside the table is still refused."""
+    df = good_poses(kr16)
+    f = write(tmp_path, df)
+    blank = "," * (len(df.columns) - 1)
+    f.write_text(f.read_text() + "\n".join([blank] * 3) + "\n")
+    camp = read_campaign(tmp_path, kr16)
+    assert camp.n_rows == len(df)
+    lines = f.read_text().splitlines()
+    f.write_text("\n".join([*lines[:4], blank, *lines[4:]]) + "\n")
+    expect_error(tmp_path, kr16, file=f, row=5, column="pose_id", match="missing")
+
+
+def test_other_tables_in_the_folder_are_named_when_the_split_is_drawn(tmp_path, kr16):
+    """A validation.csv beside a poses file without a split column was ignored without a word (the campaign drew
+    its own split from the calibration poses): it is named as not read. With a split column: nothing to say."""
+    df = good_poses(kr16)
+    write(tmp_path, df)
+    write(tmp_path, df, stem="validation")
+    (tmp_path / "README.md").write_text("not a table")
+    camp = read_campaign(tmp_path, kr16)
+    assert camp.not_read == ("validation.csv",)
+    note = camp.not_read_note()
+    assert note is not None and "validation.csv in the campaign folder was not read" in note, note
+    df["split"] = "calibration"
+    write(tmp_path, df)
+    assert read_campaign(tmp_path, kr16).not_read_note() is None

@@ -34,9 +34,11 @@ def _fake_run(monkeypatch, tmp_path, fail_in: str | None):
 
     class Res:
         accepted = ()
+        extra: dict = {}  # noqa: RUF012  (no geometric calibration: nothing to judge the start by)
 
     monkeypatch.setattr(wf, "robot_of", lambda r: None)
-    monkeypatch.setattr(wf, "campaign_of", lambda *a: type("C", (), {"n_rows": 3, "source": "x"})())
+    fake = type("C", (), {"n_rows": 3, "source": "x", "not_read_note": lambda self: None})
+    monkeypatch.setattr(wf, "campaign_of", lambda *a: fake())
     monkeypatch.setattr(wf, "discover", lambda *a: Res())
     monkeypatch.setattr(wf, "validation_errors", lambda r: None)
     monkeypatch.setattr(wf, "summary", lambda r, v: dict(summ))

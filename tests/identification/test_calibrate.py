@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from robocal.calibration.config import CalibrationConfig
@@ -17,6 +18,7 @@ from robocal.data import read_campaign
 from robocal.errors import ConfigError
 from robocal.sim.truth import equivalent_truth, z_scores
 from robocal.sim.twin import load_scenario, simulate
+from robocal.workflows import geometric
 
 
 @pytest.fixture(scope="module")
@@ -127,6 +129,43 @@ def test_orientation_data_and_several_targets(tmp_path, kr16):
     assert sum(abs(v) > 3 for v in z.values()) <= 1
     v = validate(res, camp)
     assert v["mean_orientation_deg"] < 0.02  # noise 0.005 deg per axis
+
+
+@pytest.mark.parametrize(
+    ("reading", "hint"),
+    [
+        ("as_given", None),
+        ("scalar_last", "Read as x, y, z, w (scalar last) they agree"),
+        ("inverse", "Read as their inverses they agree"),
+    ],
+)
+def test_quaternions_of_another_convention_are_named_and_left_out(tmp_path, kr16, reading, hint):
+    """Quaternions exported scalar last under qw qx qy qz, or as the inverse rotation, made the fit 10 mm worse than
+    its start and its validation worse than nominal, with no word on orientation (the positions alone fit to the
+    noise). Their reading is named and they are left out: the positions fit to the floor, and a warning says so.
+    The campaign's own quaternions are used as before (the start's tool rotation is now the right one: it was
+    off by 20 deg with the tracker turned 135 deg about z, which the rigid fit turned back)."""
+    sc = load_scenario("geometric")
+    sc.update(orientation=True, n_poses=40, n_validation_poses=20)
+    simulate(sc, tmp_path / "twin", seed=4)
+    if reading != "as_given":
+        df = pd.read_csv(tmp_path / "twin" / "poses.csv", dtype=str, keep_default_na=False)
+        q = df[["qw", "qx", "qy", "qz"]].to_numpy(dtype=float)
+        q = q[:, [1, 2, 3, 0]] if reading == "scalar_last" else q * np.array([1.0, -1.0, -1.0, -1.0])
+        df[["qw", "qx", "qy", "qz"]] = [[f"{v:.9f}" for v in row] for row in q]
+        df.to_csv(tmp_path / "twin" / "poses.csv", index=False)
+    camp = read_campaign(tmp_path / "twin", kr16)
+    res = calibrate(camp, kr16, CalibrationConfig(noise_mm=sc["noise_mm"], noise_deg=sc["noise_deg"]))
+    v = validate(res, camp)
+    assert v["mean_position_mm"] < 2.0 * sc["noise_mm"] * np.sqrt(3)  # at the floor (mean 3-D error ~1.6 sigma)
+    note = res.fit.get("orientation_left_out")
+    if hint is None:
+        assert note is None and res.fit["uses_orientation"]
+        return
+    assert not res.fit["uses_orientation"]
+    assert note.startswith("the measured orientations (qw qx qy qz) are ") and hint in note, note
+    summary = geometric.summarise(res, v)
+    assert note in geometric.result_warnings(summary) and not geometric.result_problems(summary)
 
 
 def test_poe_robot_calibrates_to_the_floor(tmp_path, sr210):

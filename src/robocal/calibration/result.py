@@ -317,6 +317,7 @@ def calibration_result(start: CalibrationStart, screened: Screened) -> Calibrati
             "n_rows_total": int(m),
             "outlier_rounds": int(screened.rounds),
             "noise": noise_report(cal, kept, chi2_pos, dof_pos, cfg.noise_mm),
+            **({"orientation_left_out": start.orientation_note} if start.orientation_note else {}),
         }
     )
     before_pos = r0[: 3 * m].reshape(-1, 3)

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -160,6 +160,7 @@ class CalibrationStart:
     free: np.ndarray  # sorted identifiable indices
     t0: float  # perf_counter at the start (the fit's wall time counts from here)
     prior: Any = None  # robocal.identification.thin.Prior: rows added to the least squares (thin campaigns)
+    orientation_note: str | None = None  # why the campaign's orientations were left out (orientation_mismatch)
 
     @property
     def m(self) -> int:
@@ -197,16 +198,15 @@ def calibration_start(
     T_st = T_reg.reshape(-1, 4, 4)
     T_ref = T_st[0]
     tool_R_ref = None
+    note = None
+    if use_rot and cfg.use_orientation is None:  # "when the campaign has them": when they are the robot's
+        assert cal.quat is not None
+        note = orientation_mismatch(robot, targets, stations, T_st, tools0, cal.quat, data)
+        if note:
+            use_rot = False
+            data = fit_data(cal, False, targets, stations)
     if use_rot:
-        assert data.R_meas is not None and data.station_index is not None
-        Rf = fk(model0.chain, data.q)[:, :3, :3]
-        tool_R_ref = np.zeros((len(targets), 3, 3))
-        for k in range(len(targets)):
-            sel = data.target_index == k
-            Rs = T_st[:, :3, :3][data.station_index[sel]]
-            Msum = np.einsum("mji,mjk,mkl->il", Rf[sel], Rs, data.R_meas[sel])
-            U, _, Vt = np.linalg.svd(Msum)
-            tool_R_ref[k] = U @ np.diag([1, 1, np.linalg.det(U @ Vt)]) @ Vt
+        tool_R_ref = _tool_rotations(fk(model0.chain, data.q)[:, :3, :3], data, T_st, len(targets))
     model = CalibrationModel(
         robot, targets, orientation=use_rot, T_ref=T_ref, tool_R_ref=tool_R_ref, stations=stations, station_T_ref=T_st
     )
@@ -250,7 +250,88 @@ def calibration_start(
         identifiability=ident,
         free=np.sort(ident.kept),
         t0=t0,
+        orientation_note=note,
     )
+
+
+#: measured orientations further than this (median over the rows) from the nominal robot's, with the tracker frame
+#: registered on the positions and the best constant rotation of each target, are not the robot's: a real 6-DoF
+#: probe agrees to hundredths of a degree and a robot's orientation errors are tenths
+ORIENTATION_MISMATCH_DEG = 5.0
+
+#: other readings of the columns qw qx qy qz tried when the orientations do not agree, and what each means
+_QUAT_READINGS = (
+    ("x, y, z, w (scalar last)", [3, 0, 1, 2], 1.0, "reorder them as w, x, y, z"),
+    ("their inverses", [0, 1, 2, 3], -1.0, "the tool's frame seen from the tracker's: conjugate them"),
+    ("the inverses of x, y, z, w", [3, 0, 1, 2], -1.0, "reorder them as w, x, y, z and conjugate them"),
+)
+
+
+def _tool_rotations(Rf: np.ndarray, data: FitData, T_st: np.ndarray, n_targets: int) -> np.ndarray:
+    """``(K, 3, 3)``: each target's constant rotation on the flange that best maps the flange rotations ``Rf`` in
+    the station frames ``T_st`` onto the measured ones (orthogonal Procrustes)."""
+    assert data.R_meas is not None and data.station_index is not None
+    out = np.zeros((n_targets, 3, 3))
+    for k in range(n_targets):
+        sel = data.target_index == k
+        Rs = T_st[:, :3, :3][data.station_index[sel]]
+        # measured R = Rs Rf Rt (Rs the station's rotation, base to tracker): Rt maximises tr(Rtᵀ Σ Rfᵀ Rsᵀ R).
+        # (Σ Rfᵀ Rs R before: the start's tool rotation was off by 20 deg with a tracker turned 135 deg about z,
+        # which the rigid fit then had to turn back)
+        U, _, Vt = np.linalg.svd(np.einsum("mji,mkj,mkl->il", Rf[sel], Rs, data.R_meas[sel]))
+        out[k] = U @ np.diag([1, 1, np.linalg.det(U @ Vt)]) @ Vt
+    return out
+
+
+def _rotation_misfit_deg(
+    robot: RobotDescription,
+    targets: tuple[str, ...],
+    stations: tuple[str, ...],
+    T_st: np.ndarray,
+    tools0: np.ndarray,
+    data: FitData,
+) -> float:
+    """Median angle (deg) between the measured rotations of ``data`` and the nominal model's, its frames and tool
+    offsets the registration's and each target's best constant rotation."""
+    model0 = CalibrationModel(robot, targets, orientation=False, stations=stations)
+    tool_R = _tool_rotations(fk(model0.chain, data.q)[:, :3, :3], data, T_st, len(targets))
+    model = CalibrationModel(
+        robot, targets, orientation=True, T_ref=T_st[0], tool_R_ref=tool_R, stations=stations, station_T_ref=T_st
+    )
+    x = model.zeros()
+    x[model.n_chain : model.n_chain + 3 * len(targets)] = np.asarray(tools0).ravel()
+    r = model.residuals(x, data)
+    return float(np.degrees(np.median(np.linalg.norm(r[3 * data.m :].reshape(-1, 3), axis=1))))
+
+
+def orientation_mismatch(
+    robot: RobotDescription,
+    targets: tuple[str, ...],
+    stations: tuple[str, ...],
+    T_st: np.ndarray,
+    tools0: np.ndarray,
+    quat: np.ndarray,
+    data: FitData,
+) -> str | None:
+    """Why the campaign's orientations (``quat (m, 4)`` as w, x, y, z; ``data`` the fit data with them) cannot be
+    the robot's, or None: further than :data:`ORIENTATION_MISMATCH_DEG` from the nominal robot's with the
+    tracker frames ``T_st`` registered on the positions. Names the other reading of the columns that agrees, if
+    one does (scalar last, the inverse rotation): such quaternions made the fit 10 mm worse than its start, with
+    no word on orientation, where the positions alone fit to 0.025 mm."""
+    a0 = _rotation_misfit_deg(robot, targets, stations, T_st, tools0, data)
+    if a0 <= ORIENTATION_MISMATCH_DEG:
+        return None
+    text = (
+        f"the measured orientations (qw qx qy qz) are {a0:.0f} deg from the robot's (median, with the tracker frame "
+        "from the positions and the best constant rotation of each target): left out, the fit uses the positions"
+    )
+    for name, order, sign, what in _QUAT_READINGS:
+        alt = quat[:, order] * np.array([1.0, sign, sign, sign])
+        alt_data = replace(data, R_meas=quat_to_matrix(alt))
+        a = _rotation_misfit_deg(robot, targets, stations, T_st, tools0, alt_data)
+        if a <= ORIENTATION_MISMATCH_DEG:
+            return f"{text}. Read as {name} they agree to {a:.2g} deg: {what}"
+    return f"{text}. Check the quaternion convention (w, x, y, z; the tool's rotation in the tracker's frame)"
 
 
 def least_squares_on(

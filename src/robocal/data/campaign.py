@@ -74,6 +74,8 @@ class Campaign:
     (:mod:`robocal.logged_signals`).
     prismatic : (n,) bool, the joints whose value is a length (mm), or None (all revolute);
     coupling : (n, n) the robot's coupling ``q = coupling @ q_reported`` applied at the door, or None
+    not_read : the campaign folder's other table files (a ``validation.csv`` beside ``poses.csv``), which the
+        contract does not read: said by the commands, never silently a part of the campaign or its split
     (:mod:`robocal.robot`); :meth:`to_frame` writes the reported values back.
     """
 
@@ -104,6 +106,7 @@ class Campaign:
     signal_declarations: tuple[SignalDeclaration, ...] = ()
     prismatic: np.ndarray | None = None
     coupling: np.ndarray | None = None
+    not_read: tuple[str, ...] = ()  # other table files in the campaign folder (validation.csv): not part of it
 
     def __post_init__(self) -> None:
         if self.station is None:
@@ -120,6 +123,17 @@ class Campaign:
         return len(self.station_names) > 1
 
     # ----------------------------------------------------------------------------------------- properties
+    def not_read_note(self) -> str | None:
+        """What the commands say when the poses have no split column and the folder holds other tables (a
+        ``validation.csv`` beside ``poses.csv``): the split was drawn, those files were not read. None otherwise."""
+        if self.split_from_file or not self.not_read:
+            return None
+        return (
+            f"the poses have no split column: the validation rows were drawn from them, and {', '.join(self.not_read)} "
+            f"in the campaign folder {'was' if len(self.not_read) == 1 else 'were'} not read (the contract reads poses "
+            "and temperatures; give validation rows in the poses file with split = validation)"
+        )
+
     @property
     def n_rows(self) -> int:
         return int(self.q.shape[0])

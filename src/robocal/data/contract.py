@@ -57,6 +57,21 @@ from robocal.io import display_path
 from robocal.logged_signals import read_signals_file
 from robocal.robot import RobotDescription
 
+#: suffixes of the table files a campaign folder may hold besides poses and temperatures (not read: said)
+_TABLES = (".csv", ".parquet", ".tsv", ".txt", ".xlsx", ".xls")
+
+
+def _tables_not_read(folder: Path) -> tuple[str, ...]:
+    """The folder's table files other than ``poses`` and ``temperatures`` (a ``validation.csv`` a user expects to be
+    the validation rows was ignored without a word, and the campaign split its own)."""
+    return tuple(
+        sorted(
+            f.name
+            for f in folder.iterdir()
+            if f.is_file() and f.suffix.lower() in _TABLES and f.stem not in ("poses", "temperatures")
+        )
+    )
+
 
 def read_campaign(
     data_dir: str | Path,
@@ -130,6 +145,7 @@ def read_campaign(
         signal_declarations=read_signals_file(folder),
         prismatic=prismatic,
         coupling=robot.coupling,
+        not_read=_tables_not_read(folder),
     )
     _check_same_joints(camp, path, joint_columns(robot.prismatic))
     tpath = _find(folder, "temperatures", required=False)

@@ -126,25 +126,27 @@ def discover(campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig |
     if len(rows_all) == 0:
         raise ConfigError(f"campaign {campaign.source} has no calibration rows")
     cal = campaign.subset(rows_all)
-    use_rot = cfg.use_orientation is not False and cal.quat is not None
     targets = present_targets(cal)
-    data_all = fit_data(cal, use_orientation=use_rot, targets=targets, stations=present_stations(cal))
     ccfg = CalibrationConfig(
         noise_mm=cfg.noise_mm,
         noise_deg=cfg.noise_deg,
         fixed=cfg.fixed,
-        use_orientation=use_rot,
+        use_orientation=cfg.use_orientation,
         outliers=cfg.outliers,
         outlier_alpha=cfg.outlier_alpha,
     )
     geo = calibrate(cal, robot, ccfg)
+    assert geo.start is not None  # a fit of calibrate, with its start
+    # the campaign's orientations as calibrate used them (left out when they are not the robot's: its note)
+    use_rot = bool(geo.fit["uses_orientation"])
+    ccfg = replace(ccfg, use_orientation=use_rot)
+    data_all = fit_data(cal, use_orientation=use_rot, targets=targets, stations=present_stations(cal))
     noise = geo.fit["noise"]
     sigma = float(noise["used_mm"])
     sigma_rad = float(np.deg2rad(cfg.noise_deg))
     library, skipped = build_library(campaign, robot, cfg)
     # a systematic misfit the geometric calibration named is offered to the search (issue 33 item 4)
     library += misfit_candidates(campaign, geo.fit.get("systematic_misfit") or [])
-    assert geo.start is not None  # a fit of calibrate, with its start
     m = cal.n_rows
     res, kept, test, loud, systematic, rounds, n_search, sample = _rounds(
         campaign, robot, cfg, ccfg, cal, rows_all, data_all, geo, library, skipped, sigma, sigma_rad

@@ -515,6 +515,8 @@ def summary(res: DiscoveryResult, validation: dict[str, Any] | None = None) -> d
             "outlier_rows": [o["row"] for o in geo.fit.get("outliers", [])],
             "systematic_misfit": geo.fit.get("systematic_misfit", []),
         }
+        if geo.fit.get("orientation_left_out"):  # the campaign's orientations are not the robot's: positions only
+            out["warnings"] = [str(geo.fit["orientation_left_out"])]
     cv = res.extra.get("cv") or {}
     if cv:
         out["cross_validation"] = {k: v for k, v in cv.items() if k != "effects"}
@@ -525,11 +527,11 @@ def summary(res: DiscoveryResult, validation: dict[str, Any] | None = None) -> d
         from robocal.discovery.sessions import SAME_ERROR_MM
 
         if float(vf["mean_position_mm"]) > float(vg["mean_position_mm"]) + SAME_ERROR_MM:
-            out["warnings"] = [
+            out.setdefault("warnings", []).append(
                 f"on the {vf['n_rows']} validation rows the final model ({float(vf['mean_position_mm']):.4f} mm mean) "
                 f"is worse than the geometric calibration ({float(vg['mean_position_mm']):.4f} mm) on these poses "
                 "the fit did not see: robocal calibrate's calibration.json is the better model for this campaign"
-            ]
+            )
     return out
 
 

@@ -139,6 +139,8 @@ def judge(
             found.append(("problem", too_few_configurations(design)))
         elif thin_is_warned(design):
             found.append((r.thin, thin_campaign(design)))
+    if fit.get("orientation_left_out"):  # the campaign's orientations are not the robot's: positions only
+        found.append(("warning", str(fit["orientation_left_out"])))
     if fit.get("success") is False:
         found.append(
             (

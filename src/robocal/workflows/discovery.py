@@ -537,6 +537,8 @@ def run(
     why_failed = geometric_cannot_start(res.extra.get("geometric_calibration"), camp, rob)
     if why_failed:  # the key only then: as robocal calibrate's summary (a clean run's discovery.json unchanged)
         summ["problems"] = [why_failed]
+    if camp.not_read_note():
+        summ.setdefault("warnings", []).append(camp.not_read_note())
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     # written into a staging folder, then moved into place together: an interrupted run (Ctrl-C) leaves the

@@ -188,7 +188,7 @@ def run(
     why = cannot_start(camp, rob, summary["start_rms_position_mm"])
     if why:
         summary["problems"].insert(0, why)
-    warnings = result_warnings(summary)
+    warnings = result_warnings(summary) + ([camp.not_read_note()] if camp.not_read_note() else [])
     if warnings:  # the key only when there are some (a clean run's summary.json is unchanged)
         summary["warnings"] = warnings
     cal_record = _with_cell_axes(rob, camp, full, result, summary)
