@@ -201,14 +201,22 @@ def test_the_column_basis_spans_numpys_svd_without_holding_the_fits_jacobian(pro
     want = U[:, s > 1e-10 * s[0]]
     gram = fit.gram
     assert gram is not None  # the fit has joint-level effects
-    Q = basis(fit)
+    space = basis(fit)
     assert "J_w" not in fit.__dict__ and fit.gram is gram
-    assert Q.shape == want.shape
-    # orthonormal, and the same projector as the SVD's (1e-12: round-off of a QR against an SVD of a matrix whose
-    # condition number is ~1e6 here; a wrong subspace differs by O(1))
-    assert np.allclose(Q.T @ Q, np.eye(Q.shape[1]), atol=1e-12)
+    assert space.rank == want.shape[1]
+    # the same projector as the SVD's, by the reflectors (1e-12: round-off of a QR against an SVD of a matrix whose
+    # condition number is ~1e6 here; a wrong subspace differs by O(1)); coefficients and their combination agree
     Z = np.random.default_rng(3).normal(size=(len(J), 5))
-    assert np.max(np.abs(Q @ (Q.T @ Z) - want @ (want.T @ Z))) < 1e-12 * np.max(np.abs(Z))
+    assert np.max(np.abs(space.project(Z) - want @ (want.T @ Z))) < 1e-12 * np.max(np.abs(Z))
+    assert np.max(np.abs(space.project(Z[:, 0]) - want @ (want.T @ Z[:, 0]))) < 1e-12 * np.max(np.abs(Z))
+    one = Z[:, :1].copy()  # one column: C- and Fortran-ordered at once; LAPACK overwrote it in place (the
+    before = one.copy()  # real ABB's compliance candidates then came out "absorbed" by -108 %)
+    space.project(one)
+    assert np.array_equal(one, before)
+    Q = space.matrix()  # the basis itself (the dictionary's products): orthonormal, the same projections
+    assert Q.shape == want.shape
+    assert np.allclose(Q.T @ Q, np.eye(Q.shape[1]), atol=1e-12)
+    assert np.allclose(Q.T @ Z, space.coefficients(Z), atol=1e-12 * np.max(np.abs(Z)))
     assert np.array_equal(fit.J_w, J)  # evaluated again at the fit's parameters
 
 
@@ -221,8 +229,11 @@ def test_the_column_basis_of_a_rank_deficient_jacobian_keeps_the_svds_rank():
     A = rng.normal(size=(300, 6))
     J = np.column_stack([A, A[:, :2] @ np.array([[1.0], [2.0]])])  # 7 columns of rank 6
     fit = SimpleNamespace(J_w=J, release_jacobian=lambda: True)
-    Q = basis(fit)
+    space = basis(fit)
     U, s, _ = np.linalg.svd(J, full_matrices=False)
     want = U[:, s > 1e-10 * s[0]]
-    assert Q.shape == (300, 6) == want.shape
-    assert np.max(np.abs(Q @ Q.T - want @ want.T)) < 1e-12
+    assert space.rank == 6 == want.shape[1]
+    P = space.project(np.eye(300))
+    assert np.max(np.abs(P - want @ want.T)) < 1e-12
+    Q = space.matrix()
+    assert Q.shape == (300, 6) and np.max(np.abs(Q @ Q.T - want @ want.T)) < 1e-12

@@ -19,37 +19,99 @@ from robocal.identification.model import FitData
 from robocal.numerics import sorted_tied
 
 
-def basis(fit: Fit) -> np.ndarray:
-    """An orthonormal basis ``(M, r)`` of the column space of the fit's whitened Jacobian: the directions whose
-    singular value is above 1e-10 of the largest. From a Householder QR of the matrix's Fortran copy, in place
-    (LAPACK ``geqrf`` / ``orgqr``), while the fit gives its own up (:meth:`Fit.release_jacobian`, evaluated again
-    when read later; its joint-level factors kept): one ``(M, k)`` matrix held besides the basis itself, where
-    numpy's ``svd`` held five (0.9 GB at UR10 A's 12 000 rows, the search's peak; issue 31) and took a third
-    longer. The rank is decided by the singular values of ``R`` (those of the matrix): at full rank the basis is
-    ``Q`` itself; otherwise ``Q`` times ``R``'s kept left singular vectors. The same subspace as the left singular
-    vectors of ``np.linalg.svd`` (projections equal to ~1e-15)."""
-    from scipy import linalg
+class ColumnSpace:
+    """The column space of a fit's whitened Jacobian ``A (M, k)``: an orthonormal basis ``B`` of the directions whose
+    singular value is above 1e-10 of the largest, held as the Householder factors of ``A``'s QR (LAPACK
+    ``geqrf`` on ``A``'s Fortran copy, in place) and applied by ``ormqr``: ``B`` itself (``M x r``) is never
+    formed. At full rank ``B = Q``; otherwise ``Q U_r`` with ``U_r`` the kept left singular vectors of ``R`` (those
+    of ``A``): the subspace of numpy's ``svd`` of ``A`` (projections equal to ~1e-15).
 
-    a = np.asfortranarray(fit.J_w)
-    fit.release_jacobian()
-    if a.shape[1] == 0:
-        return a
-    Q, R = linalg.qr(a, mode="economic", overwrite_a=True, check_finite=False)
-    del a
-    U, s, _ = np.linalg.svd(R)
-    keep = s > 1e-10 * s[0]
-    return Q if keep.all() else Q @ U[:, keep]
+    Issue 31: numpy's ``svd`` held five ``(M, k)`` matrices (0.9 GB at UR10 A's 12 000 rows); the QR's ``Q`` (LAPACK
+    ``orgqr``) was still one more beside the factors and twice the factorisation's time: forming it cost more
+    than every product with it the search makes (a few hundred columns), now each a pass of the reflectors."""
+
+    def __init__(self, fit: Fit) -> None:
+        from scipy import linalg
+
+        a = np.asfortranarray(fit.J_w)
+        fit.release_jacobian()  # its matrix let go (evaluated again when read), its joint-level factors kept
+        self.M, self.k = a.shape
+        self.U: np.ndarray | None = None
+        if self.k == 0:
+            self.qr, self.tau, self.rank = a, np.zeros(0), 0
+            return
+        (qr, tau), _ = linalg.qr(a, mode="raw", overwrite_a=True, check_finite=False)
+        del a
+        self.qr, self.tau = qr, tau
+        n = min(self.M, self.k)
+        U, sv, _ = np.linalg.svd(np.triu(qr[:n, : self.k]))
+        keep = sv > 1e-10 * sv[0]
+        self.rank = int(keep.sum())
+        if not keep.all():
+            self.U = U[:, keep]
+
+    def _ormqr(self, trans: str, C: np.ndarray) -> np.ndarray:
+        """``Qᵀ C`` or ``Q C`` (``trans`` "T" / "N") of the full ``M x M`` ``Q``, in a Fortran copy of ``C`` (never
+        ``C`` itself: a one-column array is also Fortran-ordered, and LAPACK would overwrite the caller's)."""
+        from scipy.linalg import lapack
+
+        C = np.array(C, dtype=float, order="F", copy=True)
+        out, _, info = lapack.dormqr("L", trans, self.qr, self.tau, C, lwork=max(1, 64 * C.shape[1]), overwrite_c=1)
+        if info != 0:
+            raise np.linalg.LinAlgError(f"LAPACK dormqr failed (info {info})")
+        return np.asarray(out)
+
+    def coefficients(self, Z: np.ndarray) -> np.ndarray:
+        """``Bᵀ Z`` (``r x q``) of ``Z (M, q)`` (or ``(M,)``)."""
+        Z2 = Z.reshape(self.M, -1)
+        if self.k == 0:
+            return np.zeros((0, Z2.shape[1]))
+        c = self._ormqr("T", Z2)[: min(self.M, self.k)]
+        c = c if self.U is None else self.U.T @ c
+        return c if Z.ndim == 2 else c[:, 0]
+
+    def combine(self, W: np.ndarray) -> np.ndarray:
+        """``B W`` (``M x q``) of coefficients ``W (r, q)`` (or ``(r,)``)."""
+        W2 = W.reshape(self.rank, -1)
+        C = np.zeros((self.M, W2.shape[1]), order="F")
+        if self.k:
+            C[: min(self.M, self.k)] = W2 if self.U is None else self.U @ W2
+            C = self._ormqr("N", C)  # (one copy of C: M x q, q a few columns)
+        return C if W.ndim == 2 else C[:, 0]
+
+    def project(self, Z: np.ndarray) -> np.ndarray:
+        """``B Bᵀ Z``: the part of ``Z`` in the column space."""
+        return self.combine(self.coefficients(Z))
+
+    def matrix(self) -> np.ndarray:
+        """``B`` itself (``M x r``; LAPACK ``orgqr`` on a copy of the factors): for products with a regressor held by
+        its factors (the dictionary's ``v ⊗ F``, :func:`robocal.discovery.dictionary.select`), which pass the
+        rows once where a pass of the reflectors would need the regressor dense."""
+        from scipy.linalg import lapack
+
+        n = min(self.M, self.k)
+        if n == 0:
+            return np.zeros((self.M, 0))
+        q, _, info = lapack.dorgqr(self.qr[:, :n], self.tau[:n], lwork=max(1, 64 * n), overwrite_a=0)
+        if info != 0:
+            raise np.linalg.LinAlgError(f"LAPACK dorgqr failed (info {info})")
+        return np.asarray(q if self.U is None else q @ self.U)
+
+
+def basis(fit: Fit) -> ColumnSpace:
+    """The column space of the fit's whitened Jacobian (:class:`ColumnSpace`); the fit lets its own matrix go."""
+    return ColumnSpace(fit)
 
 
 def score_candidate(
-    cand: Candidate, Z: np.ndarray, Q: np.ndarray, fit: Fit, cfg: DiscoveryConfig, log_thr: float
+    cand: Candidate, Z: np.ndarray, Q: ColumnSpace, fit: Fit, cfg: DiscoveryConfig, log_thr: float
 ) -> tuple[Score, np.ndarray]:
     """Projected nested F-test, BIC and excess-chi² share of one candidate. Returns the score and the kept
     directions of the projected regressor (``(M, q')``)."""
     norms = np.linalg.norm(Z, axis=0)
     norms[norms == 0] = 1.0
     Zn = Z / norms
-    Zp = Zn - Q @ (Q.T @ Zn)
+    Zp = Zn - Q.project(Zn)
     absorbed = float(1.0 - np.mean(np.sum(Zp**2, axis=0)))
     U, s, _ = np.linalg.svd(Zp, full_matrices=False)
     keep = s > cfg.absorbed_tol

@@ -475,13 +475,13 @@ def _propose(state: DiscoveryState) -> None:
         return
     for k in range(cfg.dictionary_max_proposals):
         fit = state.fit
-        Q = basis(fit)
+        space = basis(fit)
         props = select(
             fit.Jq,
             fit.weights,
             dic.F[rows],
             fit.r_w,
-            Q,
+            space.matrix(),  # the basis itself: the dictionary's columns are held by their factors
             groups,
             cfg.dictionary_max_terms,
             cfg.dictionary_resamples,
@@ -509,7 +509,7 @@ def _propose(state: DiscoveryState) -> None:
             )
             Z, _ = regressor(cand, fit, rows, data)
             thr = log10_threshold(cfg.alpha, p.n_columns, len(terms))
-            sc, Uk = score_candidate(cand, Z, Q, fit, cfg, thr)
+            sc, Uk = score_candidate(cand, Z, space, fit, cfg, thr)
             cand.extra["threshold_log10_p"] = thr
             if sc.passes and cfg.cv_folds >= 2:
                 sc.cv_gain = cross_validation_gain(fit, Uk, groups, cfg.cv_folds, cfg.seed)

@@ -306,7 +306,7 @@ def locate(res: DiscoveryResult) -> dict[str, Any]:
     joints = []
     for j in range(n):
         Z = (fit.Jq[:, :, j][:, :, None] * B[:, None, :]).reshape(dd * m, -1) * fit.weights[:, None]
-        Z = Z - Q @ (Q.T @ Z)
+        Z = Z - Q.project(Z)
         U, s, _ = np.linalg.svd(Z, full_matrices=False)
         Uk = U[:, s > 1e-6 * (s[0] if len(s) else 1.0)]
         d = float(np.sum((Uk.T @ fit.r_w) ** 2))
