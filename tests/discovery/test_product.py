@@ -172,3 +172,22 @@ def test_a_coupled_robots_compensation_csv_carries_the_controllers_joints(tmp_pa
     assert (
         np.abs(np.array([r["predicted_error_mm"] for r in reply["results"]]) - comp.error_before_norm_mm).max() < 1e-5
     )
+
+
+def test_a_point_reflectors_compensation_matches_the_position_only(tmp_path):
+    """A campaign of positions (a point reflector) never identifies the tool's orientation: compensation.csv
+    chased it all the same, turning joints by up to 8.6 deg and refusing 7 of 20 rows (the newcomer's compliant
+    stand). It matches the position only when the campaign has no orientations: the corrections stay within the
+    calibration's own size and the rows are served."""
+    stand = {"compliant_stand": {"compliance_mrad_per_kNm": 0.5, "wander_mrad": 0.3, "declare": False,
+                                 "columns": ["acc_a", "acc_b"]}}  # fmt: skip
+    camp, robot, _ = make_campaign(tmp_path, "geometric", 0, stand)
+    assert camp.quat is None
+    s = discovery.run(None, robot, tmp_path / "out", campaign=camp, report=False)
+    assert "compensation.csv" in s["written"]
+    rows = (tmp_path / "out" / "compensation.csv").read_text().splitlines()
+    head = rows[0].split(",")
+    status = [r.split(",")[head.index("status")] for r in rows[1:]]
+    corr = np.array([float(r.split(",")[head.index("correction_max_deg")]) for r in rows[1:]])
+    assert status.count("refused") <= 2, status  # the 0.5 deg bound on a tilting stand's largest correction
+    assert corr.max() < 1.0, corr  # the stand's tilt and the geometry: tenths of a degree, not 8.6

@@ -69,8 +69,7 @@ def run(args: argparse.Namespace) -> int:
     if g:
         print(
             f"geometric model (as robocal calibrate): RMS {g['rms_position_mm']:.4f} mm on {g['n_rows']} rows, "
-            f"gross-error rows {g['outlier_rows'] or 'none'}; the search weights by the noise the data show "
-            f"({g['noise_used_mm']:.4f} mm)"
+            f"gross-error rows {g['outlier_rows'] or 'none'}; the search weights by {_noise_words(g)}"
         )
     _left_out_lines(s, g)
     _logged_line(s.get("logged_signals"))
@@ -196,6 +195,17 @@ def _after_parametric(s: dict[str, Any]) -> str:
     dropped = [k for st in s.get("steps", []) if st.get("phase") == "held-out" for k in st.get("dropped") or []]
     return (f"; window opened by the sessions' evidence: {', '.join(opened)}" if opened else "") + (
         f"; dropped by the final held-out check: {', '.join(dropped)}" if dropped else "")  # fmt: skip
+
+
+def _noise_words(g: dict[str, Any]) -> str:
+    """Which noise the search weights by: the data's own estimate, or the configured value when the campaign
+    allows none (it said "the noise the data show" of the configured 0.015 mm on a total station's 0.3 mm)."""
+    if "model-free estimate" in str(g.get("noise_used_because") or ""):
+        return f"the noise the data show ({g['noise_used_mm']:.4f} mm)"
+    return (
+        f"the configured noise ({g['noise_used_mm']:.4f} mm: the campaign allows no model-free estimate, one target "
+        "and no repeated poses; measured with a poorer instrument than a laser tracker, set noise_mm to its noise)"
+    )
 
 
 def _logged_line(rec: dict[str, Any] | None) -> None:

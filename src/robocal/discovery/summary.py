@@ -511,6 +511,7 @@ def summary(res: DiscoveryResult, validation: dict[str, Any] | None = None) -> d
             "rms_position_mm": geo.fit.get("rms_position_mm"),
             "noise_floor_rms_mm": geo.fit.get("noise_floor_rms_mm"),
             "noise_used_mm": (geo.fit.get("noise") or {}).get("used_mm"),
+            "noise_used_because": (geo.fit.get("noise") or {}).get("used_because"),
             "n_rows": int(np.sum(geo.start.kept)) if geo.start is not None else None,
             "outlier_rows": [o["row"] for o in geo.fit.get("outliers", [])],
             "systematic_misfit": geo.fit.get("systematic_misfit", []),
