@@ -103,15 +103,44 @@ def basis(fit: Fit) -> ColumnSpace:
     return ColumnSpace(fit)
 
 
-def score_candidate(
-    cand: Candidate, Z: np.ndarray, Q: ColumnSpace, fit: Fit, cfg: DiscoveryConfig, log_thr: float
-) -> tuple[Score, np.ndarray]:
-    """Projected nested F-test, BIC and excess-chi² share of one candidate. Returns the score and the kept
-    directions of the projected regressor (``(M, q')``)."""
+#: columns of candidates' regressors projected off the model's column space together: one pass of the reflectors
+#: for all of them (a pass reads the (M, k) factors: 15 ms at UR10 A's 12 000 rows, ~100 candidates a step)
+BATCH_COLUMNS = 64
+
+
+def _normalised(Z: np.ndarray) -> np.ndarray:
     norms = np.linalg.norm(Z, axis=0)
     norms[norms == 0] = 1.0
-    Zn = Z / norms
-    Zp = Zn - Q.project(Zn)
+    return Z / norms
+
+
+def off_space(Q: ColumnSpace, Zs: list[np.ndarray]) -> list[np.ndarray]:
+    """Each regressor of ``Zs`` with its columns normalised and projected off the column space ``Q``, in one pass
+    for all of them (:data:`BATCH_COLUMNS` at most)."""
+    Zn = [_normalised(Z) for Z in Zs]
+    if not Zn:
+        return []
+    allz = np.hstack(Zn)
+    P = allz - Q.project(allz)
+    cuts = np.cumsum([z.shape[1] for z in Zn])[:-1]
+    return list(np.split(P, cuts, axis=1))
+
+
+def score_candidate(
+    cand: Candidate,
+    Z: np.ndarray,
+    Q: ColumnSpace | None,
+    fit: Fit,
+    cfg: DiscoveryConfig,
+    log_thr: float,
+    Zp: np.ndarray | None = None,
+) -> tuple[Score, np.ndarray]:
+    """Projected nested F-test, BIC and excess-chi² share of one candidate. Returns the score and the kept
+    directions of the projected regressor (``(M, q')``). ``Zp``: the regressor already normalised and projected
+    off the model's column space (:func:`off_space`), else projected here by ``Q``."""
+    if Zp is None:
+        assert Q is not None
+        (Zp,) = off_space(Q, [Z])
     absorbed = float(1.0 - np.mean(np.sum(Zp**2, axis=0)))
     U, s, _ = np.linalg.svd(Zp, full_matrices=False)
     keep = s > cfg.absorbed_tol
@@ -206,13 +235,23 @@ def best_candidate(
     ``unident``), and the most significant one that also lowers the pose-grouped cross-validated error, or None."""
     Q = basis(fit)
     scored: list[tuple[Score, Candidate, np.ndarray, tuple[str, ...]]] = []
+    batch: list[tuple[Candidate, np.ndarray, tuple[str, ...]]] = []
+
+    def score(batch: list[tuple[Candidate, np.ndarray, tuple[str, ...]]]) -> None:
+        for (cand, Z, params), Zp in zip(batch, off_space(Q, [Z for _, Z, _ in batch]), strict=True):
+            thr = log_thr_signal if log_thr_signal is not None and cand.effect == "signal" else log_thr
+            sc, Uk = score_candidate(cand, Z, None, fit, cfg, thr, Zp=Zp)
+            if sc.status == "unidentifiable":
+                unident.setdefault(cand.key, sc.absorbed_share)
+            scored.append((sc, cand, Uk, params))
+
     for cand in remaining:
         Z, params = regressor(cand, fit, rows, data)
-        thr = log_thr_signal if log_thr_signal is not None and cand.effect == "signal" else log_thr
-        sc, Uk = score_candidate(cand, Z, Q, fit, cfg, thr)
-        if sc.status == "unidentifiable":
-            unident.setdefault(cand.key, sc.absorbed_share)
-        scored.append((sc, cand, Uk, params))
+        batch.append((cand, Z, params))
+        if sum(z.shape[1] for _, z, _ in batch) >= BATCH_COLUMNS:
+            score(batch)
+            batch = []
+    score(batch)
     leave_to_cv(scored)
     passing = sorted_tied((s for s in scored if s[0].passes), key=lambda s: s[0].log10_p)
     chosen = None

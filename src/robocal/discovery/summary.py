@@ -304,9 +304,12 @@ def locate(res: DiscoveryResult) -> dict[str, Any]:
     fit.gram = None  # the joint-level factors: not needed beyond here, not held beside the SVD
     Q = basis(fit)
     joints = []
-    for j in range(n):
-        Z = (fit.Jq[:, :, j][:, :, None] * B[:, None, :]).reshape(dd * m, -1) * fit.weights[:, None]
-        Z = Z - Q.project(Z)
+    Zs = [(fit.Jq[:, :, j][:, :, None] * B[:, None, :]).reshape(dd * m, -1) * fit.weights[:, None] for j in range(n)]
+    allz = np.hstack(Zs)
+    del Zs
+    allz -= Q.project(allz)  # every joint's in one pass of the reflectors
+    del Q
+    for j, Z in enumerate(np.split(allz, n, axis=1)):
         U, s, _ = np.linalg.svd(Z, full_matrices=False)
         Uk = U[:, s > 1e-6 * (s[0] if len(s) else 1.0)]
         d = float(np.sum((Uk.T @ fit.r_w) ** 2))
