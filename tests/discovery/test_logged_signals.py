@@ -259,6 +259,22 @@ def test_compensation_and_the_service_take_the_logged_signal_with_each_target(tm
     for k, res in enumerate(r["results"]):
         if res["status"] != "refused":
             assert np.allclose(res["q_deg"], np.rad2deg(comp.q[k]), atol=1e-5)  # the one compensation path
+        assert "extrapolated" not in json.dumps(res)  # the campaign's own values: inside the fitted range
+    # the service says which signals it needs and the values its effects were fitted on; a value far outside them
+    # is served with a reason (it came back "ok" without a word), a misspelt signal is refused (it was ignored)
+    info = json.loads(svc.handle_line(b'{"op": "info"}'))
+    assert sorted(info["signals"]) == ["incl_x", "incl_y"]
+    lo, hi = info["signals"]["incl_x"]
+    cal_x = np.asarray(camp.extra["incl_x"], dtype=float)[camp.split == "calibration"]
+    assert (lo, hi) == (float(cal_x.min()), float(cal_x.max()))
+    targets[1]["signals"]["incl_x"] = hi + 3.0 * (hi - lo)
+    r = json.loads(svc.handle_line(json.dumps({"op": "correct", "targets": targets}).encode()))
+    assert r["ok"] and "signals.incl_x outside the values its effects were fitted on" in json.dumps(r), r
+    assert "target(s) [1]" in json.dumps(r)
+    for t in targets:
+        t["signals"]["incl_z"] = 0.1
+    r = json.loads(svc.handle_line(json.dumps({"op": "correct", "targets": targets}).encode()))
+    assert r["error"]["code"] == "bad_request" and "['incl_z']" in r["error"]["message"], r
 
 
 def test_random_channels_leave_the_library_search_unchanged(tmp_path):

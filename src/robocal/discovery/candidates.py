@@ -468,6 +468,7 @@ def _signal_candidates(campaign: Campaign, robot: RobotDescription, cfg: Discove
     used, skipped = screen(campaign, robot)
     for s in skipped:
         out.skipped.append(SkippedCandidate(f"signal:{s['column']}", "signal", None, s["reason"]))
+    cal = campaign.split == "calibration" if np.any(campaign.split == "validation") else slice(None)
     for sig in used:
         S = (sig.values - sig.centre)[:, None]
         unit = sig.unit or "unit"
@@ -479,6 +480,7 @@ def _signal_candidates(campaign: Campaign, robot: RobotDescription, cfg: Discove
         info = {
             "column": sig.name,
             "centre": sig.centre,
+            "range": [float(np.min(sig.values[cal])), float(np.max(sig.values[cal]))],  # fitted on (the service)
             "side": sig.side,
             "signal_info": sig.to_dict(),
             "target": campaign.target,

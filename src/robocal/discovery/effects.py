@@ -85,6 +85,7 @@ def effect_records(fit: Fit) -> tuple[list[dict[str, Any]], list[dict[str, Any]]
                     "frame": c.extra["frame"],
                     "column": c.extra["column"],
                     "centre": float(c.extra["centre"]),
+                    **({"range": list(c.extra["range"])} if "range" in c.extra else {}),
                     "coefficients": [float(v) for v in fit.theta[sl]],
                     "coefficient_names": list(c.coef_names),
                     "units": list(c.coef_units),
@@ -128,7 +129,8 @@ def effect_records(fit: Fit) -> tuple[list[dict[str, Any]], list[dict[str, Any]]
         elif kind == "layer":
             rec_terms = {k: c.extra[k] for k in ("centres_rad", "length_rad", "inside_rad")}
         elif kind == "logged":
-            rec_terms = {"column": c.extra["column"], "centre": float(c.extra["centre"])}
+            rec_terms = {"column": c.extra["column"], "centre": float(c.extra["centre"]),
+                         **({"range": list(c.extra["range"])} if "range" in c.extra else {})}  # fmt: skip
         joint_level.append(
             {
                 **rec_terms,

@@ -169,6 +169,35 @@ class Bundle:
             for i in hot
         ]
 
+    def signal_ranges(self) -> dict[str, list[float] | None]:
+        """The logged signals the bundle's effects follow (a column of the campaign, given with each target), each
+        with the values the effects were fitted on (``[lo, hi]``; None for a calibration written before they were
+        recorded)."""
+        out: dict[str, list[float] | None] = {}
+        for e in self.effects:
+            if e.get("signal") in ("logged", "logged_frame"):
+                col = str(e["column"])
+                rng = e.get("range")
+                out[col] = out.get(col) or (None if rng is None else [float(rng[0]), float(rng[1])])
+        return out
+
+    def signal_reasons(self, logged: Mapping[str, np.ndarray] | None) -> list[str]:
+        """One reason per logged signal whose value lies outside the values its effects were fitted on (by more
+        than a tenth of their span), naming the targets: the effect is extrapolated there."""
+        out = []
+        for col, rng in self.signal_ranges().items():
+            if rng is None or logged is None or col not in logged:
+                continue
+            v = np.asarray(logged[col], dtype=float)
+            slack = 0.1 * (rng[1] - rng[0])
+            far = np.flatnonzero((v < rng[0] - slack) | (v > rng[1] + slack))
+            if len(far):
+                out.append(
+                    f"signals.{col} outside the values its effects were fitted on [{rng[0]:.6g}, {rng[1]:.6g}] on "
+                    f"target(s) {far.tolist()} ({', '.join(f'{v[k]:.6g}' for k in far[:5])}): extrapolated"
+                )
+        return out
+
     @property
     def arm(self) -> list[int]:
         """The arm's joints (the revolute ones, chain order)."""
@@ -202,6 +231,7 @@ class Bundle:
             "thermal": self.thermal is not None,
             "compliance": self.compliance is not None,
             "effects": [e["key"] for e in self.effects],
+            **({"signals": self.signal_ranges()} if self.signal_ranges() else {}),
             "sensors": list(self.sensors),
             "temperature_range_C": None
             if self.t_lo is None or self.t_hi is None

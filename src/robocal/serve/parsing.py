@@ -264,6 +264,16 @@ def _parse_request(req: dict[str, Any], bundle: Bundle, cfg: ServiceConfig) -> C
     if payload < 0:
         raise RequestError("bad_request", "'payload_kg' must be >= 0")
     reasons: list[str] = []  # request-level reasons (apply to every target)
+    if tg.logged:
+        known = bundle.signal_ranges()
+        unknown = sorted(set(tg.logged) - set(known))
+        if unknown:  # a misspelt column was ignored and its effect went without its value
+            raise RequestError(
+                "bad_request",
+                f"targets[].{LOGGED_FIELD} names {unknown}, which no effect of the bundle follows; it follows "
+                f"{sorted(known) or 'none'}",
+            )
+        reasons.extend(bundle.signal_reasons(tg.logged))
     temps = None
     if bundle.thermal is not None:
         if "temperatures" not in req:
