@@ -189,3 +189,21 @@ def test_a_sparse_campaign_takes_the_prior_only_where_it_clearly_beats_none(seed
         # no prior: the fit of a plain one, and its record says so (a newcomer's 15 configurations got no word)
         assert rec is not None and rec["sparse"] and not float(rec["prior"].get("strength") or 0.0) > 0, rec
         assert np.array_equal(auto.x, off.x)
+
+
+def test_the_models_parameter_count_gives_every_station_its_configurations(tmp_path):
+    """The parameters a model needs are its Jacobian's rank at spread configurations, the stations taken in turn:
+    60 of them shared by 35 placements of a column robot gave each one or two, too few to fix its frame, and the
+    count (177) fell below what the campaign's own fit identified (232). Six per station at least: the count is
+    the fit's."""
+    sc = robocal.load_scenario("geometric")
+    rng = np.random.default_rng(1)
+    stations = {f"S{i}": {"xyz_mm": [2500.0 + 200 * rng.normal(), 1200.0 + 200 * rng.normal(), -350.0],
+                          "rpy_deg": [0.0, 0.0, 135.0 + 10 * rng.normal()]} for i in range(2, 27)}  # fmt: skip
+    sc.update(n_poses=150, n_validation_poses=0, stations=stations)
+    robocal.simulate(sc, tmp_path, seed=2)
+    robot = robocal.load_robot(sc["robot"])
+    res = robocal.calibrate(read_campaign(tmp_path, robot), robot)
+    design = res.fit["configurations"]
+    assert design["model_parameters"] == int(np.count_nonzero(np.isfinite(res.stderr))), design
+    assert "at 156 configurations" in design["model_parameters_rule"]  # 26 stations (S1 and S2..S26) x 6

@@ -100,13 +100,16 @@ def configuration_groups(q: np.ndarray, tol_deg: float = SAME_CONFIGURATION_DEG)
 def model_parameters(start: CalibrationStart) -> int:
     """The parameters the calibration model has: the rank of its Jacobian (the calibration's rank test,
     the same candidates and ``rank_tol``) at :data:`SPREAD_CONFIGURATIONS` configurations drawn uniformly in
-    90 % of the joint ranges (seed 0), every target measured at each, the stations taken in turn."""
+    90 % of the joint ranges (seed 0; six per station when the stations are many), every target measured at each,
+    the stations taken in turn."""
     model, cfg = start.model, start.config
     robot = model.robot
     rng = np.random.default_rng(0)
     lim = np.asarray(robot.q_limits, dtype=float)
     mid, half = lim.mean(axis=1), (lim[:, 1] - lim[:, 0]) / 2 * 0.9
-    n, K = SPREAD_CONFIGURATIONS, len(model.target_names)
+    # at least 6 configurations for every station (each registers on its own points: 35 placements of a column
+    # robot shared 60, and the count fell to 177 where the campaign's own fit identified 232)
+    n, K = max(SPREAD_CONFIGURATIONS, 6 * model.n_stations), len(model.target_names)
     q = np.repeat(rng.uniform(mid - half, mid + half, size=(n, robot.n_joints)), K, axis=0)
     ti = np.tile(np.arange(K), n)
     si = (np.arange(n * K) // K) % model.n_stations
@@ -146,8 +149,8 @@ def design_of(start: CalibrationStart) -> dict[str, Any]:
         ),
         "model_parameters": k,
         "model_parameters_rule": (
-            f"rank of the model's Jacobian at {SPREAD_CONFIGURATIONS} configurations spread over 90 % of the joint "
-            "ranges, with the campaign's targets and stations"
+            f"rank of the model's Jacobian at {max(SPREAD_CONFIGURATIONS, 6 * start.model.n_stations)} configurations "
+            "spread over 90 % of the joint ranges, with the campaign's targets and stations (six per station at least)"
         ),
         "needed": needed,
         "thin_below": thin_below,
