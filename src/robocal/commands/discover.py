@@ -96,7 +96,9 @@ def run(args: argparse.Namespace) -> int:
     if cv and "cv_mean_position_mm" in cv:
         print(f"cross-validated estimate on the calibration poses (pose-grouped): mean "
               f"{cv['cv_mean_position_mm']:.4f} mm, RMS {cv['cv_rms_position_mm']:.4f} mm "
-              "(within this session)")  # fmt: skip
+              + ("(within this session)" if "session_cv" in cv or not (s.get("geometric_calibration") or {})
+                 .get("n_stations", 0) > 1 else "(within these placements: no session has the rows to be left "
+                 "out and judged, so nothing says what a new one would give)"))  # fmt: skip
     if cv and "session_cv" in cv:
         sc, gc = cv["session_cv"], cv.get("geometric_session_cv") or {}
         print(f"expected in a new session (each of {len(sc['sessions'])} sessions left out, its tracker registered on "

@@ -516,6 +516,8 @@ def summary(res: DiscoveryResult, validation: dict[str, Any] | None = None) -> d
             "noise_used_mm": (geo.fit.get("noise") or {}).get("used_mm"),
             "noise_used_because": (geo.fit.get("noise") or {}).get("used_because"),
             "n_rows": int(np.sum(geo.start.kept)) if geo.start is not None else None,
+            # tracker placements (the key only with several: a one-station campaign's discovery.json unchanged)
+            **({"n_stations": len(geo.fit["stations"])} if len(geo.fit.get("stations") or []) > 1 else {}),
             "outlier_rows": [o["row"] for o in geo.fit.get("outliers", [])],
             "systematic_misfit": geo.fit.get("systematic_misfit", []),
         }
