@@ -140,3 +140,28 @@ def test_a_systematic_misfit_is_judged_like_suspects(above_q2):
     assert judge(fit).acceptable  # the workflow's default: left to the fit record
     v = judge(fit, rules=AcceptanceRules.from_mapping(FLEET))
     assert not v.acceptable and any("q2_deg" in p and "misfit together" in p for p in v.problems), v.problems
+
+
+def test_a_misfit_at_the_top_of_a_lifting_column_is_named_in_mm(kr16):
+    """A linear axis's value is mm (``q1_mm``): the condition was named on 'q1_deg', its mm read as radians and
+    turned to degrees (a column's top third: 'q1_deg in [57 000, 86 000] deg')."""
+    from robocal.data.contract import Campaign
+
+    rng = np.random.default_rng(1)
+    m = 200
+    q = rng.uniform(-1, 1, (m, 7))
+    q[:, 0] = rng.uniform(0.0, 1500.0, m)  # the column's height, mm
+    camp = Campaign(
+        source="mem", poses_file="mem", pose_id=np.array([f"p{i}" for i in range(m)]), timestamp_s=np.arange(m) * 10.0,
+        t0=None, target=np.full(m, "T1"), target_names=("T1",), target_index=np.zeros(m, dtype=int), q=q,
+        p_mm=rng.normal(0, 500, (m, 3)), quat=None, payload_kg=np.zeros(m), tau_Nm=None, current_A=None,
+        direction=None, split=np.full(m, "calibration"), split_from_file=False, row_number=np.arange(2, m + 2),
+        prismatic=np.array([True] + [False] * 6),
+    )  # fmt: skip
+    top = q[:, 0] > 1300.0
+    resid = rng.normal(0, 0.015, (m, 3)) + 0.3 * top[:, None]
+    found, explained = misfit.find(camp, top, resid, 0.015, 0.001)
+    assert [f["column"] for f in found] == ["q1_mm"], found
+    lo, hi = found[0]["range"]
+    assert 1300.0 <= lo <= hi <= 1500.0 and found[0]["unit"] == "mm", found[0]
+    assert explained.sum() == top.sum()

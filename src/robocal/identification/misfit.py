@@ -103,6 +103,9 @@ def column_values(camp: Campaign, column: str) -> np.ndarray | None:
     if column.startswith("q") and column.endswith("_deg") and column[1:-4].isdigit():
         j = int(column[1:-4]) - 1
         return np.rad2deg(camp.q[:, j]) if 0 <= j < camp.n_joints else None
+    if column.startswith("q") and column.endswith("_mm") and column[1:-3].isdigit():  # a linear axis (mm)
+        j = int(column[1:-3]) - 1
+        return np.asarray(camp.q[:, j], dtype=float) if 0 <= j < camp.n_joints else None
     if column in camp.extra:
         return np.asarray(camp.extra[column])
     return None
@@ -123,7 +126,11 @@ def columns(camp: Campaign) -> list[tuple[str, str, str, bool]]:
         out.append(("station", "station", "", False))
     if len(set(np.asarray(camp.target).tolist())) > 1:
         out.append(("target", "target", "", False))
-    out += [("joint", f"q{j + 1}_deg", "deg", True) for j in range(camp.n_joints)]
+    # a linear axis (a track, a lifting column) in mm as its column is: it was read as degrees of its mm (a
+    # column's top 1.3 m named "q1_deg in [74 000, 86 000] deg")
+    slide = camp.prismatic if camp.prismatic is not None else np.zeros(camp.n_joints, dtype=bool)
+    out += [("joint", f"q{j + 1}_mm", "mm", True) if slide[j] else ("joint", f"q{j + 1}_deg", "deg", True)
+            for j in range(camp.n_joints)]  # fmt: skip
     out.append(("time", "time_s", "s after the first row", True))
     out += [("workspace", f"{a}_mm", "mm (measured, tracker frame)", True) for a in "xyz"]
     for name in sorted(camp.extra):
