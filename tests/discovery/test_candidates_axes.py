@@ -132,3 +132,23 @@ def test_robocal_discover_on_a_track_names_the_axis_errors_and_compensates_with_
     bundle = load_bundle(write_bundle(tmp_path / "bundle", robot.name, out / "calibration.json"))
     served = {t.name.rsplit("_P", 1)[0] for t in bundle.axis_fit.terms}
     assert served == {"track:pitch", "track:straightness_x", "track:straightness_y"}
+
+
+def test_a_linear_axis_gets_no_angle_harmonics(tmp_path):
+    """A column's or a track's value is mm: the gear harmonics, the transmission error and the dictionary's
+    harmonics of it were offered as sin(h q) of its mm (a random column, a burden on the multiple testing and a
+    chance to be named). Its errors along the travel are the axis candidates; the arm's joints keep theirs."""
+    from robocal.discovery.dictionary import build_dictionary
+    from robocal.discovery.grow import physics_candidates
+
+    cfg = DiscoveryConfig()
+    camp, robot, _ = make_campaign(tmp_path, "column", 0, n_poses=60, n_validation_poses=0)
+    assert robot.prismatic[0]
+    cands, skipped = build_library(camp, robot, cfg)
+    assert not [c for c in cands if c.effect == "gear" and c.joint == 1]
+    assert {s.key for s in skipped if s.reason == "joint 1 is a linear axis"} == {"gear:j1:h1", "gear:j1:h2"}
+    assert [c for c in cands if c.effect == "gear" and c.joint == 2]  # the arm's first joint keeps them
+    physics = [c.key for c, _ in physics_candidates(camp, robot, cfg, np.arange(camp.n_rows))]
+    assert "transmission:j2" in physics and "transmission:j1" not in physics
+    dic = build_dictionary(camp, robot)
+    assert all(f[1] != 1 for t in dic.terms for f in t.factors if f[0] in ("sin", "cos")), dic.terms[:3]

@@ -240,16 +240,16 @@ def _gear_candidates(campaign: Campaign, robot: RobotDescription, cfg: Discovery
     effect = "gear"
     from robocal.compensation.signals import held_harmonic_signal
 
-    n = robot.n_joints
     q = campaign.q
     cal_rows = campaign.split == "calibration" if np.any(campaign.split == "validation") else slice(None)
-    for j in range(n):
+    for j in range(robot.n_joints):
         rng = float(np.ptp(q[:, j]))
         lo, hi = (float(np.rad2deg(f(q[cal_rows, j]))) for f in (np.min, np.max))
         for h in cfg.gear_harmonics:
             key = f"gear:j{j + 1}:h{h}"
-            if rng < 1e-6:
-                out.skipped.append(SkippedCandidate(key, effect, j + 1, f"joint {j + 1} does not move"))
+            if rng < 1e-6 or robot.prismatic[j]:  # a linear axis's mm have no harmonics (its travel: axis errors)
+                why = f"joint {j + 1} " + ("is a linear axis" if robot.prismatic[j] else "does not move")
+                out.skipped.append(SkippedCandidate(key, effect, j + 1, why))
                 continue
             # harmonics 1-2 (eccentricity) are one revolution's error: evaluated everywhere when the
             # calibration visited a whole period of the harmonic; over less, the harmonic is a smooth

@@ -71,7 +71,8 @@ def build_dictionary(
     terms: list[Term] = []
     cols: list[np.ndarray] = []
     skipped: list[str] = []
-    moving = [i for i in range(n) if np.ptp(q[:, i]) > 1e-6]
+    # harmonics of an angle: a linear axis's value (mm) is none (its errors along the travel: robocal.discovery.axes)
+    moving = [i for i in range(n) if np.ptp(q[:, i]) > 1e-6 and not robot.prismatic[i]]
     _joint_terms(q, moving, harmonics, product_harmonics, terms, cols)
     if robot.has_dynamics:
         from robocal.kinematics.gravity import gravity_torques

@@ -83,8 +83,8 @@ def physics_candidates(
         # at most one coefficient pair per ~4 poses: an order the poses cannot resolve is not tried
         orders = [k for k in cfg.transmission_orders if 2 * k <= max(n_poses // 4, 0)]
         kmax = max(orders) if orders else 0
-        for j in range(n):
-            if kmax == 0 or float(np.ptp(q[rows, j])) < np.deg2rad(1.0):
+        for j in range(n):  # a reducer's error of its angle: not a linear axis's (mm)
+            if kmax == 0 or robot.prismatic[j] or float(np.ptp(q[rows, j])) < np.deg2rad(1.0):
                 continue
             gap, taper = periodic_window(cfg, kmax)
             visited = visited_intervals(q[rows, j], gap)
