@@ -105,8 +105,12 @@ def test_a_few_scattered_flags_are_not_a_cluster(kr16):
     found, explained = misfit.find(camp, flagged, resid, 0.015, 0.001)
     assert found == [] and not explained.any()
     few = np.zeros(m, dtype=bool)
-    few[np.argsort(q[:, 1])[-4:]] = True  # the four highest joint-2 rows: too few to be named
+    few[np.argsort(q[:, 1])[-3:]] = True  # the three highest joint-2 rows: too few to be named (a pose's targets)
     assert misfit.find(camp, few, resid, 0.015, 0.001)[0] == []
+    four = np.zeros(m, dtype=bool)
+    four[np.argsort(q[:, 1])[-4:]] = True  # four rows of one joint-2 range misfitting together: named (were 4 blunders)
+    found4, explained4 = misfit.find(camp, four, resid + 0.3 * four[:, None], 0.015, 0.001)
+    assert [f["column"] for f in found4] == ["q2_deg"] and explained4.sum() == 4, found4
     many = np.zeros(m, dtype=bool)
     many[np.argsort(q[:, 1])[-12:]] = True  # the twelve highest: named, on joint 2
     found, explained = misfit.find(camp, many, resid + 0.3 * many[:, None], 0.015, 0.001)
