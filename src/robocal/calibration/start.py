@@ -290,11 +290,11 @@ def _rotation_misfit_deg(
     T_st: np.ndarray,
     tools0: np.ndarray,
     data: FitData,
+    Rf: np.ndarray,
 ) -> float:
-    """Median angle (deg) between the measured rotations of ``data`` and the nominal model's, its frames and tool
-    offsets the registration's and each target's best constant rotation."""
-    model0 = CalibrationModel(robot, targets, orientation=False, stations=stations)
-    tool_R = _tool_rotations(fk(model0.chain, data.q)[:, :3, :3], data, T_st, len(targets))
+    """Median angle (deg) between the measured rotations of ``data`` and the nominal model's (``Rf``: its flange
+    rotations), its frames and tool offsets the registration's and each target's best constant rotation."""
+    tool_R = _tool_rotations(Rf, data, T_st, len(targets))
     model = CalibrationModel(
         robot, targets, orientation=True, T_ref=T_st[0], tool_R_ref=tool_R, stations=stations, station_T_ref=T_st
     )
@@ -318,7 +318,8 @@ def orientation_mismatch(
     tracker frames ``T_st`` registered on the positions. Names the other reading of the columns that agrees, if
     one does (scalar last, the inverse rotation): such quaternions made the fit 10 mm worse than its start, with
     no word on orientation, where the positions alone fit to 0.025 mm."""
-    a0 = _rotation_misfit_deg(robot, targets, stations, T_st, tools0, data)
+    Rf = fk(CalibrationModel(robot, targets, orientation=False, stations=stations).chain, data.q)[:, :3, :3]
+    a0 = _rotation_misfit_deg(robot, targets, stations, T_st, tools0, data, Rf)
     if a0 <= ORIENTATION_MISMATCH_DEG:
         return None
     text = (
@@ -328,7 +329,7 @@ def orientation_mismatch(
     for name, order, sign, what in _QUAT_READINGS:
         alt = quat[:, order] * np.array([1.0, sign, sign, sign])
         alt_data = replace(data, R_meas=quat_to_matrix(alt))
-        a = _rotation_misfit_deg(robot, targets, stations, T_st, tools0, alt_data)
+        a = _rotation_misfit_deg(robot, targets, stations, T_st, tools0, alt_data, Rf)
         if a <= ORIENTATION_MISMATCH_DEG:
             return f"{text}. Read as {name} they agree to {a:.2g} deg: {what}"
     return f"{text}. Check the quaternion convention (w, x, y, z; the tool's rotation in the tracker's frame)"

@@ -94,11 +94,18 @@ def run(args: argparse.Namespace) -> int:
             )
     cv = s.get("cross_validation")
     if cv and "cv_mean_position_mm" in cv:
+        # several placements none of which could be left out and judged: nothing says what a new one would give
+        placements = (g or {}).get("n_stations", 1) > 1 and "session_cv" not in cv
+        within = (
+            (
+                "within these placements: no session has the rows to be left out and judged, so nothing says "
+                "what a new one would give"
+            )
+            if placements
+            else "within this session"
+        )
         print(f"cross-validated estimate on the calibration poses (pose-grouped): mean "
-              f"{cv['cv_mean_position_mm']:.4f} mm, RMS {cv['cv_rms_position_mm']:.4f} mm "
-              + ("(within this session)" if "session_cv" in cv or not (s.get("geometric_calibration") or {})
-                 .get("n_stations", 0) > 1 else "(within these placements: no session has the rows to be left "
-                 "out and judged, so nothing says what a new one would give)"))  # fmt: skip
+              f"{cv['cv_mean_position_mm']:.4f} mm, RMS {cv['cv_rms_position_mm']:.4f} mm ({within})")  # fmt: skip
     if cv and "session_cv" in cv:
         sc, gc = cv["session_cv"], cv.get("geometric_session_cv") or {}
         print(f"expected in a new session (each of {len(sc['sessions'])} sessions left out, its tracker registered on "

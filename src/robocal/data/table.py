@@ -46,7 +46,7 @@ def _read_table(path: Path) -> pd.DataFrame:
     if path.suffix != ".parquet" and len(df):
         # rows of bare separators at the end (",,,,,", as a spreadsheet saves the rows it once formatted) are not
         # rows: they were refused as a missing pose_id
-        filled = df.astype(str).apply(lambda c: c.str.strip().ne("") & c.notna() & c.ne("nan")).any(axis=1)
+        filled = df.astype(str).apply(lambda c: ~c.str.strip().isin(["", "nan"])).any(axis=1)
         last = int(np.flatnonzero(filled.to_numpy())[-1]) + 1 if filled.any() else 0
         df = df.iloc[:last]
     if len(df) == 0:

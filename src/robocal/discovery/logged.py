@@ -19,7 +19,7 @@ inclinometer, an accelerometer, an external axis position, a load cell, a time c
 * a column that is a function of the measurement itself (the tracker's own distance, angles or coordinates) is
   recognised by regressing it on the measured position (linear, quadratic and spherical terms) and not used: an
   effect driven by it would fit the measurement with itself (a declared sensor is offered, as above);
-* a column equal to an earlier usable one (|r| >= :data:`FUNCTION_R2`) is a copy and not used twice;
+* a column equal to an earlier usable one (|r| >= :data:`COPY_R`) is a copy and not used twice;
 * a column whose name says it logs a commanded pose or set point (``goal_roll_rad``, ``cmd_x_mm``:
   :func:`commanded_column`) is a function of the joints even where the regression cannot show it (angles that wrap,
   roll and yaw undefined at pitch +-90 deg) and is not used unless declared;
