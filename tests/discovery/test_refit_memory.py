@@ -131,6 +131,44 @@ def test_the_row_test_in_chunks_is_the_same(problem, monkeypatch):
     t2 = robust.row_test(fit.r_w, fit.J_w, row_of, m, kept, 0.01)
     assert np.allclose(t1.F, t2.F, rtol=1e-9, atol=0)  # the kept rows' Gram summed in another order
     assert np.array_equal(t1.flagged, t2.flagged)
+    # the Jacobian given a chunk of rows at a time (discovery's gross-error test: never the (M, k) matrix): the
+    # same chunks, the same numbers
+    J, d = np.asarray(fit.J_w), fit.d
+    asked = []
+
+    def rows_jacobian(a, b):
+        asked.append((a, b))
+        return J[a * d : b * d].copy()
+
+    t3 = robust.row_test(fit.r_w, rows_jacobian, row_of, m, kept, 0.01, n_params=fit.k)
+    assert np.array_equal(t3.F, t2.F) and np.array_equal(t3.flagged, t2.flagged)
+    assert max(b - a for a, b in asked) == 13 and len(asked) == 2 * -(-m // 13)  # two passes of 13-row chunks
+    # a large model's chunk is fewer rows: ROW_CHUNK_BYTES of Jacobian at most (here 5 rows of k columns)
+    monkeypatch.setattr(robust, "ROW_CHUNK_BYTES", 5 * d * fit.k * 8)
+    asked.clear()
+    t4 = robust.row_test(fit.r_w, rows_jacobian, row_of, m, kept, 0.01, n_params=fit.k)
+    assert max(b - a for a, b in asked) == 5
+    assert np.allclose(t4.F, t1.F, rtol=1e-9, atol=0) and np.array_equal(t4.flagged, t1.flagged)
+
+
+def test_the_gross_error_test_evaluates_its_jacobian_by_chunks_of_rows(problem, monkeypatch):
+    """Discovery's gross-error test evaluates the model's Jacobian a chunk of rows at a time (each row's own
+    numbers: bitwise those of the whole campaign's matrix) and gives the row test of the whole matrix."""
+    from robocal.discovery import gross
+
+    fit = _fit(problem)
+    model, _, data, rows = problem
+    m = fit.M // fit.d
+    kept = np.ones(m, dtype=bool)
+    kept[::11] = False
+    r, J, _, _ = model.residuals_and_jacobian(fit.theta, data, rows, cols=fit.free)
+    w = np.tile(fit.weights[: fit.d], m)
+    prec = model.prior_precision()[fit.free]
+    monkeypatch.setattr(robust, "ROW_CHUNK_BYTES", 50 * fit.d * fit.k * 8)  # 50-row chunks
+    want = robust.row_test(r * w, J * w[:, None], np.repeat(np.arange(m), fit.d), m, kept, 0.01, prior=prec)
+    cal = type("Cal", (), {"n_rows": m})()
+    test, _, _ = gross.retest(fit, data, rows, cal, kept, 0.01)
+    assert np.array_equal(test.F, want.F) and np.array_equal(test.p_value, want.p_value)
 
 
 def test_the_refit_holds_no_copy_of_its_jacobian(problem):
@@ -213,11 +251,33 @@ def test_the_column_basis_spans_numpys_svd_without_holding_the_fits_jacobian(pro
     before = one.copy()  # real ABB's compliance candidates then came out "absorbed" by -108 %)
     space.project(one)
     assert np.array_equal(one, before)
+    c = space.coefficients(Z)
     Q = space.matrix()  # the basis itself (the dictionary's products): orthonormal, the same projections
     assert Q.shape == want.shape
     assert np.allclose(Q.T @ Q, np.eye(Q.shape[1]), atol=1e-12)
-    assert np.allclose(Q.T @ Z, space.coefficients(Z), atol=1e-12 * np.max(np.abs(Z)))
+    assert np.allclose(Q.T @ Z, c, atol=1e-12 * np.max(np.abs(Z)))
+    # formed in the factors' place: the space works from the basis from then on, the same projections
+    assert space.qr is None and space.matrix() is Q
+    assert np.max(np.abs(space.project(Z) - want @ (want.T @ Z))) < 1e-12 * np.max(np.abs(Z))
     assert np.array_equal(fit.J_w, J)  # evaluated again at the fit's parameters
+
+
+def test_a_large_jacobian_is_let_go_before_the_basis_evaluates_it_in_column_order(problem, monkeypatch):
+    """Above ``COPY_BYTES`` the fit's Jacobian is not copied into column order (two (M, k) matrices at once: the
+    peak at UR10 A's 12 000 rows) but let go and evaluated again in column order: the same numbers, so the same
+    factorisation and projections (bitwise)."""
+    from robocal.discovery import ftest
+
+    Z = np.random.default_rng(5).normal(size=(_fit(problem).M, 4))
+    small = ftest.basis(_fit(problem))
+    monkeypatch.setattr(ftest, "COPY_BYTES", 0)
+    fit = _fit(problem)
+    J = np.array(fit.J_w)
+    large = ftest.basis(fit)
+    assert "J_w" not in fit.__dict__
+    assert np.array_equal(large.qr, small.qr) and np.array_equal(large.project(Z), small.project(Z))
+    F = fit.evaluate_jacobian(order="F")
+    assert F.flags.f_contiguous and np.array_equal(F, J)
 
 
 def test_the_column_basis_of_a_rank_deficient_jacobian_keeps_the_svds_rank():

@@ -18,13 +18,18 @@ from robocal.discovery.scoring import Score, regressor
 from robocal.identification.model import FitData
 from robocal.numerics import sorted_tied
 
+#: a fit's Jacobian up to this size is copied into column order for the QR; a larger one is let go and evaluated
+#: again in column order (issue 31: the copy doubled the peak memory at UR10 A's 12 000 rows, 0.44 GB each)
+COPY_BYTES = 64 * 2**20
+
 
 class ColumnSpace:
     """The column space of a fit's whitened Jacobian ``A (M, k)``: an orthonormal basis ``B`` of the directions whose
     singular value is above 1e-10 of the largest, held as the Householder factors of ``A``'s QR (LAPACK
-    ``geqrf`` on ``A``'s Fortran copy, in place) and applied by ``ormqr``: ``B`` itself (``M x r``) is never
-    formed. At full rank ``B = Q``; otherwise ``Q U_r`` with ``U_r`` the kept left singular vectors of ``R`` (those
-    of ``A``): the subspace of numpy's ``svd`` of ``A`` (projections equal to ~1e-15).
+    ``geqrf`` on ``A`` in column order, in place) and applied by ``ormqr``: ``B`` itself (``M x r``) is formed only
+    when asked for (:meth:`matrix`, in the factors' place). At full rank ``B = Q``; otherwise ``Q U_r`` with ``U_r``
+    the kept left singular vectors of ``R`` (those of ``A``): the subspace of numpy's ``svd`` of ``A`` (projections
+    equal to ~1e-15).
 
     Issue 31: numpy's ``svd`` held five ``(M, k)`` matrices (0.9 GB at UR10 A's 12 000 rows); the QR's ``Q`` (LAPACK
     ``orgqr``) was still one more beside the factors and twice the factorisation's time: forming it cost more
@@ -33,10 +38,17 @@ class ColumnSpace:
     def __init__(self, fit: Fit) -> None:
         from scipy import linalg
 
-        a = np.asfortranarray(fit.J_w)
-        fit.release_jacobian()  # its matrix let go (evaluated again when read), its joint-level factors kept
+        held = fit.__dict__.get("J_w")
+        if held is not None and (held.nbytes <= COPY_BYTES or not fit.release_jacobian()):
+            a = np.asfortranarray(held)  # a copy (the fit's own matrix is read-only)
+            fit.release_jacobian()  # its matrix let go (evaluated again when read), its joint-level factors kept
+        else:  # let go first, then evaluated in column order for the QR in place: never two (M, k) at once
+            fit.release_jacobian()
+            a = fit.evaluate_jacobian(order="F")
+        del held
         self.M, self.k = a.shape
         self.U: np.ndarray | None = None
+        self.B: np.ndarray | None = None  # the basis itself once :meth:`matrix` formed it (the factors gone)
         if self.k == 0:
             self.qr, self.tau, self.rank = a, np.zeros(0), 0
             return
@@ -66,17 +78,23 @@ class ColumnSpace:
         Z2 = Z.reshape(self.M, -1)
         if self.k == 0:
             return np.zeros((0, Z2.shape[1]))
-        c = self._ormqr("T", Z2)[: min(self.M, self.k)]
-        c = c if self.U is None else self.U.T @ c
+        if self.B is not None:
+            c = self.B.T @ Z2
+        else:
+            c = self._ormqr("T", Z2)[: min(self.M, self.k)]
+            c = c if self.U is None else self.U.T @ c
         return c if Z.ndim == 2 else c[:, 0]
 
     def combine(self, W: np.ndarray) -> np.ndarray:
         """``B W`` (``M x q``) of coefficients ``W (r, q)`` (or ``(r,)``)."""
         W2 = W.reshape(self.rank, -1)
-        C = np.zeros((self.M, W2.shape[1]), order="F")
-        if self.k:
-            C[: min(self.M, self.k)] = W2 if self.U is None else self.U @ W2
-            C = self._ormqr("N", C)  # (one copy of C: M x q, q a few columns)
+        if self.B is not None:
+            C = self.B @ W2
+        else:
+            C = np.zeros((self.M, W2.shape[1]), order="F")
+            if self.k:
+                C[: min(self.M, self.k)] = W2 if self.U is None else self.U @ W2
+                C = self._ormqr("N", C)  # (one copy of C: M x q, q a few columns)
         return C if W.ndim == 2 else C[:, 0]
 
     def project(self, Z: np.ndarray) -> np.ndarray:
@@ -84,18 +102,34 @@ class ColumnSpace:
         return self.combine(self.coefficients(Z))
 
     def matrix(self) -> np.ndarray:
-        """``B`` itself (``M x r``; LAPACK ``orgqr`` on a copy of the factors): for products with a regressor held by
-        its factors (the dictionary's ``v ⊗ F``, :func:`robocal.discovery.dictionary.select`), which pass the
-        rows once where a pass of the reflectors would need the regressor dense."""
+        """``B`` itself (``M x r``): for products with a regressor held by its factors (the dictionary's ``v ⊗ F``,
+        :func:`robocal.discovery.dictionary.select`), which pass the rows once where a pass of the reflectors
+        would need the regressor dense. Formed once, in the factors' own memory (LAPACK ``orgqr`` in place, then
+        ``Q U_r`` row block by row block into its first ``r`` columns): the space holds ``B`` instead of its
+        factors from then on (its products ``Bᵀ Z`` and ``B W``; issue 31: never the factors, ``Q`` and ``Q U_r``
+        at once, ~0.55 GB at UR10 A's 12 000 rows)."""
         from scipy.linalg import lapack
 
+        if self.B is not None:
+            return self.B
         n = min(self.M, self.k)
         if n == 0:
             return np.zeros((self.M, 0))
-        q, _, info = lapack.dorgqr(self.qr[:, :n], self.tau[:n], lwork=max(1, 64 * n), overwrite_a=0)
+        q, _, info = lapack.dorgqr(self.qr[:, :n], self.tau[:n], lwork=max(1, 64 * n), overwrite_a=1)
         if info != 0:
             raise np.linalg.LinAlgError(f"LAPACK dorgqr failed (info {info})")
-        return np.asarray(q if self.U is None else q @ self.U)
+        self.qr = self.tau = None  # type: ignore[assignment]  # overwritten: B from here on
+        q = np.asarray(q)
+        if self.U is not None:
+            for s in range(0, self.M, ROW_BLOCK):
+                q[s : s + ROW_BLOCK, : self.rank] = q[s : s + ROW_BLOCK, :n] @ self.U
+            q = q[:, : self.rank]
+        self.B = q
+        return q
+
+
+#: rows of ``Q`` multiplied by ``U_r`` at a time when the basis is formed in place (bounds the temporary)
+ROW_BLOCK = 4096
 
 
 def basis(fit: Fit) -> ColumnSpace:

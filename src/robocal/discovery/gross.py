@@ -31,16 +31,24 @@ def retest(
     m = cal.n_rows
     fit.release()  # the search's Jacobian is not held through this one (every calibration row)
     progress.note(f"gross-error test: every one of the {m} calibration rows against the discovered model")
-    # the free columns only, whitened in place (no (M, n) matrix, no copy)
-    r, Jw, _, _ = fit.model.residuals_and_jacobian(fit.theta, data_all, rows_all, cols=fit.free)
+    # the free columns only, whitened in place (no (M, n) matrix, no copy), a chunk of rows at a time (each row's
+    # residuals and Jacobian are its own: the same numbers as the whole campaign's; issue 31)
     w = np.tile(fit.weights[: fit.d], m)
     row_of = np.repeat(np.arange(m), fit.d)
-    Jw *= w[:, None]
+
+    def rows_jacobian(a: int, b: int) -> np.ndarray:
+        idx = np.arange(a, b)
+        _, J, _, _ = fit.model.residuals_and_jacobian(fit.theta, data_all.rows(idx), rows_all[idx], cols=fit.free)
+        J *= w[a * fit.d : b * fit.d, None]
+        return J
+
+    r, _, _, _ = fit.model.residuals_and_jacobian(fit.theta, data_all, rows_all, cols=np.zeros(0, dtype=int))
     # the leverages of the fit with its prior (the effects a prior determines, the residual layer's: without it the
     # kept rows' JᵀJ is singular and the test's verdict is round-off: on the UR10's 3 000 rows a change of 1e-15 in
     # the Jacobian changed 61 of its 2 094 verdicts)
     prec = fit.model.prior_precision()[fit.free]
-    test = robust.row_test(r * w, Jw, row_of, m, kept, alpha, prior=prec if np.any(prec > 0) else None)
+    test = robust.row_test(r * w, rows_jacobian, row_of, m, kept, alpha, prior=prec if np.any(prec > 0) else None,
+                           n_params=len(fit.free))  # fmt: skip
     # a row is a gross error only when it also stands out from the rows' own scatter (robust scale: the median
     # row sum of squares, the same Bonferroni rate): a row that only the extended model's leverage singles out
     # (a 0.04 mm row among 0.1 mm ones, issue 30 item 9) is not a blunder. Such rows are still left out of the

@@ -130,6 +130,7 @@ class ExtendedModel:
         extra_rows: int = 0,
         cols: np.ndarray | None = None,
         joint_blocks: list[tuple[np.ndarray, int, np.ndarray]] | None = None,
+        order: str = "C",
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Residuals ``(d m,)`` row by row, Jacobian ``(d m, n)``, and the base Jacobians ``J_x (m, d, nb)``,
         ``J_q (m, d, N)`` (``d`` = :meth:`per_row`).
@@ -141,6 +142,7 @@ class ExtendedModel:
         in place — the same numbers as ``J[:, cols]`` without the ``(d m, n)`` matrix.
         ``joint_blocks``: a list to which each joint-level effect's built columns are added as ``(their positions
         in J, the joint (0-based), S (m, q) on those columns)`` (its columns are ``J_q[:, :, joint] ⊗ S``).
+        ``order``: the Jacobian's memory order ("F": column-major, for a QR in place; the same numbers).
         """
         x = theta[: self.nb]
         m = data.m
@@ -154,14 +156,15 @@ class ExtendedModel:
         Jq = Jq_p if Jq_w is None else np.concatenate([Jq_p, Jq_w], axis=1)
         pos = np.arange(self.n) if cols is None else column_positions(self.n, cols)
         n_out = self.n if cols is None else len(cols)
-        J_all = np.zeros((dd * m + extra_rows, n_out))
+        J_all = np.zeros((dd * m + extra_rows, n_out), order="F" if order == "F" else "C")
         J = J_all[: dd * m]
         bsel = np.flatnonzero(pos[: self.nb] >= 0)
         if len(bsel) == self.nb and cols is None:
             J[:, : self.nb] = Jb
         elif len(bsel):
             J[:, pos[bsel]] = Jb[:, bsel]
-        Jv = J.reshape(m, dd, n_out)
+        Jv = J.reshape(m, dd, n_out)  # a view in either order (one axis split)
+        assert n_out == 0 or m == 0 or np.shares_memory(Jv, J)
         rv = r.reshape(m, dd).copy()
 
         def put(
@@ -313,10 +316,18 @@ class Fit:
         d = self.__dict__
         if name != "J_w" or d.get("data") is None:
             raise AttributeError(name)
-        _, J, _, _ = d["model"].residuals_and_jacobian(d["theta"], d["data"], d["rows"], cols=d["free"])
-        J *= d["w"][:, None]
+        J = self.evaluate_jacobian()
         J.setflags(write=False)
         d["J_w"] = J
+        return J
+
+    def evaluate_jacobian(self, order: str = "C") -> np.ndarray:
+        """``J_w`` evaluated again from the fit's data (a new array, the caller's, in memory ``order``; the same
+        numbers as the solver's); the fit must have its data."""
+        d = self.__dict__
+        assert d.get("data") is not None and d.get("w") is not None
+        _, J, _, _ = d["model"].residuals_and_jacobian(d["theta"], d["data"], d["rows"], cols=d["free"], order=order)
+        J *= d["w"][:, None]
         return J
 
     @property

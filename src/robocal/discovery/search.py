@@ -28,7 +28,7 @@ from robocal.data.contract import Campaign
 from robocal.discovery import progress
 from robocal.discovery.candidates import Candidate, SkippedCandidate, build_library, periodic_window
 from robocal.discovery.config import DiscoveryConfig
-from robocal.discovery.cv import fold_cv, pose_groups
+from robocal.discovery.cv import clear_cache, fold_cv, pose_groups
 from robocal.discovery.ftest import backward_check, basis, best_candidate, cross_validation_gain, score_candidate
 from robocal.discovery.gross import left_out, retest, screen_record, screen_sample, settle
 from robocal.discovery.grow import (
@@ -475,6 +475,7 @@ def _propose(state: DiscoveryState) -> None:
         return
     for k in range(cfg.dictionary_max_proposals):
         fit = state.fit
+        clear_cache()  # the selection's fold sums (its fit's Jacobian) not held beside the basis (issue 31)
         space = basis(fit)
         props = select(
             fit.Jq,

@@ -63,43 +63,64 @@ def row_index(m: int, d_pos: int, with_rot: bool) -> np.ndarray:
 
 #: residuals per chunk of the row test (bounds its temporaries: chunk x k floats)
 ROW_CHUNK = 16384
+#: and bytes of a chunk's Jacobian rows: a large model's chunk is fewer rows (discovery's 1 750 columns at the
+#: UR10's 12 000 rows: 4 500 residuals, 64 MB, where 16 384 residuals were 230 MB, held twice)
+ROW_CHUNK_BYTES = 64 * 2**20
 
 
 def row_test(
     rw: np.ndarray,
-    Jw: np.ndarray,
+    Jw: np.ndarray | Callable[[int, int], np.ndarray],
     rows: np.ndarray,
     m: int,
     kept: np.ndarray,
     alpha: float,
     cov_w: np.ndarray | None = None,
     prior: np.ndarray | None = None,
+    n_params: int | None = None,
 ) -> RowTest:
     """The exact test of every row at a least-squares fit on the ``kept`` rows.
 
     rw, Jw : whitened residuals ``(M,)`` and Jacobian on the free parameters ``(M, k)`` of *all* rows (the
-    excluded ones predicted); rows : (M,) the row of every residual; kept : (m,) bool; cov_w : ``(JᵀJ)⁻¹`` of
-    the kept rows (computed when None); prior : ``(k,)`` precision of a prior on the parameters, added to the
+    excluded ones predicted); ``Jw`` may instead be a function giving the Jacobian's rows of the measurement
+    rows ``a`` to ``b`` (``((b - a) d, k)``, residuals in row order: ``rows`` sorted), evaluated a chunk at a time
+    (twice: once for ``JᵀJ``, once for the leverages; the ``(M, k)`` matrix is never held, issue 31; its ``k``
+    is ``n_params``); rows : (M,) the row of every residual; kept : (m,) bool; cov_w : ``(JᵀJ)⁻¹`` of the kept
+    rows (computed when None); prior : ``(k,)`` precision of a prior on the parameters, added to the
     kept rows' ``JᵀJ`` when ``cov_w`` is computed (the leverages of a fit with a prior, as calibrate's; without
     it an effect determined by its prior alone leaves ``JᵀJ`` singular and the leverages round-off).
     """
     d = int(len(rw) // m)
     order = np.argsort(rows, kind="stable")
-    R = rw[order].reshape(m, d)
-    k = Jw.shape[1]
-    # the rows in chunks of at most ROW_CHUNK residuals (a campaign of that size is one chunk): no copy of the
-    # (M, k) Jacobian, nor of its kept rows, nor of its product with the covariance
-    step = max(1, ROW_CHUNK // max(d, 1))
+    in_order = bool(np.all(order == np.arange(len(order))))
+    R = (rw if in_order else rw[order]).reshape(m, d)
+    if callable(Jw):
+        if not in_order or n_params is None:
+            raise ValueError("row_test: a Jacobian given by row ranges needs the residuals in row order and n_params")
+        jac, k = Jw, int(n_params)
+    else:
+        J_all, k = Jw, int(Jw.shape[1])
+
+        def jac(a: int, b: int) -> np.ndarray:
+            return np.asarray(J_all[a * d : b * d] if in_order else J_all[order[a * d : b * d]])
+
+    # the rows in chunks of at most ROW_CHUNK residuals and ROW_CHUNK_BYTES of Jacobian (a campaign of that size
+    # is one chunk): no copy of the (M, k) Jacobian (its rows in place when they are in row order), nor of its
+    # kept rows, nor of its product with the covariance
+    step = max(1, min(ROW_CHUNK, ROW_CHUNK_BYTES // (8 * max(k, 1))) // max(d, 1))
     chunks = [(a, min(a + step, m)) for a in range(0, m, step)]
 
     def block(a: int, b: int) -> np.ndarray:
-        return np.asarray(Jw[order[a * d : b * d]]).reshape(b - a, d, k)
+        return jac(a, b).reshape(b - a, d, k)
 
     if cov_w is None:
-        G = np.zeros((k, k))
+        G: np.ndarray | None = None
         for a, b in chunks:
-            Jk = block(a, b)[kept[a:b]].reshape(-1, k)
-            G = Jk.T @ Jk if len(chunks) == 1 else G + Jk.T @ Jk
+            Jb = block(a, b)
+            Jk = (Jb if kept[a:b].all() else Jb[kept[a:b]]).reshape(-1, k)
+            del Jb
+            G = Jk.T @ Jk if G is None else G + Jk.T @ Jk
+        assert G is not None  # m >= 1
         cov_w = normal_matrix_inverse(G if prior is None else G + np.diag(prior))
     H = np.empty((m, d, d))
     for a, b in chunks:
