@@ -65,11 +65,15 @@ def run(args: argparse.Namespace) -> int:
         f"discover: {_named(s)}; RMS {s['rms_before_mm']:.4f} -> {s['rms_after_mm']:.4f} mm "
         f"(noise floor {s['noise_floor_mm']:.4f}); unexplained: {s['unexplained']}"
     )
+    from robocal.identification.noise import noise_hint
+
+    if s["unexplained"] and noise_hint(s):
+        print(f"  but {noise_hint(s)}")
     g = s.get("geometric_calibration")
     if g:
         print(
             f"geometric model (as robocal calibrate): RMS {g['rms_position_mm']:.4f} mm on {g['n_rows']} rows, "
-            f"gross-error rows {g['outlier_rows'] or 'none'}; the search weights by {_noise_words(g)}"
+            f"gross-error rows {g['outlier_rows'] or 'none'}; the search weights by {_noise_words(g, 'noise_mm' in ov)}"
         )
     _left_out_lines(s, g)
     _logged_line(s.get("logged_signals"))
@@ -206,14 +210,17 @@ def _after_parametric(s: dict[str, Any]) -> str:
         f"; dropped by the final held-out check: {', '.join(dropped)}" if dropped else "")  # fmt: skip
 
 
-def _noise_words(g: dict[str, Any]) -> str:
+def _noise_words(g: dict[str, Any], set_here: bool = False) -> str:
     """Which noise the search weights by: the data's own estimate, or the configured value when the campaign
-    allows none (it said "the noise the data show" of the configured 0.015 mm on a total station's 0.3 mm)."""
+    allows none (it said "the noise the data show" of the configured 0.015 mm on a total station's 0.3 mm; and
+    "set noise_mm" to a user who had set it)."""
     if "model-free estimate" in str(g.get("noise_used_because") or ""):
         return f"the noise the data show ({g['noise_used_mm']:.4f} mm)"
+    if set_here:
+        return f"the noise_mm given ({g['noise_used_mm']:.4f} mm: the campaign allows no model-free estimate)"
     return (
         f"the configured noise ({g['noise_used_mm']:.4f} mm: the campaign allows no model-free estimate, one target "
-        "and no repeated poses; measured with a poorer instrument than a laser tracker, set noise_mm to its noise)"
+        "and no repeated poses; for an instrument other than a laser tracker, set noise_mm to its noise)"
     )
 
 

@@ -73,7 +73,11 @@ class DiscoveryConfig:
     transmission_orders : Fourier orders (harmonics 1..K per revolution) tried for the gear transmission error of
         each joint (:mod:`robocal.discovery.physics`); transmission_prior_deg : prior standard deviations per
         coefficient tried (ridge); transmission_gap_deg / transmission_taper_deg : visits closer than the gap make
-        one covered interval, and the effect falls to zero over the taper outside the covered angles.
+        one covered interval, and the effect falls to zero over the taper outside the covered angles;
+        transmission_min_visits : the windows tried (the cross-validation picks): covered intervals of at least
+        this many distinct angles (1: every visit; 2: a joint angle only one pose saw, far from the others, is
+        outside the window, the error not applied there); with several values that give other windows the first
+        search runs with each, the lower cross-validated error kept (``discovery.json`` ``transmission_window``).
     registration_gap_h : a pause in the measurements longer than this offers a fresh tracker registration after it
         (``regap``, measurement side).
     compliance_prior_deg : the physical prior on the deflection under the arm's own weight (RMS over the poses,
@@ -126,6 +130,7 @@ class DiscoveryConfig:
     transmission_prior_deg: tuple[float, ...] = setting(_tuple("transmission_prior_deg"), gt=0)
     transmission_gap_deg: float = setting(_D["transmission_gap_deg"], gt=0)
     transmission_taper_deg: float = setting(_D["transmission_taper_deg"], ge=0)
+    transmission_min_visits: tuple[int, ...] = setting(_tuple("transmission_min_visits"), ge=1)
     compliance_prior_deg: float = setting(_D["compliance_prior_deg"], gt=0)
     registration_gap_h: float = setting(_D["registration_gap_h"], gt=0)
     cv_alpha: float = setting(_D["cv_alpha"], gt=0, lt=1)

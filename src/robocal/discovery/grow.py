@@ -29,7 +29,7 @@ from scipy import stats
 
 from robocal.data.contract import Campaign
 from robocal.discovery import engine, progress
-from robocal.discovery.candidates import Candidate
+from robocal.discovery.candidates import Candidate, SkippedCandidate
 from robocal.discovery.config import DiscoveryConfig
 from robocal.discovery.cv import fold_cv
 from robocal.discovery.model import Accepted, Fit
@@ -67,6 +67,7 @@ def physics_candidates(
     from robocal.discovery.candidates import periodic_window
     from robocal.discovery.physics import (
         bounded_columns,
+        configurations,
         lowest_harmonic,
         visited_intervals,
         visited_span_deg,
@@ -80,41 +81,48 @@ def physics_candidates(
     n = robot.n_joints
     n_poses = len(np.unique(np.asarray(campaign.pose_id)[rows].astype(str)))
     if "transmission" in cfg.effects and "transmission" in effects:
-        # at most one coefficient pair per ~4 poses: an order the poses cannot resolve is not tried
-        orders = [k for k in cfg.transmission_orders if 2 * k <= max(n_poses // 4, 0)]
+        orders = resolved_orders(cfg, n_poses)
         kmax = max(orders) if orders else 0
+        q_conf = configurations(q[rows])  # the visits a window counts: one per configuration
         for j in range(n):  # a reducer's error of its angle: not a linear axis's (mm)
             if kmax == 0 or robot.prismatic[j] or float(np.ptp(q[rows, j])) < np.deg2rad(1.0):
                 continue
             gap, taper = periodic_window(cfg, kmax)
-            visited = visited_intervals(q[rows, j], gap)
-            h0 = lowest_harmonic(visited_span_deg(visited))
-            if h0 > kmax:
-                continue
-            w = coverage_weight(q[:, j], visited, taper)
-            h = np.arange(h0, kmax + 1)
-            S = fourier_signal(q[:, j], h, w)
-            centre = S[rows].mean(axis=0)  # the constant part belongs to the geometry's joint offset
-            S = S - centre
-            names = tuple(f"sin{k}" for k in h) + tuple(f"cos{k}" for k in h)
-            cand = Candidate(
-                f"transmission:j{j + 1}", "transmission", j + 1, None,
-                cause=f"gear transmission error of the joint-{j + 1} reducer: a periodic error of the joint's own "
-                "angle with many harmonics per revolution (applied only on the angles the calibration visited)",
-                signal=f"sin/cos(h·q{j + 1}), h = {h0}..K", shape="joint", S=S,
-                coef_names=names, coef_units=("rad",) * len(names),
-                extra={"visited_deg": visited, "taper_deg": taper, "gap_deg": gap, "harmonics": h.tolist(),
-                       "centre": centre.tolist()},
-            )  # fmt: skip
-            H = len(h)
-            variants = [
-                Variant(np.concatenate([np.arange(k - h0 + 1), H + np.arange(k - h0 + 1)]), float(np.deg2rad(t)),
-                        f"harmonics {h0}..{k}, tau={t}°")
-                for k in orders
-                if k >= h0
-                for t in cfg.transmission_prior_deg
-            ]  # fmt: skip
-            out.append((cand, variants))
+            windows: list[tuple[int, list[list[float]]]] = []
+            for mv in sorted(set(cfg.transmission_min_visits)):
+                visited = visited_intervals(q_conf[:, j], gap, mv)
+                if visited and all(v != visited for _, v in windows):  # a window another value gives: once
+                    windows.append((mv, visited))
+            for mv, visited in windows:
+                h0 = lowest_harmonic(visited_span_deg(visited))
+                if h0 > kmax:
+                    continue
+                w = coverage_weight(q[:, j], visited, taper)
+                h = np.arange(h0, kmax + 1)
+                S = fourier_signal(q[:, j], h, w)
+                centre = S[rows].mean(axis=0)  # the constant part belongs to the geometry's joint offset
+                S = S - centre
+                names = tuple(f"sin{k}" for k in h) + tuple(f"cos{k}" for k in h)
+                window = "every visit" if mv == 1 else f"intervals of at least {mv} distinct angles"
+                cand = Candidate(
+                    f"transmission:j{j + 1}", "transmission", j + 1, None,
+                    cause=f"gear transmission error of the joint-{j + 1} reducer: a periodic error of the joint's own "
+                    "angle with many harmonics per revolution (applied only on the angles the calibration visited)",
+                    signal=f"sin/cos(h·q{j + 1}), h = {h0}..K", shape="joint", S=S,
+                    coef_names=names, coef_units=("rad",) * len(names),
+                    extra={"visited_deg": visited, "taper_deg": taper, "gap_deg": gap, "harmonics": h.tolist(),
+                           "centre": centre.tolist(), "min_visits": mv},
+                )  # fmt: skip
+                H = len(h)
+                # the same key for every window: the pool drops the others once one is accepted
+                variants = [
+                    Variant(np.concatenate([np.arange(k - h0 + 1), H + np.arange(k - h0 + 1)]), float(np.deg2rad(t)),
+                            f"harmonics {h0}..{k}, tau={t}°" + ("" if len(windows) == 1 else f", window: {window}"))
+                    for k in orders
+                    if k >= h0
+                    for t in cfg.transmission_prior_deg
+                ]  # fmt: skip
+                out.append((cand, variants))
     has_load_signal = campaign.tau_Nm is not None or campaign.current_A is not None or robot.has_dynamics
     if "weight" in cfg.effects and "weight" in effects and not has_load_signal:
         Y = gravity_regressor(robot, q)
@@ -422,6 +430,57 @@ def _step(state: DiscoveryState, pool: Pool, refit: Refit, what: str = "cross-va
                                   "cv_gain": sc.cv_gain, "members": [c.key for c in chosen]})  # fmt: skip
     taken = {c.key for c in members}
     return [(m, vs) for m, vs in pool if not taken & {c.key for c in m}]
+
+
+def resolved_orders(cfg: DiscoveryConfig, n_poses: int) -> list[int]:
+    """The transmission error's Fourier orders tried on ``n_poses`` poses: at most one coefficient pair per ~4
+    poses (an order the poses cannot resolve is not tried)."""
+    return [k for k in cfg.transmission_orders if 2 * k <= max(n_poses // 4, 0)]
+
+
+def distinct_windows(campaign: Campaign, robot: Any, cfg: DiscoveryConfig, rows: np.ndarray) -> list[int]:
+    """The values of ``cfg.transmission_min_visits`` that give different transmission windows on the rows ``rows``
+    (the first of each set of values giving the same windows on every joint; one value when nothing differs: the
+    search need not run again)."""
+    from robocal.discovery.candidates import periodic_window
+    from robocal.discovery.physics import configurations, visited_intervals
+
+    values = sorted(set(cfg.transmission_min_visits))
+    orders = resolved_orders(cfg, len(np.unique(np.asarray(campaign.pose_id)[rows].astype(str))))
+    if len(values) < 2 or "transmission" not in cfg.effects or not orders:
+        return values[:1]
+    gap, _ = periodic_window(cfg, max(orders))
+    joints = [j for j in range(robot.n_joints) if not robot.prismatic[j]]
+    q_conf = configurations(campaign.q[rows])
+    seen: list[list[list[list[float]]]] = []
+    out = []
+    for mv in values:
+        w = [visited_intervals(q_conf[:, j], gap, mv) for j in joints]
+        if w not in seen:
+            seen.append(w)
+            out.append(mv)
+    return out
+
+
+def orders_not_tried(cfg: DiscoveryConfig, n_poses: int) -> SkippedCandidate | None:
+    """The transmission orders of the settings that ``n_poses`` poses cannot resolve, as a skipped candidate (with
+    none left the effect is not tried at all: it vanished without a word, a newcomer's ``transmission_orders``)."""
+    if "transmission" not in cfg.effects:
+        return None
+    kept = resolved_orders(cfg, n_poses)
+    left = [k for k in cfg.transmission_orders if k not in kept]
+    if not left:
+        return None
+    what = (
+        "the transmission error is not tried"
+        if not kept
+        else f"only order{'s' * (len(kept) > 1)} {', '.join(map(str, kept))} {'are' if len(kept) > 1 else 'is'} tried"
+    )
+    return SkippedCandidate(
+        "transmission", "transmission", None,
+        f"orders {', '.join(map(str, left))} not tried: an order K needs 8 K poses (one coefficient pair per 4), the "
+        f"calibration has {n_poses}; {what}",
+    )  # fmt: skip
 
 
 def layer_candidates(campaign: Campaign, cfg: DiscoveryConfig, rows: np.ndarray) -> Pool:

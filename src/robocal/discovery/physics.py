@@ -32,25 +32,36 @@ from robocal.compensation.signals import REV_DEG
 from robocal.robot import RobotDescription
 
 
-def visited_intervals(q_rad: np.ndarray, gap_deg: float) -> list[list[float]]:
+def visited_intervals(q_rad: np.ndarray, gap_deg: float, min_visits: int = 1) -> list[list[float]]:
     """Angles a joint visited, modulo one revolution, as closed intervals ``[lo, hi]`` deg within [0, 360)
-    (an interval may wrap: ``lo > hi``); visits closer than ``gap_deg`` are joined. ``[[0, 360]]`` for a full
-    revolution."""
+    (an interval may wrap: ``lo > hi``); visits closer than ``gap_deg`` are joined, and an interval of fewer than
+    ``min_visits`` visits (entries of ``q_rad``: one per configuration, :func:`configurations`) is left out: an
+    angle one pose saw far from the others. ``[[0, 360]]`` for a full revolution."""
     a = np.sort(np.mod(np.rad2deg(np.asarray(q_rad, dtype=float)), REV_DEG))
     if len(a) == 0:
         return []
     gaps = np.diff(np.concatenate([a, [a[0] + REV_DEG]]))  # gap after each visit, the last one wrapping
     big = np.flatnonzero(gaps > gap_deg)
     if len(big) == 0:
-        return [[0.0, REV_DEG]]
+        return [[0.0, REV_DEG]] if len(a) >= min_visits else []
     out = []
     # each big gap ends an interval; the interval after gap k starts at a[k + 1] and ends at the next big gap
     for i, k in enumerate(big):
         k_next = big[(i + 1) % len(big)]
+        if (k_next - k) % len(a) + (len(a) if len(big) == 1 else 0) < min_visits:
+            continue  # its visits: a[k + 1 .. k_next] (all of them with one gap)
         lo = float(a[(k + 1) % len(a)])
         hi = float(a[k_next])
         out.append([lo, hi])
     return out
+
+
+def configurations(q: np.ndarray) -> np.ndarray:
+    """The distinct joint configurations of ``q (m, n)`` (a pose measured on several targets once): the visits
+    :func:`visited_intervals` counts."""
+    q = np.asarray(q, dtype=float)
+    _, first = np.unique(np.round(q, 9), axis=0, return_index=True)
+    return q[np.sort(first)]
 
 
 def visited_span_deg(intervals: list[list[float]]) -> float:

@@ -35,7 +35,7 @@ from sklearn.metrics import pairwise_distances_argmin_min
 
 from robocal.compensation.signals import coverage_weight, layer_features, layer_gate
 from robocal.discovery.model import Fit
-from robocal.discovery.physics import visited_intervals
+from robocal.discovery.physics import configurations, visited_intervals
 from robocal.metrics import ErrorStats
 
 #: a session is held out only with at least this many rows: its tracker registration fits six parameters to the
@@ -92,7 +92,8 @@ class Sessions:
         ex = cand.extra
         if "visited_deg" in ex and cand.joint is not None:
             j = int(cand.joint) - 1
-            visited = visited_intervals(self.q[~held, j], float(ex.get("gap_deg", self.gap_deg)))
+            visited = visited_intervals(configurations(self.q[~held])[:, j], float(ex.get("gap_deg", self.gap_deg)),
+                                        int(ex.get("min_visits", 1)))  # fmt: skip
             return coverage_weight(self.q[held, j], visited, float(ex["taper_deg"]))
         if "centres_rad" in ex:
             ell, inside = float(ex["length_rad"]), float(ex["inside_rad"])

@@ -18,7 +18,7 @@ from robocal.calibration.result import CalibrationResult
 from robocal.compensation.discovered import joint_offsets
 from robocal.compensation.signals import coverage_weight
 from robocal.data.contract import Campaign
-from robocal.discovery.physics import visited_intervals
+from robocal.discovery.physics import configurations, visited_intervals
 from robocal.errors import DataError
 from robocal.kinematics.chain import fk
 from robocal.kinematics.transforms import kabsch
@@ -119,21 +119,26 @@ def _stations(campaign: Campaign) -> np.ndarray:
 #: for a prismatic joint) of a calibrated interval is inside it: the calibration has seen that joint there
 COVERAGE_GAP_DEG = 30.0
 COVERAGE_TOL_DEG = 5.0
+#: and an interval counts only when it holds this many configurations: one or two poses far from the others are
+#: not a calibrated range (a newcomer's probe at q3 = 62 deg, where one of 2 500 calibration rows lay, was "inside")
+COVERAGE_MIN_VISITS = 3
 
 
 def outside_calibrated(q_cal: np.ndarray, q: np.ndarray, prismatic: np.ndarray | None = None) -> np.ndarray:
     """``(m, n)`` bool: where each row of ``q`` (rad; mm for a prismatic joint) lies outside the joint angles the
     calibration rows ``q_cal`` visited (modulo one revolution, visits closer than :data:`COVERAGE_GAP_DEG` joined,
-    :data:`COVERAGE_TOL_DEG` of tolerance)."""
+    :data:`COVERAGE_TOL_DEG` of tolerance, an interval of fewer than :data:`COVERAGE_MIN_VISITS` configurations
+    not counted)."""
     q_cal, q = np.asarray(q_cal, dtype=float), np.asarray(q, dtype=float)
     out = np.zeros(q.shape, dtype=bool)
+    conf = configurations(q_cal)  # the visits an interval counts: one per configuration
     for j in range(q.shape[1]):
         if prismatic is not None and prismatic[j]:
             out[:, j] = (q[:, j] < q_cal[:, j].min() - COVERAGE_TOL_DEG) | (
                 q[:, j] > q_cal[:, j].max() + COVERAGE_TOL_DEG
             )
             continue
-        iv = visited_intervals(q_cal[:, j], COVERAGE_GAP_DEG)
+        iv = visited_intervals(conf[:, j], COVERAGE_GAP_DEG, COVERAGE_MIN_VISITS)
         # the raised cosine over twice the tolerance is at 1/2 exactly at the tolerance's distance
         out[:, j] = coverage_weight(q[:, j], iv, 2.0 * COVERAGE_TOL_DEG) < 0.5
     return out

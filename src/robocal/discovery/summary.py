@@ -495,15 +495,13 @@ def summary(res: DiscoveryResult, validation: dict[str, Any] | None = None) -> d
         "wall_time_s": res.wall_time_s,
         "config": res.config.to_dict(),
     }
-    logged = res.extra.get("logged_signals")
-    if logged is not None:
-        out["logged_signals"] = logged
-    if "grow_geometry" in res.extra:  # grow_geometry auto: which search was kept, and both CV figures
-        out["grow_geometry"] = res.extra["grow_geometry"]
-    if "gross_error_screen" in res.extra:  # a large campaign: its first search on a sample (issue 31)
-        out["gross_error_screen"] = res.extra["gross_error_screen"]
-    if "positioner_part_rows_left_out" in res.extra:  # the part's rows: robocal calibrate's positioner fit
-        out["positioner_part_rows_left_out"] = res.extra["positioner_part_rows_left_out"]
+    # the records only some runs have: the logged signals; grow_geometry auto and several transmission windows
+    # (which search was kept, and each one's CV figure); a large campaign's first search on a sample (issue 31);
+    # the part's rows (robocal calibrate's positioner fit)
+    for key in ("logged_signals", "grow_geometry", "transmission_window", "gross_error_screen",
+                "positioner_part_rows_left_out"):  # fmt: skip
+        if res.extra.get(key) is not None:
+            out[key] = res.extra[key]
     if res.unexplained:
         out["unexplained_where"] = locate(res)
     geo = res.extra.get("geometric_calibration")

@@ -16,6 +16,7 @@ data show, not the configured value.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -133,3 +134,28 @@ def noise_report(
         use = noise_mm
         why = "the configured value: the campaign has no model-free noise estimate (one target, no repeated poses)"
     return {"configured_mm": float(noise_mm), "routes": routes, "used_mm": float(use), "used_because": why}
+
+
+#: the mean length of a 3-D error of independent normal coordinates of unit standard deviation (2 sqrt(2 / pi))
+MEAN_NORM_3D = 2.0 * np.sqrt(2.0 / np.pi)
+
+
+def noise_hint(summ: Mapping[str, Any]) -> str:
+    """When "unexplained" rests on the configured noise alone (no model-free estimate in the campaign) and the
+    held-out error is what a larger noise alone would give: that noise, and that the floor may be the instrument's
+    (a newcomer's laser tracker of 0.02 mm was told "unexplained" at a held-out error on its floor); else ""."""
+    nz, cv = summ.get("noise") or {}, summ.get("cross_validation") or {}
+    if "model-free" not in str(nz.get("used_because") or "") or "larger of" in str(nz.get("used_because") or ""):
+        return ""
+    cv_mean = cv.get("cv_mean_position_mm")
+    used = nz.get("used_mm")
+    if cv_mean is None or used is None or summ.get("uses_orientation"):
+        return ""
+    implied = float(cv_mean) / MEAN_NORM_3D
+    if implied <= 1.1 * float(used):
+        return ""
+    return (
+        f"the floor is the configured noise ({float(used):.4f} mm per coordinate), which this campaign cannot check "
+        f"(one target, no repeated poses): its held-out error (mean {float(cv_mean):.4f} mm) is what noise of "
+        f"{implied:.4f} mm alone would give; if the instrument's noise is that, set noise_mm={implied:.3f}"
+    )

@@ -32,7 +32,7 @@ import numpy as np
 
 from robocal.io import is_reproducible, is_timing, write_text
 
-__all__ = ["PNG_SIGNATURE", "Report"]
+__all__ = ["PNG_SIGNATURE", "Report", "words"]
 
 #: The first eight bytes of every PNG file.
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -519,3 +519,14 @@ def layout_problems(
         raise RuntimeError(f"the layout probe did not finish in Chromium ({exe}): {out[-500:]!s}")
     found = json.loads(html.unescape(m.group(1)))
     return {str(page): found[name] for page, name in zip(pages, names, strict=True)}
+
+
+def words(value: Any) -> str:
+    """A summary value as words (``x 0.12..0.34, rows 12``), never a Python dict or list repr."""
+    if isinstance(value, dict):
+        return ", ".join(f"{k.replace('_', ' ')} {words(v)}" for k, v in value.items())
+    if isinstance(value, list | tuple):
+        return "..".join(words(v) for v in value) if len(value) == 2 else ", ".join(words(v) for v in value)
+    if isinstance(value, float):
+        return f"{value:.4g}"
+    return str(value)

@@ -19,7 +19,9 @@ from robocal.discovery.config import DiscoveryConfig
 from robocal.discovery.search import DiscoveryResult, discover
 from robocal.discovery.summary import summary
 from robocal.discovery.validate import validation_errors
+from robocal.identification.noise import noise_hint
 from robocal.io import as_written, write_json
+from robocal.report.html import words
 from robocal.robot import RobotDescription
 from robocal.status import TargetStatus
 from robocal.workflows import campaign_of, robot_of
@@ -117,11 +119,12 @@ def _verdict_section(rep: Report, summ: dict[str, Any]) -> None:
         nz = summ["noise"]
         rep.paragraph(f"Noise used for weights and for 'unexplained': {nz['used_mm']:.4f} mm — {nz['used_because']}.")
     if summ["unexplained"]:
-        w = summ["unexplained_where"]
+        w, hint = summ["unexplained_where"], noise_hint(summ)
         rep.note(
             "The residual is still above the tracker-noise floor and no candidate explains it. Joints with the "
             f"largest share: {', '.join(str(j['joint']) for j in w['joints'][:2])}; worst workspace region: "
-            f"{_words(w['workspace_regions'][0])}; time span: {_words(w['time_span'])}.",
+            f"{words(w['workspace_regions'][0])}; time span: {words(w['time_span'])}."
+            + (f" But {hint}." if hint else ""),
             kind="warn",
         )
 
@@ -587,14 +590,3 @@ def run(
 
 
 __all__ = ["run", "write_product", "write_report"]
-
-
-def _words(value: Any) -> str:
-    """A summary value as words (``x 0.12..0.34, rows 12``), never a Python dict or list repr."""
-    if isinstance(value, dict):
-        return ", ".join(f"{k.replace('_', ' ')} {_words(v)}" for k, v in value.items())
-    if isinstance(value, list | tuple):
-        return "..".join(_words(v) for v in value) if len(value) == 2 else ", ".join(_words(v) for v in value)
-    if isinstance(value, float):
-        return f"{value:.4g}"
-    return str(value)

@@ -1,0 +1,46 @@
+"""When "unexplained" rests on the configured noise alone, discovery says what noise its held-out error implies
+(a newcomer's laser tracker of 0.02 mm was told "unexplained" at a held-out error on its own floor, and told to set
+noise_mm after setting it)."""
+
+from __future__ import annotations
+
+from robocal.commands.discover import _noise_words
+from robocal.identification.noise import MEAN_NORM_3D, noise_hint
+
+CONFIGURED = "the configured value: the campaign has no model-free noise estimate (one target, no repeated poses)"
+
+
+def _summ(cv_mean: float, because: str = CONFIGURED) -> dict:
+    return {"noise": {"used_mm": 0.015, "used_because": because},
+            "cross_validation": {"cv_mean_position_mm": cv_mean}, "uses_orientation": False}  # fmt: skip
+
+
+def test_a_held_out_error_above_the_configured_floor_names_the_noise_it_implies():
+    h = noise_hint(_summ(0.0322))
+    assert f"{0.0322 / MEAN_NORM_3D:.4f} mm" in h and "set noise_mm=0.020" in h  # 0.0322 / 1.596 = 0.0202
+    # at the configured floor (within 10 %), or with a model-free estimate of the noise: nothing to say
+    assert noise_hint(_summ(0.015 * MEAN_NORM_3D * 1.05)) == ""
+    larger = "the larger of the configured 0.015 mm and the model-free estimate 0.02 mm (repeated poses)"
+    assert noise_hint(_summ(0.0322, larger)) == ""
+
+
+def test_the_console_does_not_ask_for_a_noise_already_given():
+    g = {"noise_used_mm": 0.02, "noise_used_because": CONFIGURED}
+    assert "set noise_mm" not in _noise_words(g, set_here=True) and "noise_mm given" in _noise_words(g, True)
+    assert "set noise_mm" in _noise_words(g)
+
+
+def test_transmission_orders_the_poses_cannot_resolve_are_said():
+    """``transmission_orders=[48, 60]`` on 300 poses: the effect vanished from the search without a word."""
+    from robocal.discovery.config import DiscoveryConfig
+    from robocal.discovery.grow import orders_not_tried, resolved_orders
+
+    cfg = DiscoveryConfig.from_mapping({"transmission_orders": [48, 60]})
+    assert resolved_orders(cfg, 300) == []
+    s = orders_not_tried(cfg, 300)
+    assert s is not None and "48, 60 not tried" in s.reason and "not tried at all" not in s.reason
+    assert "the transmission error is not tried" in s.reason and "has 300" in s.reason
+    cfg2 = DiscoveryConfig.from_mapping({"transmission_orders": [12, 48]})
+    assert "only order 12 is tried" in orders_not_tried(cfg2, 300).reason
+    assert orders_not_tried(cfg2, 400) is None  # 8 x 48 = 384 poses resolve both
+    assert orders_not_tried(DiscoveryConfig.from_mapping({"effects": ["gear"]}), 10) is None
