@@ -218,6 +218,10 @@ def _session_lines(name: str, v: dict) -> None:
         verdict = "neither" if abs(d) < SAME_ERROR_MM else ("helped" if d > 0 else "hurt")
         print(f"    without {k:<24} mean {s['mean_position_mm']:.4f} mm ({verdict} {abs(d):.4f})")
     print(f"    helped: {v['helped']}  hurt: {v['hurt']}")
+    ga = v.get("geometry_alone")
+    if ga:
+        print(f"    every effect off (the discovered geometry): mean {ga['mean_position_mm']:.4f} mm "
+              f"({ga['versus_geometric_mm']:+.4f} against the geometric calibration)")  # fmt: skip
     for k, why in (v.get("not_applied") or {}).items():
         print(f"    not applied: {k} ({why})")
     cov = v.get("coverage")

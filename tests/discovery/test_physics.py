@@ -256,6 +256,11 @@ def test_a_tracker_scale_changing_with_time_is_found_on_the_measurement_side_and
     assert v is not None
     # the held-out rows are measured by the same tracker: the model of its scale must improve them
     assert v["discovered"]["mean_position_mm"] < 0.5 * v["geometric"]["mean_position_mm"]
+    # and the model as served (the scale is the tracker's: never applied by the service) is said beside: here the
+    # readings' own scale error, so larger (a robot's drift named a tracker's would show the same way)
+    fin = v["final"]
+    assert fin["measurement_side_effects"] == ["scale:drift"]
+    assert fin["as_served"]["mean_position_mm"] > fin["mean_position_mm"]
 
 
 def test_the_weight_basis_leaves_out_mass_moments_the_calibration_poses_barely_load():

@@ -85,6 +85,12 @@ def run(args: argparse.Namespace) -> int:
             f"(residual layer: {vf['layer']}{_after_parametric(s)}); max {vg['max_position_mm']:.4f} -> "
             f"{vf['max_position_mm']:.4f} mm"
         )
+        if vf.get("as_served"):
+            print(
+                f"  the final figure corrects the held-out readings by the measurement side's "
+                f"{', '.join(vf['measurement_side_effects'])}, which the service does not apply: as served, mean "
+                f"{vf['as_served']['mean_position_mm']:.4f} mm (a robot's own drift named a tracker's would show here)"
+            )
         for w in s.get("warnings", []):
             print(f"WARNING: {w}")
         ge = s["validation"]["gross_errors"]["rows"]
@@ -115,6 +121,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"expected in a new session (each of {len(sc['sessions'])} sessions left out, its tracker registered on "
               f"half of its poses to judge the other half): mean {sc['mean_position_mm']:.4f} mm"
               + (f" (geometric model {gc['mean_position_mm']:.4f} mm)" if gc else ""))  # fmt: skip
+    from robocal.discovery.sessions import SAME_ERROR_MM
+
     for where, v in s.get("sessions", {}).items():
         g, f = v["geometric"], v["final"]
         what = "tracker and tool" if v.get("registered") == "tracker and tool" else "tracker (the tool as calibrated)"
@@ -128,6 +136,12 @@ def run(args: argparse.Namespace) -> int:
         )
         for k, why in (v.get("not_applied") or {}).items():
             print(f"  {k} not applied there: {why}")
+        ga = v.get("geometry_alone")
+        if ga and ga["versus_geometric_mm"] > SAME_ERROR_MM:
+            print(f"  the discovered geometry with every effect off: mean {ga['mean_position_mm']:.4f} mm there, worse "
+                  f"than the geometric calibration's by {ga['versus_geometric_mm']:.4f} mm: the geometry refitted with "
+                  "the effects costs there what no single effect left out shows (grow_geometry=frozen keeps the "
+                  "geometric one under the selection's effects)")  # fmt: skip
         cov = v.get("coverage")
         if cov and cov["n_outside"]:
             joints = ", ".join(f"{j} {n}" for j, n in cov["outside_per_joint"].items() if n)

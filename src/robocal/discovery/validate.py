@@ -61,10 +61,11 @@ def _stats_without(v: Mapping[str, Any], flagged: np.ndarray) -> dict[str, Any]:
     }
 
 
-def _validate_fit(res: DiscoveryResult, fit: Fit) -> Validation:
+def _validate_fit(res: DiscoveryResult, fit: Fit, measurement_side: bool = True) -> Validation:
     """One model's errors on the validation rows, through :func:`validate_rows` (the tool and station handling
     of ``calibrate``'s validation): joint-level effects enter the joint angles exactly, parameter drifts
-    (thermal, drift) to first order at the tool, as in the fit."""
+    (thermal, drift) to first order at the tool, as in the fit; the measurement side's (a tracker's scale of the
+    measured points) only with ``measurement_side``."""
     camp = res.campaign
     vrows = np.flatnonzero(camp.split == "validation")
     val = camp.subset(vrows)
@@ -109,7 +110,7 @@ def _validate_fit(res: DiscoveryResult, fit: Fit) -> Validation:
         dpa = sum(np.einsum("mij,j->mi", axis_rows(a.cand, base, x, vd, vrows, 3), fit.theta[sl]) for a, sl in axes)
         dp = dpa if dp is None else dp + dpa
     for a, sl in zip(model.accepted, model.slices, strict=True):
-        if a.cand.shape == "tracker":  # the tracker's scale of the measured points (measurement side)
+        if a.cand.shape == "tracker" and measurement_side:  # the tracker's scale of the measured points
             dpt = np.einsum("mij,j->mi", tracker_columns(a.cand, vrows), fit.theta[sl])
             dp = dpt if dp is None else dp + dpt
     v = validate_rows(val, base_T_flange, stations, tools, tool_R, dp_mm=dp, why=why)
@@ -124,7 +125,10 @@ def validation_errors(res: DiscoveryResult) -> dict[str, Any] | None:
     ``geometric`` is ``robocal calibrate``'s own result on the same campaign (the discovery's first step: same
     rows, same noise, same gross errors), so the two commands can be read one against the other. ``final`` is
     the model the service applies: the discovered one with the residual layer on top when the cross-validated
-    selection accepted it (``final["layer"]``: ``"accepted"`` or ``"none"``)."""
+    selection accepted it (``final["layer"]``: ``"accepted"`` or ``"none"``), with the measurement side's effects
+    (a tracker's scale) applied to the validation rows' readings; when there are any, ``final["as_served"]`` gives
+    the errors without them (the robot as the service corrects it) and ``final["measurement_side_effects"]`` names
+    them."""
     from robocal.calibration.validation import validate
 
     camp = res.campaign
@@ -150,6 +154,14 @@ def validation_errors(res: DiscoveryResult) -> dict[str, Any] | None:
         out[key]["without_gross_errors"] = _stats_without(v, flagged)
     has_layer = any(a.cand.effect == "layer" for a in res.final.model.accepted)
     out["final"]["layer"] = "accepted" if has_layer else "none"
+    measured = [a.cand.key for a in res.final.model.accepted if a.cand.shape == "tracker"]
+    if measured:
+        # the measurement side's effects correct the validation rows' readings, which the service never sees: the
+        # model as served, without them, beside (a robot's warm-cell expansion named a tracker scale drift was
+        # served 35 ppm off in both sessions while the final figure sat at the floor)
+        served = _public(_validate_fit(res, res.final, measurement_side=False))
+        out["final"]["measurement_side_effects"] = measured
+        out["final"]["as_served"] = {k: served[k] for k in ("mean_position_mm", "rms_position_mm", "max_position_mm")}
     out["gross_errors"] = {
         "rule": HELD_OUT_RULE.format(alpha=res.config.outlier_alpha),
         "rows": left_out,

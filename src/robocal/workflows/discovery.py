@@ -150,6 +150,12 @@ def _validation_table(rep: Report, validation: dict[str, Any]) -> None:
             rows_v.append({"error": label, "geometric (calibrate)": vg["without_gross_errors"][key],
                            "parametric extended": vd["without_gross_errors"][key],
                            f"final (residual layer: {vf['layer']})": vf["without_gross_errors"][key]})  # fmt: skip
+    served = vf.get("as_served")  # the measurement side's effects correct the readings, not the robot
+    rows_v += [{"error": f"{label} as served (without {', '.join(vf['measurement_side_effects'])}), mm",
+                "geometric (calibrate)": None, "parametric extended": None,
+                f"final (residual layer: {vf['layer']})": served[key]}
+               for key, label in (("mean_position_mm", "mean"), ("max_position_mm", "max"))
+               if served]  # fmt: skip
     rep.table(rows_v, caption=f"Validation rows (held out, {vg['n_rows']} rows): tool offsets from "
               + "; ".join(f"{t}: {src}" for t, src in vg["tool_source"].items()))  # fmt: skip
 
