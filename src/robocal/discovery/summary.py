@@ -22,6 +22,21 @@ def _est(value: float, se: float, unit: str) -> dict[str, Any]:
     return {"value": float(value), "stderr": None if not np.isfinite(se) else float(se), "unit": unit}
 
 
+def edge_order(est: dict[str, Any]) -> str:
+    """A transmission error whose largest harmonic is the highest order fitted: what its amplitudes cannot say
+    (a newcomer's 37 cycles per revolution, planted, read as harmonic 36 at 2.7 times the amplitude ± 17 %); ""
+    otherwise."""
+    amps = {int(k.split("_")[1]): v["value"] for k, v in est.items() if k.startswith("harmonic_")}
+    K = int(est["order"]["value"])
+    if not amps or max(amps, key=lambda h: amps[h]) != K:
+        return ""
+    return (
+        f"the largest harmonic is the highest order fitted ({K}): the error may be of a higher order than the poses "
+        f"resolve (order K needs 8 K poses), its energy spread over the fitted harmonics; the amplitudes and their "
+        "standard errors are of the fitted series under its prior, not of a resolved harmonic"
+    )
+
+
 def estimates(fit: Fit, acc: Accepted) -> dict[str, Any]:
     """Estimates with standard errors of one accepted effect, in readable units."""
     c = acc.cand
@@ -425,6 +440,8 @@ def summary(res: DiscoveryResult, validation: dict[str, Any] | None = None) -> d
                 "held_out": (res.extra.get("cv") or {}).get("effects", {}).get(c.key),
             }
         )
+        if c.effect == "transmission" and edge_order(named[-1]["estimates"]):
+            named[-1]["caveat"] = edge_order(named[-1]["estimates"])
         if c.effect == "signal":
             named[-1]["statement"] = signal_statement(acc, named[-1]["estimates"])
             named[-1]["logged_signal"] = c.extra["signal_info"]

@@ -179,6 +179,8 @@ def _named_section(rep: Report, summ: dict[str, Any]) -> None:
                 val = "yes" if val else "no"
             rows.append({"effect": n["key"], "estimate": k, "value": val, "stderr": e["stderr"],
                          "unit": e["unit"]})  # fmt: skip
+    rows += [{"effect": n["key"], "estimate": "caveat", "value": n["caveat"], "stderr": None, "unit": None}
+             for n in summ["named"] if n.get("caveat")]  # fmt: skip
     rep.table(rows, caption="Estimates with standard errors (joint fit of geometry and every named effect)")
     if drift_rows:
         rep.table(

@@ -1,6 +1,7 @@
-"""When "unexplained" rests on the configured noise alone, discovery says what noise its held-out error implies
-(a newcomer's laser tracker of 0.02 mm was told "unexplained" at a held-out error on its own floor, and told to set
-noise_mm after setting it)."""
+"""What discovery says where its figures cannot speak for themselves (newcomer pass 7): the noise a held-out error
+implies when "unexplained" rests on the configured noise alone (a laser tracker of 0.02 mm was told "unexplained"
+at a held-out error on its own floor, and told to set noise_mm after setting it); transmission orders the poses
+cannot resolve; a transmission error peaking at its highest fitted order."""
 
 from __future__ import annotations
 
@@ -44,3 +45,15 @@ def test_transmission_orders_the_poses_cannot_resolve_are_said():
     assert "only order 12 is tried" in orders_not_tried(cfg2, 300).reason
     assert orders_not_tried(cfg2, 400) is None  # 8 x 48 = 384 poses resolve both
     assert orders_not_tried(DiscoveryConfig.from_mapping({"effects": ["gear"]}), 10) is None
+
+
+def test_a_transmission_error_peaking_at_its_highest_fitted_order_carries_a_caveat():
+    """37 cycles per revolution planted, orders up to 36 fitted: read as harmonic 36 at 2.7x the amplitude."""
+    from robocal.discovery.summary import edge_order
+
+    def est(amps: dict[int, float], order: int) -> dict:
+        out = {f"harmonic_{h}_amplitude_deg": {"value": a, "stderr": 0.001, "unit": "deg"} for h, a in amps.items()}
+        return {**out, "order": {"value": order, "stderr": None, "unit": "harmonics per revolution"}}
+
+    assert "highest order fitted (36)" in edge_order(est({36: 0.011, 10: 0.0075, 35: 0.004}, 36))
+    assert edge_order(est({17: 0.006, 36: 0.002}, 36)) == ""  # resolved inside the fitted orders
