@@ -57,3 +57,27 @@ def test_a_transmission_error_peaking_at_its_highest_fitted_order_carries_a_cave
 
     assert "highest order fitted (36)" in edge_order(est({36: 0.011, 10: 0.0075, 35: 0.004}, 36))
     assert edge_order(est({17: 0.006, 36: 0.002}, 36)) == ""  # resolved inside the fitted orders
+
+
+def test_a_strong_effects_p_value_is_a_number_not_null():
+    """scipy's F logsf underflows to -inf near F ~ 300 (10 and 2 000 degrees of freedom): discovery.json wrote null
+    and the report crashed formatting it (newcomer pass 8: a proposed equation at F = 3 594, nothing written)."""
+    import numpy as np
+    from scipy import stats
+
+    from robocal.discovery.ftest import f_log10_sf
+
+    for F, d1, d2 in [(20.0, 3, 300), (100.0, 10, 2000), (50.0, 2, 5000)]:  # where logsf is finite: the same
+        assert f_log10_sf(F, d1, d2) == stats.f.logsf(F, d1, d2) / np.log(10.0)
+    assert not np.isfinite(stats.f.logsf(3594.0, 2, 2000))  # the premise
+    deep = [f_log10_sf(F, 2, 2000) for F in (1000.0, 3594.0, 1e5)]
+    assert all(np.isfinite(deep)) and deep[0] > deep[1] > deep[2]  # finite and falling with F
+    # continuous where scipy gives out: the identity's value just below the underflow matches scipy's
+    F0 = 150.0
+    assert np.isfinite(stats.f.logsf(F0, 10, 2000))
+    from scipy import special
+
+    a, b, x = 1000.0, 5.0, 2000.0 / (2000.0 + 10 * F0)
+    ln = a * np.log(x) + b * np.log1p(-x) - np.log(a) - special.betaln(a, b)
+    ln += np.log(special.hyp2f1(a + b, 1, a + 1, x))
+    assert abs(ln - stats.f.logsf(F0, 10, 2000)) < 1e-9 * abs(ln)
