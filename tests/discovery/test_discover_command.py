@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
 
@@ -112,3 +113,26 @@ def test_discover_fails_as_calibrate_when_the_fit_cannot_start(tmp_path, capsys)
         assert "The extra column column_mm spans" in line and "type: prismatic" in line, line
     assert not (tmp_path / "discover" / "compensation.csv").exists()  # nothing fitted from nowhere is sent on
     assert "no compensation.csv: the fit cannot start" in texts[1]
+
+
+def test_discover_fails_when_the_geometric_calibration_is_failed(tmp_path, capsys):
+    """One joint column in radians (the others in degrees): robocal calibrate said FAILED (worse than the nominal
+    model on the validation poses) and robocal discover exited 0 with an "ok" discovery of 57 mm in the pipeline's
+    metrics (newcomer pass 8). Now discover fails with calibrate's reason, and sends no compensation.csv."""
+    from robocal.sim.scenario import load_scenario
+    from robocal.sim.twin import simulate
+
+    sc = dict(load_scenario("geometric"), n_poses=40, n_validation_poses=12, effects={})
+    simulate(sc, tmp_path / "twin", seed=5)  # a seed where calibrate's verdict is FAILED (others: a warning)
+    df = pd.read_csv(tmp_path / "twin" / "poses.csv", dtype=str, keep_default_na=False)
+    df["q6_deg"] = [f"{np.deg2rad(float(v)):.9f}" for v in df["q6_deg"]]
+    camp = tmp_path / "j6_rad"
+    camp.mkdir()
+    df.to_csv(camp / "poses.csv", index=False)
+    codes, texts = [], []
+    for cmd in ("calibrate", "discover"):
+        codes.append(main([cmd, str(camp), "--robot", "kr16_2", "--out", str(tmp_path / cmd), "--no-report"]))
+        texts.append(capsys.readouterr().out)
+    assert codes == [1, 1], texts
+    assert "robocal discover: FAILED: the geometric calibration (robocal calibrate) failed" in texts[1], texts[1]
+    assert not (tmp_path / "discover" / "compensation.csv").exists()

@@ -25,6 +25,7 @@ from robocal.status import TargetStatus
 from robocal.workflows import campaign_of, robot_of
 from robocal.workflows.discovery_report import write_report
 from robocal.workflows.geometric import result_cannot_start as geometric_cannot_start
+from robocal.workflows.geometric import result_failed
 
 if TYPE_CHECKING:
     pass
@@ -189,9 +190,14 @@ def run(
     summ = summary(res, validation_errors(res))
     # nothing to start from, as robocal calibrate says it (it ran on: an arm on a lifting column given without the
     # column named effects with a held-out error of 35 mm where calibrate said FAILED)
-    why_failed = geometric_cannot_start(res.extra.get("geometric_calibration"), camp, rob)
+    geo = res.extra.get("geometric_calibration")
+    problems = [w for w in [geometric_cannot_start(geo, camp, rob)] if w] or [
+        f"the geometric calibration (robocal calibrate) failed: {w}"
+        for w in (result_failed(geo, res.campaign) if geo is not None else [])
+    ]  # fmt: skip
+    why_failed = "; ".join(problems)
     if why_failed:  # the key only then: as robocal calibrate's summary (a clean run's discovery.json unchanged)
-        summ["problems"] = [why_failed]
+        summ["problems"] = problems
     if camp.not_read_note():
         summ.setdefault("warnings", []).append(camp.not_read_note())
     out = Path(out_dir)

@@ -99,6 +99,19 @@ def result_cannot_start(result: CalibrationResult | None, campaign: Campaign, ro
     return cannot_start(campaign, robot, ErrorStats.of(start.residuals_before_mm).rms_mm)
 
 
+def result_failed(result: CalibrationResult | None, campaign: Campaign) -> list[str]:
+    """Why ``robocal calibrate`` would call the fitted calibration ``result`` of ``campaign`` failed (its fit and
+    validation judged as :func:`run` judges them), for a command that builds on it (discover: a campaign with one
+    joint column in radians gave "FAILED, worse than nominal" in calibrate and an "ok" discovery of 56.9 mm)."""
+    if result is None or result.start is None:
+        return []
+    val = validate(result, campaign) if np.any(campaign.split == "validation") else None
+    s = summarise(result, val)
+    if val is not None:
+        s["validation_before"] = validate(result, campaign, x=result.start.x_init).stats.position()
+    return result_problems(s)
+
+
 def _carrying_column(campaign: Campaign, limit_mm: float) -> str | None:
     """A hint when an extra column of lengths (``*_mm`` / ``*_m``) spans more than the start's limit: an axis
     carrying the robot (a track, a lifting column) logged beside the arm's joints, which the robot must hold as
