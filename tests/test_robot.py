@@ -408,3 +408,17 @@ def test_keys_of_ones_own_are_left_alone() -> None:
     d.update(source="IPA, 2020", notes="re-mastered in May", manufacturer="KUKA")
     d["joints"][0]["comment"] = "base axis"
     assert robot_from_dict(d, source="r.yaml").n_joints == 6
+
+
+@pytest.mark.parametrize(("where", "key"), [(2, "sign"), (4, "direction"), (3, "flip"), (None, "tool"), (None, "base")])
+def test_a_key_other_tools_read_with_a_meaning_is_refused(where: int | None, key: str) -> None:
+    """A newcomer's ``sign: -1`` on a joint and a top-level ``tool:`` were left alone as the user's own keys: the
+    joint turned the other way and the fit could not start, "check the joint angles' unit"."""
+    d = copy.deepcopy(_raw("kr16_2"))
+    (d if where is None else d["joints"][where - 1])[key] = -1
+    with pytest.raises(ConfigError, match=f"{key!r} is not read by robocal") as info:
+        robot_from_dict(d, source="cell/robot.yaml")
+    msg = str(info.value)
+    assert "cell/robot.yaml" in msg and ("URDF" in msg)
+    if where is not None:
+        assert f"joints[{where}]" in msg and "negate" in msg

@@ -268,10 +268,27 @@ JOINT_KEYS = ("name", "type", "role", "a_mm", "alpha_deg", "d_mm", "theta_offset
               "q_min_deg", "q_max_deg", "q_min_mm", "q_max_mm")  # fmt: skip
 
 
-def _misspelt(keys: Any, known: Sequence[str], where: str) -> None:
-    """Refuse a key of ``keys`` that is not in ``known`` but close to one of them (a misspelling)."""
+#: keys other tools read with a kinematic meaning a description here does not have, and why: refused, not left alone
+#: as the user's own (a newcomer's ``sign: -1`` on a joint and a top-level ``tool:`` were ignored silently)
+NOT_READ = {
+    "joint": (("sign", "direction", "flip", "flipped", "reversed", "reverse", "invert", "inverted", "axis",
+               "gear_ratio", "ratio", "offset"), "every joint turns about its own +z here: a joint counted the other "
+              "way is given by its column's sign in poses.csv (negate it) or by a URDF with <axis xyz='0 0 -1'>; its "
+              "zero is theta_offset_deg"),
+    "robot": (("tool", "base", "tool_frame", "base_frame", "flange", "tcp", "world", "base_T", "tool_T"), "the "
+              "tracker (base) frame and the tools are fitted from the measurements (the targets); a fixed base or "
+              "tool frame belongs in a URDF given as FILE.urdf#BASE:TIP"),
+}  # fmt: skip
+
+
+def _misspelt(keys: Any, known: Sequence[str], where: str, level: str = "robot") -> None:
+    """Refuse a key of ``keys`` that is not in ``known`` but close to one of them (a misspelling), or one that other
+    tools read with a meaning a description here does not have (:data:`NOT_READ`)."""
     from difflib import get_close_matches
 
+    for k in keys:
+        if isinstance(k, str) and k in NOT_READ[level][0]:
+            raise ConfigError(f"{where}: key {k!r} is not read by robocal and would be ignored: {NOT_READ[level][1]}")
     for k in keys:
         if isinstance(k, str) and k not in known:
             if get_close_matches(k, known, n=1, cutoff=0.8):
@@ -289,7 +306,8 @@ def robot_from_dict(data: dict[str, Any], source: str = "<dict>") -> RobotDescri
         raise ConfigError(f"{source}: 'joints' must be a non-empty list")
     for i, j in enumerate(joints, start=1):
         if isinstance(j, dict):  # joints[i] counts from 1: the joint's name said too
-            _misspelt(j, JOINT_KEYS, f"{source}: joints[{i}] (joint {i}" + (f", {j['name']})" if "name" in j else ")"))
+            _misspelt(j, JOINT_KEYS, f"{source}: joints[{i}] (joint {i}" + (f", {j['name']})" if "name" in j else ")"),
+                      "joint")  # fmt: skip
     n = len(joints)
     if "n_joints" in data and int(data["n_joints"]) != n:
         raise ConfigError(f"{source}: n_joints = {data['n_joints']} but {n} joints are listed")

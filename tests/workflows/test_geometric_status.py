@@ -105,3 +105,22 @@ def test_the_stage_reports_the_warning_in_its_status_and_mlflow_tags(twin, tmp_p
     assert tags["robocal.warning"].startswith("the fit did not converge") and "robocal.failure" not in tags
     assert metrics.details["warning"] == tags["robocal.warning"]
     assert "stage geometric_fit: WARNING: the fit did not converge" in capsys.readouterr().out
+
+
+def test_a_station_of_two_calibration_rows_is_a_warning(twin, tmp_path, capsys):
+    """A tracker station measured on 2 rows: its frame is fitted from them alone and absorbs them (residual 0.0001
+    mm, a blunder there unseen); it was accepted "ok" without a word (newcomer pass 8)."""
+    import pandas as pd
+
+    df = pd.read_csv(twin / "poses.csv", dtype=str, keep_default_na=False)
+    cal = [i for i in range(len(df)) if df.loc[i, "split"] != "validation"] if "split" in df else list(range(len(df)))
+    df["station"] = "S1"
+    df.loc[cal[:2], "station"] = "S2"  # the first two calibration rows (same placement: only the count matters)
+    camp = tmp_path / "two"
+    camp.mkdir()
+    df.to_csv(camp / "poses.csv", index=False)
+    main(["calibrate", str(camp), "--robot", "kr16_2", "--out", str(tmp_path / "cal"), "--no-report"])
+    summary = json.loads((tmp_path / "cal" / "summary.json").read_text())
+    assert summary["status"] == "warning"
+    assert any(w.startswith("station S2: 2 calibration row(s)") for w in summary["warnings"]), summary["warnings"]
+    assert not any(w.startswith("station S1") for w in summary["warnings"])
