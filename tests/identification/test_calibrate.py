@@ -225,3 +225,26 @@ def test_real_abb_irb120(shared_dir):
     assert v["max_position_mm"] <= 0.60
     assert v["n_rows"] == 10 and "zero-joint" in v["tool_source"]["T4"]
     assert {e.name for e in res.eliminated} == {"alpha1", "a1", "theta1", "d1", "d3", "theta6", "d6"}
+
+
+def test_a_target_seen_only_in_validation_is_not_judged_on_the_rows_its_tool_was_fitted_to(twin_geometric, kr16):
+    """Its tool offset was fitted from all its validation rows and then scored on them (newcomer pass 8: a row
+    moved by 5 mm showed 0.000 mm): now fitted on every other pose and judged on the others."""
+    from dataclasses import replace
+
+    camp, _ = twin_geometric
+    res = calibrate(camp, kr16)
+    val_rows = np.flatnonzero(camp.split == "validation")
+    target = np.asarray(camp.target, dtype=object).copy()
+    target[val_rows] = "T9"  # a target the calibration never saw
+    p = camp.p_mm.copy()
+    poses = list(dict.fromkeys(np.asarray(camp.pose_id)[val_rows].tolist()))
+    judged = np.flatnonzero(np.isin(np.asarray(camp.pose_id)[val_rows], poses[1::2]))  # among the validation rows
+    p[val_rows[judged[0]], 0] += 5.0  # a blunder on a judged row
+    names = tuple(dict.fromkeys(target.tolist()))
+    idx = np.array([names.index(t) for t in target])
+    other = replace(camp, target=target, target_names=names, target_index=idx, p_mm=p)
+    v = validate(res, other)
+    assert "judged on the others" in v.tool_source["T9"]
+    assert v.n_rows == len(judged) and v.kept_rows[judged].all()
+    assert np.linalg.norm(v.errors_mm[judged[0]]) > 4.0  # the blunder shows (it absorbed into the fit before)
