@@ -696,3 +696,22 @@ def test_other_tables_in_the_folder_are_named_when_the_split_is_drawn(tmp_path, 
     df["split"] = "calibration"
     write(tmp_path, df)
     assert read_campaign(tmp_path, kr16).not_read_note() is None
+
+
+def test_poses_and_temperatures_in_other_time_zones_are_said(tmp_path, kr16):
+    """Poses written in local time without a zone beside a temperature log in UTC were read as UTC silently: the
+    thermal model was fitted to temperatures an hour off (0.050 mm where 0.029 was right; newcomer pass 8)."""
+
+    poses = good_poses(kr16)
+    write(tmp_path / "zoned", poses)
+    write(tmp_path / "zoned", good_temperatures(kr16), stem="temperatures")
+    assert read_campaign(tmp_path / "zoned", kr16).reading_notes() == []
+    poses["timestamp"] = poses["timestamp"].str.rstrip("Z")  # the same instants, without their zone
+    write(tmp_path / "naive", poses)
+    write(tmp_path / "naive", good_temperatures(kr16), stem="temperatures")
+    (note,) = read_campaign(tmp_path / "naive", kr16).reading_notes()
+    assert "poses.csv gives its timestamps without a time zone" in note and "read as UTC" in note
+    t = good_temperatures(kr16)
+    t["timestamp"] = t["timestamp"].str.rstrip("Z")
+    write(tmp_path / "naive", t, stem="temperatures")  # both without: one reading, nothing to say
+    assert read_campaign(tmp_path / "naive", kr16).reading_notes() == []

@@ -37,7 +37,7 @@ def _fake_run(monkeypatch, tmp_path, fail_in: str | None):
         extra: dict = {}  # noqa: RUF012  (no geometric calibration: nothing to judge the start by)
 
     monkeypatch.setattr(wf, "robot_of", lambda r: None)
-    fake = type("C", (), {"n_rows": 3, "source": "x", "not_read_note": lambda self: None})
+    fake = type("C", (), {"n_rows": 3, "source": "x", "reading_notes": lambda self: []})
     monkeypatch.setattr(wf, "campaign_of", lambda *a: fake())
     monkeypatch.setattr(wf, "discover", lambda *a: Res())
     monkeypatch.setattr(wf, "validation_errors", lambda r: None)

@@ -39,5 +39,7 @@ def run(args: argparse.Namespace) -> int:
         if "mean_orientation_deg" in s:
             line += f", {s['mean_orientation_deg']:.4f} / {s['max_orientation_deg']:.4f} deg"
         print(line)
+    for w in out.get("warnings", []):
+        print(f"WARNING: {w}")
     print(f"wrote {args.out}/thermal.json, thermal_model.json, report.html")
     return 0

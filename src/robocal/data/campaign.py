@@ -107,6 +107,7 @@ class Campaign:
     prismatic: np.ndarray | None = None
     coupling: np.ndarray | None = None
     not_read: tuple[str, ...] = ()  # other table files in the campaign folder (validation.csv): not part of it
+    notes: tuple[str, ...] = ()  # what reading the campaign noticed (poses and temperatures in other time zones)
 
     def __post_init__(self) -> None:
         if self.station is None:
@@ -133,6 +134,10 @@ class Campaign:
             f"in the campaign folder {'was' if len(self.not_read) == 1 else 'were'} not read (the contract reads poses "
             "and temperatures; give validation rows in the poses file with split = validation)"
         )
+
+    def reading_notes(self) -> list[str]:
+        """Every warning reading the campaign gave (:meth:`not_read_note`, ``notes``), for the commands to say."""
+        return [n for n in (self.not_read_note(), *self.notes) if n]
 
     @property
     def n_rows(self) -> int:

@@ -297,7 +297,12 @@ def _make_split(pose_id: np.ndarray, cfg: SplitConfig) -> np.ndarray:
 
 
 def _join_temperatures(
-    camp: Campaign, path: Path, pose_ts: pd.Series, robot: RobotDescription, tol_s: float
+    camp: Campaign,
+    path: Path,
+    pose_ts: pd.Series,
+    robot: RobotDescription,
+    tol_s: float,
+    pose_raw: pd.Series | None = None,
 ) -> Campaign:
     df = _read_table(path)
     _require(df, ["timestamp"], path)
@@ -351,4 +356,20 @@ def _join_temperatures(
             column="timestamp",
         )
     log = pd.DataFrame({"t_s": t_log, **{c: vals[:, j] for j, c in enumerate(sensors)}})
-    return replace(camp, temperatures=vals[k], sensor_names=tuple(sensors), temperature_log=log)
+    notes = camp.notes
+    zoned = (zone_given(pose_raw) if pose_raw is not None else None, zone_given(df["timestamp"]))
+    if None not in zoned and zoned[0] != zoned[1]:
+        naive = camp.poses_file if not zoned[0] else str(path)
+        notes = (*notes, f"{naive} gives its timestamps without a time zone and the other file with one: they are read "
+                 "as UTC (the data contract); written in local time, the poses and the temperatures are off by the UTC "
+                 "offset (add Z or the offset to every timestamp)")  # fmt: skip
+    return replace(camp, temperatures=vals[k], sensor_names=tuple(sensors), temperature_log=log, notes=notes)
+
+
+def zone_given(raw: pd.Series) -> bool | None:
+    """Whether the timestamps ``raw`` state their time zone (``Z`` or an offset, or a zoned datetime column):
+    True in every row, False in none, None when some do."""
+    if pd.api.types.is_datetime64_any_dtype(raw):
+        return getattr(raw.dt, "tz", None) is not None
+    has = raw.astype(str).str.strip().str.contains(r"(?:Z|[+-]\d\d:?\d\d)$", regex=True).to_numpy()
+    return bool(has.all()) if has.all() or not has.any() else None

@@ -50,7 +50,7 @@ from robocal.data.checks import (
     _read_tracker,
     unit_quaternions,
 )
-from robocal.data.columns import joint_columns, known_columns
+from robocal.data.columns import column_name, joint_columns, known_columns
 from robocal.data.table import _find, _read_table
 from robocal.errors import DataError
 from robocal.io import display_path
@@ -150,7 +150,7 @@ def read_campaign(
     _check_same_joints(camp, path, joint_columns(robot.prismatic))
     tpath = _find(folder, "temperatures", required=False)
     if tpath is not None:
-        camp = _join_temperatures(camp, tpath, ts, robot, temperature_tolerance_s)
+        camp = _join_temperatures(camp, tpath, ts, robot, temperature_tolerance_s, df[column_name("timestamp")])
     return camp
 
 

@@ -198,8 +198,8 @@ def run(
     why_failed = "; ".join(problems)
     if why_failed:  # the key only then: as robocal calibrate's summary (a clean run's discovery.json unchanged)
         summ["problems"] = problems
-    if camp.not_read_note():
-        summ.setdefault("warnings", []).append(camp.not_read_note())
+    if camp.reading_notes():
+        summ.setdefault("warnings", []).extend(camp.reading_notes())
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     # written into a staging folder, then moved into place together: an interrupted run (Ctrl-C) leaves the

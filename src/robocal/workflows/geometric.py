@@ -219,7 +219,7 @@ def run(
     why = cannot_start(camp, rob, summary["start_rms_position_mm"])
     if why:
         summary["problems"].insert(0, why)
-    warnings = result_warnings(summary) + ([camp.not_read_note()] if camp.not_read_note() else []) + thin_stations(camp)
+    warnings = result_warnings(summary) + camp.reading_notes() + thin_stations(camp)
     if warnings:  # the key only when there are some (a clean run's summary.json is unchanged)
         summary["warnings"] = warnings
     cal_record = _with_cell_axes(rob, camp, full, result, summary)

@@ -117,7 +117,7 @@ def thermal_json(
         out["extrapolation"] = ev["extrapolation"]
     out["warnings"] = [
         w for w in (ev.get("extrapolation", {}).get("warning"), ev.get("compensation", {}).get("warning")) if w
-    ]
+    ] + fit.campaign.reading_notes()  # (poses and temperatures in other time zones: the model fitted off by hours)
     if screening_result is not None:
         out["screening"] = screening_result.to_dict()
     return out
