@@ -120,6 +120,8 @@ def test_position_mode_takes_a_target_without_orientation(full):
     # and the corrected joints land the calibrated robot there (solver tolerance 1e-4 mm + reply rounding)
     assert _lands(full, temps, res) < 2e-4
     assert res["predicted_error_mm"] > 0.05  # a real correction, not a no-op
+    # the orientation is not matched in this mode: its errors are null, not 0.0 (read as "no orientation error")
+    assert res["predicted_error_deg"] is None and res["residual_deg"] is None
 
 
 def test_position_mode_gives_up_an_orientation_the_robot_cannot_take(full):

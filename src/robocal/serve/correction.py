@@ -90,23 +90,34 @@ def _nominal_joints(
 
 
 def _target_replies(
-    c: Any, cc_nom: CompiledChain, tool_T: np.ndarray, q_target: np.ndarray, kind: np.ndarray, to_reported: Any = None
+    c: Any,
+    cc_nom: CompiledChain,
+    tool_T: np.ndarray,
+    q_target: np.ndarray,
+    kind: np.ndarray,
+    to_reported: Any = None,
+    orientation: bool = True,
 ) -> list[dict[str, Any]]:
     """One reply object per target: status, predicted error, reasons and notes; the corrected joints and the
     command for the nominal controller unless refused; the nominal joints of a pose target. ``to_reported``: a
-    coupled robot's joints given back as its controller takes them (the correction too)."""
+    coupled robot's joints given back as its controller takes them (the correction too). Without ``orientation``
+    (mode position) the orientation errors are null: not matched, not zero."""
     cmd_p, cmd_R, _, _ = forward(cc_nom, c.q, tool_T)  # what the nominal controller must be sent
     # rounded once for the whole batch (the wire's digits)
     eb_r = np.round(c.error_before_norm_mm, 7).tolist()
     ebx_r = np.round(c.error_before_mm, 7).tolist()
-    ebd_r = np.round(np.rad2deg(np.linalg.norm(c.error_before_rad, axis=1)), 9).tolist()
+    ebd_r = (
+        np.round(np.rad2deg(np.linalg.norm(c.error_before_rad, axis=1)), 9).tolist()
+        if orientation
+        else [None] * len(q_target)
+    )
     q_c, q_t = (c.q, q_target) if to_reported is None else (to_reported(c.q), to_reported(q_target))
     qc_l = np.rad2deg(q_c).round(9).tolist()
     dq_l = (c.correction_deg if to_reported is None else np.rad2deg(q_c - q_t)).round(9).tolist()
     cmd_p_l = cmd_p.round(7).tolist()
     cmd_q_l = quaternions(cmd_R).round(12).tolist()
     resid_l = c.residual_norm_mm.tolist()
-    resid_deg_l = c.residual_norm_deg.tolist()
+    resid_deg_l = c.residual_norm_deg.tolist() if orientation else [None] * len(q_target)
     qt_l = np.rad2deg(q_t).round(9).tolist()
     results = []
     for k in range(len(q_target)):
@@ -202,7 +213,8 @@ def _correct_external(
             "status": status[k],
             "predicted_error_mm": round(float(c.error_before_mm[k]), 7),
             "predicted_error_xyz_mm": np.round(c.error_before_xyz_mm[k], 7).tolist(),
-            "predicted_error_deg": round(float(c.error_before_deg[k]), 9) if c.error_before_deg is not None else 0.0,
+            # null where the orientation is not matched (mode position): 0.0 read as "no orientation error"
+            "predicted_error_deg": round(float(c.error_before_deg[k]), 9) if c.error_before_deg is not None else None,
         }
         if reasons[k]:
             res["reasons"] = reasons[k]
@@ -215,7 +227,7 @@ def _correct_external(
             res["ext_correction_mm"] = (c.q[k, ext] - q_target[k, ext]).tolist()
             res["command"] = {"xyz_mm": T[k, :3, 3].round(7).tolist(), "quat_wxyz": quat[k].round(12).tolist()}
             res["residual_mm"] = float(c.residual_mm[k])
-            res["residual_deg"] = float(c.residual_deg[k])
+            res["residual_deg"] = float(c.residual_deg[k]) if r.mode == "pose" else None
         if tg.kind[k] == 1:
             res["q_nominal_deg"] = np.rad2deg(q_arm[k]).round(9).tolist()
         results.append(res)

@@ -175,7 +175,8 @@ class Service:
             orientation=r.mode == "pose", solver=cfg.solver, policy=cfg.safety, request_reasons=r.reasons,
             unreachable=~ik_ok, frames=frames, to_reported=to_rep,
         )  # fmt: skip
-        results = _target_replies(c, cc_nom, r.tool_T, q_target, r.targets.kind, to_reported=to_rep)
+        results = _target_replies(c, cc_nom, r.tool_T, q_target, r.targets.kind, to_reported=to_rep,
+                                  orientation=r.mode == "pose")  # fmt: skip
         for k in np.flatnonzero(freed):
             results[k].setdefault("notes", []).append(FREED_NOTE)
         return self._reply(bundle, r, results, {}, t_start)

@@ -72,12 +72,13 @@ Reply to ``correct``::
                                                 # or a stated orientation was given up (mode "position")
          "predicted_error_mm": 0.83,            # |tool position error| uncompensated, mm
          "predicted_error_xyz_mm": [dx, dy, dz],
-         "predicted_error_deg": 0.004,          # uncompensated orientation error, deg
+         "predicted_error_deg": 0.004,          # uncompensated orientation error, deg (null in mode "position")
          # only when not refused:
          "q_deg": [...],                        # corrected joint targets
          "correction_deg": [...],               # q_deg - target joints
          "command": {"xyz_mm": [...], "quat_wxyz": [...]},  # corrected Cartesian command (base frame)
-         "residual_mm": 1e-6, "residual_deg": 1e-8,         # predicted error after compensation
+         "residual_mm": 1e-6, "residual_deg": 1e-8,         # predicted error after compensation (deg: null
+                                                            # in mode "position", the orientation not matched)
          "q_nominal_deg": [...]}                # pose targets: the nominal IK solution
      ]}
 
