@@ -88,25 +88,33 @@ def test_the_console_line_names_signals_by_key_and_counts_proposed_equations():
     assert _named({"named": axes}) == "named [track:pitch, track:yaw]"
 
 
+def _both_on_an_edited_twin(tmp_path, capsys, scenario: str, seed: int, n_validation: int, edit) -> tuple[list, list]:
+    """A twin campaign of ``scenario`` (40 + ``n_validation`` poses, no effects) whose poses.csv ``edit`` rewrites
+    (text cells), and the exit codes and consoles of robocal calibrate and robocal discover on it."""
+    from robocal.sim.scenario import load_scenario
+    from robocal.sim.twin import simulate
+
+    sc = dict(load_scenario(scenario), n_poses=40, n_validation_poses=n_validation, effects={})
+    simulate(sc, tmp_path / "twin", seed=seed)
+    camp = tmp_path / "edited"
+    camp.mkdir()
+    edit(pd.read_csv(tmp_path / "twin" / "poses.csv", dtype=str, keep_default_na=False)).to_csv(
+        camp / "poses.csv", index=False
+    )
+    codes, texts = [], []
+    for cmd in ("calibrate", "discover"):
+        codes.append(main([cmd, str(camp), "--robot", "kr16_2", "--out", str(tmp_path / cmd), "--no-report"]))
+        texts.append(capsys.readouterr().out)
+    return codes, texts
+
+
 def test_discover_fails_as_calibrate_when_the_fit_cannot_start(tmp_path, capsys):
     """An arm on a lifting column given as the arm alone, the column's position logged as an extra column: the
     nominal model misses by a tenth of the cell. robocal calibrate said FAILED; robocal discover ran on from that
     start, named the column as a base translation and exited 0 with a held-out error of 35 mm (and a
     compensation.csv). Now both fail with the same reason, which names the column as an axis carrying the robot."""
-    from robocal.sim.scenario import load_scenario
-    from robocal.sim.twin import simulate
-
-    sc = dict(load_scenario("column"), n_poses=40, n_validation_poses=10, effects={})
-    simulate(sc, tmp_path / "twin", seed=1)
-    df = pd.read_csv(tmp_path / "twin" / "poses.csv", dtype=str, keep_default_na=False)
-    df = df.rename(columns={"q1_mm": "column_mm", **{f"q{j}_deg": f"q{j - 1}_deg" for j in range(2, 8)}})
-    camp = tmp_path / "arm_alone"
-    camp.mkdir()
-    df.to_csv(camp / "poses.csv", index=False)
-    codes, texts = [], []
-    for cmd in ("calibrate", "discover"):
-        codes.append(main([cmd, str(camp), "--robot", "kr16_2", "--out", str(tmp_path / cmd), "--no-report"]))
-        texts.append(capsys.readouterr().out)
+    renamed = {"q1_mm": "column_mm", **{f"q{j}_deg": f"q{j - 1}_deg" for j in range(2, 8)}}
+    codes, texts = _both_on_an_edited_twin(tmp_path, capsys, "column", 1, 10, lambda df: df.rename(columns=renamed))
     assert codes == [1, 1], texts
     for cmd, text in zip(("calibrate", "discover"), texts, strict=True):
         line = next(x for x in text.splitlines() if x.startswith(f"robocal {cmd}: FAILED: the fit cannot start"))
@@ -119,20 +127,12 @@ def test_discover_fails_when_the_geometric_calibration_is_failed(tmp_path, capsy
     """One joint column in radians (the others in degrees): robocal calibrate said FAILED (worse than the nominal
     model on the validation poses) and robocal discover exited 0 with an "ok" discovery of 57 mm in the pipeline's
     metrics (newcomer pass 8). Now discover fails with calibrate's reason, and sends no compensation.csv."""
-    from robocal.sim.scenario import load_scenario
-    from robocal.sim.twin import simulate
 
-    sc = dict(load_scenario("geometric"), n_poses=40, n_validation_poses=12, effects={})
-    simulate(sc, tmp_path / "twin", seed=5)  # a seed where calibrate's verdict is FAILED (others: a warning)
-    df = pd.read_csv(tmp_path / "twin" / "poses.csv", dtype=str, keep_default_na=False)
-    df["q6_deg"] = [f"{np.deg2rad(float(v)):.9f}" for v in df["q6_deg"]]
-    camp = tmp_path / "j6_rad"
-    camp.mkdir()
-    df.to_csv(camp / "poses.csv", index=False)
-    codes, texts = [], []
-    for cmd in ("calibrate", "discover"):
-        codes.append(main([cmd, str(camp), "--robot", "kr16_2", "--out", str(tmp_path / cmd), "--no-report"]))
-        texts.append(capsys.readouterr().out)
+    def in_radians(df: pd.DataFrame) -> pd.DataFrame:
+        return df.assign(q6_deg=[f"{np.deg2rad(float(v)):.9f}" for v in df["q6_deg"]])
+
+    # seed 5: a seed where calibrate's verdict was FAILED (others: a warning)
+    codes, texts = _both_on_an_edited_twin(tmp_path, capsys, "geometric", 5, 12, in_radians)
     assert codes == [1, 1], texts
     assert "robocal discover: FAILED: the geometric calibration (robocal calibrate) failed" in texts[1], texts[1]
     assert not (tmp_path / "discover" / "compensation.csv").exists()

@@ -88,41 +88,36 @@ def physics_candidates(
             if kmax == 0 or robot.prismatic[j] or float(np.ptp(q[rows, j])) < np.deg2rad(1.0):
                 continue
             gap, taper = periodic_window(cfg, kmax)
-            windows: list[tuple[int, list[list[float]]]] = []
-            for mv in sorted(set(cfg.transmission_min_visits)):
-                visited = visited_intervals(q_conf[:, j], gap, mv)
-                if visited and all(v != visited for _, v in windows):  # a window another value gives: once
-                    windows.append((mv, visited))
-            for mv, visited in windows:
-                h0 = lowest_harmonic(visited_span_deg(visited))
-                if h0 > kmax:
-                    continue
-                w = coverage_weight(q[:, j], visited, taper)
-                h = np.arange(h0, kmax + 1)
-                S = fourier_signal(q[:, j], h, w)
-                centre = S[rows].mean(axis=0)  # the constant part belongs to the geometry's joint offset
-                S = S - centre
-                names = tuple(f"sin{k}" for k in h) + tuple(f"cos{k}" for k in h)
-                window = "every visit" if mv == 1 else f"intervals of at least {mv} distinct angles"
-                cand = Candidate(
-                    f"transmission:j{j + 1}", "transmission", j + 1, None,
-                    cause=f"gear transmission error of the joint-{j + 1} reducer: a periodic error of the joint's own "
-                    "angle with many harmonics per revolution (applied only on the angles the calibration visited)",
-                    signal=f"sin/cos(h·q{j + 1}), h = {h0}..K", shape="joint", S=S,
-                    coef_names=names, coef_units=("rad",) * len(names),
-                    extra={"visited_deg": visited, "taper_deg": taper, "gap_deg": gap, "harmonics": h.tolist(),
-                           "centre": centre.tolist(), "min_visits": mv},
-                )  # fmt: skip
-                H = len(h)
-                # the same key for every window: the pool drops the others once one is accepted
-                variants = [
-                    Variant(np.concatenate([np.arange(k - h0 + 1), H + np.arange(k - h0 + 1)]), float(np.deg2rad(t)),
-                            f"harmonics {h0}..{k}, tau={t}°" + ("" if len(windows) == 1 else f", window: {window}"))
-                    for k in orders
-                    if k >= h0
-                    for t in cfg.transmission_prior_deg
-                ]  # fmt: skip
-                out.append((cand, variants))
+            # the search's one window (discovery.search._first_search runs one search per value that differs)
+            mv = min(cfg.transmission_min_visits)
+            visited = visited_intervals(q_conf[:, j], gap, mv)
+            h0 = lowest_harmonic(visited_span_deg(visited)) if visited else kmax + 1
+            if h0 > kmax:
+                continue
+            w = coverage_weight(q[:, j], visited, taper)
+            h = np.arange(h0, kmax + 1)
+            S = fourier_signal(q[:, j], h, w)
+            centre = S[rows].mean(axis=0)  # the constant part belongs to the geometry's joint offset
+            S = S - centre
+            names = tuple(f"sin{k}" for k in h) + tuple(f"cos{k}" for k in h)
+            cand = Candidate(
+                f"transmission:j{j + 1}", "transmission", j + 1, None,
+                cause=f"gear transmission error of the joint-{j + 1} reducer: a periodic error of the joint's own "
+                "angle with many harmonics per revolution (applied only on the angles the calibration visited)",
+                signal=f"sin/cos(h·q{j + 1}), h = {h0}..K", shape="joint", S=S,
+                coef_names=names, coef_units=("rad",) * len(names),
+                extra={"visited_deg": visited, "taper_deg": taper, "gap_deg": gap, "harmonics": h.tolist(),
+                       "centre": centre.tolist(), "min_visits": mv},
+            )  # fmt: skip
+            H = len(h)
+            variants = [
+                Variant(np.concatenate([np.arange(k - h0 + 1), H + np.arange(k - h0 + 1)]), float(np.deg2rad(t)),
+                        f"harmonics {h0}..{k}, tau={t}°")
+                for k in orders
+                if k >= h0
+                for t in cfg.transmission_prior_deg
+            ]  # fmt: skip
+            out.append((cand, variants))
     has_load_signal = campaign.tau_Nm is not None or campaign.current_A is not None or robot.has_dynamics
     if "weight" in cfg.effects and "weight" in effects and not has_load_signal:
         Y = gravity_regressor(robot, q)
