@@ -97,7 +97,11 @@ def attach_gram(J: np.ndarray, gram: Gram) -> None:
 
 
 def normal_equations(J: np.ndarray, r: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
-    """``(JᵀJ, Jᵀr)`` of ``J``, by its owner's :func:`attach_gram` when it has one (``Jᵀr`` None without ``r``)."""
+    """``(JᵀJ, Jᵀr)`` of ``J``, by its owner's :func:`attach_gram` when it has one (``Jᵀr`` None without ``r``), or
+    by the Jacobian itself when it is held by its factors (a ``normal_equations`` method:
+    :class:`robocal.discovery.gram.FactoredJacobian`)."""
+    if not isinstance(J, np.ndarray):
+        return J.normal_equations(r)
     e = _GRAMS.get(id(J))
     if e is not None and e[0]() is J:
         return e[1](J, r)
@@ -111,7 +115,7 @@ def gram_of(J: np.ndarray) -> Gram | None:
 
 
 def has_gram(J: np.ndarray) -> bool:
-    return gram_of(J) is not None
+    return not isinstance(J, np.ndarray) or gram_of(J) is not None
 
 
 __all__ = [

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from robocal.data.contract import read_campaign
+from robocal.discovery.candidates import Candidate
 from robocal.robot import load_robot
 from robocal.sim.twin import EFFECTS, load_scenario, register_effect, simulate
 
@@ -24,6 +25,16 @@ def make_campaign(tmp: Path, scenario: str, seed: int, effects: dict[str, Any] |
     d = tmp / f"{scenario}_{seed}_{abs(hash(str(effects))) % 10**8}"
     truth = simulate(sc, d, seed=seed)
     return read_campaign(d, robot), robot, truth
+
+
+def joint_candidate(key: str, joint: int, S: np.ndarray, prior_rad: float | None) -> Candidate:
+    """A joint-level candidate of signals ``S`` (one coefficient per column, rad), under a prior when ``prior_rad``."""
+    q = S.shape[1]
+    return Candidate(
+        key, "test", joint, None, cause="test", signal="test", shape="joint", S=S,
+        coef_names=tuple(f"c{i}" for i in range(q)), coef_units=("rad",) * q,
+        extra={} if prior_rad is None else {"prior_rad": prior_rad},
+    )  # fmt: skip
 
 
 def named(summary_or_result: Any) -> list[tuple[str, int | None, int | None]]:

@@ -15,24 +15,14 @@ import pytest
 from robocal.calibration.config import CalibrationConfig
 from robocal.calibration.fit import calibrate
 from robocal.calibration.start import fit_data, present_stations, present_targets
-from robocal.discovery.candidates import Candidate
 from robocal.discovery.model import Accepted, ExtendedModel, fit_model
 from robocal.identification import robust
 from robocal.optimizers import solver
 from robocal.optimizers.solver import levenberg_marquardt
 
-from .conftest import make_campaign
+from .conftest import joint_candidate, make_campaign
 
 SIGMA = 0.015
-
-
-def _joint_candidate(key: str, joint: int, S: np.ndarray, prior_rad: float | None) -> Candidate:
-    q = S.shape[1]
-    return Candidate(
-        key, "test", joint, None, cause="test", signal="test", shape="joint", S=S,
-        coef_names=tuple(f"c{i}" for i in range(q)), coef_units=("rad",) * q,
-        extra={} if prior_rad is None else {"prior_rad": prior_rad},
-    )  # fmt: skip
 
 
 @pytest.fixture(scope="module")
@@ -49,8 +39,8 @@ def problem(tmp_path_factory):
     rng = np.random.default_rng(1)
     q3 = camp.q[:, 2]
     accepted = [
-        Accepted(_joint_candidate("h:j3", 3, np.column_stack([np.sin(q3), np.cos(q3)]), None)),
-        Accepted(_joint_candidate("wide:j2", 2, rng.normal(size=(camp.n_rows, 200)), 1e-4)),
+        Accepted(joint_candidate("h:j3", 3, np.column_stack([np.sin(q3), np.cos(q3)]), None)),
+        Accepted(joint_candidate("wide:j2", 2, rng.normal(size=(camp.n_rows, 200)), 1e-4)),
     ]
     model = ExtendedModel(robot, geo.model.target_names, geo.model.T_ref, accepted, like=geo.model)
     theta0 = model.map_from(geo.names, geo.x)
@@ -197,7 +187,7 @@ def test_the_gross_error_test_takes_the_prior_so_round_off_cannot_decide(problem
     model, theta0, data, rows = problem
     wide = model.accepted[1].cand
     S = np.column_stack([np.ones(len(wide.S)), wide.S[:, :60]])
-    acc = [model.accepted[0], Accepted(_joint_candidate("const:j2", 2, S, 1e-4))]
+    acc = [model.accepted[0], Accepted(joint_candidate("const:j2", 2, S, 1e-4))]
     model2 = ExtendedModel(model.robot, model.base.target_names, model.base.T_ref, acc, like=model.base)
     fit = fit_model(model2, model2.map_from(model.names, theta0), data, rows, SIGMA, set(), 1e-6, 100)
     J = np.asarray(fit.J_w)

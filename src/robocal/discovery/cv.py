@@ -121,19 +121,33 @@ class FoldCV:
         # the fit's Jacobian in fold order, never a second (M, k) matrix: a fit that can evaluate it again
         # (``Fit.release``) gives up its own, whose rows are put in fold order in place (the folds then read
         # contiguous rows); any other is read fold by fold where it is (:meth:`_fold`, one fold at a time)
-        J = fit.J_w
         gram = getattr(fit, "gram", None)  # taken before the fit lets its Jacobian go (and the factors)
-        self.k = int(J.shape[1])
-        self._A = _sorted_in_place(J, self.order) if _can_release(fit) and len(J) == len(self.order) else None
-        self._J: np.ndarray | None = J if self._A is None else None
-        del J
-        if self._A is not None:
-            fit.release()
+        # a fit holding its Jacobian by its factors (the residual layer's, robocal.discovery.gram) is read by them
+        self._F = fit.factors() if hasattr(fit, "factors") else None
+        self._A: np.ndarray | None = None
+        self._J: np.ndarray | None = None
+        if self._F is not None:
+            self.k = int(self._F.k)
+        else:
+            J = fit.J_w
+            self.k = int(J.shape[1])
+            self._A = _sorted_in_place(J, self.order) if _can_release(fit) and len(J) == len(self.order) else None
+            self._J = J if self._A is None else None
+            del J
+            if self._A is not None:
+                fit.release()
         self._r = np.asarray(fit.r_w)[self.order]
         self.prec = fit.model.prior_precision()[fit.free]
         self.th = fit.theta[fit.free]
         self._Gf, self._bf = [], []
         for i in range(len(self.bounds)):
+            if self._F is not None:
+                rows = self._rows_of_fold(i)
+                Gi, bi = self._F.gram.on_dense_rows(self._F.D.reshape(-1, self.d, len(self._F.dc))[rows].reshape(
+                    -1, len(self._F.dc)), self._F.dc, self.k, self._r[slice(*self.bounds[i])], rows)  # fmt: skip
+                self._Gf.append(Gi)
+                self._bf.append(bi)
+                continue
             if gram is not None:  # from the joint-level effects' factors (robocal.discovery.gram): d times cheaper
                 Gi, bi = gram.on_rows(self._fold(i), self._r[slice(*self.bounds[i])], self._rows_of_fold(i))
                 self._Gf.append(Gi)
@@ -153,12 +167,24 @@ class FoldCV:
             sol = SymSolver(H)
             self._solver.append(sol)
             self._g.append(g)
-            err[s:e] = self._r[s:e] - self._fold(i) @ sol.solve(g)
+            err[s:e] = self._r[s:e] - self._mul(i, sol.solve(g))
         self._err_sorted = err
         self.base_err = self._unsort(err)
         self._U: OrderedDict[int, list[np.ndarray]] = OrderedDict()
 
     # -- helpers ---------------------------------------------------------------------------------------------
+    def _mul(self, i: int, y: np.ndarray) -> np.ndarray:
+        """``A_i y``: fold ``i``'s rows of the whitened Jacobian times ``y (k,)`` or ``(k, p)``."""
+        if self._F is not None:
+            return self._F.mul(y, self._rows_of_fold(i))
+        return self._fold(i) @ y
+
+    def _rmul(self, i: int, X: np.ndarray) -> np.ndarray:
+        """``A_iᵀ X`` of fold ``i``'s rows ``X``."""
+        if self._F is not None:
+            return self._F.rmul(X, self._rows_of_fold(i))
+        return self._fold(i).T @ X
+
     def _fold(self, i: int) -> np.ndarray:
         """The whitened Jacobian's rows of fold ``i`` in the sorted order (a copy of that fold only)."""
         s, e = self.bounds[i]
@@ -187,7 +213,9 @@ class FoldCV:
         keep = np.asarray(keep, dtype=int)
         drop = np.setdiff1d(np.arange(self.k), keep)
         th_d = self.th[drop]
-        if self._A is not None:
+        if self._F is not None:
+            Ad = self._F.columns(drop, self.order[:: self.d] // self.d)
+        elif self._A is not None:
             Ad = self._A[:, drop]
         else:
             assert self._J is not None
@@ -206,7 +234,7 @@ class FoldCV:
             g = b - bf[i] + prec * th
             y = np.zeros(self.k)  # the step on the kept columns, zero on the others: no column copy
             y[keep] = SymSolver(H).solve(g)
-            err[s:e] = r2[s:e] - self._fold(i) @ y
+            err[s:e] = r2[s:e] - self._mul(i, y)
         return self._unsort(err)
 
     def _bordered(self, r2: np.ndarray, drop: np.ndarray, th_d: np.ndarray) -> np.ndarray:
@@ -226,7 +254,7 @@ class FoldCV:
             W = sol.solve(E)
             y = u - W @ np.linalg.solve(W[drop], u[drop])
             y[drop] = 0.0
-            err[s:e] = r2[s:e] - self._fold(i) @ y
+            err[s:e] = r2[s:e] - self._mul(i, y)
         return err
 
     # -- candidates ------------------------------------------------------------------------------------------
@@ -237,8 +265,8 @@ class FoldCV:
         Zs = Z[self.order]
         Ct, Z2t, bzt = [], [], []
         for i, (s, e) in enumerate(self.bounds):
-            At, Zt = self._fold(i), Zs[s:e]
-            Ct.append(At.T @ Zt)
+            Zt = Zs[s:e]
+            Ct.append(self._rmul(i, Zt))
             Z2t.append(Zt.T @ Zt)
             bzt.append(Zt.T @ self._r[s:e])
 
@@ -262,8 +290,12 @@ class FoldCV:
             return self._U[j]
         out = []
         for i, (s, e) in enumerate(self.bounds):
+            rows = self._rows_of_fold(i)
+            if self._F is not None:
+                out.append(self._F.joint_response(v[rows], rows))
+                continue
             A3 = self._fold(i).reshape((e - s) // self.d, self.d, -1)
-            out.append(np.einsum("rdk,rd->rk", A3, v[self._rows_of_fold(i)], optimize=True))
+            out.append(np.einsum("rdk,rd->rk", A3, v[rows], optimize=True))
         self._U[j] = out
         size = sum(u.nbytes for u in out)
         while len(self._U) > max(2, U_CACHE_BYTES // max(size, 1)):
@@ -363,7 +395,7 @@ class FoldCV:
                 except np.linalg.LinAlgError:
                     DZ[cols, vi] = -np.linalg.lstsq(Sz, rhs, rcond=1e-12)[0]
             # held-out response to the candidate with the model refitted: Z_t dz - A_t (W dz), every variant
-            errs[s:e] += apply_z(i, DZ) - self._fold(i) @ (W @ DZ)
+            errs[s:e] += apply_z(i, DZ) - self._mul(i, W @ DZ)
         return [self._unsort(errs[:, vi]) for vi in range(len(variants))]
 
 

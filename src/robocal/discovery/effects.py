@@ -165,7 +165,8 @@ def extended_calibration(fit: Fit, robot: RobotDescription, summary_fit: dict[st
     elim = tuple(
         Eliminated(n, (), 0.0, "not identifiable in the extended model") for n in fit.eliminated if n in base.names
     )
-    Jn = fit.J_w[:, pos] / np.maximum(np.linalg.norm(fit.J_w[:, pos], axis=0), 1e-300)
+    Jb = fit.jacobian_columns(pos)
+    Jn = Jb / np.maximum(np.linalg.norm(Jb, axis=0), 1e-300)
     ident = Identifiability(
         kept=free_b,
         eliminated=elim,

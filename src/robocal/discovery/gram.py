@@ -27,9 +27,19 @@ class JointGram:
         blocks: list[tuple[np.ndarray, int, np.ndarray]],
         ridge_pos: np.ndarray,
         sq: np.ndarray,
+        merge: bool = True,
     ) -> None:
+        """``merge``: one entry per joint, its blocks' signals side by side (a copy); False: one entry per block
+        (the same response ``v`` for the blocks of one joint; no copy of the signals)."""
         self.M, self.d = M, d
         self.ridge_pos, self.sq = np.asarray(ridge_pos, dtype=int), np.asarray(sq, dtype=float)
+        if not merge:
+            self.joints = [j for _, j, _ in blocks]
+            self.P = [np.asarray(p, dtype=int) for p, _, _ in blocks]
+            self.S = [S for _, _, S in blocks]
+            V = {j: Jq[:, :, j] * w_row[None, :] for j in sorted(set(self.joints))}
+            self.V = [V[j] for j in self.joints]
+            return
         pos: dict[int, list[np.ndarray]] = {}
         sig: dict[int, list[np.ndarray]] = {}
         for p, j, S in blocks:
@@ -41,38 +51,50 @@ class JointGram:
         self.V = [Jq[:, :, j] * w_row[None, :] for j in self.joints]  # (m, d) whitened responses
 
     def __call__(self, J: np.ndarray, r: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
-        return self._gram(J, r, self.M, self.S, self.V, prior=True)
+        dc = self.dense_columns(J.shape[1])
+        return self._gram(J[: self.M, dc], dc, J.shape[1], r, self.M, self.S, self.V, prior=True)
+
+    def dense_columns(self, k: int) -> np.ndarray:
+        """The positions, among ``k`` columns, of those no joint-level block holds (the geometry's, the drifts')."""
+        isj = np.zeros(k, dtype=bool)
+        for p in self.P:
+            isj[p] = True
+        return np.flatnonzero(~isj)
 
     def on_rows(self, J_rows: np.ndarray, r_rows: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(AᵀA, Aᵀr)`` of the measurement rows ``rows`` (0-based among the fit's, in the order given) without the
         prior: ``J_rows`` and ``r_rows`` are those rows' ``d`` residuals each, in the same order (a fold of
         :class:`robocal.discovery.cv.FoldCV`)."""
+        dc = self.dense_columns(J_rows.shape[1])
+        return self.on_dense_rows(J_rows[:, dc], dc, J_rows.shape[1], r_rows, rows)
+
+    def on_dense_rows(
+        self, D_rows: np.ndarray, dc: np.ndarray, k: int, r_rows: np.ndarray, rows: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`on_rows` from the rows' dense columns ``D_rows`` alone (``dc``: their positions among ``k``)."""
         rows = np.asarray(rows, dtype=int)
         G, b = self._gram(
-            J_rows, r_rows, len(rows) * self.d, [S[rows] for S in self.S], [v[rows] for v in self.V], prior=False
+            D_rows, dc, k, r_rows, len(rows) * self.d, [S[rows] for S in self.S], [v[rows] for v in self.V], False
         )
         assert b is not None
         return G, b
 
     def _gram(
         self,
-        J: np.ndarray,
+        D: np.ndarray,
+        dc: np.ndarray,
+        k: int,
         r: np.ndarray | None,
         M: int,
         Ss: list[np.ndarray],
         Vs: list[np.ndarray],
         prior: bool,
     ) -> tuple[np.ndarray, np.ndarray | None]:
+        """``D (M, |dc|)``: the measurement rows' other columns (the geometry's, the drifts'), at ``dc``."""
         d = self.d
         m = M // d
-        k = J.shape[1]
-        isj = np.zeros(k, dtype=bool)
-        for p in self.P:
-            isj[p] = True
-        dc = np.flatnonzero(~isj)
         G = np.zeros((k, k))
         b = None if r is None else np.zeros(k)
-        D = J[:M, dc]  # the other columns (the geometry's, the drifts'): a copy of those only
         G[np.ix_(dc, dc)] = D.T @ D
         D3 = D.reshape(m, d, len(dc))
         r3 = None if r is None else r[:M].reshape(m, d)
@@ -99,4 +121,133 @@ class JointGram:
         return G, b
 
 
-__all__ = ["JointGram"]
+class FactoredJacobian:
+    """A refit's whitened Jacobian ``(M + len(ridge), k)`` held by its factors (issue 31: the residual layer's
+    hundreds of columns per joint made it 0.43 GB at UR10 A's 12 000 rows, held through the solver and the
+    folds): the measurement rows' other columns ``D (M, |dc|)`` dense, every joint-level block as ``v ⊗ S``
+    (:class:`JointGram`), the prior's rows as their one number each. What the solver and the cross-validation ask
+    of it (normal equations, products with the rows, a few columns) is formed from the factors; the same numbers
+    as the dense matrix up to rounding."""
+
+    def __init__(self, D: np.ndarray, dc: np.ndarray, k: int, gram: JointGram) -> None:
+        self.D, self.dc, self.k, self.gram = D, np.asarray(dc, dtype=int), int(k), gram
+        self.M, self.d = gram.M, gram.d
+        self.shape = (self.M + len(gram.ridge_pos), self.k)
+
+    # -- what the solver asks (robocal.optimizers.solver) --------------------------------------------------------
+    def normal_equations(self, r: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
+        """``(JᵀJ, Jᵀr)`` over every row (the prior's included), ``r`` of length ``shape[0]`` (or None)."""
+        g = self.gram
+        return g._gram(self.D, self.dc, self.k, r, self.M, g.S, g.V, prior=True)
+
+    def column_norms(self) -> np.ndarray:
+        """Each column's Euclidean norm over every row."""
+        sq = np.zeros(self.k)
+        sq[self.dc] = np.einsum("mk,mk->k", self.D, self.D)
+        for P, S, v in zip(self.gram.P, self.gram.S, self.gram.V, strict=True):
+            sq[P] = np.einsum("m,mq->q", np.einsum("md,md->m", v, v), S * S)
+        sq[self.gram.ridge_pos] += self.gram.sq**2
+        return np.asarray(np.sqrt(sq))
+
+    def all_finite(self) -> bool:
+        g = self.gram
+        return bool(np.all(np.isfinite(self.D)) and all(np.all(np.isfinite(a)) for a in (*g.S, *g.V)))
+
+    # -- products with the measurement rows (robocal.discovery.cv) ------------------------------------------------
+    def _dense_rows(self, rows: np.ndarray | None) -> np.ndarray:
+        D3 = self.D.reshape(-1, self.d, len(self.dc))
+        return D3 if rows is None else D3[rows]
+
+    def mul(self, y: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
+        """``J y`` on the measurement rows ``rows`` (0-based, in that order; None: all), ``d`` residuals each:
+        ``(len(rows) d,)`` of ``y (k,)``, or ``(len(rows) d, p)`` of ``y (k, p)``."""
+        Y = y.reshape(self.k, -1)
+        out = self._dense_rows(rows) @ Y[self.dc]  # (n, d, p)
+        for P, S, v in zip(self.gram.P, self.gram.S, self.gram.V, strict=True):
+            Sr, vr = (S, v) if rows is None else (S[rows], v[rows])
+            out += vr[:, :, None] * (Sr @ Y[P])[:, None, :]
+        out = out.reshape(-1, Y.shape[1])
+        return out if y.ndim == 2 else out[:, 0]
+
+    def rmul(self, X: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
+        """``J_rowsᵀ X`` of ``X (len(rows) d, p)`` (or ``(len(rows) d,)``) on the measurement rows ``rows``."""
+        X3 = X.reshape(-1, self.d, 1 if X.ndim == 1 else X.shape[1])
+        out = np.empty((self.k, X3.shape[2]))
+        out[self.dc] = np.einsum("ndk,ndp->kp", self._dense_rows(rows), X3, optimize=True)
+        for P, S, v in zip(self.gram.P, self.gram.S, self.gram.V, strict=True):
+            Sr, vr = (S, v) if rows is None else (S[rows], v[rows])
+            out[P] = Sr.T @ np.einsum("nd,ndp->np", vr, X3)
+        return out if X.ndim == 2 else out[:, 0]
+
+    def columns(self, pos: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
+        """The dense columns ``pos`` of the measurement rows ``rows``: ``(len(rows) d, len(pos))``."""
+        E = np.zeros((self.k, len(pos)))
+        E[np.asarray(pos, dtype=int), np.arange(len(pos))] = 1.0
+        return self.mul(E, rows)
+
+    def joint_response(self, v: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
+        """``U = Σ_d J_row v_row`` (``len(rows) x k``) of a response ``v (len(rows), d)`` (the folds' products with
+        a joint-level candidate, :meth:`robocal.discovery.cv.FoldCV._u`)."""
+        U = np.empty((len(v), self.k))
+        U[:, self.dc] = np.einsum("ndk,nd->nk", self._dense_rows(rows), v, optimize=True)
+        for P, S, vj in zip(self.gram.P, self.gram.S, self.gram.V, strict=True):
+            Sr, vr = (S, vj) if rows is None else (S[rows], vj[rows])
+            U[:, P] = Sr * np.einsum("nd,nd->n", vr, v)[:, None]
+        return U
+
+    def space(self) -> FactoredSpace:
+        """The column space of the measurement rows (:class:`FactoredSpace`)."""
+        return FactoredSpace(self)
+
+    def dense(self) -> np.ndarray:
+        """The whole matrix (the prior's rows included): for a check, never on the way of a large fit."""
+        J = np.zeros(self.shape)
+        J[: self.M] = self.mul(np.eye(self.k))
+        J[self.M + np.arange(len(self.gram.ridge_pos)), self.gram.ridge_pos] = self.gram.sq
+        return J
+
+
+class FactoredSpace:
+    """The column space of a :class:`FactoredJacobian`'s measurement rows ``A (M, k)``, as
+    :class:`robocal.discovery.ftest.ColumnSpace` keeps it (the directions whose singular value is above 1e-10 of
+    the largest) without ``A`` whole: ``R`` of ``A = Q R`` by a QR of ``R`` stacked on each block of rows in turn
+    (row blocks of at most :data:`SPACE_BLOCK_BYTES`), then ``R = U Σ Vᵀ``; the basis is ``B = A V_r Σ_r⁻¹`` and a
+    projection ``B Bᵀ Z = A (V_r Σ_r⁻² V_rᵀ (Aᵀ Z))`` (refined once: :meth:`project`), products with the factors."""
+
+    def __init__(self, F: FactoredJacobian) -> None:
+        from scipy import linalg
+
+        self.F = F
+        k, d = F.k, F.d
+        m = F.M // d
+        step = max(1, SPACE_BLOCK_BYTES // max(8 * d * k, 1))
+        R = np.zeros((0, k))
+        eye = np.eye(k)
+        for s in range(0, m, step):
+            blk = F.mul(eye, np.arange(s, min(s + step, m)))
+            R = linalg.qr(np.vstack([R, blk]), mode="r", overwrite_a=True, check_finite=False)[0]
+            R = R[: min(k, len(R))]
+        _, sv, Vt = np.linalg.svd(R, full_matrices=False)
+        keep = sv > 1e-10 * sv[0] if len(sv) else np.zeros(0, dtype=bool)
+        self.rank = int(keep.sum())
+        self.W = Vt[keep].T / sv[keep]  # (k, r): B = A W
+
+    def coefficients(self, Z: np.ndarray) -> np.ndarray:
+        """``Bᵀ Z`` (``r x q``)."""
+        return np.asarray(self.W.T @ self.F.rmul(Z))
+
+    def project(self, Z: np.ndarray) -> np.ndarray:
+        """``B Bᵀ Z``: the part of ``Z`` in the column space, as ``A x`` with ``x`` the least-squares solution of
+        ``A x = Z`` from ``R``'s factors and one step of refinement on its residual (the corrected semi-normal
+        equations: the accuracy of the QR's own projection, where ``A V_r Σ_r⁻¹`` alone loses the condition
+        number's digits)."""
+        x = self.W @ self.coefficients(Z)
+        x += self.W @ self.coefficients(Z - self.F.mul(x))
+        return self.F.mul(x)
+
+
+#: bytes of one block of the measurement rows formed dense for :class:`FactoredSpace`'s QR
+SPACE_BLOCK_BYTES = 32 * 2**20
+
+
+__all__ = ["FactoredJacobian", "FactoredSpace", "JointGram"]

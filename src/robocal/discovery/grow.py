@@ -203,10 +203,10 @@ def variant_candidate(cand: Candidate, v: Variant) -> Candidate:
         extra["centre"] = np.asarray(cand.extra["centre"])[v.columns].tolist()
     extra["variant"] = v.label
     names = tuple(cand.coef_names[i] for i in v.columns)
-    return replace(
-        cand, S=cand.S[:, v.columns], coef_names=names, coef_units=tuple(cand.coef_units[i] for i in v.columns),
-        extra=extra,
-    )  # fmt: skip
+    every = np.array_equal(v.columns, np.arange(cand.S.shape[1]))  # every column: its signals, no (m, q) copy
+    units = tuple(cand.coef_units[i] for i in v.columns)
+    S = cand.S if every else cand.S[:, v.columns]
+    return replace(cand, S=S, coef_names=names, coef_units=units, extra=extra)
 
 
 def paired_log10_p(sse0: np.ndarray, sse1: np.ndarray) -> float:
@@ -582,4 +582,4 @@ def replace_fit_columns(fit: Fit, keep: np.ndarray) -> Fit:
     r = fit.r_w - fit.J_w[:, drop] @ th[fit.free[drop]]
     th[fit.free[drop]] = 0.0
     return replace(fit, theta=th, free=fit.free[keep], r_w=r, J_w=fit.J_w[:, keep], cov=fit.cov[np.ix_(keep, keep)],
-                   gram=None)  # fmt: skip
+                   gram=None, factored=None)  # fmt: skip

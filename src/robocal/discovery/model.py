@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from robocal.discovery.candidates import Candidate, with_beta
-from robocal.discovery.gram import JointGram
+from robocal.discovery.gram import FactoredJacobian, JointGram
 from robocal.identification.identifiability import analyse
 from robocal.identification.model import CalibrationModel, FitData
 from robocal.metrics import ErrorStats, noise_floor
@@ -220,6 +220,57 @@ class ExtendedModel:
         return Jx, (Jq_p if Jq_w is None else np.concatenate([Jq_p, Jq_w], axis=1))
 
 
+#: a refit whose joint-level effects' columns would take more than this many bytes holds its Jacobian by its
+#: factors (:class:`robocal.discovery.gram.FactoredJacobian`): the residual layer's (issue 31)
+FACTOR_BYTES = 64 * 2**20
+
+
+def joint_columns(model: ExtendedModel, free: np.ndarray, rows: np.ndarray) -> list[tuple[np.ndarray, int, np.ndarray]]:
+    """Every joint-level effect's free columns as ``(their positions among free, the joint (0-based), S (m, q) on
+    those columns)``: the blocks :meth:`ExtendedModel.residuals_and_jacobian` reports, without the Jacobian."""
+    pos = column_positions(model.n, free)
+    out = []
+    for a, sl in zip(model.accepted, model.slices, strict=True):
+        if a.cand.shape != "joint":
+            continue
+        assert a.cand.joint is not None
+        p = pos[sl]
+        sel = np.flatnonzero(p >= 0)
+        if len(sel):
+            S = a.cand.S[rows]
+            out.append((p[sel], a.cand.joint - 1, S if len(sel) == len(p) else S[:, sel]))
+    return out
+
+
+def factor(M: int, jblocks: list[tuple[np.ndarray, int, np.ndarray]]) -> bool:
+    """Whether a fit of ``M`` residuals holds its Jacobian by its factors (:data:`FACTOR_BYTES`)."""
+    return M * sum(len(p) for p, _, _ in jblocks) * 8 > FACTOR_BYTES
+
+
+def factored_jacobian(
+    model: ExtendedModel,
+    theta: np.ndarray,
+    data: FitData,
+    rows: np.ndarray,
+    free: np.ndarray,
+    w: np.ndarray,
+    jblocks: list[tuple[np.ndarray, int, np.ndarray]],
+) -> tuple[np.ndarray, FactoredJacobian]:
+    """The refit's whitened residuals (the measurements', then the prior's rows on the free parameters under one)
+    and its Jacobian on ``free`` held by its factors (``jblocks``: :func:`joint_columns`); ``w`` the measurement
+    residuals' weights."""
+    prec = model.prior_precision()
+    ridge_pos = np.flatnonzero(prec[free] > 0)
+    ridge, sq = free[ridge_pos], np.sqrt(prec[free[ridge_pos]])
+    M = len(w)
+    d = model.per_row(data)
+    dpos = np.setdiff1d(np.arange(len(free)), np.concatenate([p for p, _, _ in jblocks]))
+    r, D, _, Jq = model.residuals_and_jacobian(theta, data, rows, cols=free[dpos])
+    D *= w[:, None]
+    gram = JointGram(M, d, w[:d], Jq, jblocks, ridge_pos, sq, merge=False)
+    return np.concatenate([w * r, sq * theta[ridge]]), FactoredJacobian(D, dpos, len(free), gram)
+
+
 def column_positions(n: int, cols: np.ndarray) -> np.ndarray:
     """``(n,)``: where each of ``n`` parameters' column goes among the columns ``cols`` built (-1: not built)."""
     pos = np.full(n, -1)
@@ -295,6 +346,8 @@ class Fit:
     data: FitData | None = field(default=None, repr=False, compare=False)
     # the joint-level effects' factors of ``J_w`` (robocal.discovery.gram): the folds' Grams from them; None without
     gram: JointGram | None = field(default=None, repr=False, compare=False)
+    # the whole ``J_w`` held by its factors (a fit with the residual layer: robocal.discovery.gram); None: dense
+    factored: FactoredJacobian | None = field(default=None, repr=False, compare=False)
 
     def release(self) -> None:
         """Let go of ``J_w`` (an ``(M, k)`` matrix: the previous fit's, while the next one is fitted); the next
@@ -302,6 +355,7 @@ class Fit:
         columns whitened as the solver's. A fit without its data keeps its matrix."""
         if self.release_jacobian():
             self.gram = None  # (m, q) signals and (m, d) responses per joint: not held beside the next fit's
+            self.factored = None
 
     def release_jacobian(self) -> bool:
         """Let go of ``J_w`` only (the joint-level factors kept); whether it was let go (a fit without its data
@@ -320,6 +374,27 @@ class Fit:
         J.setflags(write=False)
         d["J_w"] = J
         return J
+
+    def factors(self) -> FactoredJacobian | None:
+        """``J_w`` held by its factors when the fit is of that kind (:func:`factor`: the residual layer's) and does
+        not hold it whole: the solver's, or evaluated again at ``theta`` (then kept, until :meth:`release`)."""
+        d = self.__dict__
+        if "J_w" in d:
+            return None
+        if self.factored is None and self.data is not None and self.rows is not None and self.w is not None:
+            jblocks = joint_columns(self.model, self.free, self.rows)
+            if factor(self.M, jblocks):
+                self.factored = factored_jacobian(self.model, self.theta, self.data, self.rows, self.free, self.w,
+                                                  jblocks)[1]  # fmt: skip
+        return self.factored
+
+    def jacobian_columns(self, pos: np.ndarray | list[int]) -> np.ndarray:
+        """``J_w[:, pos]`` (positions among the free parameters), from the factors when the fit holds its Jacobian
+        by them (never formed whole for a few columns)."""
+        F = self.factors()
+        if F is not None:
+            return F.columns(np.asarray(pos, dtype=int))
+        return np.asarray(self.J_w[:, pos])
 
     def evaluate_jacobian(self, order: str = "C") -> np.ndarray:
         """``J_w`` evaluated again from the fit's data (a new array, the caller's, in memory ``order``; the same
@@ -459,10 +534,29 @@ def fit_model(
             attach_gram(J, JointGram(M, d, w_row, Jq, blocks, ridge_pos, sq))
         return w_all * r, J
 
-    lm = least_squares(fun_free, theta0, free, 1.0, max_iter=max_iter, ftol=1e-12, xtol=1e-10, jac_free=True)
+    jblocks = joint_columns(model, free, rows)
+    if factor(M, jblocks):
+        # the joint-level effects' columns held by their factors, never formed (issue 31: the residual layer)
+
+        def fun_factored(th: np.ndarray) -> tuple[np.ndarray, FactoredJacobian]:
+            return factored_jacobian(model, th, data, rows, free, w, jblocks)
+
+        lm = least_squares(fun_factored, theta0, free, 1.0, max_iter=max_iter, ftol=1e-12, xtol=1e-10,  # type: ignore[arg-type]
+                           jac_free=True)  # fmt: skip
+        factored: FactoredJacobian | None = lm.extra["jacobian_factored"]
+    else:
+        lm = least_squares(fun_free, theta0, free, 1.0, max_iter=max_iter, ftol=1e-12, xtol=1e-10, jac_free=True)
+        factored = None
     theta = np.array(lm.x)
     Jx, Jq = model.base_jacobians(theta, data, rows)  # the parts of the solver's J
     assert lm.covariance is not None  # a finite fit
+    if factored is not None:
+        fit = Fit(model=model, theta=theta, free=free, r_w=np.array(lm.residual)[:M], J_w=np.empty((0, 0)), Jx=Jx,
+                  Jq=Jq, cov=np.array(lm.covariance), s2=lm.redchi if lm.dof > 0 else lm.chi2, sigma=sigma,
+                  eliminated=tuple(e.name for e in ident.eliminated) + tuple(model.names[c] for c in also),
+                  rows=np.asarray(rows), w=w, data=data, gram=factored.gram, factored=factored)  # fmt: skip
+        fit.release_jacobian()  # never formed: evaluated whole only when read (Fit.J_w)
+        return fit
     return Fit(
         model=model,
         theta=theta,

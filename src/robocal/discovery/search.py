@@ -462,7 +462,7 @@ def _search(
         progress.note("held-out check of the parametric model")
         held_out_check(state)
     # the parametric model is kept for its validation (its parameters), not its (M, k) Jacobian
-    parametric = replace(state.fit, J_w=np.zeros((0, state.fit.k)), gram=None)
+    parametric = replace(state.fit, J_w=np.zeros((0, state.fit.k)), gram=None, factored=None)
     finish(state)
     if sessions is not None:
         state.record["geometric_session_cv"] = {k: v for k, v in sessions.summary(geometric).items() if k != "sse"}

@@ -317,7 +317,7 @@ def locate(res: DiscoveryResult) -> dict[str, Any]:
     n = q.shape[1]
     B = np.column_stack([np.ones(m)] + [f(h * q[:, k]) for k in range(n) for h in (1, 2) for f in (np.sin, np.cos)])
     fit.gram = None  # the joint-level factors: not needed beyond here, not held beside the SVD
-    Q = basis(fit)
+    Q = F.space() if (F := fit.factors()) is not None else basis(fit)
     joints = []
     Zs = [(fit.Jq[:, :, j][:, :, None] * B[:, None, :]).reshape(dd * m, -1) * fit.weights[:, None] for j in range(n)]
     allz = np.hstack(Zs)

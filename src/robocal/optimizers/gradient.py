@@ -102,7 +102,10 @@ class GaussNewton(EstimatorParams):
         res_fun, jac_fun = problem.residuals, problem.jacobian
 
         def fun(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-            return np.asarray(res_fun(x), dtype=float).ravel(), np.asarray(jac_fun(x), dtype=float)
+            J = jac_fun(x)
+            # a Jacobian held by its factors (robocal.discovery.gram.FactoredJacobian) goes to the solver as it is
+            return np.asarray(res_fun(x), dtype=float).ravel(), (J if hasattr(J, "normal_equations") else
+                                                                 np.asarray(J, dtype=float))  # fmt: skip
 
         max_iter = int(self.max_iter if self.max_iter is not None else problem.max_iter)
         lm = levenberg_marquardt(
@@ -130,6 +133,7 @@ class GaussNewton(EstimatorParams):
                 "history_kind": kind,
                 "inside_bounds": inside,
                 "lam0": self._lam0(),
+                **{k: v for k, v in lm.extra.items() if k == "jacobian_factored"},
             },
         )
 

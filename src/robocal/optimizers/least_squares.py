@@ -128,9 +128,12 @@ def least_squares(
     # the optimizer reports its fitness (χ²) and the history of the accepted steps in it: the least squares' own
     # cost is half of it, its history starts at the start's
     history = [0.5 * float(r0 @ r0), *(0.5 * h for h in res.history)]
-    out = res.evolve(x=wr.full(res.x), varied=free, cost=0.5 * chi2, history=history, names=(), extra={})
+    # (a Jacobian held by its factors is the result's extra["jacobian_factored"], its ``jacobian`` empty)
+    factored = {k: v for k, v in res.extra.items() if k == "jacobian_factored"}
+    out = res.evolve(x=wr.full(res.x), varied=free, cost=0.5 * chi2, history=history, names=(), extra=factored)
     ndata = int(np.count_nonzero(w)) if w.ndim else (res.residual.size if float(w) != 0 else 0)
     if ndata != res.ndata:  # rows weighted zero are left out, not data
-        cov = fit_covariance(res.residual, res.jacobian, ndata) if res.status >= 0 else None
+        J = factored.get("jacobian_factored", res.jacobian)
+        cov = fit_covariance(res.residual, J, ndata) if res.status >= 0 else None
         out = out.evolve(ndata=ndata, covariance=cov)
     return out

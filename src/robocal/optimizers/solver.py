@@ -83,7 +83,7 @@ def levenberg_marquardt(
     s = _column_scale(Jf, scale, free)
     lam = (1e-6 if lam0 is None else float(lam0)) if damped else 0.0
     status, nit = 0, 0
-    if not (np.all(np.isfinite(r)) and np.all(np.isfinite(Jf))):
+    if not (np.all(np.isfinite(r)) and _finite(Jf)):
         return _result(method, x, free, w, r, Jf, cost, 0, nfev, njev, -1, t0, history)
     for nit in range(1, max_iter + 1):
         g, H = _normal_equations(Jf, s, r)
@@ -155,10 +155,15 @@ def _first(
     return weighted(r), weighted_jacobian(J)
 
 
+def _finite(Jf: np.ndarray) -> bool:
+    """Whether every entry of the Jacobian is finite (one held by its factors answers itself)."""
+    return bool(np.all(np.isfinite(Jf))) if isinstance(Jf, np.ndarray) else bool(Jf.all_finite())
+
+
 def _column_scale(Jf: np.ndarray, scale: np.ndarray | None, free: np.ndarray) -> np.ndarray:
     """Typical magnitude of each free variable: ``scale[free]``, by default the inverse column norms of ``Jf``."""
     if scale is None:
-        d = column_norms(Jf)
+        d = column_norms(Jf) if isinstance(Jf, np.ndarray) else np.array(Jf.column_norms())
         d[d == 0] = 1.0
         return 1.0 / d
     return np.asarray(scale, dtype=float)[free]
@@ -241,7 +246,8 @@ def _result(
     history: list[float],
     own: bool = False,
 ) -> FitResult:
-    if own and Jf.base is None:
+    factored = not isinstance(Jf, np.ndarray)  # held by its factors: the result's ``extra["jacobian_factored"]``
+    if own and not factored and Jf.base is None:
         # the solver's own matrix (``jac_free``): the result takes it read-only, without a copy (FitResult keeps
         # such an array as it is)
         Jf.setflags(write=False)
@@ -263,6 +269,7 @@ def _result(
         njev=njev,
         history=history,
         residual=r,
-        jacobian=Jf,
+        jacobian=np.empty((0, Jf.shape[1])) if factored else Jf,
         timings={"total_s": time.perf_counter() - t0},
+        extra={"jacobian_factored": Jf} if factored else {},
     )
