@@ -38,17 +38,33 @@ def fit_noise(chi2: float, dof: int, noise_mm: float, position_only: bool = True
     return out
 
 
+def _visits(pose_id: np.ndarray, station: np.ndarray | None) -> np.ndarray:
+    """One label per row for a pose seen from one instrument placement: a pose measured from two tracker stations
+    is two visits (each station's coordinates are its own frame: a difference across them is the stations' offset,
+    not noise — a configuration measured from both stations read as a 1.6 m noise, and discovery fitted nothing)."""
+    pid = np.asarray(pose_id).astype(str)
+    if station is None:
+        return pid
+    return np.char.add(np.char.add(pid, "\x1f"), np.asarray(station).astype(str))
+
+
 def rigid_tool_noise(
-    pose_id: np.ndarray, target: np.ndarray, timestamp_s: np.ndarray, p_mm: np.ndarray, window_s: float = 120.0
+    pose_id: np.ndarray,
+    target: np.ndarray,
+    timestamp_s: np.ndarray,
+    p_mm: np.ndarray,
+    window_s: float = 120.0,
+    station: np.ndarray | None = None,
 ) -> dict[str, Any] | None:
     """Noise from the inter-target distances of a rigid multi-target tool (None with fewer than 2 targets or
-    fewer than 3 poses with two targets). Targets of one pose count together when measured within ``window_s``."""
+    fewer than 3 poses with two targets). Targets of one pose count together when measured within ``window_s``
+    from one ``station`` (each row's instrument placement; None: one)."""
     names = sorted(set(map(str, target)))
     if len(names) < 2:
         return None
     groups: dict[str, list[int]] = {}
-    for i, pid in enumerate(map(str, pose_id)):
-        groups.setdefault(pid, []).append(i)
+    for i, pid in enumerate(_visits(pose_id, station)):
+        groups.setdefault(str(pid), []).append(i)
     by_pair: dict[tuple[str, str], list[float]] = {}
     for idx in groups.values():
         # one measurement of each target per pose visit: the rows close in time to the first
@@ -82,10 +98,16 @@ def rigid_tool_noise(
 
 
 def repeat_noise(
-    pose_id: np.ndarray, target: np.ndarray, timestamp_s: np.ndarray, p_mm: np.ndarray, window_s: float = 600.0
+    pose_id: np.ndarray,
+    target: np.ndarray,
+    timestamp_s: np.ndarray,
+    p_mm: np.ndarray,
+    window_s: float = 600.0,
+    station: np.ndarray | None = None,
 ) -> dict[str, Any] | None:
-    """Noise from the same pose and target measured again within ``window_s`` (None when there is no pair)."""
-    pid = np.asarray(pose_id).astype(str)
+    """Noise from the same pose and target measured again within ``window_s`` from the same ``station`` (each
+    row's instrument placement; None: one), None when there is no pair."""
+    pid = _visits(pose_id, station)
     tg = np.asarray(target).astype(str)
     order = np.lexsort((timestamp_s, tg, pid))  # by pose, target, then time
     same = (pid[order][1:] == pid[order][:-1]) & (tg[order][1:] == tg[order][:-1])
@@ -116,10 +138,11 @@ def noise_report(
     judge residuals against (the model-free routes when the data have them, else the configured value)."""
     c = campaign if kept is None else campaign.subset(kept)
     routes: dict[str, Any] = {"fit": fit_noise(chi2_pos, dof, noise_mm)}
-    rt = rigid_tool_noise(c.pose_id, c.target, c.timestamp_s, c.p_mm)
+    st = getattr(c, "station", None)
+    rt = rigid_tool_noise(c.pose_id, c.target, c.timestamp_s, c.p_mm, station=st)
     if rt:
         routes["rigid_tool"] = rt
-    rp = repeat_noise(c.pose_id, c.target, c.timestamp_s, c.p_mm)
+    rp = repeat_noise(c.pose_id, c.target, c.timestamp_s, c.p_mm, station=st)
     if rp:
         routes["repeated_poses"] = rp
     independent = [routes[k] for k in ("rigid_tool", "repeated_poses") if k in routes]
