@@ -25,7 +25,7 @@ from robocal.status import TargetStatus
 from robocal.workflows import campaign_of, robot_of
 from robocal.workflows.discovery_report import write_report
 from robocal.workflows.geometric import result_cannot_start as geometric_cannot_start
-from robocal.workflows.geometric import result_failed
+from robocal.workflows.geometric import result_failed, unused_uncertainty
 
 if TYPE_CHECKING:
     pass
@@ -198,8 +198,9 @@ def run(
     why_failed = "; ".join(problems)
     if why_failed:  # the key only then: as robocal calibrate's summary (a clean run's discovery.json unchanged)
         summ["problems"] = problems
-    if camp.reading_notes():
-        summ.setdefault("warnings", []).extend(camp.reading_notes())
+    notes = camp.reading_notes() + unused_uncertainty(camp, cfg.noise_mm, "constant", 2.0, "discovery")
+    if notes:
+        summ.setdefault("warnings", []).extend(notes)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     # written into a staging folder, then moved into place together: an interrupted run (Ctrl-C) leaves the

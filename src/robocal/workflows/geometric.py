@@ -164,6 +164,34 @@ def thin_stations(campaign: Campaign) -> list[str]:
     ]  # fmt: skip
 
 
+#: how far the median noise a campaign's ``u_mm`` column states may lie from the noise the fit weights by (a ratio
+#: either way) before the fit says it does not use the column
+U_MM_RATIO = 3.0
+
+
+def unused_uncertainty(
+    campaign: Campaign, noise_mm: float, noise_model: str, u_coverage: float, where: str
+) -> list[str]:
+    """A warning when ``poses.csv`` states each point's uncertainty (``u_mm``) and the fit weights by a noise far
+    from it without using the column (a total station's 0.74 mm beside the configured 0.015 mm: the noise floor,
+    the gross-error test and the prior's strength all judged against a noise 25 times too small). ``where``: the
+    settings' section the user sets (``calibration`` or ``discovery``)."""
+    if campaign.u_mm is None or noise_model == "u_mm":
+        return []
+    u = float(np.median(np.asarray(campaign.u_mm, dtype=float))) / u_coverage
+    if 1.0 / U_MM_RATIO <= u / noise_mm <= U_MM_RATIO:
+        return []
+    fix = "set noise_mm to the instrument's noise"
+    if where == "calibration":
+        fix += " or noise_model=u_mm (each point weighted by its u_mm)"
+    fix += f" ({where}.* in the pipeline)"
+    return [
+        f"{campaign.poses_file} states each point's uncertainty (u_mm, median {u * u_coverage:.3g} mm: {u:.3g} mm "
+        f"per coordinate at the coverage factor {u_coverage:g}), {u / noise_mm:.3g} times the noise this fit weights "
+        f"by ({noise_mm:g} mm, noise_model {noise_model}), and does not use it: {fix}"
+    ]
+
+
 def _carrying_column(campaign: Campaign, limit_mm: float) -> str | None:
     """A hint when an extra column of lengths (``*_mm`` / ``*_m``) spans more than the start's limit: an axis
     carrying the robot (a track, a lifting column) logged beside the arm's joints, which the robot must hold as
@@ -257,6 +285,7 @@ def run(
     column = None if why else radians_column(camp, rob, float(result.fit["rms_position_mm"]))
     summary["problems"] += [column] if column else []
     warnings = result_warnings(summary) + camp.reading_notes() + thin_stations(camp)
+    warnings += unused_uncertainty(camp, cfg.noise_mm, cfg.noise_model, cfg.u_coverage, "calibration")
     if warnings:  # the key only when there are some (a clean run's summary.json is unchanged)
         summary["warnings"] = warnings
     cal_record = _with_cell_axes(rob, camp, full, result, summary)

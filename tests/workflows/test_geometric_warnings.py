@@ -1,0 +1,29 @@
+"""A campaign that states each point's uncertainty (``u_mm``) far from the noise the fit weights by is told so
+(newcomer pass 9: a total station's 0.74 mm U95 beside the configured 0.015 mm, silently: the noise floor, the
+gross-error test and the thin campaign's prior were judged against a noise 25 times too small)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+import robocal
+from robocal.data.contract import read_campaign
+from robocal.workflows.geometric import unused_uncertainty
+
+
+def test_a_u_mm_column_far_from_the_noise_used_is_said(tmp_path):
+    rob = robocal.load_robot("kr16_2")
+    robocal.simulate({"name": "geometric", "robot": "kr16_2", "n_poses": 20, "n_validation_poses": 5}, tmp_path)
+    camp = read_campaign(tmp_path, rob)
+    assert unused_uncertainty(camp, 0.015, "constant", 2.0, "calibration") == []  # no column: nothing to say
+    tracker = replace(camp, u_mm=np.full(camp.n_rows, 0.03))  # a tracker's U95 (0.015 mm per coordinate)
+    assert unused_uncertainty(tracker, 0.015, "constant", 2.0, "calibration") == []
+    station = replace(camp, u_mm=np.full(camp.n_rows, 0.735))
+    (w,) = unused_uncertainty(station, 0.015, "constant", 2.0, "calibration")
+    assert "24.5 times" in w and "noise_model=u_mm" in w
+    (w,) = unused_uncertainty(station, 0.015, "constant", 2.0, "discovery")
+    assert "noise_model=u_mm" not in w and "discovery.*" in w
+    assert unused_uncertainty(station, 0.015, "u_mm", 2.0, "calibration") == []  # used: nothing to say
+    assert unused_uncertainty(station, 0.4, "constant", 2.0, "calibration") == []  # noise_mm set near it
