@@ -20,8 +20,8 @@ reducer of compliance ``k_j^-1`` turns it by ``dq_j = Y_j(q) pi / k_j``. The com
 data can tell apart are the right singular vectors of ``Y_j`` over the calibration poses (:func:`weight_basis`);
 the effect's coefficients are those combinations, scaled so that each column has unit RMS on the calibration
 poses, and the prior says how large a deflection is physical (``prior_deg``: the RMS deflection over the poses).
-With link masses in the description the library's ``compliance`` candidate (one stiffness per joint) is used
-instead.
+With link masses in the description the library's ``compliance`` candidate (one stiffness per joint, the torque
+from those masses) competes with it; logged torques or motor currents replace it.
 """
 
 from __future__ import annotations
