@@ -127,8 +127,9 @@ def physics_candidates(
         # the torque of links shaped like the arm's (uniform rods): one combination of physical shape over the
         # whole workspace, beside the ones the poses tell apart (on a heavy robot in 17 configurations those alone
         # matched its true torque to only 40-60 %, and gear harmonics stood in for the rest)
-        pi0 = generic_mass_moments(robot)
-        Yw = gravity_regressor(robot, workspace_sample(robot))
+        qw = workspace_sample(robot)
+        Yw = gravity_regressor(robot, qw)
+        pi0 = described_mass_moments(robot, qw, Yw) if robot.has_dynamics else generic_mass_moments(robot)
         for j in range(n):
             V, scale = weight_basis(Y[rows, j, :])
             if V.shape[1] == 0:
@@ -144,8 +145,10 @@ def physics_candidates(
             r = V.shape[1]
             cand = Candidate(
                 f"weight:j{j + 1}", "weight", j + 1, None,
-                cause=f"torsional elasticity of the joint-{j + 1} reducer under the arm's own weight (link masses "
-                "unknown: the mass-moment combinations the poses tell apart)",
+                cause=f"torsional elasticity of the joint-{j + 1} reducer under the arm's own weight "
+                + ("(the torque of the description's link masses and the mass-moment combinations the poses tell "
+                   "apart, which correct them)" if robot.has_dynamics else
+                   "(link masses unknown: the mass-moment combinations the poses tell apart)"),
                 signal=f"gravity-torque regressor of joint {j + 1} ({r} combinations)", shape="joint", S=S,
                 coef_names=tuple(f"w{k + 1}" for k in range(r)), coef_units=("rad",) * r,
                 extra={"basis": V.tolist(), "scale": scale.tolist(), "prior_deg": cfg.compliance_prior_deg},
@@ -153,6 +156,19 @@ def physics_candidates(
             tau = float(np.deg2rad(cfg.compliance_prior_deg)) / np.sqrt(r)
             out.append((cand, [Variant(np.arange(r), tau, f"prior {cfg.compliance_prior_deg}° RMS")]))
     return out
+
+
+def described_mass_moments(robot: RobotDescription, q: np.ndarray, Y: np.ndarray) -> np.ndarray:
+    """The mass moments ``pi (4 n,)`` of the description's link masses in the gravity regressor's order: the
+    least-squares ``pi`` whose torques ``Y(q) pi`` are the description's gravity torques at the joint angles ``q``
+    (``Y``: their regressor ``(m, n, 4 n)``; the directions no torque sees are zero). The weight model's
+    combination of physical shape when the description has masses: the torque of the ``compliance`` candidate
+    from those masses, beside the combinations that correct them."""
+    from robocal.kinematics.gravity import gravity_torques
+
+    tau = gravity_torques(robot, q)
+    pi, *_ = np.linalg.lstsq(Y.reshape(-1, Y.shape[2]), tau.reshape(-1), rcond=1e-12)
+    return np.asarray(pi)
 
 
 Pool = list[tuple[list[Candidate], list[Variant]]]
