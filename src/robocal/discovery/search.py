@@ -461,6 +461,18 @@ def _search(
         # what the parametric model keeps earns its place before the layer is offered (the layer's after it)
         progress.note("held-out check of the parametric model")
         held_out_check(state)
+        dropped = {d["key"] for d in state.record.get("dropped_no_gain", [])}
+        if dropped:
+            # an effect the check dropped may have stood in for another the library's F-test passed after it
+            # (a gear harmonic of joint 2 for the weight on joint 3 of a heavy arm measured in 18 configurations):
+            # the library once more without the dropped ones, and its additions checked the same way
+            taken = {a.cand.key for a in state.accepted}
+            again = [c for c in list(library) + weight if c.key not in taken | dropped and c.key not in unident]
+            n_before = len(state.accepted)
+            progress.note("library F-test search again, without the effects the held-out check dropped")
+            _library(state, again, log_thr, log_thr_signal, unident)
+            if len(state.accepted) > n_before:
+                held_out_check(state)
     # the parametric model is kept for its validation (its parameters), not its (M, k) Jacobian
     parametric = replace(state.fit, J_w=np.zeros((0, state.fit.k)), gram=None, factored=None)
     finish(state)
