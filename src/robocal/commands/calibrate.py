@@ -104,6 +104,8 @@ def run(args: argparse.Namespace) -> int:
         line = f"axes: order {ax['order']} (cross-validated), {len(ax['terms'])} terms of {', '.join(terms) or 'none'}"
         if v.get("n_rows"):
             line += f"; validation mean {v['mean_position_mm']:.4f} / max {v['max_position_mm']:.4f} mm"
+            if "without_axes_mean_mm" in v:
+                line += f" (the arm's calibration alone {v['without_axes_mean_mm']:.4f})"
         print(line)
     design = fit.get("configurations")
     if isinstance(design, dict) and design.get("enough"):
