@@ -27,3 +27,17 @@ def test_a_u_mm_column_far_from_the_noise_used_is_said(tmp_path):
     assert "noise_model=u_mm" not in w and "discovery.*" in w
     assert unused_uncertainty(station, 0.015, "u_mm", 2.0, "calibration") == []  # used: nothing to say
     assert unused_uncertainty(station, 0.4, "constant", 2.0, "calibration") == []  # noise_mm set near it
+
+
+def test_calibrate_says_when_its_residuals_imply_a_noise_far_above_the_one_used():
+    """Newcomer pass 9: reduced chi² 47 (a heavy arm's weight deflection) and 7 683 (a column's tilt) with status ok
+    and nothing on the console; the console now says the model misfits (status and summary.json as before)."""
+    from robocal.commands.calibrate import misfit_hint
+
+    def noise(implied: float) -> dict:
+        return {"used_mm": 0.0179, "routes": {"fit": {"sigma_mm": implied}}}
+
+    line = misfit_hint(noise(0.103))
+    assert line is not None and "5.75 times" in line and "robocal discover" in line
+    assert misfit_hint(noise(0.03)) is None  # within twice the noise: a fit at its floor says nothing
+    assert misfit_hint({}) is None

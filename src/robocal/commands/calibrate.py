@@ -56,6 +56,25 @@ def optimizer_config(value: Any, conf_dir: Path = OPTIMIZER_DIR) -> dict[str, An
     return cfg
 
 
+#: the fit's own noise estimate over the noise it was judged against above which the console says the model misfits
+MISFIT_HINT_RATIO = 2.0
+
+
+def misfit_hint(noise: dict[str, Any]) -> str | None:
+    """A line when the fit's residuals imply a noise well above the one the calibration was judged against (its
+    ``fit.noise`` record): the geometric model misses an effect, or the instrument is noisier than set (newcomer
+    pass 9: reduced chi² 47 and 7 683, status ok, nothing on the console)."""
+    used = noise.get("used_mm")
+    implied = ((noise.get("routes") or {}).get("fit") or {}).get("sigma_mm")
+    if not used or not implied or implied < MISFIT_HINT_RATIO * used:
+        return None
+    return (
+        f"misfit: the residuals imply a noise of {implied:.3g} mm per coordinate, {implied / used:.3g} times the "
+        f"{used:.3g} mm judged against: the geometric model misses an effect (robocal discover looks for it) or the "
+        "instrument is noisier than set (noise_mm)"
+    )
+
+
 def run(args: argparse.Namespace) -> int:
     from robocal.workflows import geometric
 
@@ -93,6 +112,9 @@ def run(args: argparse.Namespace) -> int:
     from robocal.identification.robust import outlier_line
 
     print(outlier_line(fit.get("outliers", []), fit.get("n_rows_total")))
+    hint = misfit_hint(fit.get("noise") or {})
+    if hint:
+        print(hint)
     if fit.get("systematic_misfit"):
         from robocal.identification import misfit
 
