@@ -37,12 +37,12 @@ def _fake_run(monkeypatch, tmp_path, fail_in: str | None):
         extra: dict = {}  # noqa: RUF012  (no geometric calibration: nothing to judge the start by)
 
     monkeypatch.setattr(wf, "robot_of", lambda r: None)
-    fake = type("C", (), {"n_rows": 3, "source": "x", "reading_notes": lambda self: []})
+    fake = type("C", (), {"n_rows": 3, "source": "x", "reading_notes": lambda self: [], "u_mm": None})
     monkeypatch.setattr(wf, "campaign_of", lambda *a: fake())
     monkeypatch.setattr(wf, "discover", lambda *a: Res())
     monkeypatch.setattr(wf, "validation_errors", lambda r: None)
     monkeypatch.setattr(wf, "summary", lambda r, v: dict(summ))
-    monkeypatch.setattr(wf.DiscoveryConfig, "from_mapping", classmethod(lambda cls, s: None))
+    monkeypatch.setattr(wf.DiscoveryConfig, "from_mapping", classmethod(lambda cls, s: wf.DiscoveryConfig()))
 
     def product(res, s, out):
         (out / "calibration.json").write_text('{"new": true}')

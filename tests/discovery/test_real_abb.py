@@ -2,8 +2,9 @@
 
 The geometric model validates at 0.317 mm mean on target T4 (issue 12: the extended model must reach
 <= 0.25 mm, validated exactly as ``calibrate`` validates: T4's tool from its zero-joint row, the same rows).
-With the repository's robot description (link masses: an engineering estimate), discovery names the gravity
-compliance of joints 2 and 3: the joints that carry the arm's weight, deflecting the way it pulls.
+With the repository's robot description (link masses: an engineering estimate), discovery names the deflection of
+joints 2 and 3 under the arm's weight (the weight model: the torque of those masses and the combinations that
+correct them): the joints that carry the arm's weight.
 """
 
 from __future__ import annotations
@@ -52,8 +53,11 @@ def test_discovered_model_validates_better_on_t4(abb_discovery):
 def test_named_effects_are_physical(abb_discovery):
     _, _, s = abb_discovery
     named = {n["key"]: n for n in s["named"]}
-    assert {"compliance:j2", "compliance:j3"} <= set(named)
-    for k in ("compliance:j2", "compliance:j3"):
-        c = named[k]["estimates"]["c_rad_per_Nm"]
-        # a compliance (not a stiffening) clearly above its standard error
-        assert c["value"] > 5 * c["stderr"] > 0
+    # the weight model of joints 2 and 3 (the torque of the description's masses and the combinations that correct
+    # them: held out 0.134 mm, where the compliance from those masses alone, named before it was offered, had 0.164)
+    assert {"weight:j2", "weight:j3"} <= set(named)
+    for k in ("weight:j2", "weight:j3"):
+        e = named[k]["estimates"]
+        # a deflection clearly above its standard error, of a physical size
+        assert e["rms_deflection_deg"]["value"] > 5 * e["rms_deflection_deg"]["stderr"] > 0
+        assert e["physical"]["value"] is True

@@ -122,8 +122,7 @@ class FoldCV:
         # (``Fit.release``) gives up its own, whose rows are put in fold order in place (the folds then read
         # contiguous rows); any other is read fold by fold where it is (:meth:`_fold`, one fold at a time)
         gram = getattr(fit, "gram", None)  # taken before the fit lets its Jacobian go (and the factors)
-        # a fit holding its Jacobian by its factors (the residual layer's, robocal.discovery.gram) is read by them
-        self._F = fit.factors() if hasattr(fit, "factors") else None
+        self._F = self._factors_in_fold_order(fit)
         self._A: np.ndarray | None = None
         self._J: np.ndarray | None = None
         if self._F is not None:
@@ -142,9 +141,9 @@ class FoldCV:
         self._Gf, self._bf = [], []
         for i in range(len(self.bounds)):
             if self._F is not None:
-                rows = self._rows_of_fold(i)
-                Gi, bi = self._F.gram.on_dense_rows(self._F.D.reshape(-1, self.d, len(self._F.dc))[rows].reshape(
-                    -1, len(self._F.dc)), self._F.dc, self.k, self._r[slice(*self.bounds[i])], rows)  # fmt: skip
+                fr = self._frows(i)
+                Gi, bi = self._F.gram.on_dense_rows(self._F.D[slice(*self.bounds[i])], self._F.dc, self.k,
+                                                    self._r[slice(*self.bounds[i])], fr)  # fmt: skip
                 self._Gf.append(Gi)
                 self._bf.append(bi)
                 continue
@@ -173,16 +172,31 @@ class FoldCV:
         self._U: OrderedDict[int, list[np.ndarray]] = OrderedDict()
 
     # -- helpers ---------------------------------------------------------------------------------------------
+    def _factors_in_fold_order(self, fit: Any) -> Any:
+        """A fit holding its Jacobian by its factors (the residual layer's, robocal.discovery.gram) is read by them:
+        their rows put in fold order once (a fold is then a slice of them, read in place), the fit's own let go
+        (evaluated again if read). None for a fit of a dense Jacobian."""
+        F: Any = fit.factors() if hasattr(fit, "factors") else None
+        if F is None:
+            return None
+        out = F.take(self.order[:: self.d] // self.d)
+        own_gram = getattr(fit, "gram", None) is F.gram
+        if getattr(fit, "factored", None) is F:
+            fit.factored = None
+            if own_gram:
+                fit.gram = None
+        return out
+
     def _mul(self, i: int, y: np.ndarray) -> np.ndarray:
         """``A_i y``: fold ``i``'s rows of the whitened Jacobian times ``y (k,)`` or ``(k, p)``."""
         if self._F is not None:
-            return self._F.mul(y, self._rows_of_fold(i))
+            return self._F.mul(y, self._frows(i))
         return self._fold(i) @ y
 
     def _rmul(self, i: int, X: np.ndarray) -> np.ndarray:
         """``A_iᵀ X`` of fold ``i``'s rows ``X``."""
         if self._F is not None:
-            return self._F.rmul(X, self._rows_of_fold(i))
+            return self._F.rmul(X, self._frows(i))
         return self._fold(i).T @ X
 
     def _fold(self, i: int) -> np.ndarray:
@@ -214,7 +228,7 @@ class FoldCV:
         drop = np.setdiff1d(np.arange(self.k), keep)
         th_d = self.th[drop]
         if self._F is not None:
-            Ad = self._F.columns(drop, self.order[:: self.d] // self.d)
+            Ad = self._F.columns(drop)  # (its rows in fold order)
         elif self._A is not None:
             Ad = self._A[:, drop]
         else:
@@ -276,6 +290,11 @@ class FoldCV:
 
         return self._variants(Z.shape[1], Ct, Z2t, bzt, apply_z, variants)
 
+    def _frows(self, i: int) -> slice:
+        """Fold ``i``'s measurement rows among the fold-ordered factors (``self._F``): a slice."""
+        s, e = self.bounds[i]
+        return slice(s // self.d, e // self.d)
+
     def _rows_of_fold(self, i: int) -> np.ndarray:
         """The fit rows (measurement rows, not residuals) of fold ``i`` in the sorted order."""
         s, e = self.bounds[i]
@@ -292,7 +311,7 @@ class FoldCV:
         for i, (s, e) in enumerate(self.bounds):
             rows = self._rows_of_fold(i)
             if self._F is not None:
-                out.append(self._F.joint_response(v[rows], rows))
+                out.append(self._F.joint_response(v[rows], self._frows(i)))
                 continue
             A3 = self._fold(i).reshape((e - s) // self.d, self.d, -1)
             out.append(np.einsum("rdk,rd->rk", A3, v[rows], optimize=True))

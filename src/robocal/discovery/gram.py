@@ -69,12 +69,12 @@ class JointGram:
         return self.on_dense_rows(J_rows[:, dc], dc, J_rows.shape[1], r_rows, rows)
 
     def on_dense_rows(
-        self, D_rows: np.ndarray, dc: np.ndarray, k: int, r_rows: np.ndarray, rows: np.ndarray
+        self, D_rows: np.ndarray, dc: np.ndarray, k: int, r_rows: np.ndarray, rows: np.ndarray | slice
     ) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`on_rows` from the rows' dense columns ``D_rows`` alone (``dc``: their positions among ``k``)."""
-        rows = np.asarray(rows, dtype=int)
+        rows = rows if isinstance(rows, slice) else np.asarray(rows, dtype=int)  # a slice: the factors read in place
         G, b = self._gram(
-            D_rows, dc, k, r_rows, len(rows) * self.d, [S[rows] for S in self.S], [v[rows] for v in self.V], False
+            D_rows, dc, k, r_rows, len(D_rows), [S[rows] for S in self.S], [v[rows] for v in self.V], False
         )
         assert b is not None
         return G, b
@@ -153,23 +153,45 @@ class FactoredJacobian:
         g = self.gram
         return bool(np.all(np.isfinite(self.D)) and all(np.all(np.isfinite(a)) for a in (*g.S, *g.V)))
 
+    def take(self, rows: np.ndarray) -> FactoredJacobian:
+        """The matrix of the measurement rows ``rows`` (in that order; the prior's rows kept): the factors' rows
+        copied once, so that a contiguous run of them is read in place afterwards (the folds,
+        :class:`robocal.discovery.cv.FoldCV`)."""
+        g = self.gram
+        sub = object.__new__(JointGram)
+        sub.M, sub.d, sub.ridge_pos, sub.sq = len(rows) * self.d, g.d, g.ridge_pos, g.sq
+        sub.joints, sub.P = g.joints, g.P
+        sub.S = [np.ascontiguousarray(S[rows]) for S in g.S]
+        sub.V = [np.ascontiguousarray(v[rows]) for v in g.V]
+        D = np.ascontiguousarray(self._dense_rows(rows)).reshape(-1, len(self.dc))
+        return FactoredJacobian(D, self.dc, self.k, sub)
+
     # -- products with the measurement rows (robocal.discovery.cv) ------------------------------------------------
-    def _dense_rows(self, rows: np.ndarray | None) -> np.ndarray:
+    def _dense_rows(self, rows: np.ndarray | slice | None) -> np.ndarray:
         D3 = self.D.reshape(-1, self.d, len(self.dc))
         return D3 if rows is None else D3[rows]
 
-    def mul(self, y: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
+    def _count(self, rows: np.ndarray | slice | None) -> int:
+        m = self.M // self.d
+        return m if rows is None else len(range(m)[rows]) if isinstance(rows, slice) else len(rows)
+
+    def mul(self, y: np.ndarray, rows: np.ndarray | slice | None = None) -> np.ndarray:
         """``J y`` on the measurement rows ``rows`` (0-based, in that order; None: all), ``d`` residuals each:
         ``(len(rows) d,)`` of ``y (k,)``, or ``(len(rows) d, p)`` of ``y (k, p)``."""
         Y = y.reshape(self.k, -1)
-        out = self._dense_rows(rows) @ Y[self.dc]  # (n, d, p)
+        n = self._count(rows)
+        Yd = Y[self.dc]
+        out = self._dense_rows(rows) @ Yd if np.any(Yd) else np.zeros((n, self.d, Y.shape[1]))  # (n, d, p)
         for P, S, v in zip(self.gram.P, self.gram.S, self.gram.V, strict=True):
+            YP = Y[P]
+            if not np.any(YP):  # a block the vector does not touch (a few columns asked for: the others' zeros)
+                continue
             Sr, vr = (S, v) if rows is None else (S[rows], v[rows])
-            out += vr[:, :, None] * (Sr @ Y[P])[:, None, :]
+            out += vr[:, :, None] * (Sr @ YP)[:, None, :]
         out = out.reshape(-1, Y.shape[1])
         return out if y.ndim == 2 else out[:, 0]
 
-    def rmul(self, X: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
+    def rmul(self, X: np.ndarray, rows: np.ndarray | slice | None = None) -> np.ndarray:
         """``J_rowsᵀ X`` of ``X (len(rows) d, p)`` (or ``(len(rows) d,)``) on the measurement rows ``rows``."""
         X3 = X.reshape(-1, self.d, 1 if X.ndim == 1 else X.shape[1])
         out = np.empty((self.k, X3.shape[2]))
@@ -179,13 +201,22 @@ class FactoredJacobian:
             out[P] = Sr.T @ np.einsum("nd,ndp->np", vr, X3)
         return out if X.ndim == 2 else out[:, 0]
 
-    def columns(self, pos: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
+    def columns(self, pos: np.ndarray, rows: np.ndarray | slice | None = None) -> np.ndarray:
         """The dense columns ``pos`` of the measurement rows ``rows``: ``(len(rows) d, len(pos))``."""
         E = np.zeros((self.k, len(pos)))
         E[np.asarray(pos, dtype=int), np.arange(len(pos))] = 1.0
         return self.mul(E, rows)
 
-    def joint_response(self, v: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
+    def rows_dense(self, rows: np.ndarray) -> np.ndarray:
+        """The measurement rows ``rows`` of the matrix, dense: ``(len(rows) d, k)`` (each column written from its
+        factors, no product)."""
+        out = np.empty((len(rows), self.d, self.k))
+        out[:, :, self.dc] = self._dense_rows(rows)
+        for P, S, v in zip(self.gram.P, self.gram.S, self.gram.V, strict=True):
+            out[:, :, P] = v[rows][:, :, None] * S[rows][:, None, :]
+        return out.reshape(-1, self.k)
+
+    def joint_response(self, v: np.ndarray, rows: np.ndarray | slice | None = None) -> np.ndarray:
         """``U = Σ_d J_row v_row`` (``len(rows) x k``) of a response ``v (len(rows), d)`` (the folds' products with
         a joint-level candidate, :meth:`robocal.discovery.cv.FoldCV._u`)."""
         U = np.empty((len(v), self.k))
@@ -202,7 +233,7 @@ class FactoredJacobian:
     def dense(self) -> np.ndarray:
         """The whole matrix (the prior's rows included): for a check, never on the way of a large fit."""
         J = np.zeros(self.shape)
-        J[: self.M] = self.mul(np.eye(self.k))
+        J[: self.M] = self.rows_dense(np.arange(self.M // self.d))
         J[self.M + np.arange(len(self.gram.ridge_pos)), self.gram.ridge_pos] = self.gram.sq
         return J
 
@@ -222,9 +253,8 @@ class FactoredSpace:
         m = F.M // d
         step = max(1, SPACE_BLOCK_BYTES // max(8 * d * k, 1))
         R = np.zeros((0, k))
-        eye = np.eye(k)
         for s in range(0, m, step):
-            blk = F.mul(eye, np.arange(s, min(s + step, m)))
+            blk = F.rows_dense(np.arange(s, min(s + step, m)))
             R = linalg.qr(np.vstack([R, blk]), mode="r", overwrite_a=True, check_finite=False)[0]
             R = R[: min(k, len(R))]
         _, sv, Vt = np.linalg.svd(R, full_matrices=False)

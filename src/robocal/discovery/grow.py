@@ -74,7 +74,7 @@ def physics_candidates(
         weight_basis,
         workspace_sample,
     )
-    from robocal.kinematics.gravity import generic_mass_moments, gravity_regressor
+    from robocal.kinematics.gravity import described_mass_moments, generic_mass_moments, gravity_regressor
 
     out: list[tuple[Candidate, list[Variant]]] = []
     q = campaign.q
@@ -156,19 +156,6 @@ def physics_candidates(
             tau = float(np.deg2rad(cfg.compliance_prior_deg)) / np.sqrt(r)
             out.append((cand, [Variant(np.arange(r), tau, f"prior {cfg.compliance_prior_deg}° RMS")]))
     return out
-
-
-def described_mass_moments(robot: RobotDescription, q: np.ndarray, Y: np.ndarray) -> np.ndarray:
-    """The mass moments ``pi (4 n,)`` of the description's link masses in the gravity regressor's order: the
-    least-squares ``pi`` whose torques ``Y(q) pi`` are the description's gravity torques at the joint angles ``q``
-    (``Y``: their regressor ``(m, n, 4 n)``; the directions no torque sees are zero). The weight model's
-    combination of physical shape when the description has masses: the torque of the ``compliance`` candidate
-    from those masses, beside the combinations that correct them."""
-    from robocal.kinematics.gravity import gravity_torques
-
-    tau = gravity_torques(robot, q)
-    pi, *_ = np.linalg.lstsq(Y.reshape(-1, Y.shape[2]), tau.reshape(-1), rcond=1e-12)
-    return np.asarray(pi)
 
 
 Pool = list[tuple[list[Candidate], list[Variant]]]

@@ -28,8 +28,9 @@ from robocal.data.contract import Campaign
 from robocal.discovery import progress
 from robocal.discovery.candidates import Candidate, SkippedCandidate, build_library, periodic_window
 from robocal.discovery.config import DiscoveryConfig
-from robocal.discovery.cv import clear_cache, fold_cv, pose_groups
-from robocal.discovery.ftest import backward_check, basis, best_candidate, cross_validation_gain, score_candidate
+from robocal.discovery.cv import fold_cv, pose_groups
+from robocal.discovery.equations import propose
+from robocal.discovery.ftest import backward_check, best_candidate
 from robocal.discovery.gross import left_out, retest, screen_record, screen_sample, settle
 from robocal.discovery.grow import (
     distinct_windows,
@@ -43,7 +44,7 @@ from robocal.discovery.grow import (
 )
 from robocal.discovery.model import Accepted, ExtendedModel, Fit, fit_model
 from robocal.discovery.refit import calibration_prior, refitter, release, start
-from robocal.discovery.scoring import Score, Step, regressor
+from robocal.discovery.scoring import Step
 from robocal.discovery.session_cv import Sessions
 from robocal.discovery.state import DiscoveryState
 from robocal.discovery.systematic import misfit_candidates
@@ -432,6 +433,7 @@ def _search(
     groups.setflags(write=False)  # one array for the whole search (its sorted labels kept, cv.group_labels)
     state = DiscoveryState(campaign, robot, cfg, rows, data, groups, refit, geometric, sessions=sessions)
     _library(state, list(library) + weight, log_thr, log_thr_signal, unident)
+    from_library = {a.cand.key for a in state.accepted}
     # many small effects chosen together by cross-validation (physics first), then equations for what is left,
     # then the residual layer (robocal.discovery.grow)
     if cfg.grow_max_steps > 0:
@@ -456,16 +458,16 @@ def _search(
         grow(state, leftovers, grow_refit)
     if cfg.dictionary:
         progress.note("proposed equations (the dictionary)")
-        _propose(state)
+        propose(state)
     if cfg.cv_folds >= 2 and state.accepted:
         # what the parametric model keeps earns its place before the layer is offered (the layer's after it)
         progress.note("held-out check of the parametric model")
         held_out_check(state)
         dropped = {d["key"] for d in state.record.get("dropped_no_gain", [])}
-        if dropped:
-            # an effect the check dropped may have stood in for another the library's F-test passed after it
-            # (a gear harmonic of joint 2 for the weight on joint 3 of a heavy arm measured in 18 configurations):
-            # the library once more without the dropped ones, and its additions checked the same way
+        if dropped & from_library:
+            # an effect the library took and the check dropped may have stood in for another the library's F-test
+            # passed after it (a gear harmonic of joint 2 for the weight on joint 3 of a heavy arm measured in 18
+            # configurations): the library once more without the dropped ones, its additions checked the same way
             taken = {a.cand.key for a in state.accepted}
             again = [c for c in list(library) + weight if c.key not in taken | dropped and c.key not in unident]
             n_before = len(state.accepted)
@@ -537,74 +539,4 @@ def _library(
                 cand.key, cand.label, before.rms_mm, fit.rms_mm, before.rss, fit.rss, fit.dof, scores, dropped,
                 before.residuals_mm, fit.residuals_mm, phase="library",
             )
-        )  # fmt: skip
-
-
-def _propose(state: DiscoveryState) -> None:
-    """The dictionary stage (:mod:`robocal.discovery.dictionary`): after the library, propose equations (each one
-    accepted advances the state's fit and effects)."""
-    from robocal.discovery.dictionary import build_dictionary, log10_threshold, reading, select
-
-    cfg, rows, data, groups = state.cfg, state.rows, state.data, state.groups
-    dic = build_dictionary(state.campaign, state.robot, cfg.dictionary_harmonics, cfg.dictionary_product_harmonics)
-    if dic.F.shape[1] == 0:
-        return
-    for k in range(cfg.dictionary_max_proposals):
-        fit = state.fit
-        clear_cache()  # the selection's fold sums (its fit's Jacobian) not held beside the basis (issue 31)
-        space = basis(fit)
-        props = select(
-            fit.Jq,
-            fit.weights,
-            dic.F[rows],
-            fit.r_w,
-            space.matrix(),  # the basis itself: the dictionary's columns are held by their factors
-            groups,
-            cfg.dictionary_max_terms,
-            cfg.dictionary_resamples,
-            cfg.dictionary_stability,
-            cfg.absorbed_tol,
-            cfg.seed + 1000 * k,
-        )
-        best: tuple[Score, Candidate] | None = None
-        scores: list[Score] = []
-        for p in props:
-            terms = [dic.terms[a] for a in p.atoms]
-            labels = tuple(t.label for t in terms)
-            cand = Candidate(
-                "proposed:j{}:{}".format(p.joint, "+".join(labels)),
-                "proposed",
-                p.joint,
-                None,
-                cause=reading(p.joint, terms),
-                signal=" + ".join(labels),
-                shape="joint",
-                S=dic.F[:, p.atoms],
-                coef_names=labels,
-                coef_units=("rad",) * len(terms),
-                extra={"terms": [t.to_dict() for t in terms], "stability": p.stability, "n_columns": p.n_columns},
-            )
-            Z, _ = regressor(cand, fit, rows, data)
-            thr = log10_threshold(cfg.alpha, p.n_columns, len(terms))
-            sc, Uk = score_candidate(cand, Z, space, fit, cfg, thr)
-            cand.extra["threshold_log10_p"] = thr
-            if sc.passes and cfg.cv_folds >= 2:
-                sc.cv_gain = cross_validation_gain(fit, Uk, groups, cfg.cv_folds, cfg.seed)
-                if sc.cv_gain <= 0:
-                    sc.status = "failed cross-validation"
-            scores.append(sc)
-            if sc.passes and sc.status == "tested" and (best is None or sc.log10_p < best[0].log10_p):
-                best = (sc, cand)
-        if best is None:
-            state.steps.append(Step(None, "dictionary: nothing proposed", fit.rms_mm, fit.rms_mm, fit.rss, fit.rss,
-                                    fit.dof, scores, phase="equations"))  # fmt: skip
-            break
-        sc, cand = best
-        sc.status = "accepted"
-        before = fit
-        state.accepted = [*state.accepted, Accepted(cand)]
-        state.fit = fit = state.refit(state.accepted, before)
-        state.steps.append(
-            Step(cand.key, f"proposed equation for joint {cand.joint}", before.rms_mm, fit.rms_mm, before.rss,
-                 fit.rss, fit.dof, scores, [], before.residuals_mm, fit.residuals_mm, phase="equations")
         )  # fmt: skip

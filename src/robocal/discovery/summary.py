@@ -340,8 +340,9 @@ def locate(res: DiscoveryResult) -> dict[str, Any]:
     reach = np.hypot(pos[:, 0], pos[:, 1])
     side = np.arctan2(pos[:, 1], pos[:, 0])
     cells: dict[tuple[int, int, int], list[int]] = {}
+    mid = (np.median(reach), np.median(pos[:, 2]), np.median(side))  # once, not per row (0.8 s at 8 000 rows)
     for i in range(m):
-        key = (int(reach[i] > np.median(reach)), int(pos[i, 2] > np.median(pos[:, 2])), int(side[i] > np.median(side)))
+        key = (int(reach[i] > mid[0]), int(pos[i, 2] > mid[1]), int(side[i] > mid[2]))
         cells.setdefault(key, []).append(i)
     regions = []
     for key, idx in cells.items():

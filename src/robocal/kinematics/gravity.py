@@ -307,3 +307,14 @@ def generic_mass_moments(robot: RobotDescription) -> np.ndarray:
         pi0[4 * i] = length
         pi0[4 * i + 1 : 4 * i + 4] = 0.5 * length * d
     return pi0
+
+
+def described_mass_moments(robot: RobotDescription, q: np.ndarray, Y: np.ndarray) -> np.ndarray:
+    """The mass moments ``pi (4 n,)`` of the description's link masses in the gravity regressor's order: the
+    least-squares ``pi`` whose torques ``Y(q) pi`` are the description's gravity torques at the joint angles ``q``
+    (``Y``: their regressor ``(m, n, 4 n)``; the directions no torque sees are zero). The weight model's
+    combination of physical shape when the description has masses: the torque of the ``compliance`` candidate
+    from those masses, beside the combinations that correct them."""
+    tau = gravity_torques(robot, q)
+    pi, *_ = np.linalg.lstsq(Y.reshape(-1, Y.shape[2]), tau.reshape(-1), rcond=1e-12)
+    return np.asarray(pi)
