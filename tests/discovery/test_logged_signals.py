@@ -341,3 +341,36 @@ def test_a_stand_tilting_with_the_pose_is_found_from_its_declared_inclinometer(t
     _, skipped = screen(replace(camp, signal_declarations=()), robot)
     assert {x["column"] for x in skipped} == {"incl_x", "incl_y"}
     assert all(x["reason"].startswith("a function of the joint angles") for x in skipped)
+
+
+def test_a_row_whose_signal_was_filled_is_not_called_a_gross_error(tmp_path):
+    """Newcomer pass 9: rows whose inclinometer cells were empty (filled from the joint angles to 0.45 mrad, ~1.4 mm
+    at the tool) stood out against the final model and were listed as gross errors; they are left out as poorly
+    predicted, the reason naming the filled column. A flagged row with every reading is a gross error as before."""
+    from robocal.discovery.gross import left_out
+    from robocal.identification.robust import RowTest
+
+    camp, _, _ = make_campaign(tmp_path, "geometric", 0, {"compliant_stand": {}}, n_poses=20)
+    cal = camp.calibration()
+    m = cal.n_rows
+    flagged = np.zeros(m, dtype=bool)
+    flagged[[3, 5]] = True
+    test = RowTest(np.where(flagged, 50.0, 1.0), np.where(flagged, 1e-9, 0.5), flagged, 20.0, 0.001, 3)
+    rr = np.zeros((m, 3))
+    rr[flagged] = 1.5
+    filled = {"incl_x": np.arange(m) == 5}
+    gross, quiet, _, _ = left_out(cal, ~flagged, flagged, test, [], rr, 0, 1, filled)
+    assert [o["row"] for o in gross] == [int(cal.row_number[3])]
+    (q,) = quiet
+    assert q["row"] == int(cal.row_number[5]) and "incl_x reading was empty and filled" in q["reason"]
+    # and the columns an effect follows are found with their empty cells
+    from types import SimpleNamespace
+
+    from robocal.discovery.logged import signal_gaps
+
+    raw = np.asarray(cal.extra["incl_x"], dtype=object).copy()
+    raw[[2, 7]] = ""
+    holey = replace(cal, extra={**cal.extra, "incl_x": raw})
+    cand = SimpleNamespace(effect="signal", extra={"column": "incl_x"})
+    gaps = signal_gaps(holey, SimpleNamespace(model=SimpleNamespace(accepted=[SimpleNamespace(cand=cand)])))
+    assert list(np.flatnonzero(gaps["incl_x"])) == [2, 7]

@@ -142,12 +142,16 @@ def left_out(
     rr: np.ndarray,
     sample: int,
     rounds: int,
+    filled: dict[str, np.ndarray] | None = None,
 ) -> tuple[list[dict[str, Any]], list[dict[str, Any]], list[dict[str, Any]], list[dict[str, Any]]]:
     """The calibration rows left out of the final fit (``~kept``), by what the final model's row ``test`` says of
     them (``rr``: every row's residuals against it): gross errors (flagged and standing out from the rows' own
     scatter, ``loud``), poorly predicted (flagged, not loud), of a systematic misfit the final test names, and left
     out earlier (by the gross-error screen of a large campaign, ``sample`` > 0, or rounds that did not settle) that
-    the final model does not single out. Each row with its reason."""
+    the final model does not single out. Each row with its reason. ``filled``: per logged column an effect of the
+    final model follows, the rows whose reading was empty and filled (:func:`filled_rows`): a flagged row among
+    them is poorly predicted, not a gross error (newcomer pass 9: rows whose inclinometer cells were empty, filled
+    from the joint angles to 0.45 mrad, ~1.4 mm at the tool, were listed as gross errors)."""
     from robocal.calibration.screening import describe_outliers
 
     out = ~np.asarray(kept, dtype=bool)
@@ -156,13 +160,21 @@ def left_out(
     for f in systematic:
         in_misfit |= np.asarray(f["_mask"], dtype=bool)
     by = "the gross-error screen" if sample else f"an earlier round (the gross-error rounds did not settle in {rounds})"
-    gross = describe_outliers(cal, out & loud & test.flagged & ~in_misfit, pos, rot, test)
-    quiet = describe_outliers(cal, out & ~loud & test.flagged & ~in_misfit, pos, rot, test)
+    fill, cols = filled_rows(cal, filled or {})
+    gross = describe_outliers(cal, out & loud & test.flagged & ~in_misfit & ~fill, pos, rot, test)
+    quiet = describe_outliers(cal, out & ~loud & test.flagged & ~in_misfit & ~fill, pos, rot, test)
     for o in quiet:
         o["reason"] = (
             "left out of the fit, not a gross error: " + o["reason"] + ", but its error does not stand out from "
             "the rows' own scatter (robust scale)"
         )
+    guessed = out & test.flagged & ~in_misfit & fill
+    for o, i in zip(describe_outliers(cal, guessed, pos, rot, test), np.flatnonzero(guessed), strict=True):
+        o["reason"] = (
+            f"left out of the fit, not a gross error: {o['reason']}, but its {', '.join(cols[int(i)])} reading was "
+            "empty and filled: the misfit may be the fill's"
+        )
+        quiet.append(o)
     misfit_rows = []
     for f in systematic:
         for o in describe_outliers(cal, np.asarray(f["_mask"], dtype=bool) & out, pos, rot, test):
@@ -179,3 +191,15 @@ def left_out(
             f"{test.p_value[i]:.3g}, F = {test.F[i]:.4g})"
         )
     return gross, quiet, misfit_rows, earlier
+
+
+def filled_rows(cal: Campaign, filled: dict[str, np.ndarray]) -> tuple[np.ndarray, dict[int, list[str]]]:
+    """The calibration rows (``cal``'s) with a filled reading among ``filled`` (per column, a mask over ``cal``'s
+    rows), and the columns each one had filled."""
+    mask = np.zeros(cal.n_rows, dtype=bool)
+    cols: dict[int, list[str]] = {}
+    for name, m in filled.items():
+        for i in np.flatnonzero(m):
+            cols.setdefault(int(i), []).append(name)
+        mask |= m
+    return mask, cols

@@ -49,6 +49,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+import pandas as pd
 
 from robocal.data.columns import known_columns
 from robocal.data.contract import Campaign
@@ -395,3 +396,18 @@ def frame_rows(
     :func:`frame_columns`) at the base model ``base`` with parameters ``x``."""
     G = frame_columns(cand.extra["frame"], Jx, base.names, base.tools(x), target_index)
     return G * cand.S[rows, 0][:, None, None]
+
+
+def signal_gaps(cal: Any, fit: Any) -> dict[str, np.ndarray]:
+    """Per logged column an effect of ``fit`` follows, the rows of ``cal`` (the calibration rows) whose reading was
+    empty (filled by :func:`fill_gaps`): a mask over ``cal``'s rows."""
+    out: dict[str, np.ndarray] = {}
+    for a in fit.model.accepted:
+        members = a.cand.extra.get("members") or (a.cand,)
+        for c in members:
+            name = c.extra.get("column") if c.effect == "signal" else None
+            if name and name not in out and name in cal.extra:
+                raw = pd.to_numeric(pd.Series(np.asarray(cal.extra[name])), errors="coerce").to_numpy(dtype=float)
+                if np.any(~np.isfinite(raw)):
+                    out[name] = ~np.isfinite(raw)
+    return out

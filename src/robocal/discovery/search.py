@@ -42,6 +42,7 @@ from robocal.discovery.grow import (
     physics_candidates,
     variant_candidate,
 )
+from robocal.discovery.logged import signal_gaps
 from robocal.discovery.model import Accepted, ExtendedModel, Fit, fit_model
 from robocal.discovery.refit import calibration_prior, refitter, release, start
 from robocal.discovery.scoring import Step
@@ -167,7 +168,7 @@ def discover(campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig |
         listed = describe_outliers(cal, ~kept, rr[:, :3], rr[:, 3:] if fit.d == 6 else None, None, listed=True)
         kinds = (listed, [], [], [])
     elif test is not None:
-        kinds = left_out(cal, kept, loud, test, systematic, rr, sample, rounds)
+        kinds = left_out(cal, kept, loud, test, systematic, rr, sample, rounds, signal_gaps(cal, fit))
     outliers, quiet, in_misfit_out, earlier = kinds
     if "signal" in cfg.effects:
         from robocal.discovery.logged import record
