@@ -201,6 +201,29 @@ def joint_basis(campaign: Campaign, robot: RobotDescription) -> np.ndarray:
     return np.column_stack(cols)
 
 
+def fill_basis(campaign: Campaign, robot: RobotDescription, B: np.ndarray) -> np.ndarray:
+    """The basis a logged column's gaps are filled from (:func:`fill_gaps`): the joint-angle basis ``B``
+    (:func:`joint_basis`) and, for a linear axis carrying the arm (a lifting column, a track), its position times
+    the nominal flange position: a column bending under the arm's weight tilts by the arm's moment times the
+    height (newcomer pass 9: from the joint basis alone, a lifting column's tilt was filled to 0.45 mrad of its
+    3 mrad, ~1.4 mm at the tool)."""
+    from robocal.kinematics.chain import build_chain, fk
+
+    axes = [j for j in range(robot.n_joints) if robot.prismatic[j]]
+    if not axes:
+        return B
+    p = fk(build_chain(robot), campaign.q)[:, :3, 3]
+    p = (p - p.mean(axis=0)) / np.maximum(p.std(axis=0), 1e-9)
+    more = []
+    for j in axes:
+        s = campaign.q[:, j]
+        s = (s - s.mean()) / max(float(s.std()), 1e-9)
+        more += [s * p[:, k] for k in range(3)]
+    if B.shape[1] + len(more) > BASIS_MAX_SHARE * len(B):
+        return B
+    return np.column_stack([B, *more])
+
+
 def measurement_basis(campaign: Campaign) -> np.ndarray:
     """The measured-position basis of the screening: 1, x, y, z, their squares and products, the distance, the
     azimuth (sin, cos) and the elevation of the measured point (tracker frame)."""
@@ -264,6 +287,7 @@ def screen(campaign: Campaign, robot: RobotDescription) -> tuple[list[LoggedSign
     used: list[LoggedSignal] = []
     skipped: list[dict[str, Any]] = []
     Bj: np.ndarray | None = None
+    Bf: np.ndarray | None = None  # the fill basis (fill_basis)
     Bm: np.ndarray | None = None
     for name, raw in campaign.extra.items():
         if name in known:
@@ -286,7 +310,8 @@ def screen(campaign: Campaign, robot: RobotDescription) -> tuple[list[LoggedSign
         filled = None
         if Bj is None:
             Bj, Bm = joint_basis(campaign, robot), measurement_basis(campaign)
-        assert Bm is not None
+            Bf = fill_basis(campaign, robot, Bj)
+        assert Bm is not None and Bf is not None
         if len(bad):
             rows = campaign.row_number[bad[:5]].tolist()
             more = " ..." if len(bad) > 5 else ""
@@ -294,7 +319,7 @@ def screen(campaign: Campaign, robot: RobotDescription) -> tuple[list[LoggedSign
                 skip(f"missing or non-finite values in {len(bad)} row(s) (file rows {rows}{more}): more than "
                      f"{MAX_MISSING_SHARE:.0%} of the rows, not filled")  # fmt: skip
                 continue
-            x, filled = fill_gaps(x, campaign.timestamp_s, Bj)
+            x, filled = fill_gaps(x, campaign.timestamp_s, Bf)
             filled["file_rows"] = campaign.row_number[bad[:20]].tolist()  # the first 20 (``rows``: how many)
         if float(np.std(x[cal])) <= 1e-12 * max(1.0, float(np.abs(x).max())):
             skip("does not vary over the calibration rows")
