@@ -289,9 +289,11 @@ def test_the_mass_free_weight_model_competes_with_given_masses(tmp_path):
 
 def test_an_effect_the_held_out_check_drops_gives_the_library_another_pass():
     """A heavy arm in 18 configurations (tests/discovery/campaigns/fanuc_com_behind): the library took a gear
-    harmonic of joint 2 before the weight on joint 3; the held-out check dropped the harmonic (it raised the error
-    in the session left out) and joint 3 was left without a model (0.307 mm held out). The library runs again
-    without what the check dropped: the weight on joint 3 is named."""
+    harmonic of joint 2 before the weight on joint 3, the held-out check dropped the harmonic and joint 3 was left
+    without a model (0.307 mm held out). An effect the library took and the check drops gives the library another
+    pass without it, its additions checked the same way. (At the default threshold the harmonic now stays: its
+    loss in the session left out, -29 %, is not more than chance pose by pose; 0.259 mm.) A threshold that drops the
+    library's effects shows the second pass and its check."""
     from pathlib import Path
 
     from robocal.data.contract import read_campaign
@@ -300,7 +302,50 @@ def test_an_effect_the_held_out_check_drops_gives_the_library_another_pass():
 
     folder = Path(__file__).parent / "campaigns" / "fanuc_com_behind"
     robot = load_robot(str(folder / "robot.yaml"))
-    res = discover(read_campaign(folder, robot), robot)
+    camp = read_campaign(folder, robot)
+    res = discover(camp, robot)
     s = summary(res, validation_errors(res))
-    assert {"weight:j2", "weight:j3"} <= {n["key"] for n in s["named"]}
-    assert s["validation"]["final"]["mean_position_mm"] < 0.28  # 0.256 (0.307 before; geometric 0.834)
+    assert s["validation"]["final"]["mean_position_mm"] < 0.28  # 0.259 (0.307 before; geometric 0.834)
+    res = discover(camp, robot, DiscoveryConfig(min_held_out_gain=0.45))
+    phases = [st["phase"] for st in summary(res)["steps"]]
+    first = phases.index("held-out check of the parametric model")
+    # the library once more after the check (its steps), and the check once more on what it added
+    assert "library F-test search" in phases[first + 1 :]
+    assert phases.count("held-out check of the parametric model") == 2
+
+
+def test_the_same_configurations_measured_in_another_order_give_the_same_model(tmp_path):
+    """Newcomer pass 10: the configurations of each station measured in another order (times reassigned) changed
+    the model — the held-out check judges an effect in a session left out, each half of its poses registering the
+    tracker for the other, and a loss there dropped effects by chance (weight j3: 0.158 -> 0.256 mm on one arm; a
+    false drift accepted on this one, 0.431 mm). A loss in the session left out counts only when pose by pose it is
+    more than chance (the selection's paired test at cv_alpha)."""
+    import shutil
+    from pathlib import Path
+
+    import pandas as pd
+
+    from robocal.data.contract import read_campaign
+    from robocal.discovery.validate import validation_errors
+    from robocal.robot import load_robot
+
+    folder = Path(__file__).parent / "campaigns" / "fanuc_com_behind"
+    robot = load_robot(str(folder / "robot.yaml"))
+    d = pd.read_csv(folder / "poses.csv")
+    block = d.groupby(["split", "station"], sort=False).ngroup()
+    ids = d.pose_id.unique()
+    rank = dict(zip(ids, np.random.default_rng(3).permutation(len(ids)), strict=True))
+    d = d.assign(_b=block, _o=d.pose_id.map(rank)).sort_values(["_b", "_o", "target"], kind="stable")
+    t0 = pd.Timestamp(d.timestamp.iloc[0])
+    d["timestamp"] = [(t0 + pd.Timedelta(seconds=30 * i)).isoformat().replace("+00:00", "Z") for i in range(len(d))]
+    other = tmp_path / "reordered"
+    other.mkdir()
+    d.drop(columns=["_b", "_o"]).to_csv(other / "poses.csv", index=False)
+    shutil.copy(folder / "robot.yaml", other / "robot.yaml")
+    out = []
+    for f in (folder, other):
+        res = discover(read_campaign(f, robot), robot)
+        s = summary(res, validation_errors(res))
+        out.append((sorted(n["key"] for n in s["named"]), s["validation"]["final"]["mean_position_mm"]))
+    assert out[0][0] == out[1][0]
+    assert abs(out[0][1] - out[1][1]) < 0.01  # mm (0.2592 both; 0.256 / 0.431 before)

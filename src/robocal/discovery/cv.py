@@ -26,7 +26,7 @@ from collections.abc import Callable, Sequence
 from typing import Any, Protocol
 
 import numpy as np
-from scipy import linalg
+from scipy import linalg, stats
 
 #: residual rows per chunk of an accumulation (bounds the temporaries: chunk x k floats)
 CHUNK = 8192
@@ -526,6 +526,31 @@ def clear_cache() -> None:
     _LAST.clear()
 
 
+def paired_log10_p(sse0: np.ndarray, sse1: np.ndarray) -> float:
+    """log10 p of the one-sided paired t-test that the held-out error per pose fell (``sse0 - sse1 > 0``)."""
+    d = sse0 - sse1
+    # differences at the round-off of the held-out sums (a candidate the model absorbs changes them by ~1e-12
+    # relative) carry no evidence: their t statistic is the arithmetic's noise, any sign and size
+    if len(d) < 3 or float(np.std(d)) == 0.0 or float(np.max(np.abs(d))) <= 1e-9 * float(np.max(sse0)):
+        return 0.0
+    t = float(np.mean(d) / (np.std(d, ddof=1) / np.sqrt(len(d))))
+    return float(stats.t.logsf(t, len(d) - 1) / np.log(10.0))
+
+
+def pose_paired_log10_p(
+    groups: np.ndarray, with_: tuple[np.ndarray, np.ndarray], without: tuple[np.ndarray, np.ndarray]
+) -> float:
+    """log10 p of the paired test over poses that the held-out error of the sessions left out fell without the
+    effect (``with_`` / ``without``: :meth:`robocal.discovery.session_cv.Sessions.errors`' residuals and rows)."""
+    _, gidx, _ = group_labels(groups)
+    (e1, m1), (e0, m0) = with_, without
+    n = int(gidx.max()) + 1 if len(gidx) else 0
+    sse1 = np.bincount(gidx[m1], weights=e1[m1] ** 2, minlength=n)
+    sse0 = np.bincount(gidx[m0], weights=e0[m0] ** 2, minlength=n)
+    seen = np.bincount(gidx[m1 | m0], minlength=n) > 0
+    return paired_log10_p(sse1[seen], sse0[seen])
+
+
 __all__ = [
     "CHUNK",
     "FoldCV",
@@ -534,5 +559,7 @@ __all__ = [
     "fold_cv",
     "gram_by_blocks",
     "group_labels",
+    "paired_log10_p",
     "pose_groups",
+    "pose_paired_log10_p",
 ]

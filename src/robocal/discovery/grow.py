@@ -25,13 +25,12 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
-from scipy import stats
 
 from robocal.data.contract import Campaign
 from robocal.discovery import engine, progress
 from robocal.discovery.candidates import Candidate, SkippedCandidate
 from robocal.discovery.config import DiscoveryConfig
-from robocal.discovery.cv import fold_cv
+from robocal.discovery.cv import fold_cv, paired_log10_p, pose_paired_log10_p
 from robocal.discovery.model import Accepted, Fit
 from robocal.discovery.scoring import Score, Step, regressor
 from robocal.discovery.session_cv import session_own
@@ -215,17 +214,6 @@ def variant_candidate(cand: Candidate, v: Variant) -> Candidate:
     return replace(cand, S=S, coef_names=names, coef_units=units, extra=extra)
 
 
-def paired_log10_p(sse0: np.ndarray, sse1: np.ndarray) -> float:
-    """log10 p of the one-sided paired t-test that the held-out error per pose fell (``sse0 - sse1 > 0``)."""
-    d = sse0 - sse1
-    # differences at the round-off of the held-out sums (a candidate the model absorbs changes them by ~1e-12
-    # relative) carry no evidence: their t statistic is the arithmetic's noise, any sign and size
-    if len(d) < 3 or float(np.std(d)) == 0.0 or float(np.max(np.abs(d))) <= 1e-9 * float(np.max(sse0)):
-        return 0.0
-    t = float(np.mean(d) / (np.std(d, ddof=1) / np.sqrt(len(d))))
-    return float(stats.t.logsf(t, len(d) - 1) / np.log(10.0))
-
-
 def cv_position_mm(fit: Fit, err_w: np.ndarray) -> np.ndarray:
     """Held-out position errors ``(m,)`` mm (3-D norm per row) from whitened held-out residuals."""
     e = (err_w / fit.weights).reshape(-1, fit.d)[:, :3]
@@ -303,7 +291,10 @@ def held_out_check(state: DiscoveryState, final: bool = False) -> dict[str, Any]
         gains = {k: float(e["held_out_gain"]) for k, e in con["effects"].items()}
         weak = sorted(k for k, g in gains.items() if not g > thr)
         s_gains = {k: float(e["session_gain"]) for k, e in con["effects"].items() if "session_gain" in e}
-        hurts = sorted(k for k, g in s_gains.items() if g < -thr and k not in weak)
+        # hurting in a session left out: by more than the share, and pose by pose more than chance (cv_alpha)
+        s_p = {k: float(e.get("session_hurt_log10_p", 0.0)) for k, e in con["effects"].items()}
+        hurts = sorted(k for k, g in s_gains.items() if g < -thr and s_p[k] < np.log10(state.cfg.cv_alpha)
+                       and k not in weak)  # fmt: skip
         weak = sorted(weak + hurts)
         if not weak:
             if final and gains:
@@ -545,7 +536,8 @@ def contributions(state: DiscoveryState) -> dict[str, Any]:
     cross-validation (:mod:`robocal.discovery.session_cv`): ``session_cv`` and each effect's ``session_gain``."""
     fit, cfg, sessions = state.fit, state.cfg, state.sessions
     cv = fold_cv(fit, state.groups, max(cfg.cv_folds, 2), cfg.seed)
-    own = sessions.summary(fit) if sessions is not None else None
+    own_err = sessions.errors(fit) if sessions is not None else None
+    own = sessions.summary_of(fit, *own_err) if sessions is not None and own_err is not None else None
     e = ErrorStats.of(cv_position_mm(fit, cv.base_err))
     out: dict[str, Any] = {
         "cv_mean_position_mm": e.mean_mm,
@@ -570,12 +562,16 @@ def contributions(state: DiscoveryState) -> dict[str, Any]:
             # orientations) without the effect: the held-out check's gain (an effect that turns the tool shows here)
             "held_out_gain": float(np.sqrt(np.sum(err_without**2) / max(float(np.sum(cv.base_err**2)), 1e-300)) - 1),
         }
-        if sessions is not None and own is not None:
-            other = sessions.summary(fit, keep=keep)  # = sessions.summary(sub), from the fit's normal equations
+        if sessions is not None and own is not None and own_err is not None:
+            err_k, mask_k = sessions.errors(fit, keep=keep)  # = sessions.summary(sub), from the normal equations
+            other = sessions.summary_of(fit, err_k, mask_k)
             out["effects"][a.cand.key].update(
                 session_mean_without_mm=other["mean_position_mm"],
                 # the same rise in a session the model was not fitted on: negative, the effect hurts there
                 session_gain=float(np.sqrt(other["sse"] / max(own["sse"], 1e-300)) - 1),
+                # and whether that is more than chance, pose by pose (the paired test of the selection): a few
+                # poses per session, each half registering the tracker for the other, move it either way
+                session_hurt_log10_p=pose_paired_log10_p(state.groups, own_err, (err_k, mask_k)),
             )
     return out
 

@@ -208,6 +208,10 @@ class Sessions:
         """``{"sessions", "mean_position_mm", "rms_position_mm", "per_session": {name: mean mm}, "sse"}``
         (:meth:`errors`' arguments)."""
         err, mask = self.errors(fit, opened, keep)
+        return self.summary_of(fit, err, mask)
+
+    def summary_of(self, fit: Fit, err: np.ndarray, mask: np.ndarray) -> dict[str, Any]:
+        """:meth:`summary` of :meth:`errors`' held-out residuals ``err`` (rows ``mask``)."""
         e = self.position_mm(fit, err, mask)
         held = self.index[self.index >= 0]
         stats = ErrorStats.of(e)
