@@ -404,3 +404,16 @@ def test_a_lifting_columns_tilt_is_filled_from_its_height_times_the_arms_reach(t
     arm, arm_robot, _ = make_campaign(tmp_path, "geometric", 0, {}, n_poses=30)
     Ba = joint_basis(arm, arm_robot)
     assert fill_basis(arm, arm_robot, Ba) is Ba
+
+
+def test_held_out_rows_predicted_from_a_filled_reading_are_counted(tmp_path):
+    """Newcomer pass 10: validation rows whose logged reading was empty are predicted from the fill, its error with
+    it, and nothing said so; validation.final.filled_signal_rows counts them per column (and the console says)."""
+    camp, robot, _ = make_campaign(tmp_path, "geometric", 0, {"compliant_stand": {}})
+    val = np.flatnonzero(camp.split == "validation")
+    raw = np.asarray(camp.extra["incl_x"], dtype=object).copy()
+    raw[val[:3]] = ""
+    res = discover(replace(camp, extra={**camp.extra, "incl_x": raw}), robot, FAST)
+    keys = {a.cand.key for a in res.final.model.accepted}
+    assert "signal:incl_x:base_rot" in keys  # the tilt followed on the complete column's readings and the fill
+    assert validation_errors(res)["final"]["filled_signal_rows"] == {"incl_x": 3}

@@ -78,30 +78,7 @@ def run(args: argparse.Namespace) -> int:
     _left_out_lines(s, g)
     _logged_line(s.get("logged_signals"))
     if "validation" in s:
-        vg, vd, vf = (s["validation"][k] for k in ("geometric", "discovered", "final"))
-        print(
-            f"validation ({vd['n_rows']} rows): mean {vg['mean_position_mm']:.4f} mm geometric -> "
-            f"{vd['mean_position_mm']:.4f} mm discovered -> {vf['mean_position_mm']:.4f} mm final "
-            f"(residual layer: {vf['layer']}{_after_parametric(s)}); max {vg['max_position_mm']:.4f} -> "
-            f"{vf['max_position_mm']:.4f} mm"
-        )
-        if vf.get("as_served"):
-            print(
-                f"  the final figure corrects the held-out readings by the measurement side's "
-                f"{', '.join(vf['measurement_side_effects'])}, which the service does not apply: as served, mean "
-                f"{vf['as_served']['mean_position_mm']:.4f} mm (a robot's own drift named a tracker's would show here)"
-            )
-        for w in s.get("warnings", []):
-            print(f"WARNING: {w}")
-        ge = s["validation"]["gross_errors"]["rows"]
-        if ge:
-            w = vf["without_gross_errors"]
-            print(
-                f"  {len(ge)} held-out row(s) are gross errors against the final model ("
-                + ", ".join(f"{g['pose_id']} {g['error_mm']:.3f} mm" for g in ge[:5])
-                + (", ..." if len(ge) > 5 else "")
-                + f"); without them: mean {w['mean_position_mm']:.4f}, max {w['max_position_mm']:.4f} mm"
-            )
+        _validation_lines(s)
     cv = s.get("cross_validation")
     if cv and "cv_mean_position_mm" in cv:
         # several placements none of which could be left out and judged: nothing says what a new one would give
@@ -159,6 +136,40 @@ def run(args: argparse.Namespace) -> int:
     for text in s.get("problems", []):
         print(f"robocal discover: FAILED: {text}")
     return 1 if s.get("problems") else 0
+
+
+def _validation_lines(s: dict[str, Any]) -> None:
+    """The console's validation lines of a discovery summary ``s`` (its ``validation``, its warnings)."""
+    vg, vd, vf = (s["validation"][k] for k in ("geometric", "discovered", "final"))
+    print(
+        f"validation ({vd['n_rows']} rows): mean {vg['mean_position_mm']:.4f} mm geometric -> "
+        f"{vd['mean_position_mm']:.4f} mm discovered -> {vf['mean_position_mm']:.4f} mm final "
+        f"(residual layer: {vf['layer']}{_after_parametric(s)}); max {vg['max_position_mm']:.4f} -> "
+        f"{vf['max_position_mm']:.4f} mm"
+    )
+    if vf.get("as_served"):
+        print(
+            f"  the final figure corrects the held-out readings by the measurement side's "
+            f"{', '.join(vf['measurement_side_effects'])}, which the service does not apply: as served, mean "
+            f"{vf['as_served']['mean_position_mm']:.4f} mm (a robot's own drift named a tracker's would show here)"
+        )
+    if vf.get("filled_signal_rows"):
+        cols = ", ".join(f"{c} {n}" for c, n in vf["filled_signal_rows"].items())
+        print(
+            f"  held-out rows whose logged reading was empty and filled ({cols}): the model follows the fill "
+            "there, its error with it (logged_signals.used[].filled: the way and its error)"
+        )
+    for w in s.get("warnings", []):
+        print(f"WARNING: {w}")
+    ge = s["validation"]["gross_errors"]["rows"]
+    if ge:
+        w = vf["without_gross_errors"]
+        print(
+            f"  {len(ge)} held-out row(s) are gross errors against the final model ("
+            + ", ".join(f"{g['pose_id']} {g['error_mm']:.3f} mm" for g in ge[:5])
+            + (", ..." if len(ge) > 5 else "")
+            + f"); without them: mean {w['mean_position_mm']:.4f}, max {w['max_position_mm']:.4f} mm"
+        )
 
 
 def _left_out_lines(s: dict[str, Any], g: dict[str, Any] | None) -> None:

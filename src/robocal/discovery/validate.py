@@ -175,6 +175,11 @@ def validation_errors(res: DiscoveryResult) -> dict[str, Any] | None:
         served = _public(_validate_fit(res, res.final, measurement_side=False))
         out["final"]["measurement_side_effects"] = measured
         out["final"]["as_served"] = {k: served[k] for k in ("mean_position_mm", "rms_position_mm", "max_position_mm")}
+    from robocal.discovery.logged import signal_gaps
+
+    gaps = signal_gaps(val, res.final)  # held-out rows an effect follows a filled reading on (newcomer pass 10)
+    if gaps:
+        out["final"]["filled_signal_rows"] = {col: int(np.count_nonzero(m)) for col, m in gaps.items()}
     out["gross_errors"] = {
         "rule": HELD_OUT_RULE.format(alpha=res.config.outlier_alpha),
         "rows": left_out,
