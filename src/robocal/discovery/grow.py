@@ -134,7 +134,7 @@ def physics_candidates(
             if V.shape[1] == 0:
                 continue
             s0 = float(np.sqrt(np.mean((Y[rows, j, :] @ pi0) ** 2)))
-            if s0 > 0:
+            if s0 > 1e-9 * float(np.max(scale)):  # a torque, not the rounding of one the shape does not exert
                 V, scale = np.column_stack([pi0, V]), np.concatenate([[s0], scale])
             keep = bounded_columns(Y[rows, j, :] @ V, Yw[:, j, :] @ V)
             if not keep.any():
