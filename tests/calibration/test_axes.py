@@ -240,3 +240,18 @@ def test_calibrates_headline_validation_is_the_delivered_models(track, tmp_path)
     # (the axes fit computes the arm-alone errors its own way: equal to rounding)
     assert summary["validation_without_axes"]["mean_position_mm"] == pytest.approx(ax["without_axes_mean_mm"], rel=1e-9)
     assert ax["mean_position_mm"] < ax["without_axes_mean_mm"]
+
+
+def test_discover_gives_calibrates_headline_beside_its_geometric_figure(track, tmp_path):
+    """One answer (newcomer pass 10): discover's geometric line gave the arm's calibration alone where calibrate's
+    headline has the axis errors fitted; discover's validation carries calibrate's figure (``geometric.with_axes``)."""
+    from robocal.discovery.config import DiscoveryConfig
+    from robocal.discovery.search import discover
+    from robocal.discovery.validate import validation_errors
+    from robocal.workflows.geometric import run
+
+    robot, camp, _, _ = track
+    headline = run(None, robot, tmp_path, campaign=camp, report=False)["validation"]["mean_position_mm"]
+    res = discover(camp, robot, DiscoveryConfig(effects=(), layer=False, dictionary=False))
+    v = validation_errors(res)
+    assert v is not None and v["geometric"]["with_axes"]["mean_position_mm"] == pytest.approx(headline, rel=1e-9)

@@ -147,6 +147,11 @@ def _validation_lines(s: dict[str, Any]) -> None:
         f"(residual layer: {vf['layer']}{_after_parametric(s)}); max {vg['max_position_mm']:.4f} -> "
         f"{vf['max_position_mm']:.4f} mm"
     )
+    if vg.get("with_axes"):
+        print(
+            "  the geometric calibration with the linear axes' errors fitted (robocal calibrate's headline): mean "
+            f"{vg['with_axes']['mean_position_mm']:.4f} mm"
+        )
     if vf.get("as_served"):
         print(
             f"  the final figure corrects the held-out readings by the measurement side's "
