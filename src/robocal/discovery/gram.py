@@ -11,6 +11,8 @@ the same matrix up to rounding. The prior's rows (one per coefficient under a pr
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 
 
@@ -53,6 +55,15 @@ class JointGram:
     def __call__(self, J: np.ndarray, r: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
         dc = self.dense_columns(J.shape[1])
         return self._gram(J[: self.M, dc], dc, J.shape[1], r, self.M, self.S, self.V, prior=True)
+
+    def take(self, rows: np.ndarray) -> JointGram:
+        """The same blocks on the measurement rows ``rows`` (in that order; the prior's rows kept): their signals
+        and responses copied once, contiguous."""
+        sub = copy.copy(self)
+        sub.M = len(rows) * self.d
+        sub.S = [np.ascontiguousarray(S[rows]) for S in self.S]
+        sub.V = [np.ascontiguousarray(v[rows]) for v in self.V]
+        return sub
 
     def dense_columns(self, k: int) -> np.ndarray:
         """The positions, among ``k`` columns, of those no joint-level block holds (the geometry's, the drifts')."""
@@ -157,14 +168,8 @@ class FactoredJacobian:
         """The matrix of the measurement rows ``rows`` (in that order; the prior's rows kept): the factors' rows
         copied once, so that a contiguous run of them is read in place afterwards (the folds,
         :class:`robocal.discovery.cv.FoldCV`)."""
-        g = self.gram
-        sub = object.__new__(JointGram)
-        sub.M, sub.d, sub.ridge_pos, sub.sq = len(rows) * self.d, g.d, g.ridge_pos, g.sq
-        sub.joints, sub.P = g.joints, g.P
-        sub.S = [np.ascontiguousarray(S[rows]) for S in g.S]
-        sub.V = [np.ascontiguousarray(v[rows]) for v in g.V]
         D = np.ascontiguousarray(self._dense_rows(rows)).reshape(-1, len(self.dc))
-        return FactoredJacobian(D, self.dc, self.k, sub)
+        return FactoredJacobian(D, self.dc, self.k, self.gram.take(rows))
 
     # -- products with the measurement rows (robocal.discovery.cv) ------------------------------------------------
     def _dense_rows(self, rows: np.ndarray | slice | None) -> np.ndarray:

@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 
 from robocal.calibration.validation import Validation, determined_stations, validate_rows
+from robocal.discovery.logged import signal_gaps
 from robocal.discovery.model import Fit, tracker_columns
 from robocal.discovery.search import DiscoveryResult
 from robocal.identification.model import FitData
@@ -198,8 +199,6 @@ def validation_errors(res: DiscoveryResult) -> dict[str, Any] | None:
     with_axes = _calibrate_with_axes(res, geo)
     if with_axes is not None:
         out["geometric"]["with_axes"] = with_axes
-    from robocal.discovery.logged import signal_gaps
-
     gaps = signal_gaps(val, res.final)  # held-out rows an effect follows a filled reading on (newcomer pass 10)
     if gaps:
         out["final"]["filled_signal_rows"] = {col: int(np.count_nonzero(m)) for col, m in gaps.items()}
