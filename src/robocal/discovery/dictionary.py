@@ -299,7 +299,8 @@ def cluster_votes(
     used = np.flatnonzero(counts > 0)
     if len(used) < 2:
         return freq
-    C = np.abs(X[:, used].T @ X[:, used])
+    Xu = X if len(used) == X.shape[1] else X[:, used]  # the caller passes the picked columns: no copy
+    C = np.abs(Xu.T @ Xu)
     parent = list(range(len(used)))
 
     def root(a: int) -> int:

@@ -62,12 +62,14 @@ class ColumnSpace:
         if not keep.all():
             self.U = U[:, keep]
 
-    def _ormqr(self, trans: str, C: np.ndarray) -> np.ndarray:
+    def _ormqr(self, trans: str, C: np.ndarray, own: bool = False) -> np.ndarray:
         """``Qᵀ C`` or ``Q C`` (``trans`` "T" / "N") of the full ``M x M`` ``Q``, in a Fortran copy of ``C`` (never
-        ``C`` itself: a one-column array is also Fortran-ordered, and LAPACK would overwrite the caller's)."""
+        ``C`` itself: a one-column array is also Fortran-ordered, and LAPACK would overwrite the caller's), or in
+        ``C`` itself when ``own`` (a Fortran-ordered temporary of the caller's: one ``M x q`` less)."""
         from scipy.linalg import lapack
 
-        C = np.array(C, dtype=float, order="F", copy=True)
+        if not (own and C.dtype == float and C.flags.f_contiguous):
+            C = np.array(C, dtype=float, order="F", copy=True)
         out, _, info = lapack.dormqr("L", trans, self.qr, self.tau, C, lwork=max(1, 64 * C.shape[1]), overwrite_c=1)
         if info != 0:
             raise np.linalg.LinAlgError(f"LAPACK dormqr failed (info {info})")
@@ -94,7 +96,7 @@ class ColumnSpace:
             C = np.zeros((self.M, W2.shape[1]), order="F")
             if self.k:
                 C[: min(self.M, self.k)] = W2 if self.U is None else self.U @ W2
-                C = self._ormqr("N", C)  # (one copy of C: M x q, q a few columns)
+                C = self._ormqr("N", C, own=True)  # in place: C is this method's own
         return C if W.ndim == 2 else C[:, 0]
 
     def project(self, Z: np.ndarray) -> np.ndarray:
@@ -174,13 +176,14 @@ def _normalised(Z: np.ndarray) -> np.ndarray:
 def off_space(Q: ColumnSpace, Zs: list[np.ndarray]) -> list[np.ndarray]:
     """Each regressor of ``Zs`` with its columns normalised and projected off the column space ``Q``, in one pass
     for all of them (:data:`BATCH_COLUMNS` at most)."""
-    Zn = [_normalised(Z) for Z in Zs]
-    if not Zn:
+    if not Zs:
         return []
-    allz = np.hstack(Zn)
-    P = allz - Q.project(allz)
-    cuts = np.cumsum([z.shape[1] for z in Zn])[:-1]
-    return list(np.split(P, cuts, axis=1))
+    cuts = np.cumsum([z.shape[1] for z in Zs])
+    allz = np.empty((Zs[0].shape[0], int(cuts[-1])))
+    for Z, a, b in zip(Zs, np.concatenate([[0], cuts[:-1]]), cuts, strict=True):
+        allz[:, a:b] = _normalised(Z)
+    allz -= Q.project(allz)  # in place: (M, 64) temporaries are what a 24 000-row library step holds at its peak
+    return list(np.split(allz, cuts[:-1], axis=1))
 
 
 def score_candidate(

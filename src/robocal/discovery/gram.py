@@ -12,6 +12,7 @@ the same matrix up to rounding. The prior's rows (one per coefficient under a pr
 from __future__ import annotations
 
 import copy
+from typing import Any
 
 import numpy as np
 
@@ -285,4 +286,25 @@ class FactoredSpace:
 SPACE_BLOCK_BYTES = 32 * 2**20
 
 
-__all__ = ["FactoredJacobian", "FactoredSpace", "JointGram"]
+class RowsOf:
+    """``S[rows]`` without the copy: a joint-level candidate's signals at the fit rows, as the cross-validation
+    reads them (its shape, and the rows of one fold at a time). The residual layer's signals are one
+    ``(all rows, 100)`` array its six joints share; six copies at the fit rows were the largest allocation of a
+    24 000-row discovery (92 MB)."""
+
+    __slots__ = ("S", "rows")
+
+    def __init__(self, S: np.ndarray, rows: np.ndarray) -> None:
+        self.S = S
+        rows = np.asarray(rows)
+        self.rows = np.flatnonzero(rows) if rows.dtype == bool else rows
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (len(self.rows), int(self.S.shape[1]))
+
+    def __getitem__(self, idx: Any) -> np.ndarray:
+        return np.asarray(self.S[self.rows[idx]])
+
+
+__all__ = ["FactoredJacobian", "FactoredSpace", "JointGram", "RowsOf"]

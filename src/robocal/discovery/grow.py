@@ -31,6 +31,7 @@ from robocal.discovery import engine, progress
 from robocal.discovery.candidates import Candidate, SkippedCandidate
 from robocal.discovery.config import DiscoveryConfig
 from robocal.discovery.cv import fold_cv, paired_log10_p, pose_paired_log10_p
+from robocal.discovery.gram import RowsOf
 from robocal.discovery.model import Accepted, Fit
 from robocal.discovery.scoring import Score, Step, regressor
 from robocal.discovery.session_cv import session_own
@@ -368,7 +369,7 @@ def _step(state: DiscoveryState, pool: Pool, refit: Refit, what: str = "cross-va
         def make() -> tuple[str, Any, list[Variant]]:
             if all(c.shape == "joint" for c in members):
                 # joint-level: the candidate's factors, not its (M, q) regressor (robocal.discovery.cv)
-                blocks = [(int(c.joint) - 1, c.S[rows]) for c in members if c.joint is not None]
+                blocks = [(int(c.joint) - 1, RowsOf(c.S, rows)) for c in members if c.joint is not None]
                 q_of[i] = sum(S.shape[1] for _, S in blocks)
                 drift[i].update({c.key: () for c in members})
                 return "joint", blocks, pool[i][1]

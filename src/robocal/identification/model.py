@@ -20,6 +20,7 @@ then (when orientation is used) rotation vectors of ``R_pred R_meas^T`` (rad).
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -29,6 +30,18 @@ from robocal.kinematics.transforms import matrix_to_rotvec, rotx, roty, rotz, so
 from robocal.robot import RobotDescription
 
 BASE_NAMES = ("base_tx", "base_ty", "base_tz", "base_rx", "base_ry", "base_rz")
+
+#: rows propagated at once for a Jacobian: the chain's recorded frames and the point Jacobians' temporaries are
+#: ~10 arrays of (rows, 3, elements) floats, bounded at ~30 MB by taking the rows in chunks (each row's numbers
+#: are its own: the result is the same to the bit)
+CHUNK_ROWS = 4096
+
+
+def _chunks(groups: list[np.ndarray]) -> Iterator[tuple[int, np.ndarray]]:
+    """``(station, rows)`` of every station's rows in chunks of at most :data:`CHUNK_ROWS`."""
+    for s, idx in enumerate(groups):
+        for a in range(0, len(idx), CHUNK_ROWS):
+            yield s, idx[a : a + CHUNK_ROWS]
 
 
 def with_base(chain: Chain) -> Chain:
@@ -262,16 +275,14 @@ class CalibrationModel:
         """Residuals (as :meth:`residuals`) and their analytic Jacobian ``(M, n)``."""
         x = np.asarray(x, dtype=float)
         groups = data.station_rows(self.n_stations)
-        if len(groups) == 1:
+        if len(groups) == 1 and data.m <= CHUNK_ROWS:
             return self._rj1(x, data, self.T_ref)
         m = data.m
         use_rot = self.orientation and data.R_meas is not None
         M = 3 * m * (2 if use_rot else 1)
         r = np.zeros(M)
         J = np.zeros((M, self.n))
-        for s, idx in enumerate(groups):
-            if not len(idx):
-                continue
+        for s, idx in _chunks(groups):
             rs, Js = self._rj1(self._local(x, s), data.rows(idx), self.station_T_ref[s])
             ms = len(idx)
             pos = (3 * idx[:, None] + np.arange(3)).ravel()
@@ -330,9 +341,7 @@ class CalibrationModel:
         use_rot = self.orientation and data.R_meas is not None
         J_q = np.zeros((m, 3, n))
         W_q = np.zeros((m, 3, n)) if use_rot else None
-        for s, idx in enumerate(data.station_rows(self.n_stations)):
-            if not len(idx):
-                continue
+        for s, idx in _chunks(data.station_rows(self.n_stations)):
             xl = self._local(np.asarray(x, dtype=float), s)
             st = propagate(self.full_chain, q[idx], xl[: self.n_chain], self.station_T_ref[s], record=True)
             t = self.tools(xl)[data.target_index[idx]]
@@ -353,9 +362,7 @@ class CalibrationModel:
         """Jacobian of target positions w.r.t. the joint angles, ``(m, 3, n)`` mm/rad (each row's tracker frame)."""
         groups = FitData(q, q[:, :3], target_index, station_index=station_index).station_rows(self.n_stations)
         J_q = np.zeros((len(q), 3, q.shape[1]))
-        for s, idx in enumerate(groups):
-            if not len(idx):
-                continue
+        for s, idx in _chunks(groups):
             xl = self._local(np.asarray(x, dtype=float), s)
             st = propagate(self.full_chain, q[idx], xl[: self.n_chain], self.station_T_ref[s], record=True)
             t = self.tools(xl)[target_index[idx]]
