@@ -55,8 +55,15 @@ def compute(ctx: Context) -> Metrics | Skipped:
     from robocal.robot import robot_from_dict
     from robocal.workflows import compliance
 
+    from robocal.compliance.fit import ComplianceConfig, missing_loads
+    from robocal.workflows import campaign_of
+
     robot = robot_from_dict(ctx.cfg["robot"], source="params: robot")
-    summary = compliance.run(ctx.path(INPUT), robot, ctx.out, dict(ctx.cfg["compliance"]))
+    camp = campaign_of(ctx.path(INPUT), robot, None, None)
+    why = missing_loads(camp, ComplianceConfig.from_mapping(dict(ctx.cfg["compliance"])))
+    if why is not None:  # one payload on every row (a heavy robot measured with its working load): no load step
+        return ctx.skip(why)
+    summary = compliance.run(ctx.path(INPUT), robot, ctx.out, dict(ctx.cfg["compliance"]), campaign=camp)
     assert ctx.plots is not None
     plots.save_figure(condition_figure(summary), ctx.plots / "accuracy_per_condition.png")
     plots.save_figure(load_table_figure(summary), ctx.plots / "load_table.png")

@@ -93,3 +93,18 @@ def test_stage_fits_a_payload_campaign(common, tmp_path, twin_dirs) -> None:
     assert metrics["status"] == "ok" and metrics["kind"] == "current"
     assert metrics["validation_210kg"]["after_mean_mm"] < metrics["validation_210kg"]["before_mean_mm"]
     assert (tmp_path / "plots" / "load_table.png").is_file() and (tmp_path / "out" / "compliance.json").is_file()
+
+
+def test_stage_skips_a_campaign_with_one_payload_on_every_row(common, tmp_path, twin_dirs) -> None:
+    """A heavy robot measured with its working payload always mounted (newcomer pass 11: the pipeline stopped
+    with "no unloaded calibration rows"): no load step, the stage is skipped with its reason."""
+    interim = tmp_path / "data" / "interim"
+    interim.mkdir(parents=True)
+    poses = pd.read_csv(twin_dirs[0] / "poses.csv")
+    poses["payload_kg"] = 150.0
+    poses.to_csv(interim / "poses.csv", index=False)
+    (interim / "prepare.json").write_text(json.dumps({"has_payload": True}))
+    metrics = _run(common, tmp_path, "sr210")
+    reason = json.loads((tmp_path / "out" / "result.json").read_text())["reason"]
+    assert metrics["status"] == "skipped" and "only loaded" in reason and "150" in reason, reason
+    assert "weight effect" in reason

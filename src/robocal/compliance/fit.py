@@ -184,6 +184,26 @@ class ComplianceFit:
     selection: list[dict[str, Any]]
 
 
+def missing_loads(campaign: Campaign, cfg: ComplianceConfig) -> str | None:
+    """Why ``campaign`` cannot give the compliance under payload, or None: the fit sits on a geometric
+    calibration of the unloaded calibration rows and identifies the compliance from the loaded ones, so it needs
+    both. A robot measured with its working payload always mounted (one load on every row) has no load step: its
+    deflection under the arm's and the payload's weight is discovery's weight effect (``robocal discover``)."""
+    cal = campaign.split == "calibration"
+    loads = np.asarray(campaign.payload_kg, dtype=float)[cal]
+    unloaded = int((loads <= cfg.unloaded_max_kg).sum())
+    loaded = len(loads) - unloaded
+    if unloaded and loaded:
+        return None
+    have = ", ".join(f"{v:g}" for v in sorted(set(loads.tolist()))[:4]) or "none"
+    return (
+        f"campaign {campaign.source}: the compliance under payload needs calibration rows without a payload "
+        f"(payload_kg <= {cfg.unloaded_max_kg:g}) and rows with one; its calibration rows have "
+        f"{'only loaded' if loaded else 'only unloaded'} rows (payload_kg {have}). Its deflection under the arm's "
+        "and a constant payload's weight is discovery's weight effect (robocal discover)"
+    )
+
+
 def fit_rows_mask(campaign: Campaign, cfg: ComplianceConfig) -> np.ndarray:
     """Calibration rows used to fit ``c`` (``sequential``): full-load rows or every loaded row."""
     cal = campaign.split == "calibration"
@@ -203,8 +223,8 @@ def geometric_step(campaign: Campaign, robot: RobotDescription, cfg: ComplianceC
     unloaded = (campaign.split == "calibration") & (campaign.payload_kg <= cfg.unloaded_max_kg)
     if not unloaded.any():
         raise ConfigError(
-            f"campaign {campaign.source}: no unloaded calibration rows (payload_kg <= {cfg.unloaded_max_kg:g}); "
-            "the compliance fit sits on an unloaded geometric calibration"
+            missing_loads(campaign, cfg)
+            or f"campaign {campaign.source}: no unloaded calibration rows (payload_kg <= {cfg.unloaded_max_kg:g})"
         )
     return calibrate(
         campaign.subset(unloaded), robot, CalibrationConfig.from_mapping(cfg.geometric, "compliance.geometric")
@@ -387,6 +407,7 @@ __all__ = [
     "fit_compliance",
     "fit_rows_mask",
     "geometric_step",
+    "missing_loads",
     "load_table",
     "position_errors",
     "resolve_kind",
