@@ -41,3 +41,23 @@ def test_calibrate_says_when_its_residuals_imply_a_noise_far_above_the_one_used(
     assert line is not None and "5.75 times" in line and "robocal discover" in line
     assert misfit_hint(noise(0.03)) is None  # within twice the noise: a fit at its floor says nothing
     assert misfit_hint({}) is None
+
+
+def test_the_u_mm_warning_judges_the_noise_the_fit_weighted_by(tmp_path):
+    """Newcomer pass 11: a total station's campaign (0.1 mm per coordinate, u_mm 0.2 at k = 2) was weighted by
+    the noise its three reflectors show (~0.1 mm, the larger of it and the configured 0.015) and then warned that
+    u_mm was "6.67 times the noise this fit weights by (0.015 mm)": the warning now reads the noise used."""
+    from robocal.workflows import discovery, geometric
+
+    sc = {"name": "geometric", "robot": "kr16_2", "n_poses": 40, "n_validation_poses": 5, "noise_mm": 0.1,
+          "targets": {"T1": [150.0, 0.0, 120.0], "T2": [-80.0, 130.0, 110.0], "T3": [-80.0, -130.0, 100.0]}}  # fmt: skip
+    robocal.simulate(sc, tmp_path / "data")
+    rob = robocal.load_robot("kr16_2")
+    camp = read_campaign(tmp_path / "data", rob)
+    camp = replace(camp, u_mm=np.full(camp.n_rows, 0.2))
+    summ = geometric.run(None, rob, tmp_path / "cal", campaign=camp, report=False)
+    assert not any("u_mm" in w for w in summ.get("warnings", [])), summ.get("warnings")
+    disc = discovery.run(None, rob, tmp_path / "disc", {"dictionary": False, "layer": False}, campaign=camp,
+                         report=False)  # fmt: skip
+    assert disc["noise_mm"] > 0.05  # the reflectors' spread, not the configured 0.015
+    assert not any("u_mm" in w for w in disc.get("warnings", [])), disc.get("warnings")

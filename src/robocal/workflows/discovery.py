@@ -198,7 +198,7 @@ def run(
     why_failed = "; ".join(problems)
     if why_failed:  # the key only then: as robocal calibrate's summary (a clean run's discovery.json unchanged)
         summ["problems"] = problems
-    notes = camp.reading_notes() + unused_uncertainty(camp, cfg.noise_mm, "constant", 2.0, "discovery")
+    notes = camp.reading_notes() + unused_uncertainty(camp, float(summ["noise_mm"]), "constant", 2.0, "discovery")
     if notes:
         summ.setdefault("warnings", []).extend(notes)
     out = Path(out_dir)

@@ -187,7 +187,8 @@ def unused_uncertainty(
     fix += f" ({where}.* in the pipeline)"
     return [
         f"{campaign.poses_file} states each point's uncertainty (u_mm, median {u * u_coverage:.3g} mm: {u:.3g} mm "
-        f"per coordinate at the coverage factor {u_coverage:g}), {u / noise_mm:.3g} times the noise this fit weights "
+        f"per coordinate at the coverage factor {u_coverage:g}, calibration.u_coverage), {u / noise_mm:.3g} times "
+        f"the noise this fit weights "
         f"by ({noise_mm:g} mm, noise_model {noise_model}), and does not use it: {fix}"
     ]
 
@@ -285,7 +286,10 @@ def run(
     column = None if why else radians_column(camp, rob, float(result.fit["rms_position_mm"]))
     summary["problems"] += [column] if column else []
     warnings = result_warnings(summary) + camp.reading_notes() + thin_stations(camp)
-    warnings += unused_uncertainty(camp, cfg.noise_mm, cfg.noise_model, cfg.u_coverage, "calibration")
+    # against the noise the fit weighted by (the larger of the configured and the model-free estimate), as the
+    # console says it, not the configured one (newcomer pass 11: the two lines named 0.2267 and 0.015 mm)
+    used = float((result.fit.get("noise") or {}).get("used_mm") or cfg.noise_mm)
+    warnings += unused_uncertainty(camp, used, cfg.noise_model, cfg.u_coverage, "calibration")
     if warnings:  # the key only when there are some (a clean run's summary.json is unchanged)
         summary["warnings"] = warnings
     cal_record = _with_cell_axes(rob, camp, full, result, summary)
