@@ -30,7 +30,7 @@ def refitter(
     held and the user's ``discovery.fixed`` fixed, the calibration's prior kept (:func:`calibration_prior`)."""
     targets, T_ref = geo.model.target_names, geo.model.T_ref
     fixed = set(ParameterSpec.of(geo.model, cfg.fixed, "discovery.fixed").fixed)
-    base_prior = calibration_prior(geo)
+    base_prior = calibration_prior(geo, cfg)
     held = frozenset(e.name for e in geo.eliminated)
 
     def refit(accepted: list[Accepted], prev: Fit | None) -> Fit:
@@ -57,12 +57,14 @@ def start(model: ExtendedModel, prev: Fit | None, geo: Any) -> np.ndarray:
     return model.map_from(prev.model.names, prev.theta) if prev is not None else model.map_from(geo.names, geo.x)
 
 
-def calibration_prior(geo: Any) -> np.ndarray | None:
+def calibration_prior(geo: Any, cfg: Any = None) -> np.ndarray | None:
     """The precision ``(n,)`` of the geometric calibration's prior toward the nominal robot on its joint-level
     parameters (a thin or sparse campaign, :mod:`robocal.identification.thin`: ``strength / width²`` from the
     fit's ``configurations.prior`` record), for the discovery's joint refits to keep it (issue 33 item 3: the same
     regularised geometry under the effects); None without a prior. Frames and tools keep none (their prior is a
     weak bound around the rigid fit, not toward the nominal)."""
+    if cfg is not None and cfg.geometry_prior == "none":  # the search without it (``geometry_prior``)
+        return None
     rec = ((geo.fit or {}).get("configurations") or {}).get("prior") or {}
     strength = float(rec.get("strength") or 0.0)
     if strength <= 0.0:

@@ -198,7 +198,8 @@ def run(
     why_failed = "; ".join(problems)
     if why_failed:  # the key only then: as robocal calibrate's summary (a clean run's discovery.json unchanged)
         summ["problems"] = problems
-    notes = camp.reading_notes() + unused_uncertainty(camp, float(summ["noise_mm"]), "constant", 2.0, "discovery")
+    used = float(summ.get("noise_mm") or cfg.noise_mm)  # the noise the search weighted by
+    notes = camp.reading_notes() + unused_uncertainty(camp, used, "constant", 2.0, "discovery")
     if notes:
         summ.setdefault("warnings", []).extend(notes)
     out = Path(out_dir)
