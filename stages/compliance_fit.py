@@ -50,13 +50,11 @@ def compute(ctx: Context) -> Metrics | Skipped:
     prep = ctx.read_json(f"{INPUT}/prepare.json")
     if not prep.get("has_payload"):
         return ctx.skip("the campaign has no payload rows (payload_kg is 0 or absent): no compliance to identify")
+    from robocal.compliance.fit import ComplianceConfig, missing_loads
     from robocal.compliance.report import condition_figure, load_table_figure
     from robocal.report import plots
     from robocal.robot import robot_from_dict
-    from robocal.workflows import compliance
-
-    from robocal.compliance.fit import ComplianceConfig, missing_loads
-    from robocal.workflows import campaign_of
+    from robocal.workflows import campaign_of, compliance
 
     robot = robot_from_dict(ctx.cfg["robot"], source="params: robot")
     camp = campaign_of(ctx.path(INPUT), robot, None, None)

@@ -40,8 +40,8 @@ def _heavy_thin(poses: int, c2: float, c3: float) -> dict:
     """``benchmarks/heavy_thin.py``'s campaign: the SR210 in ``poses`` configurations x three reflectors, no
     payload, joints 2 and 3 deflecting under the arm's own weight (compliance ``c2``, ``c3`` rad/N·m)."""
     sc = robocal.load_scenario("heavy_load")
-    sc.update(n_poses=poses, n_validation_poses=60,
-              targets={"T1": [60.0, 0.0, 320.0], "T2": [-150.0, 120.0, 250.0], "T3": [100.0, -140.0, 200.0]})  # fmt: skip
+    targets = {"T1": [60.0, 0.0, 320.0], "T2": [-150.0, 120.0, 250.0], "T3": [100.0, -140.0, 200.0]}
+    sc.update(n_poses=poses, n_validation_poses=60, targets=targets)
     comp = sc["effects"]["compliance"]
     comp.pop("iso_cube", None)
     comp.update(report_currents=False, report_torques=False, report_directions=False, calibration_loads_kg=[0.0],

@@ -49,8 +49,9 @@ def test_the_u_mm_warning_judges_the_noise_the_fit_weighted_by(tmp_path):
     u_mm was "6.67 times the noise this fit weights by (0.015 mm)": the warning now reads the noise used."""
     from robocal.workflows import discovery, geometric
 
+    targets = {"T1": [150.0, 0.0, 120.0], "T2": [-80.0, 130.0, 110.0], "T3": [-80.0, -130.0, 100.0]}
     sc = {"name": "geometric", "robot": "kr16_2", "n_poses": 40, "n_validation_poses": 5, "noise_mm": 0.1,
-          "targets": {"T1": [150.0, 0.0, 120.0], "T2": [-80.0, 130.0, 110.0], "T3": [-80.0, -130.0, 100.0]}}  # fmt: skip
+          "targets": targets}  # fmt: skip
     robocal.simulate(sc, tmp_path / "data")
     rob = robocal.load_robot("kr16_2")
     camp = read_campaign(tmp_path / "data", rob)

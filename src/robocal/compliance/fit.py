@@ -407,8 +407,8 @@ __all__ = [
     "fit_compliance",
     "fit_rows_mask",
     "geometric_step",
-    "missing_loads",
     "load_table",
+    "missing_loads",
     "position_errors",
     "resolve_kind",
 ]

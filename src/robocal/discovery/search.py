@@ -297,9 +297,9 @@ def _first_search(
     ``geometry_prior: auto`` and a thin campaign's prior toward the nominal geometry (robocal calibrate's, its
     strength chosen by the cross-validation of the geometry alone), the searches with the prior and without it:
     the prior is let go when the discovered model's pose-grouped cross-validated error is lower without it by the
-    paired test (``extra["geometry_prior"]``). A heavy arm in 18 configurations: the prior chosen for a geometry that misfit
-    its weight deflection (CV 0.37 mm) pulled the geometry under the weight effects toward nominal, 0.163 mm held
-    out where the same effects without it gave 0.081 (its CV 0.155 against 0.093)."""
+    paired test (``extra["geometry_prior"]``). A heavy arm in 18 configurations: the prior chosen for a geometry
+    that misfit its weight deflection (CV 0.37 mm) pulled the geometry under the weight effects toward nominal,
+    0.163 mm held out where the same effects without it gave 0.081 (its CV 0.155 against 0.093)."""
     if cfg.geometry_prior != "auto" or calibration_prior(args[2]) is None:
         return _windows(campaign, robot, cfg, args)
     out: dict[str, tuple[DiscoveryResult, DiscoveryConfig, dict[str, Any]]] = {}
@@ -334,10 +334,11 @@ def _first_search(
 def _windows(
     campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig, args: tuple[Any, ...]
 ) -> tuple[DiscoveryResult, DiscoveryConfig, dict[str, Any]]:
-    """The first search with each transmission window, and the settings it decides for the later ones: with several values of
-    ``transmission_min_visits`` that give different windows on these rows, the search with each (the one with the
-    lower pose-grouped cross-validated mean position error kept: ``extra["transmission_window"]``); within each,
-    ``grow_geometry: auto`` (:func:`_either`). Returns the result, the settings decided and their records."""
+    """The first search with each transmission window, and the settings it decides for the later ones: with
+    several values of ``transmission_min_visits`` that give different windows on these rows, the search with each
+    (the one with the lower pose-grouped cross-validated mean position error kept: ``extra["transmission_window"]``);
+    within each, ``grow_geometry: auto`` (:func:`_either`). Returns the result, the settings decided and their
+    records."""
     values = distinct_windows(campaign, robot, cfg, args[0])
     out: dict[int, DiscoveryResult] = {}
     cv: dict[str, float] = {}
