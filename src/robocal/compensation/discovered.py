@@ -198,6 +198,15 @@ def frame_desired(
 TWO_PI = 2.0 * np.pi
 
 
+def balancer_record(e: dict[str, Any]) -> dict[str, Any]:
+    """A weight record's counterbalance part (:func:`robocal.compensation.signals.balancer_signal`) as the
+    transmission record of the same Fourier signal with its window open (what the service tabulates)."""
+    r = len(e["scale"])
+    return {"signal": "transmission", "joint": e["joint"], "harmonics": list(e["balancer_harmonics"]),
+            "visited_deg": [[0.0, 360.0]], "taper_deg": 0.0, "centre": list(e["balancer_centre"]),
+            "coefficients": list(np.asarray(e["coefficients"], dtype=float)[r:])}  # fmt: skip
+
+
 def _tabulated(e: dict[str, Any]) -> bool:
     """A record the service tabulates over one revolution of its joint: the transmission error and the gear
     harmonics (held or not: periodic in the joint's angle)."""
@@ -354,8 +363,11 @@ class DiscoveredEffects:
         for e in self.records:
             if e["signal"] == "weight":
                 j = int(e["joint"]) - 1
-                c = np.asarray(e["coefficients"], dtype=float) / np.asarray(e["scale"], dtype=float)
+                r = len(e["scale"])
+                c = np.asarray(e["coefficients"], dtype=float)[:r] / np.asarray(e["scale"], dtype=float)
                 per_joint[j] = per_joint.get(j, 0.0) + np.asarray(e["basis"], dtype=float) @ c
+                if e.get("balancer_harmonics"):  # a counterbalance's part: of the shoulder's angle alone, tabulated
+                    single.append(balancer_record(e))
         weights = None
         if per_joint:
             wj = sorted(per_joint)

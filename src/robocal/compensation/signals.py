@@ -109,7 +109,19 @@ def weight_signal(
     :func:`gravity_regressor` at ``q`` when already computed (one for every joint's effect)."""
     j = int(record["joint"]) - 1
     Yj = (gravity_regressor(robot, q) if Y is None else Y)[:, j, :]
-    return Yj @ np.asarray(record["basis"], dtype=float) / np.asarray(record["scale"], dtype=float)
+    S = Yj @ np.asarray(record["basis"], dtype=float) / np.asarray(record["scale"], dtype=float)
+    if record.get("balancer_harmonics"):
+        S = np.column_stack([S, balancer_signal(np.asarray(q, dtype=float)[:, j], record)])
+    return S
+
+
+def balancer_signal(q_rad: np.ndarray, record: dict[str, Any]) -> np.ndarray:
+    """The counterbalance's part of a weight effect (``balancer_harmonics``, ``balancer_centre``): a spring or
+    hydro-pneumatic cylinder between the base and the upper arm of a heavy robot exerts a torque that depends on
+    the shoulder's own angle alone, ``sin/cos(h q)`` less their mean over the calibration poses (the constant part
+    is the geometry's joint offset); as :func:`transmission_signal` with its window open."""
+    h = np.asarray(record["balancer_harmonics"], dtype=int)
+    return fourier_signal(q_rad, h) - np.asarray(record["balancer_centre"], dtype=float)
 
 
 def layer_features(q_rad: np.ndarray, centres: np.ndarray, length_rad: float) -> tuple[np.ndarray, np.ndarray]:

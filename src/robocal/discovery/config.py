@@ -138,6 +138,7 @@ class DiscoveryConfig:
     grow_max_steps: int = setting(_D["grow_max_steps"], ge=0)
     grow_geometry: str = setting(_D["grow_geometry"], choices=("joint", "frozen", "auto"))
     geometry_prior: str = setting(_D["geometry_prior"], choices=("auto", "calibration", "none"))
+    counterbalance: str = setting(_D["counterbalance"], choices=("auto", "on", "off"))
     layer: bool = _D["layer"]
     layer_centres: int = setting(_D["layer_centres"], ge=4)
     layer_length_deg: tuple[float, ...] = setting(_tuple("layer_length_deg"), gt=0)

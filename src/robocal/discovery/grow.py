@@ -66,6 +66,8 @@ def physics_candidates(
     from robocal.compensation.signals import coverage_weight, fourier_signal
     from robocal.discovery.candidates import periodic_window
     from robocal.discovery.physics import (
+        BALANCER_HARMONICS,
+        balancer_columns,
         bounded_columns,
         configurations,
         lowest_harmonic,
@@ -130,6 +132,7 @@ def physics_candidates(
         qw = workspace_sample(robot)
         Yw = gravity_regressor(robot, qw)
         pi0 = described_mass_moments(robot, qw, Yw) if robot.has_dynamics else generic_mass_moments(robot)
+        shoulder, B, centre = balancer_columns(robot, q, rows, Y) if cfg.counterbalance != "off" else (None, q, q)
         for j in range(n):
             V, scale = weight_basis(Y[rows, j, :])
             if V.shape[1] == 0:
@@ -141,8 +144,9 @@ def physics_candidates(
             if not keep.any():
                 continue
             V, scale = V[:, keep], scale[keep]
-            S = Y[:, j, :] @ V / scale
-            r = V.shape[1]
+            S, r = Y[:, j, :] @ V / scale, V.shape[1]
+            bal = {"balancer_harmonics": list(BALANCER_HARMONICS), "balancer_centre": centre.tolist()}
+            S, r_all = (np.column_stack([S, B]), r + B.shape[1]) if j == shoulder else (S, r)
             cand = Candidate(
                 f"weight:j{j + 1}", "weight", j + 1, None,
                 cause=f"torsional elasticity of the joint-{j + 1} reducer under the arm's own weight "
@@ -150,11 +154,13 @@ def physics_candidates(
                    "apart, which correct them)" if robot.has_dynamics else
                    "(link masses unknown: the mass-moment combinations the poses tell apart)"),
                 signal=f"gravity-torque regressor of joint {j + 1} ({r} combinations)", shape="joint", S=S,
-                coef_names=tuple(f"w{k + 1}" for k in range(r)), coef_units=("rad",) * r,
-                extra={"basis": V.tolist(), "scale": scale.tolist(), "prior_deg": cfg.compliance_prior_deg},
+                coef_names=tuple(f"w{k + 1}" for k in range(r_all)), coef_units=("rad",) * r_all,
+                extra={"basis": V.tolist(), "scale": scale.tolist(), "prior_deg": cfg.compliance_prior_deg,
+                       **(bal if j == shoulder else {})},
             )  # fmt: skip
             tau = float(np.deg2rad(cfg.compliance_prior_deg)) / np.sqrt(r)
-            out.append((cand, [Variant(np.arange(r), tau, f"prior {cfg.compliance_prior_deg}° RMS")]))
+            label = f"prior {cfg.compliance_prior_deg}° RMS" + (", with a counterbalance" if r_all > r else "")
+            out.append((cand, [Variant(np.arange(r_all), tau, label)]))
     return out
 
 
@@ -205,6 +211,8 @@ def variant_candidate(cand: Candidate, v: Variant) -> Candidate:
     if "harmonics" in extra:
         h = np.asarray(cand.extra["harmonics"])
         extra["harmonics"] = h[v.columns[: len(v.columns) // 2]].tolist()
+    if "balancer_harmonics" in extra and max(v.columns) < len(extra["scale"]):  # the weight without it
+        extra = {k: x for k, x in extra.items() if not k.startswith("balancer_")}
     if "centre" in extra and np.ndim(extra["centre"]) == 1:  # per column (a logged signal's is one number)
         extra["centre"] = np.asarray(cand.extra["centre"])[v.columns].tolist()
     extra["variant"] = v.label

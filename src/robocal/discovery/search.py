@@ -27,6 +27,7 @@ from robocal.calibration.start import fit_data, present_stations, present_target
 from robocal.data.contract import Campaign
 from robocal.discovery import progress
 from robocal.discovery.candidates import Candidate, SkippedCandidate, build_library, periodic_window
+from robocal.discovery.choices import counterbalance_choice, counterbalance_offered, first_search
 from robocal.discovery.config import DiscoveryConfig
 from robocal.discovery.cv import fold_cv, pose_groups
 from robocal.discovery.equations import propose
@@ -154,9 +155,20 @@ def discover(campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig |
     # a systematic misfit the geometric calibration named is offered to the search (issue 33 item 4)
     library += misfit_candidates(campaign, geo.fit.get("systematic_misfit") or [])
     m = cal.n_rows
-    res, kept, test, loud, systematic, rounds, n_search, sample = _rounds(
-        campaign, robot, cfg, ccfg, cal, rows_all, data_all, geo, library, skipped, sigma, sigma_rad
-    )
+    rounds_args = (ccfg, cal, rows_all, data_all, geo, library, skipped, sigma, sigma_rad)
+    out = _rounds(campaign, robot, cfg, *rounds_args)
+    if not out[-1] and counterbalance_offered(campaign, robot, cfg):
+        # searched in full: the final models decide (robocal.discovery.choices.counterbalance_choice)
+        progress.note("counterbalance: the search again without it on the shoulder's weight effect")
+        off = _rounds(campaign, robot, replace(cfg, counterbalance="off"), *rounds_args)
+        same = np.array_equal(out[1], off[1])  # the same rows kept: a paired test pose by pose
+        sse = [_pose_sse(campaign, cfg, rows_all[o[1]], o[0].final) for o in (off, out)] if same else None
+        keep_with, cb_record = counterbalance_choice(out[0], off[0], sse)
+        release((off if keep_with else out)[0].final)
+        out = out if keep_with else off
+        out[0].extra["counterbalance"] = cb_record
+        out[0].config = cfg  # the settings as given (the record says which search was kept)
+    res, kept, test, loud, systematic, rounds, n_search, sample = out
     assert res is not None
     # every calibration row's residual under the final model, for the outlier list
     fit = res.final
@@ -253,7 +265,7 @@ def _rounds(
             # grow_geometry auto, several transmission windows: the searches on the first search's rows (a large
             # campaign's sample), the settings with the lower cross-validated error kept for the later rounds (a
             # few rows fewer) and the full search
-            res, decided, records = _first_search(campaign, robot, cfg, args)
+            res, decided, records = first_search(campaign, robot, cfg, args, _windows, _pose_sse, screen)
             records = {k: {**v, "decided_on_rows": len(idx)} for k, v in records.items()}
         else:
             res = _search(campaign, robot, decided, *args)
@@ -288,47 +300,6 @@ def _rounds(
         res = None  # the round's fits (their Jacobians) let go before the next search
     assert res is not None
     return res, kept, test, loud, systematic, rounds, n_search, sample
-
-
-def _first_search(
-    campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig, args: tuple[Any, ...]
-) -> tuple[DiscoveryResult, DiscoveryConfig, dict[str, Any]]:
-    """The first search, and the settings it decides for the later ones (:func:`_windows`); with
-    ``geometry_prior: auto`` and a thin campaign's prior toward the nominal geometry (robocal calibrate's, its
-    strength chosen by the cross-validation of the geometry alone), the searches with the prior and without it:
-    the prior is let go when the discovered model's pose-grouped cross-validated error is lower without it by the
-    paired test (``extra["geometry_prior"]``). A heavy arm in 18 configurations: the prior chosen for a geometry
-    that misfit its weight deflection (CV 0.37 mm) pulled the geometry under the weight effects toward nominal,
-    0.163 mm held out where the same effects without it gave 0.081 (its CV 0.155 against 0.093)."""
-    if cfg.geometry_prior != "auto" or calibration_prior(args[2]) is None:
-        return _windows(campaign, robot, cfg, args)
-    out: dict[str, tuple[DiscoveryResult, DiscoveryConfig, dict[str, Any]]] = {}
-    cv: dict[str, float] = {}
-    sse: dict[str, np.ndarray] = {}
-    for mode in ("calibration", "none"):
-        progress.note(f"geometry prior: the search {'with' if mode == 'calibration' else 'without'} the prior")
-        out[mode] = _windows(campaign, robot, replace(cfg, geometry_prior=mode), args)
-        cv[mode] = float(out[mode][0].extra["cv"].get("cv_mean_position_mm", float("nan")))
-        if cfg.cv_folds >= 2:
-            sse[mode] = _pose_sse(campaign, cfg, args[0], out[mode][0].final)
-    # calibrate kept the prior where it clearly beat none: it is let go where none clearly beats it under the
-    # effects (the paired test per pose group at cv_alpha, as an effect must pass); a near tie keeps it (a thin
-    # twin: 0.0516 against 0.0530 mm CV, p = 0.56, held out 0.0483 without it where it gives 0.0285)
-    lp = paired_log10_p(sse["calibration"], sse["none"]) if sse else 0.0
-    chosen = "none" if cv["none"] < cv["calibration"] and lp < np.log10(cfg.cv_alpha) else "calibration"
-    release(out.pop("none" if chosen == "calibration" else "calibration")[0].final)
-    res, decided, records = out[chosen]
-    records["geometry_prior"] = {
-        "chosen": chosen,
-        "cv_mean_position_mm": cv,
-        "none_lower_log10_p": lp,
-        "rule": "a thin campaign's prior toward the nominal geometry (robocal calibrate's, chosen by the "
-        "cross-validation of the geometry alone): the search ran with it and without it, and the prior is let go "
-        "when the discovered model's pose-grouped cross-validated error is lower without it by the paired test per "
-        "pose group at cv_alpha (none_lower_log10_p), else kept; decided on the first search's rows and kept for "
-        "the later searches",
-    }
-    return res, replace(decided, geometry_prior=chosen), records
 
 
 def _windows(

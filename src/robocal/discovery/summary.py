@@ -516,8 +516,8 @@ def summary(res: DiscoveryResult, validation: dict[str, Any] | None = None) -> d
     # the records only some runs have: the logged signals; grow_geometry auto and several transmission windows
     # (which search was kept, and each one's CV figure); a large campaign's first search on a sample (issue 31);
     # the part's rows (robocal calibrate's positioner fit)
-    for key in ("logged_signals", "grow_geometry", "geometry_prior", "transmission_window", "gross_error_screen",
-                "positioner_part_rows_left_out"):  # fmt: skip
+    for key in ("logged_signals", "grow_geometry", "geometry_prior", "counterbalance", "transmission_window",
+                "gross_error_screen", "positioner_part_rows_left_out"):  # fmt: skip
         if res.extra.get(key) is not None:
             out[key] = res.extra[key]
     if res.unexplained:

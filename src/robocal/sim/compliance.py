@@ -50,6 +50,43 @@ def iso9283_cube_points(center_mm: np.ndarray, side_mm: float, inset: float = 0.
     return np.vstack([c, pts])
 
 
+def spring_torque_shape(
+    q_rad: np.ndarray, vertical_deg: float, h_m: float = 0.55, r_m: float = 0.45, l0_m: float = 0.05
+) -> np.ndarray:
+    """The torque per unit stiffness of a tension spring from a point ``h_m`` above the joint axis on the base to
+    a point ``r_m`` out on the arm (rest length ``l0_m``), the arm at ``q - vertical`` from the upright:
+    ``(l - l0) h r sin(phi) / l``, ``l = sqrt(h² + r² - 2 h r cos(phi))``; a heavy robot's counterbalance."""
+    phi = np.asarray(q_rad, dtype=float) - np.deg2rad(vertical_deg)
+    length = np.sqrt(h_m * h_m + r_m * r_m - 2.0 * h_m * r_m * np.cos(phi))
+    return np.asarray((length - l0_m) * h_m * r_m * np.sin(phi) / length)
+
+
+def _counterbalance(cfg: Mapping[str, Any] | None, q: np.ndarray, tau_g: np.ndarray, n: int) -> dict[str, Any]:
+    """``counterbalance: {joint, share, vertical_deg}``: a spring on ``joint`` (1-based) whose stiffness cancels
+    ``share`` of that joint's gravity torque over the campaign (least squares), added to ``tau_g`` in place; its
+    truth record (empty without one). ``vertical_deg`` (the joint's angle with the arm upright, where the spring's
+    torque vanishes): by default the whole degree at which the spring's shape cancels the most of that torque
+    (mounted as a designer would; the robots' descriptions put the upright at different angles)."""
+    if not cfg:
+        return {}
+    j = int(cfg.get("joint", 2)) - 1
+    if not 0 <= j < n:
+        raise ConfigError(f"compliance effect: counterbalance joint {j + 1} is not one of the robot's 1..{n}")
+    tau = tau_g[:, j]
+
+    def left(v: float) -> float:
+        f = spring_torque_shape(q[:, j], v)
+        return float(np.sum((tau - f * (f @ tau) / max(float(f @ f), 1e-300)) ** 2))
+
+    vertical = float(cfg["vertical_deg"]) if "vertical_deg" in cfg else min(range(-180, 180), key=left)
+    f = spring_torque_shape(q[:, j], vertical)
+    k = -float(cfg.get("share", 0.85)) * float(f @ tau) / max(float(f @ f), 1e-300)
+    rms_before = float(np.sqrt(np.mean(tau_g[:, j] ** 2)))
+    tau_g[:, j] += k * f
+    return {"joint": j + 1, "stiffness_Nm": k, "share": float(cfg.get("share", 0.85)), "vertical_deg": vertical,
+            "gravity_rms_Nm": rms_before, "net_rms_Nm": float(np.sqrt(np.mean(tau_g[:, j] ** 2)))}  # fmt: skip
+
+
 def _per_joint(cfg: Mapping[str, Any], key: str, n: int, default: float | None = None) -> np.ndarray:
     if key not in cfg:
         if default is None:
@@ -172,6 +209,7 @@ class ComplianceEffect:
                     rows.columns[f"dir{j + 1}"] = dirs[:, j]
 
         tau_g = gravity_torques(robot, rows.q_cmd, rows.payload_kg, chain=ctx.chain, link_mass_kg=mass_true)
+        balancer = _counterbalance(cfg.get("counterbalance"), rows.q_cmd, tau_g, n)
         tau_f = -dirs * (coulomb + viscous * speed)
         tau_drive = tau_g + tau_f
         tau_reducer = tau_drive if in_reducer else tau_g
@@ -197,6 +235,7 @@ class ComplianceEffect:
             "friction_in_reducer": in_reducer,
             "current_noise_A": noise_A,
             "deflection_rms_deg": np.rad2deg(np.sqrt(np.mean((c * tau_reducer) ** 2, axis=0))).tolist(),
+            **({"counterbalance": balancer} if balancer else {}),
         }
 
 
