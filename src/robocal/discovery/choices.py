@@ -31,11 +31,11 @@ PoseSSE = Callable[[Campaign, DiscoveryConfig, np.ndarray, Any], np.ndarray]
 COUNTERBALANCE_RULE = (
     "the shoulder's weight effect (the first revolute joint the arm's weight loads) carries the harmonics of its "
     "own angle a counterbalance's torque adds (a heavy robot's spring or hydro-pneumatic cylinder); the search "
-    "ran with them offered and without them, and the one with the lower pose-grouped "
-    "cross-validated mean error is kept: on a campaign searched in full, by the final models' figures; on a large "
-    "one (its first search on the gross-error screen's sample), by the first searches' (decided_on_rows); "
-    "with_lower_log10_p: the paired test per pose group of that difference, said, not required (null: the two "
-    "searches kept other rows)"
+    "ran with them offered and without them (the second with the first's transmission window and geometry prior), "
+    "and the final model with the lower pose-grouped cross-validated mean error is kept; with_lower_log10_p: the "
+    "paired test per pose group of that difference, said, not required (null: the two searches kept other rows). "
+    "A large campaign (its first search on the gross-error screen's sample) is searched without them (their "
+    "choice would cost a search of the sample both ways; counterbalance: on offers them)"
 )
 
 
@@ -49,20 +49,17 @@ def first_search(
     screened: bool,
 ) -> Searched:
     """The first search (``windows``: :func:`robocal.discovery.search._windows`, on ``args``' rows) and the
-    settings it decides: :func:`_geometry_prior`; on a ``screened`` campaign (the first search on a sample) also
-    the counterbalance (:func:`counterbalance_choice`: a campaign searched in full decides it on its final models,
-    :func:`robocal.discovery.search.discover`)."""
+    settings it decides (:func:`_geometry_prior`). A ``screened`` campaign (its first search on the gross-error
+    screen's sample: a large one) is searched without the counterbalance's columns under ``counterbalance:
+    auto`` (their choice costs a search of the sample both ways, ~30 s at UR10 A's 12 000 rows; ``on`` offers
+    them); a campaign searched in full decides it on its final models (:func:`robocal.discovery.search.discover`)."""
+    skip = screened and counterbalance_offered(campaign, robot, cfg)
+    if skip:
+        cfg = replace(cfg, counterbalance="off")
     res, decided, records = _geometry_prior(campaign, robot, cfg, args, windows, pose_sse)
-    if not screened or not counterbalance_offered(campaign, robot, cfg):
-        return res, decided, records
-    progress.note("counterbalance: the first search without it on the shoulder's weight effect")
-    off = _geometry_prior(campaign, robot, replace(cfg, counterbalance="off"), args, windows, pose_sse)
-    sse = [pose_sse(campaign, cfg, args[0], r.final) for r in (off[0], res)] if cfg.cv_folds >= 2 else None
-    keep_with, record = counterbalance_choice(res, off[0], sse)
-    release((off[0] if keep_with else res).final)
-    res, decided, records = (res, decided, records) if keep_with else off
-    records["counterbalance"] = record
-    return res, replace(decided, counterbalance="on" if keep_with else "off"), records
+    if skip:
+        records["counterbalance"] = {"chosen": "without", "rule": COUNTERBALANCE_RULE}
+    return res, decided, records
 
 
 def counterbalance_choice(with_: Any, without: Any, sse: list[np.ndarray] | None = None) -> tuple[bool, dict[str, Any]]:
@@ -78,6 +75,17 @@ def counterbalance_choice(with_: Any, without: Any, sse: list[np.ndarray] | None
     keep = bool(cv["with"] < cv["without"])
     return keep, {"chosen": "with" if keep else "without", "cv_mean_position_mm": cv, "with_lower_log10_p": lp,
                   "rule": COUNTERBALANCE_RULE}  # fmt: skip
+
+
+def without_counterbalance(cfg: DiscoveryConfig, extra: dict[str, Any]) -> DiscoveryConfig:
+    """The settings of the search without the counterbalance's columns: the transmission window and the geometry
+    prior the search with them decided (``extra``: its records), not decided again (one search less)."""
+    out = replace(cfg, counterbalance="off")
+    if "transmission_window" in extra:
+        out = replace(out, transmission_min_visits=(int(extra["transmission_window"]["chosen_min_visits"]),))
+    if "geometry_prior" in extra:
+        out = replace(out, geometry_prior=str(extra["geometry_prior"]["chosen"]))
+    return out
 
 
 def _cv(res: Any) -> float:
@@ -141,4 +149,10 @@ def _geometry_prior(
     return res, replace(decided, geometry_prior=chosen), records
 
 
-__all__ = ["COUNTERBALANCE_RULE", "counterbalance_choice", "counterbalance_offered", "first_search"]
+__all__ = [
+    "COUNTERBALANCE_RULE",
+    "counterbalance_choice",
+    "counterbalance_offered",
+    "first_search",
+    "without_counterbalance",
+]

@@ -27,7 +27,12 @@ from robocal.calibration.start import fit_data, present_stations, present_target
 from robocal.data.contract import Campaign
 from robocal.discovery import progress
 from robocal.discovery.candidates import Candidate, SkippedCandidate, build_library, periodic_window
-from robocal.discovery.choices import counterbalance_choice, counterbalance_offered, first_search
+from robocal.discovery.choices import (
+    counterbalance_choice,
+    counterbalance_offered,
+    first_search,
+    without_counterbalance,
+)
 from robocal.discovery.config import DiscoveryConfig
 from robocal.discovery.cv import fold_cv, pose_groups
 from robocal.discovery.equations import propose
@@ -160,11 +165,14 @@ def discover(campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig |
     if not out[-1] and counterbalance_offered(campaign, robot, cfg):
         # searched in full: the final models decide (robocal.discovery.choices.counterbalance_choice)
         progress.note("counterbalance: the search again without it on the shoulder's weight effect")
-        off = _rounds(campaign, robot, replace(cfg, counterbalance="off"), *rounds_args)
+        off = _rounds(campaign, robot, without_counterbalance(cfg, out[0].extra), *rounds_args)
         same = np.array_equal(out[1], off[1])  # the same rows kept: a paired test pose by pose
         sse = [_pose_sse(campaign, cfg, rows_all[o[1]], o[0].final) for o in (off, out)] if same else None
         keep_with, cb_record = counterbalance_choice(out[0], off[0], sse)
         release((off if keep_with else out)[0].final)
+        for key in ("transmission_window", "geometry_prior"):  # decided by the first, kept for the second
+            if not keep_with and key in out[0].extra:
+                off[0].extra.setdefault(key, out[0].extra[key])
         out = out if keep_with else off
         out[0].extra["counterbalance"] = cb_record
         out[0].config = cfg  # the settings as given (the record says which search was kept)
