@@ -124,6 +124,7 @@ def test_the_weight_never_deflects_a_configuration_much_beyond_what_the_calibrat
     now stays within WEIGHT_MAX_AMPLIFICATION of its calibration maximum over the joint limits."""
     import numpy as np
 
+    from robocal.compensation.signals import weight_signal
     from robocal.data.contract import read_campaign
     from robocal.discovery.config import DiscoveryConfig
     from robocal.discovery.grow import physics_candidates
@@ -139,10 +140,11 @@ def test_the_weight_never_deflects_a_configuration_much_beyond_what_the_calibrat
     rows = np.flatnonzero(camp.split == "calibration")
     weights = [c for c, _ in physics_candidates(camp, robot, DiscoveryConfig(), rows, ("weight",))]
     assert weights, "the UR10's description has no masses: weight candidates are offered"
-    Yw = gravity_regressor(robot, np.vstack([workspace_sample(robot), np.deg2rad([[0.0, -90, 0, 0, 0, 0]])]))
+    Qw = np.vstack([workspace_sample(robot), np.deg2rad([[0.0, -90, 0, 0, 0, 0]])])
+    Yw = gravity_regressor(robot, Qw)
     for c in weights:
-        V, scale = np.array(c.extra["basis"]), np.array(c.extra["scale"])
-        S_ws = Yw[:, c.joint - 1, :] @ V / scale
+        # every column: the torque combinations and a counterbalance's harmonics on the shoulder (when offered)
+        S_ws = weight_signal(robot, Qw, {**c.extra, "joint": c.joint}, Yw)
         top = np.abs(c.S[rows]).max(axis=0)
         # the sample's bound (the upright pose was not in the sample: 1.5x slack for configurations between)
         assert np.all(np.abs(S_ws).max(axis=0) <= 1.5 * WEIGHT_MAX_AMPLIFICATION * top), c.key

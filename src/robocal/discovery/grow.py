@@ -132,7 +132,7 @@ def physics_candidates(
         qw = workspace_sample(robot)
         Yw = gravity_regressor(robot, qw)
         pi0 = described_mass_moments(robot, qw, Yw) if robot.has_dynamics else generic_mass_moments(robot)
-        shoulder, B, centre = balancer_columns(robot, q, rows, Y) if cfg.counterbalance != "off" else (None, q, q)
+        shoulder, B, centre = balancer_columns(robot, q, rows, Y, qw) if cfg.counterbalance != "off" else (None, q, q)
         for j in range(n):
             V, scale = weight_basis(Y[rows, j, :])
             if V.shape[1] == 0:
