@@ -309,3 +309,15 @@ def test_a_misspelt_constraint_is_a_bug_not_a_silent_no_op() -> None:
 
     with pytest.raises(TypeError, match="gte"):
         parse(Typo, {}, "typo")
+
+
+def test_a_bare_on_or_off_reads_as_the_choice_not_a_boolean():
+    """Newcomer pass 12: `robocal discover ... counterbalance=on` (as the docs write it) was refused, the override
+    read as YAML 1.1 (`on` -> True): "must be one of ['auto', 'on', 'off']; got True"."""
+    from robocal.discovery.config import DiscoveryConfig
+
+    assert DiscoveryConfig.from_mapping({"counterbalance": True}).counterbalance == "on"
+    assert DiscoveryConfig.from_mapping({"counterbalance": False}).counterbalance == "off"
+    assert DiscoveryConfig.from_mapping({"counterbalance": "auto"}).counterbalance == "auto"
+    with pytest.raises(SettingError):  # a setting whose choices are not on / off still refuses a boolean
+        DiscoveryConfig.from_mapping({"geometry_prior": True})

@@ -332,6 +332,8 @@ def _scalar(tp: type, v: Any, path: str, meta: Mapping[str, Any]) -> Any:
             if meta.get("finite", True) and not math.isfinite(x):
                 raise SettingError(path, "must be a finite number", v)
             return _bounded(x, path, meta, v)
+    elif tp is str and isinstance(v, bool | np.bool_) and {"on", "off"} <= set(meta.get("choices") or ()):
+        return "on" if v else "off"  # YAML 1.1 reads a bare on / off as a boolean (a CLI override, a config file)
     elif isinstance(v, str):
         choices = meta.get("choices")
         if choices is not None and v not in choices:
