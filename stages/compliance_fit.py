@@ -58,7 +58,7 @@ def compute(ctx: Context) -> Metrics | Skipped:
 
     robot = robot_from_dict(ctx.cfg["robot"], source="params: robot")
     camp = campaign_of(ctx.path(INPUT), robot, None, None)
-    why = missing_loads(camp, ComplianceConfig.from_mapping(dict(ctx.cfg["compliance"])))
+    why = missing_loads(camp, ComplianceConfig.from_mapping(dict(ctx.cfg["compliance"])), prep.get("source"))
     if why is not None:  # one payload on every row (a heavy robot measured with its working load): no load step
         return ctx.skip(why)
     summary = compliance.run(ctx.path(INPUT), robot, ctx.out, dict(ctx.cfg["compliance"]), campaign=camp)

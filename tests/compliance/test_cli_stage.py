@@ -103,8 +103,9 @@ def test_stage_skips_a_campaign_with_one_payload_on_every_row(common, tmp_path, 
     poses = pd.read_csv(twin_dirs[0] / "poses.csv")
     poses["payload_kg"] = 150.0
     poses.to_csv(interim / "poses.csv", index=False)
-    (interim / "prepare.json").write_text(json.dumps({"has_payload": True}))
+    (interim / "prepare.json").write_text(json.dumps({"has_payload": True, "source": "../cells/kr210-line3"}))
     metrics = _run(common, tmp_path, "sr210")
     reason = json.loads((tmp_path / "out" / "result.json").read_text())["reason"]
     assert metrics["status"] == "skipped" and "only loaded" in reason and "150" in reason, reason
+    assert reason.startswith("campaign ../cells/kr210-line3:")  # the user's folder, not the interim copy
     assert "weight effect" in reason

@@ -184,11 +184,12 @@ class ComplianceFit:
     selection: list[dict[str, Any]]
 
 
-def missing_loads(campaign: Campaign, cfg: ComplianceConfig) -> str | None:
+def missing_loads(campaign: Campaign, cfg: ComplianceConfig, source: str | None = None) -> str | None:
     """Why ``campaign`` cannot give the compliance under payload, or None: the fit sits on a geometric
     calibration of the unloaded calibration rows and identifies the compliance from the loaded ones, so it needs
     both. A robot measured with its working payload always mounted (one load on every row) has no load step: its
-    deflection under the arm's and the payload's weight is discovery's weight effect (``robocal discover``)."""
+    deflection under the arm's and the payload's weight is discovery's weight effect (``robocal discover``).
+    ``source``: the campaign's name in the message (the pipeline's: the user's folder, not its interim copy)."""
     cal = campaign.split == "calibration"
     loads = np.asarray(campaign.payload_kg, dtype=float)[cal]
     unloaded = int((loads <= cfg.unloaded_max_kg).sum())
@@ -197,7 +198,7 @@ def missing_loads(campaign: Campaign, cfg: ComplianceConfig) -> str | None:
         return None
     have = ", ".join(f"{v:g}" for v in sorted(set(loads.tolist()))[:4]) or "none"
     return (
-        f"campaign {campaign.source}: the compliance under payload needs calibration rows without a payload "
+        f"campaign {source or campaign.source}: the compliance under payload needs calibration rows without a payload "
         f"(payload_kg <= {cfg.unloaded_max_kg:g}) and rows with one; its calibration rows have "
         f"{'only loaded' if loaded else 'only unloaded'} rows (payload_kg {have}). Its deflection under the arm's "
         "and a constant payload's weight is discovery's weight effect (robocal discover)"

@@ -100,9 +100,9 @@ def thin_campaign(design: Mapping[str, Any]) -> str:
     """The warning of a thin campaign, or one identified with a prior: the configurations, what the model needs
     and what was done (its ``fit.configurations`` record)."""
     text = (
-        f"{design['n']} configurations ({design['equations']} equations) for the model's "
-        f"{design['model_parameters']} parameters: it needs at least {design['needed']}, {design['thin_below']} to "
-        "be determined well"
+        f"{design['n']} configurations ({design['equations']} equations: at most 6 a configuration, one flange "
+        f"pose, however many targets) for the model's {design['model_parameters']} parameters: it needs at least "
+        f"{design['needed']} configurations, {design['thin_below']} to be determined well"
     )
     prior = design.get("prior")
     if not isinstance(prior, Mapping):
