@@ -132,7 +132,7 @@ def physics_candidates(
         qw = workspace_sample(robot)
         Yw = gravity_regressor(robot, qw)
         pi0 = described_mass_moments(robot, qw, Yw) if robot.has_dynamics else generic_mass_moments(robot)
-        shoulder, B, centre = balancer_columns(robot, q, rows, Y, qw) if cfg.counterbalance != "off" else (None, q, q)
+        shoulder, B, centre = balancer_columns(robot, q, rows, Y, qw, offered=cfg.counterbalance != "off")
         for j in range(n):
             V, scale = weight_basis(Y[rows, j, :])
             if V.shape[1] == 0:
@@ -145,8 +145,11 @@ def physics_candidates(
                 continue
             V, scale = V[:, keep], scale[keep]
             S, r = Y[:, j, :] @ V / scale, V.shape[1]
-            bal = {"balancer_harmonics": list(BALANCER_HARMONICS), "balancer_centre": centre.tolist()}
-            S, r_all = (np.column_stack([S, B]), r + B.shape[1]) if j == shoulder else (S, r)
+            bal: dict[str, Any] = {}
+            if j == shoulder:  # a counterbalance's columns after the torque's
+                S = np.column_stack([S, B])
+                bal = {"balancer_harmonics": list(BALANCER_HARMONICS), "balancer_centre": centre.tolist()}
+            r_all = S.shape[1]
             cand = Candidate(
                 f"weight:j{j + 1}", "weight", j + 1, None,
                 cause=f"torsional elasticity of the joint-{j + 1} reducer under the arm's own weight "
@@ -155,8 +158,7 @@ def physics_candidates(
                    "(link masses unknown: the mass-moment combinations the poses tell apart)"),
                 signal=f"gravity-torque regressor of joint {j + 1} ({r} combinations)", shape="joint", S=S,
                 coef_names=tuple(f"w{k + 1}" for k in range(r_all)), coef_units=("rad",) * r_all,
-                extra={"basis": V.tolist(), "scale": scale.tolist(), "prior_deg": cfg.compliance_prior_deg,
-                       **(bal if j == shoulder else {})},
+                extra={"basis": V.tolist(), "scale": scale.tolist(), "prior_deg": cfg.compliance_prior_deg, **bal},
             )  # fmt: skip
             tau = float(np.deg2rad(cfg.compliance_prior_deg)) / np.sqrt(r)
             label = f"prior {cfg.compliance_prior_deg}° RMS" + (", with a counterbalance" if r_all > r else "")

@@ -130,7 +130,7 @@ BALANCER_HARMONICS = (1,)
 
 
 def balancer_columns(
-    robot: RobotDescription, q: np.ndarray, rows: np.ndarray, Y: np.ndarray, q_ws: np.ndarray
+    robot: RobotDescription, q: np.ndarray, rows: np.ndarray, Y: np.ndarray, q_ws: np.ndarray, offered: bool = True
 ) -> tuple[int | None, np.ndarray, np.ndarray]:
     """The shoulder (the first revolute joint the arm's weight loads over the fitted ``rows``) and the signals of
     a counterbalance there, ``sin/cos(h q)`` for :data:`BALANCER_HARMONICS` less their mean over ``rows`` (``B
@@ -138,22 +138,26 @@ def balancer_columns(
     upper arm that cancels most of the shoulder's gravity torque: the torque left, and so the deflection, is not
     of the links' weight's shape but adds a function of the shoulder's angle alone (newcomer pass 11: a KR210-like
     arm with a spring cancelling 85 % of it, 18 configurations: the shoulder's weight effect not found, 0.208 mm
-    held out; with this variant 0.123). ``(None, ...)`` when no revolute joint carries a gravity torque, or when
+    held out; with this variant 0.123). ``(None, ...)`` when not ``offered`` (``counterbalance: off``), when no
+    revolute joint carries a gravity torque, or when
     the columns would deflect a configuration of the workspace sample ``q_ws`` more than
     :data:`WEIGHT_MAX_AMPLIFICATION` times as much as the calibration poses show (a shoulder the calibration
     visited over a narrow range: a harmonic centred there is near zero on its poses and large elsewhere)."""
     from robocal.compensation.signals import fourier_signal
 
+    none = None, np.zeros((len(q), 0)), np.zeros(0)
+    if not offered:
+        return none
     tq = np.sqrt(np.mean(Y[rows] ** 2, axis=(0, 2)))  # (n,) RMS regressor per joint
     loaded = [j for j in range(Y.shape[1]) if not robot.prismatic[j] and tq[j] > 1e-9 * max(float(tq.max()), 1e-300)]
-    if not loaded or not BALANCER_HARMONICS:
-        return None, np.zeros((len(q), 0)), np.zeros(0)
+    if not loaded:
+        return none
     j = loaded[0]
     B = fourier_signal(q[:, j], np.asarray(BALANCER_HARMONICS))
     centre = B[rows].mean(axis=0)
     B_ws = fourier_signal(q_ws[:, j], np.asarray(BALANCER_HARMONICS)) - centre
     if not bounded_columns(B[rows] - centre, B_ws).all():
-        return None, np.zeros((len(q), 0)), np.zeros(0)
+        return none
     return j, B - centre, centre
 
 
