@@ -179,13 +179,14 @@ class FoldCV:
         F: Any = fit.factors() if hasattr(fit, "factors") else None
         if F is None:
             return None
-        out = F.take(self.order[:: self.d] // self.d)
         own_gram = getattr(fit, "gram", None) is F.gram
-        if getattr(fit, "factored", None) is F:
+        own = getattr(fit, "factored", None) is F
+        if own:
             fit.factored = None
             if own_gram:
                 fit.gram = None
-        return out
+        # the factors the fit gives up (its own: evaluated for it, held by nothing else) reordered where they are
+        return F.take(self.order[:: self.d] // self.d, in_place=own)
 
     def _mul(self, i: int, y: np.ndarray) -> np.ndarray:
         """``A_i y``: fold ``i``'s rows of the whitened Jacobian times ``y (k,)`` or ``(k, p)``."""
@@ -227,14 +228,17 @@ class FoldCV:
         keep = np.asarray(keep, dtype=int)
         drop = np.setdiff1d(np.arange(self.k), keep)
         th_d = self.th[drop]
-        if self._F is not None:
-            Ad = self._F.columns(drop)  # (its rows in fold order)
+        if not len(drop):
+            r2 = self._r
+        elif self._F is not None:  # the dropped columns' share from the factors, never the (M, |drop|) columns
+            y = np.zeros(self.k)
+            y[drop] = th_d
+            r2 = self._r - self._F.mul(y)  # (its rows in fold order)
         elif self._A is not None:
-            Ad = self._A[:, drop]
+            r2 = self._r - self._A[:, drop] @ th_d
         else:
             assert self._J is not None
-            Ad = self._J[self.order[:, None], drop[None, :]]
-        r2 = self._r - Ad @ th_d if len(drop) else self._r
+            r2 = self._r - self._J[self.order[:, None], drop[None, :]] @ th_d
         if 0 < len(drop) and _BORDER * len(drop) < len(keep) and all(s.chol is not None for s in self._solver):
             return self._unsort(self._bordered(r2, drop, th_d))
         Gkd = [Gi[np.ix_(keep, drop)] for Gi in self._Gf]
