@@ -234,13 +234,14 @@ def test_the_dictionary_selection_picks_what_the_dense_matrix_picked():
     r = 0.8 * Z[:, 2 * K + 3] + 0.5 * Z[:, 4] + rng.normal(size=m * d)
     groups = np.repeat(np.arange(m), d).astype(str)
     idx, X, picks = dense_select_picks(Jq, w, F, r, Q, groups, 2, 12, 1e-3, 9)
-    Xf = dictionary._Projected(Jq * w.reshape(m, d)[:, :, None], F, Q, Q.T @ Z, np.arange(n * K), np.ones(1))
+    basis = dictionary._Basis(Q, m, d)
+    Xf = dictionary._Projected(Jq * w.reshape(m, d)[:, :, None], F, basis, Q.T @ Z, np.arange(n * K), np.ones(1))
     assert np.allclose(Xf.rmatvec(r), Z.T @ r - (Q.T @ Z).T @ (Q.T @ r))  # the factored product, unnormalised
     rng2 = np.random.default_rng(9)
     uniq = np.unique(groups)
     B = Q.T @ Z
     pn = np.linalg.norm(Z - Q @ B, axis=0)
-    Xp = dictionary._Projected(Jq * w.reshape(m, d)[:, :, None], F, Q, B, idx, pn[idx])
+    Xp = dictionary._Projected(Jq * w.reshape(m, d)[:, :, None], F, basis, B, idx, pn[idx])
     assert np.allclose(Xp.columns(np.arange(len(idx))), X, atol=1e-12)
     for ref in picks:
         pick = rng2.choice(len(uniq), size=len(uniq) // 2, replace=False)

@@ -126,3 +126,28 @@ def test_the_folds_reorder_the_factors_the_fit_gives_up_where_they_are(problem, 
     np.testing.assert_array_equal(D.reshape(m, cv.d, -1), before[0].reshape(m, cv.d, -1)[rows])
     for now, was in zip((*S, *V), before[1:], strict=True):
         np.testing.assert_array_equal(now, was[rows])  # a response two blocks share is reordered once
+
+
+def test_the_dictionary_reads_the_basis_from_the_factors_as_the_dense_one(pair):
+    """The dictionary's products with the model's column space from the factors (no (M, k) basis formed) are the
+    dense basis's: the bases differ by a rotation, so what the selection reads of them — each column's part in the
+    space, its norm, inner products with a residual — is compared."""
+    from robocal.discovery.dictionary import _Basis
+    from robocal.discovery.ftest import basis
+
+    dense, factored = pair
+    m, d = factored.M // factored.d, factored.d
+    rng = np.random.default_rng(6)
+    v, F, u = rng.normal(size=(m, d)), rng.normal(size=(m, 4)), rng.normal(size=factored.M)
+    a, b = _Basis(basis(dense).matrix(), m, d), _Basis(factored.factors().space(), m, d)
+    assert a.rank == b.rank
+    Ba, Bb = a.joint(v, F), b.joint(v, F)
+    # to ~1e-9 of their size: the factored basis A W is orthonormal to the condition number's digits
+    np.testing.assert_allclose(np.sum(Bb**2, axis=0), np.sum(Ba**2, axis=0), rtol=1e-9)
+    np.testing.assert_allclose(Bb.T @ b.t(u), Ba.T @ a.t(u), rtol=1e-8, atol=1e-9 * np.abs(Ba.T @ a.t(u)).max())
+    np.testing.assert_allclose(b.times(Bb), a.times(Ba), atol=1e-8 * np.abs(a.times(Ba)).max())
+    # the summary's projection taken off in place (two steps in turn) is the projection's
+    Z = rng.normal(size=(factored.M, 3))
+    want = Z - basis(dense).project(Z)
+    factored.factors().space().remove(Z)
+    np.testing.assert_allclose(Z, want, atol=1e-9 * np.abs(want).max())

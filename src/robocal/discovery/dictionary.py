@@ -31,6 +31,7 @@ import numpy as np
 from robocal.compensation.signals import Factor, evaluate_factor, factor_label
 from robocal.data.contract import Campaign
 from robocal.discovery.cv import CHUNK
+from robocal.discovery.gram import FactoredSpace
 from robocal.robot import RobotDescription
 
 
@@ -159,7 +160,7 @@ def select(
     w: np.ndarray,
     F_rows: np.ndarray,
     r_w: np.ndarray,
-    Q: np.ndarray,
+    Q: np.ndarray | FactoredSpace,
     groups: np.ndarray,
     max_terms: int,
     n_resamples: int,
@@ -172,7 +173,8 @@ def select(
 
     Jq : (m, d, n) joint Jacobian of the residuals at the current fit; w : (M,) residual weights; F_rows :
     (m, K) the dictionary at the fitted rows; r_w : (M,) whitened residuals; Q : (M, k) orthonormal basis of the
-    current model's whitened Jacobian; groups : (M,) pose of every residual (resampling unit).
+    current model's whitened Jacobian, or that basis held by the Jacobian's factors (a
+    :class:`robocal.discovery.gram.FactoredSpace`); groups : (M,) pose of every residual (resampling unit).
     """
     m, d, n = Jq.shape
     K = F_rows.shape[1]
@@ -180,11 +182,10 @@ def select(
     # with it goes through its factors, V[:, :, j] (m, d) and F (m, K) (robocal.discovery.cv's module docstring)
     V = Jq * np.asarray(w, dtype=float).reshape(m, d)[:, :, None]
     F = np.asarray(F_rows, dtype=float)
-    k = Q.shape[1]
-    Q3 = Q.reshape(m, d, k)
-    B = np.empty((k, n * K))  # Qᵀ Z
+    basis = _Basis(Q, m, d)
+    B = np.empty((basis.rank, n * K))  # Qᵀ Z
     for j in range(n):
-        B[:, j * K : (j + 1) * K] = np.einsum("rdk,rd->rk", Q3, V[:, :, j], optimize=True).T @ F
+        B[:, j * K : (j + 1) * K] = basis.joint(V[:, :, j], F)
     # (n K,) norms of Z's columns, summed over row chunks (no (m, K) square of the dictionary held at once)
     V2 = np.sum(V**2, axis=1)
     sq = np.zeros((n, K))
@@ -196,7 +197,7 @@ def select(
     idx = np.flatnonzero(keep)
     if len(idx) == 0:
         return []
-    X = _Projected(V, F, Q, B, idx, pn[idx])
+    X = _Projected(V, F, basis, B, idx, pn[idx])
     rng = np.random.default_rng(seed)
     from robocal.discovery.cv import group_labels
 
@@ -225,13 +226,38 @@ def select(
     return list(out.values())
 
 
+class _Basis:
+    """The current model's column space as :func:`select` reads it: an orthonormal basis ``Q (M, r)`` formed, or
+    held by the model's Jacobian ``A`` (the factors of a fit with hundreds of joint-level columns,
+    :class:`robocal.discovery.gram.FactoredSpace`: ``Q = A W``, never the ``(M, r)`` matrix — 191 MB at UR10
+    A's 8 258 fitted rows, the largest allocation of its discovery)."""
+
+    def __init__(self, Q: Any, m: int, d: int) -> None:
+        self.dense = isinstance(Q, np.ndarray)
+        self.Q = Q
+        self.rank = int(Q.shape[1]) if self.dense else int(Q.rank)
+        self.Q3 = Q.reshape(m, d, self.rank) if self.dense else None
+
+    def joint(self, v: np.ndarray, F: np.ndarray) -> np.ndarray:
+        """``Qᵀ Z`` (``r x K``) of one joint's dictionary columns ``Z = v ⊗ F`` (``v (m, d)``, ``F (m, K)``)."""
+        if self.Q3 is not None:
+            return np.einsum("rdk,rd->rk", self.Q3, v, optimize=True).T @ F
+        return np.asarray(self.Q.W.T @ (self.Q.F.joint_response(v).T @ F))
+
+    def t(self, u: np.ndarray) -> np.ndarray:
+        """``Qᵀ u`` of a residual vector ``u (M,)``."""
+        return np.asarray(self.Q.T @ u if self.dense else self.Q.W.T @ self.Q.F.rmul(u))
+
+    def times(self, X: np.ndarray) -> np.ndarray:
+        """``Q X`` (``M x p``) of ``X (r, p)``."""
+        return np.asarray(self.Q @ X if self.dense else self.Q.F.mul(self.Q.W @ X))
+
+
 class _Projected:
     """The dictionary's kept columns projected off the current model and normalised, ``X = (Z - Q B)[:, idx] /
     pn``, held by their factors: products with it cost ``O(m n K)``, not the ``(M, n K)`` matrix."""
 
-    def __init__(
-        self, V: np.ndarray, F: np.ndarray, Q: np.ndarray, B: np.ndarray, idx: np.ndarray, pn: np.ndarray
-    ) -> None:
+    def __init__(self, V: np.ndarray, F: np.ndarray, Q: _Basis, B: np.ndarray, idx: np.ndarray, pn: np.ndarray) -> None:
         self.V, self.F, self.Q, self.B, self.idx, self.pn = V, F, Q, B[:, idx], idx, pn
         self.K = F.shape[1]
 
@@ -239,7 +265,7 @@ class _Projected:
         """``Xᵀ u`` for a residual vector ``u (M,)``."""
         m, d, _ = self.V.shape
         zu = (self.F.T @ np.einsum("rdn,rd->rn", self.V, u.reshape(m, d))).T.reshape(-1)  # Zᵀ u, (n K,)
-        return np.asarray((zu[self.idx] - self.B.T @ (self.Q.T @ u)) / self.pn)
+        return np.asarray((zu[self.idx] - self.B.T @ self.Q.t(u)) / self.pn)
 
     def columns(self, cols: np.ndarray) -> np.ndarray:
         """The columns ``cols`` of ``X`` as an ``(M, len(cols))`` matrix."""
@@ -248,7 +274,7 @@ class _Projected:
         for c_out, c in enumerate(cols):
             j, a = divmod(int(self.idx[c]), self.K)
             out[:, c_out] = (self.V[:, :, j] * self.F[:, a][:, None]).reshape(-1)
-        out -= self.Q @ self.B[:, cols]
+        out -= self.Q.times(self.B[:, cols])
         return out / self.pn[cols]
 
 

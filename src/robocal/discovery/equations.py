@@ -6,7 +6,8 @@ from __future__ import annotations
 
 from robocal.discovery.candidates import Candidate
 from robocal.discovery.cv import clear_cache
-from robocal.discovery.ftest import basis, cross_validation_gain, score_candidate
+from robocal.discovery.ftest import ColumnSpace, basis, cross_validation_gain, score_candidate
+from robocal.discovery.gram import FactoredSpace
 from robocal.discovery.model import Accepted
 from robocal.discovery.scoring import Score, Step, regressor
 from robocal.discovery.state import DiscoveryState
@@ -24,13 +25,15 @@ def propose(state: DiscoveryState) -> None:
     for k in range(cfg.dictionary_max_proposals):
         fit = state.fit
         clear_cache()  # the selection's fold sums (its fit's Jacobian) not held beside the basis (issue 31)
-        space = basis(fit)
+        # a fit holding its Jacobian by its factors: the basis held by them too (never an (M, k) matrix)
+        F = fit.factors()
+        space: ColumnSpace | FactoredSpace = F.space() if F is not None else basis(fit)
         props = select(
             fit.Jq,
             fit.weights,
             dic.F[rows],
             fit.r_w,
-            space.matrix(),  # the basis itself: the dictionary's columns are held by their factors
+            space if isinstance(space, FactoredSpace) else space.matrix(),  # the dictionary's columns: by factors
             groups,
             cfg.dictionary_max_terms,
             cfg.dictionary_resamples,

@@ -13,6 +13,7 @@ from scipy import stats
 from robocal.discovery.candidates import Candidate
 from robocal.discovery.config import DiscoveryConfig
 from robocal.discovery.cv import group_labels
+from robocal.discovery.gram import FactoredSpace
 from robocal.discovery.model import Accepted, Fit
 from robocal.discovery.scoring import Score, regressor
 from robocal.identification.model import FitData
@@ -103,6 +104,10 @@ class ColumnSpace:
         """``B Bᵀ Z``: the part of ``Z`` in the column space."""
         return self.combine(self.coefficients(Z))
 
+    def remove(self, Z: np.ndarray) -> None:
+        """``Z -= B Bᵀ Z`` in place: the part of ``Z (M, q)`` off the column space."""
+        Z -= self.project(Z)
+
     def matrix(self) -> np.ndarray:
         """``B`` itself (``M x r``): for products with a regressor held by its factors (the dictionary's ``v ⊗ F``,
         :func:`robocal.discovery.dictionary.select`), which pass the rows once where a pass of the reflectors
@@ -173,7 +178,7 @@ def _normalised(Z: np.ndarray) -> np.ndarray:
     return Z / norms
 
 
-def off_space(Q: ColumnSpace, Zs: list[np.ndarray]) -> list[np.ndarray]:
+def off_space(Q: ColumnSpace | FactoredSpace, Zs: list[np.ndarray]) -> list[np.ndarray]:
     """Each regressor of ``Zs`` with its columns normalised and projected off the column space ``Q``, in one pass
     for all of them (:data:`BATCH_COLUMNS` at most)."""
     if not Zs:
@@ -189,7 +194,7 @@ def off_space(Q: ColumnSpace, Zs: list[np.ndarray]) -> list[np.ndarray]:
 def score_candidate(
     cand: Candidate,
     Z: np.ndarray,
-    Q: ColumnSpace | None,
+    Q: ColumnSpace | FactoredSpace | None,
     fit: Fit,
     cfg: DiscoveryConfig,
     log_thr: float,

@@ -149,6 +149,7 @@ class FactoredJacobian:
     def __init__(self, D: np.ndarray, dc: np.ndarray, k: int, gram: JointGram) -> None:
         self.D, self.dc, self.k, self.gram = D, np.asarray(dc, dtype=int), int(k), gram
         self.M, self.d = gram.M, gram.d
+        self.shared = False  # read by another object (its column space): never reordered in place
         self.shape = (self.M + len(gram.ridge_pos), self.k)
 
     # -- what the solver asks (robocal.optimizers.solver) --------------------------------------------------------
@@ -177,7 +178,8 @@ class FactoredJacobian:
         caller's to give up): put in that order where they are, this object returned — at 8 000 UR10 rows with the
         residual layer the copy was 94 MB beside the originals, the largest allocation of the final checks."""
         m = self.M // self.d
-        if in_place and self.D.flags.c_contiguous and _permutable(rows, m, [D3 := self._dense_rows(None)]):
+        D3 = self._dense_rows(None)
+        if in_place and not self.shared and self.D.flags.c_contiguous and _permutable(rows, m, [D3]):
             _permute_rows([D3], rows)
             self.gram = self.gram.take(rows, in_place=True)
             return self
@@ -245,7 +247,9 @@ class FactoredJacobian:
         return U
 
     def space(self) -> FactoredSpace:
-        """The column space of the measurement rows (:class:`FactoredSpace`)."""
+        """The column space of the measurement rows (:class:`FactoredSpace`): it reads these factors, which are
+        not reordered in place from then on (:meth:`take`)."""
+        self.shared = True
         return FactoredSpace(self)
 
     def dense(self) -> np.ndarray:
@@ -292,6 +296,12 @@ class FactoredSpace:
         x = self.W @ self.coefficients(Z)
         x += self.W @ self.coefficients(Z - self.F.mul(x))
         return self.F.mul(x)
+
+    def remove(self, Z: np.ndarray) -> None:
+        """``Z -= B Bᵀ Z`` in place (``Z (M, q)``): :meth:`project`'s two steps taken off ``Z`` in turn, one
+        ``(M, q)`` temporary at a time instead of three (the same numbers to rounding)."""
+        Z -= self.F.mul(self.W @ self.coefficients(Z))
+        Z -= self.F.mul(self.W @ self.coefficients(Z))
 
 
 #: bytes of one block of the measurement rows formed dense for :class:`FactoredSpace`'s QR

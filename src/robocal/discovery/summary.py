@@ -319,10 +319,12 @@ def locate(res: DiscoveryResult) -> dict[str, Any]:
     fit.gram = None  # the joint-level factors: not needed beyond here, not held beside the SVD
     Q = F.space() if (F := fit.factors()) is not None else basis(fit)
     joints = []
-    Zs = [(fit.Jq[:, :, j][:, :, None] * B[:, None, :]).reshape(dd * m, -1) * fit.weights[:, None] for j in range(n)]
-    allz = np.hstack(Zs)
-    del Zs
-    allz -= Q.project(allz)  # every joint's in one pass of the reflectors
+    nb = B.shape[1]
+    allz = np.empty((dd * m, n * nb))  # every joint's columns, written in place (no second copy of them)
+    for j in range(n):
+        allz[:, j * nb : (j + 1) * nb] = (fit.Jq[:, :, j][:, :, None] * B[:, None, :]).reshape(dd * m, -1)
+    allz *= fit.weights[:, None]
+    Q.remove(allz)  # every joint's projected off the model in one pass (in place)
     del Q
     for j, Z in enumerate(np.split(allz, n, axis=1)):
         U, s, _ = np.linalg.svd(Z, full_matrices=False)

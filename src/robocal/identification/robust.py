@@ -65,7 +65,7 @@ def row_index(m: int, d_pos: int, with_rot: bool) -> np.ndarray:
 ROW_CHUNK = 16384
 #: and bytes of a chunk's Jacobian rows: a large model's chunk is fewer rows (discovery's 1 750 columns at the
 #: UR10's 12 000 rows: 4 500 residuals, 64 MB, where 16 384 residuals were 230 MB, held twice)
-ROW_CHUNK_BYTES = 64 * 2**20
+ROW_CHUNK_BYTES = 32 * 2**20
 
 
 def row_test(
