@@ -102,8 +102,9 @@ def run(args: argparse.Namespace) -> int:
               f"{cv['cv_mean_position_mm']:.4f} mm, RMS {cv['cv_rms_position_mm']:.4f} mm ({within})")  # fmt: skip
     if cv and "session_cv" in cv:
         sc, gc = cv["session_cv"], cv.get("geometric_session_cv") or {}
-        print(f"expected in a new session (each of {len(sc['sessions'])} sessions left out, its tracker registered on "
-              f"half of its poses to judge the other half): mean {sc['mean_position_mm']:.4f} mm"
+        print(f"expected in a new session (the sessions are the campaign's {len(sc['sessions'])} tracker stations, "
+              "another placement whether or not another day: each left out, its tracker registered on half of its "
+              f"poses to judge the other half): mean {sc['mean_position_mm']:.4f} mm"
               + (f" (geometric model {gc['mean_position_mm']:.4f} mm)" if gc else ""))  # fmt: skip
     from robocal.discovery.sessions import SAME_ERROR_MM
 

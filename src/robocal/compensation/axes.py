@@ -20,6 +20,7 @@ robot's coupling undone).
 from __future__ import annotations
 
 import copy
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -85,6 +86,8 @@ def compensate_axes(
     tol_mm: float = 1e-5,
     tool: np.ndarray | None = None,
     orientation: bool = True,
+    effects: Sequence[Mapping[str, Any]] | None = None,
+    signals: Mapping[str, Any] | None = None,
 ) -> AxisCompensation:
     """Correct joint targets ``q_target`` (m, n) for the calibrated robot on its external axes (module docstring);
     ``target`` the reflector whose point is corrected (default: the calibration's first), or ``tool`` (4, 4) a
@@ -96,7 +99,12 @@ def compensate_axes(
     joints outnumber the equations), each target's step capped at 3 deg on a revolute joint and 50 mm on an
     external axis (near a singular pose a full step overshoots); with more free joints than equations (the
     external axes free, or the position only) the least-norm step, 1 mm of an external axis weighing as much as
-    1 mrad of a joint."""
+    1 mrad of a joint.
+
+    ``effects``: joint-level effect records (a calibration's ``effects``, :mod:`robocal.compensation.discovered`)
+    to correct for too — each joint moved by its deflection at the pose, and a base or tool that logged signals
+    move (``logged_frame``) moved back — with ``signals`` the targets' own: ``logged`` ``{column: (m,)}``,
+    ``tau_Nm``, ``current_A``, ``direction`` as the effects need them (the payload is ``payload_kg``)."""
     robot = result.model.robot
     q_target = np.atleast_2d(np.asarray(q_target, dtype=float))
     m, n = q_target.shape
@@ -115,10 +123,20 @@ def compensate_axes(
     Tn = T_base @ fk(build_chain(robot), q_target)
     p_des = Tn[:, :3, 3] + Tn[:, :3, :3] @ tool_p
     R_des = Tn[:, :3, :3] @ tool_R
+    deflect = _effects(list(effects or ()), robot, pl, dict(signals or {}), m)
+    if deflect.frames is not None:  # the base or the tool moved by logged signals: reach the pose cancelling it
+        from robocal.compensation.discovered import frame_desired
+
+        Tt = np.eye(4)
+        Tt[:3, :3], Tt[:3, 3] = tool_R, tool_p
+        Tb = np.linalg.inv(T_base)  # the desired pose in the robot's base frame, where the frames act
+        pb, Rb = frame_desired(deflect.frames, Tt, (Tb[:3, :3] @ p_des.T).T + Tb[:3, 3], Tb[:3, :3] @ R_des)
+        p_des, R_des = (T_base[:3, :3] @ pb.T).T + T_base[:3, 3], T_base[:3, :3] @ Rb
 
     def pose(q: np.ndarray, rows: np.ndarray, jac: bool) -> tuple[np.ndarray, np.ndarray | None]:
         k_ = len(rows)
         E = axis_errors(robot, q, pl[rows], axis_fit.terms, axis_fit.coef) if axis_fit is not None else None
+        q = q + deflect.dq(q, rows)  # the joints where the effects put them (the Jacobian there: a small effect)
         qa = np.concatenate([q, np.zeros((k_, model.chain.n_joints - n)) if E is None else E], axis=1)
         st = propagate(model.full_chain, qa, x[: model.n_chain], T_ref, record=jac)
         p = st.o + st.x * tool_p[0] + st.y * tool_p[1] + st.z * tool_p[2]
@@ -153,6 +171,37 @@ def compensate_axes(
         own_error_mm=np.linalg.norm(r_own[:, :3], axis=1),
         zero_offsets=zero_off,
     )
+
+
+@dataclass
+class _Deflection:
+    """The effects :func:`compensate_axes` corrects for: the joints' deflection at a pose, and the frames."""
+
+    records: list[Mapping[str, Any]]
+    robot: RobotDescription
+    payload: np.ndarray
+    signals: dict[str, Any]
+    frames: tuple[np.ndarray, np.ndarray] | None
+
+    def dq(self, q: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """``(k, n)`` rad of the targets ``rows`` at their joints ``q``."""
+        if not self.records:
+            return np.zeros_like(q)
+        from robocal.compensation.discovered import joint_offsets
+
+        sig = {k: None if v is None else (v[rows] if k != "logged" else {c: x[rows] for c, x in v.items()})
+               for k, v in self.signals.items()}  # fmt: skip
+        return joint_offsets(list(self.records), self.robot, q, self.payload[rows], **sig)  # type: ignore[arg-type]
+
+
+def _effects(
+    records: list[Mapping[str, Any]], robot: RobotDescription, payload: np.ndarray, signals: dict[str, Any], m: int
+) -> _Deflection:
+    from robocal.compensation.discovered import frame_transforms
+
+    joint = [e for e in records if e.get("signal") != "logged_frame"]
+    frames = frame_transforms([dict(e) for e in records], signals.get("logged"), m) if records else None
+    return _Deflection(joint, robot, payload, signals, frames)
 
 
 def _newton(

@@ -370,15 +370,15 @@ def _external_axes_checked(
 ) -> Any:
     """A robot on external axes (issue 34) is corrected by :func:`robocal.compensation.axes.compensate_axes`: its
     geometry and its axes' own errors along the travel (the calibration's ``axes``, returned as an
-    :class:`~robocal.calibration.axes.AxisFit`, None without). A thermal or compliance model, or joint-level
-    effects, are not applied on that path: such a bundle is refused by name rather than served without them."""
+    :class:`~robocal.calibration.axes.AxisFit`, None without), and the calibration's discovered effects (the joints'
+    deflection, a base or tool a logged signal moves) with each target's signals. A thermal or compliance model is
+    not applied on that path: such a bundle is refused by name rather than served without it."""
     if not robot.has_prismatic:
         if axes:
             raise ConfigError(f"bundle {d}: the calibration has 'axes' but robot {robot.name!r} has no external axis")
         return None
     names = [robot.joint_names[j] for j in range(robot.n_joints) if robot.prismatic[j]]
     extra = [k for k in ("thermal", "compliance") if models.get(k) is not None]
-    extra += [f"joint-level effects {[e['key'] for e in cal.effects]}"] if cal.effects else []
     if extra:
         raise ConfigError(
             f"bundle {d}: robot {robot.name!r} rides external axes {names}; its correction "

@@ -178,9 +178,12 @@ def _correct_external(
             q_arm[rows], ik_ok[rows], freed[rows] = q_r, ok_r, fr_r
     q_target = np.zeros((m, robot.n_joints))
     q_target[:, arm], q_target[:, ext] = q_arm, tg.ext_mm
+    _joint_offsets(bundle, tg, r.payload_kg)  # an effect's signal missing from the request: a bad_request
+    signals = {"logged": tg.logged, "tau_Nm": tg.tau_Nm, "current_A": tg.current_A, "direction": tg.direction}
     c = compensate_axes(
         bundle.calibration, q_target, r.tool_name, bundle.axis_fit, r.move_external, r.payload_kg,
         max_iter=max(cfg.solver.max_iter, 30), tol_mm=cfg.solver.tol_mm, orientation=r.mode == "pose",
+        effects=list(bundle.effects), signals=signals,
     )  # fmt: skip
     assert c.zero_offsets is not None and c.own_error_mm is not None and c.error_before_xyz_mm is not None
     sf = cfg.safety

@@ -56,10 +56,16 @@ def _axes_product(
     qc, cmd, err = np.zeros((m, robot.n_joints)), np.zeros((m, 4, 4)), np.zeros((m, 3))
     status, reason, corr = [TargetStatus.OK] * m, [""] * m, np.zeros(m)
     lim = robot.q_limits
+    # the model's effects corrected for too, with each target's own signals (a tilt an accelerometer logged)
+    cols = {str(e["column"]) for e in cal.effects if e.get("signal") in ("logged", "logged_frame")}
     for t in dict.fromkeys(tgt):
         rows = np.array([k for k, tt in enumerate(tgt) if tt == t])
         r = idx[rows]
-        comp = compensate_axes(cal, sub.q[r], t, af, payload_kg=sub.payload_kg[r])
+        signals = {"logged": {c: np.asarray(sub.extra[c], dtype=float)[r] for c in cols} or None,
+                   **{k: None if (v := getattr(sub, k)) is None else v[r]
+                      for k in ("tau_Nm", "current_A", "direction")}}  # fmt: skip
+        comp = compensate_axes(cal, sub.q[r], t, af, payload_kg=sub.payload_kg[r], effects=list(cal.effects),
+                               signals=signals)  # fmt: skip
         cmd[rows] = fk(cal.model.chain, comp.q_target) @ _tool_T(cal, t)
         inside = np.all((comp.q >= lim[:, 0]) & (comp.q <= lim[:, 1]), axis=1)
         for k, row in enumerate(rows):
