@@ -146,6 +146,17 @@ def test_validation_station_not_in_calibration_is_registered_on_half(tmp_path_fa
     # S9 is the old S1 frame: registered on half of its 10 poses, evaluated on the other 5, at the floor
     assert v["n_rows"] == 10 + 5
     assert v["mean_position_mm"] < 0.05
+    # each station's own figure beside the mean over them (newcomer pass 13: a new session's 0.24 mm was read only
+    # in a mean with the calibration's own 0.025), and the console says which is which
+    from robocal.commands.calibrate import station_lines
+
+    per = v["per_station"]
+    assert {s: p["n_rows"] for s, p in per.items()} == {"S2": 10, "S9": 5}
+    e = np.linalg.norm(v["errors_mm"][v["kept_rows"]], axis=1)
+    assert np.isclose(sum(p["mean_position_mm"] * p["n_rows"] for p in per.values()) / 15, e.mean())
+    lines = station_lines(v.record())
+    assert any("S9" in t and "(a new session)" in t for t in lines)
+    assert any("S2: calibrated there" in t and "(within the session)" in t for t in lines)
 
 
 def test_a_station_its_calibration_rows_cannot_fix_is_judged_on_its_own_and_a_tiny_one_is_not_judged(

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -75,6 +76,20 @@ def misfit_hint(noise: dict[str, Any]) -> str | None:
     )
 
 
+def station_lines(v: Mapping[str, Any]) -> list[str]:
+    """The validation's stations each judged otherwise than by the calibration's frame (a new session: its tracker
+    registered on its own rows), and with several stations each one's own figure beside the mean over them."""
+    per = v.get("per_station") or {}
+    out = []
+    for st, how in (v.get("station_source") or {}).items():
+        fig = f"mean {per[st]['mean_position_mm']:.4f} mm on {per[st]['n_rows']} rows" if st in per else ""
+        if how != "calibration":
+            out.append(f"  validation station {st}: {how}" + (f"; {fig} (a new session)" if fig else ""))
+        elif fig:
+            out.append(f"  validation station {st}: calibrated there; {fig} (within the session)")
+    return out
+
+
 def run(args: argparse.Namespace) -> int:
     from robocal.workflows import geometric
 
@@ -105,10 +120,8 @@ def run(args: argparse.Namespace) -> int:
         v = summary["validation"]
         line += f"; validation mean {v['mean_position_mm']:.4f} / max {v['max_position_mm']:.4f} mm"
     print(line)
-    src = (summary.get("validation") or {}).get("station_source") or {}
-    for st, how in src.items():  # a station judged otherwise than by the calibration's frame says so
-        if how != "calibration":
-            print(f"  validation station {st}: {how}")
+    for text in station_lines(summary.get("validation") or {}):
+        print(text)
     from robocal.identification.robust import outlier_line
 
     print(outlier_line(fit.get("outliers", []), fit.get("n_rows_total")))

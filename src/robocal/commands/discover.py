@@ -155,6 +155,12 @@ def _validation_lines(s: dict[str, Any]) -> None:
         f"(residual layer: {vf['layer']}{_after_parametric(s)}); max {vg['max_position_mm']:.4f} -> "
         f"{vf['max_position_mm']:.4f} mm"
     )
+    for st, fig in (vf.get("per_station") or {}).items():  # several stations: each one's own figure
+        new = (vf.get("station_source") or {}).get(st, "calibration") != "calibration"
+        where = "a new session: its tracker registered on half of its poses" if new else "within the session"
+        print(f"  validation station {st} ({where}): "
+              f"mean {vg['per_station'][st]['mean_position_mm']:.4f} mm geometric -> {fig['mean_position_mm']:.4f} mm "
+              f"final on {fig['n_rows']} rows")  # fmt: skip
     if vg.get("with_axes"):
         print(
             "  the geometric calibration with the linear axes' errors fitted (robocal calibrate's headline): mean "

@@ -38,6 +38,7 @@ import numpy as np
 
 from robocal.data.contract import Campaign
 from robocal.discovery.config import DiscoveryConfig
+from robocal.discovery.sessions import THERMAL_WITHIN_SESSIONS, temperature_share_within_sessions
 from robocal.robot import RobotDescription
 
 HOUR_S = 3600.0
@@ -296,9 +297,8 @@ def _backlash_candidates(campaign: Campaign, robot: RobotDescription, cfg: Disco
 
 def _thermal_candidates(campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig, out: _Library) -> None:
     """The ``thermal`` candidates of the campaign, or why there are none."""
-    effect = "thermal"
+    effect = key = "thermal"
     tol = cfg.min_signal_std
-    key = "thermal"
     if campaign.temperatures is None:
         out.skipped.append(SkippedCandidate(key, effect, None, "no temperature log (temperatures.csv)"))
         return
@@ -307,6 +307,15 @@ def _thermal_candidates(campaign: Campaign, robot: RobotDescription, cfg: Discov
         out.skipped.append(
             SkippedCandidate(key, effect, None, "the temperatures do not vary (a constant offset is a pure "
                              "length scale, absorbed by the geometry)")
+        )  # fmt: skip
+        return
+    within = temperature_share_within_sessions(campaign, T)
+    if within is not None and within < THERMAL_WITHIN_SESSIONS:
+        out.skipped.append(
+            SkippedCandidate(key, effect, None, f"the temperatures change between the sessions (tracker stations) "
+                             f"and hardly within one ({within:.1%} of their variance within): a thermal model would "
+                             "be the sessions' own difference (a tool re-seated, the tracker's frame), confounded "
+                             "with them; the session effects are offered instead")
         )  # fmt: skip
         return
     S, names, load = _temperature_signals(campaign, cfg.thermal_components)
@@ -531,8 +540,6 @@ def _signal_candidates(campaign: Campaign, robot: RobotDescription, cfg: Discove
 
 #: the logged signals are offered in pairs (a frame moving with two of them) when there are at most this many
 MAX_PAIRED = 6
-
-
 #: a session (tracker station) is offered its own tool with at least this many rows (the sessions that the
 #: leave-one-session-out selection holds out, robocal.discovery.session_cv.MIN_SESSION_ROWS)
 SESSION_MIN_ROWS = 20
@@ -583,14 +590,6 @@ _EFFECT_CANDIDATES: dict[str, Callable[..., None]] = {
     "signal": _signal_candidates,
     "session": _session_candidates,
 }
-
-
-def periodic_window(cfg: DiscoveryConfig, h_max: int) -> tuple[float, float]:
-    """``(gap_deg, taper_deg)`` of the coverage window of a periodic joint error up to harmonic ``h_max``:
-    visits closer than a quarter of the shortest period (and at least ``transmission_gap_deg``) are joined,
-    and the error falls to zero over an eighth of it (at least ``transmission_taper_deg``) outside."""
-    period = 360.0 / max(int(h_max), 1)
-    return max(cfg.transmission_gap_deg, period / 4.0), max(cfg.transmission_taper_deg, period / 8.0)
 
 
 def with_beta(robot: RobotDescription, joint: int) -> RobotDescription:

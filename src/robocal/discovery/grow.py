@@ -64,13 +64,13 @@ def physics_candidates(
     gravity torque (of those two, the ``effects`` the settings also name). Signals for every campaign row;
     coverage and bases from the fitted ``rows``."""
     from robocal.compensation.signals import coverage_weight, fourier_signal
-    from robocal.discovery.candidates import periodic_window
     from robocal.discovery.physics import (
         BALANCER_HARMONICS,
         balancer_columns,
         bounded_columns,
         configurations,
         lowest_harmonic,
+        periodic_window,
         visited_intervals,
         visited_span_deg,
         weight_basis,
@@ -445,8 +445,7 @@ def distinct_windows(campaign: Campaign, robot: Any, cfg: DiscoveryConfig, rows:
     """The values of ``cfg.transmission_min_visits`` that give different transmission windows on the rows ``rows``
     (the first of each set of values giving the same windows on every joint; one value when nothing differs: the
     search need not run again)."""
-    from robocal.discovery.candidates import periodic_window
-    from robocal.discovery.physics import configurations, visited_intervals
+    from robocal.discovery.physics import configurations, periodic_window, visited_intervals
 
     values = sorted(set(cfg.transmission_min_visits))
     orders = resolved_orders(cfg, len(np.unique(np.asarray(campaign.pose_id)[rows].astype(str))))

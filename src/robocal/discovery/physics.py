@@ -26,6 +26,8 @@ from those masses) competes with it; logged torques or motor currents replace it
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from robocal.compensation.signals import REV_DEG
@@ -168,6 +170,7 @@ __all__ = [
     "bounded_columns",
     "layer_centres",
     "lowest_harmonic",
+    "periodic_window",
     "visited_intervals",
     "visited_span_deg",
     "weight_basis",
@@ -187,3 +190,11 @@ def layer_centres(q_rad: np.ndarray, n_centres: int, seed: int) -> np.ndarray:
 
     km = KMeans(n_clusters=n_centres, n_init=1, random_state=seed).fit(uniq)
     return np.asarray(km.cluster_centers_)
+
+
+def periodic_window(cfg: Any, h_max: int) -> tuple[float, float]:
+    """``(gap_deg, taper_deg)`` of the coverage window of a periodic joint error up to harmonic ``h_max``:
+    visits closer than a quarter of the shortest period (and at least ``transmission_gap_deg``) are joined,
+    and the error falls to zero over an eighth of it (at least ``transmission_taper_deg``) outside."""
+    period = 360.0 / max(int(h_max), 1)
+    return max(cfg.transmission_gap_deg, period / 4.0), max(cfg.transmission_taper_deg, period / 8.0)

@@ -26,7 +26,7 @@ from robocal.calibration.screening import describe_outliers
 from robocal.calibration.start import fit_data, present_stations, present_targets
 from robocal.data.contract import Campaign
 from robocal.discovery import progress
-from robocal.discovery.candidates import Candidate, SkippedCandidate, build_library, periodic_window
+from robocal.discovery.candidates import Candidate, SkippedCandidate, build_library
 from robocal.discovery.choices import (
     counterbalance_choice,
     counterbalance_offered,
@@ -50,6 +50,7 @@ from robocal.discovery.grow import (
 )
 from robocal.discovery.logged import signal_gaps
 from robocal.discovery.model import Accepted, ExtendedModel, Fit, fit_model
+from robocal.discovery.physics import periodic_window
 from robocal.discovery.refit import calibration_prior, refitter, release, start
 from robocal.discovery.scoring import Step
 from robocal.discovery.session_cv import Sessions

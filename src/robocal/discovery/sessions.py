@@ -29,6 +29,26 @@ from robocal.robot import RobotDescription
 SAME_ERROR_MM = 1e-4
 
 
+#: a thermal model is not offered when less than this share of the temperatures' variance is within the sessions
+#: (one temperature a session: the model would be each session's own geometry, as the pipeline's thermal stage
+#: refuses two temperature states)
+THERMAL_WITHIN_SESSIONS = 0.05
+
+
+def temperature_share_within_sessions(campaign: Campaign, T: np.ndarray) -> float | None:
+    """The share of the temperatures' ``T (m, s)`` variance within the campaign's sessions (tracker stations); None
+    with fewer than two."""
+    if not campaign.has_stations:
+        return None
+    st = np.asarray(campaign.station).astype(str)
+    names = np.unique(st)
+    if len(names) < 2:
+        return None
+    total = float(np.sum((T - T.mean(axis=0)) ** 2))
+    within = sum(float(np.sum((T[st == s] - T[st == s].mean(axis=0)) ** 2)) for s in names)
+    return within / total if total > 0 else None
+
+
 def predicted_flanges(
     cal: CalibrationResult, campaign: Campaign, records: tuple[dict[str, Any], ...]
 ) -> tuple[np.ndarray, np.ndarray]:

@@ -546,16 +546,10 @@ def summary(res: DiscoveryResult, validation: dict[str, Any] | None = None) -> d
         out["cross_validation"] = {k: v for k, v in cv.items() if k != "effects"}
     if validation is not None:
         out["validation"] = validation
-        vg, vf = validation["geometric"], validation["final"]
-        # a result worse than its start is said (by more than round-off: the figures' last digit)
-        from robocal.discovery.sessions import SAME_ERROR_MM
+    from robocal.discovery.validate import worse_than_geometry
 
-        if float(vf["mean_position_mm"]) > float(vg["mean_position_mm"]) + SAME_ERROR_MM:
-            out.setdefault("warnings", []).append(
-                f"on the {vf['n_rows']} validation rows the final model ({float(vf['mean_position_mm']):.4f} mm mean) "
-                f"is worse than the geometric calibration ({float(vg['mean_position_mm']):.4f} mm) on these poses "
-                "the fit did not see: robocal calibrate's calibration.json is the better model for this campaign"
-            )
+    if said := worse_than_geometry(validation, cv):  # a result worse than its start is said
+        out.setdefault("warnings", []).extend(said)
     return out
 
 

@@ -210,3 +210,31 @@ def validation_errors(res: DiscoveryResult) -> dict[str, Any] | None:
 
 
 __all__ = ["validation_errors"]
+
+
+def worse_than_geometry(validation: Mapping[str, Any] | None, cv: Mapping[str, Any]) -> list[str]:
+    """What is said when the discovered model is worse than the geometric calibration it started from (by more
+    than round-off, the figures' last digit): on the validation rows, and expected in a new session (each tracker
+    station left out)."""
+    from robocal.discovery.sessions import SAME_ERROR_MM
+
+    out = []
+    if validation is not None:
+        vg, vf = validation["geometric"], validation["final"]
+        if float(vf["mean_position_mm"]) > float(vg["mean_position_mm"]) + SAME_ERROR_MM:
+            out.append(
+                f"on the {vf['n_rows']} validation rows the final model ({float(vf['mean_position_mm']):.4f} mm mean) "
+                f"is worse than the geometric calibration ({float(vg['mean_position_mm']):.4f} mm) on these poses "
+                "the fit did not see: robocal calibrate's calibration.json is the better model for this campaign"
+            )
+    sc, gc = cv.get("session_cv"), cv.get("geometric_session_cv")
+    if sc and gc and float(sc["mean_position_mm"]) > float(gc["mean_position_mm"]) + SAME_ERROR_MM:
+        # a model that holds within the session and not in the next one (newcomer pass 13: 1.00 mm expected in a
+        # new session where the geometry alone gave 0.23, without a word)
+        out.append(
+            f"expected in a new session (each of its {len(sc['sessions'])} tracker stations left out) the "
+            f"discovered model ({float(sc['mean_position_mm']):.4f} mm mean) is worse than the geometric "
+            f"calibration ({float(gc['mean_position_mm']):.4f} mm): its effects do not hold beyond the session "
+            "they were fitted in; for a new session robocal calibrate's calibration.json is the better model"
+        )
+    return out
