@@ -85,8 +85,14 @@ def main(argv: list[str] | None = None) -> int:
     bare = [a for a in getattr(args, "overrides", None) or [] if "=" not in a]
     if bare:  # a setting without '=' (noise_mm 0.02): say so, with the command's usage, before running anything
         command_parser.error(not_a_setting(bare[0]))
+    from robocal.io import reproducible
+
     try:
-        return int(importlib.import_module(args._module).run(args) or 0)
+        # same input and settings, same bytes: no timings in the files written (the console has them), floats at
+        # the precision they deserve — as the pipeline's stages write theirs (newcomer pass 13: calibration.json
+        # differed between two runs by its solver time)
+        with reproducible():
+            return int(importlib.import_module(args._module).run(args) or 0)
     except RobocalError as exc:
         print(f"robocal {args.command}: error: {exc}", file=sys.stderr)
         return 2

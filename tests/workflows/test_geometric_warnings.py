@@ -62,3 +62,21 @@ def test_the_u_mm_warning_judges_the_noise_the_fit_weighted_by(tmp_path):
                          report=False)  # fmt: skip
     assert disc["noise_mm"] > 0.05  # the reflectors' spread, not the configured 0.015
     assert not any("u_mm" in w for w in disc.get("warnings", [])), disc.get("warnings")
+
+
+def test_gross_errors_in_a_campaign_of_logged_signals_are_said_to_maybe_be_their_effect(tmp_path):
+    """Newcomer pass 13: calibrate left out a lifting column's most tilted pose (0.8 mm) as gross errors beside a
+    declared tilt signal it does not model (discover, taking the signal, flagged nothing)."""
+    from robocal.workflows.geometric import signals_not_modelled
+
+    rob = robocal.load_robot("kr16_2")
+    scen = {"name": "geometric", "robot": "kr16_2", "n_poses": 20, "n_validation_poses": 5,
+            "effects": {"compliant_stand": {}}}  # fmt: skip
+    robocal.simulate(scen, tmp_path)
+    camp = read_campaign(tmp_path, rob)
+    flagged = [{"row": 3}, {"row": 4}]
+    (w,) = signals_not_modelled(camp, rob, flagged)
+    assert w.startswith("2 row(s) left out as gross errors") and "incl_x" in w and "robocal discover" in w
+    assert signals_not_modelled(camp, rob, []) == []  # nothing left out: nothing to say
+    plain = replace(camp, extra={})
+    assert signals_not_modelled(plain, rob, flagged) == []  # no logged signal: a gross error is one

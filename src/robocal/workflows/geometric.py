@@ -193,6 +193,28 @@ def unused_uncertainty(
     ]
 
 
+def signals_not_modelled(campaign: Campaign, robot: RobotDescription, outliers: list[Any]) -> list[str]:
+    """Rows left out as gross errors by the geometric model in a campaign that logs signals it does not take (a
+    column's tilt an accelerometer follows): said, since such rows may be the signal's effect, not blunders
+    (newcomer pass 13: a declared tilt signal, its largest pose left out at 0.8 mm, discover flagging nothing)."""
+    if not outliers or not campaign.extra:
+        return []
+    from robocal.discovery.logged import screen
+
+    used, _ = screen(campaign, robot)
+    if not used:
+        return []
+    names = ", ".join(
+        s.name + (f" ({s.declaration.location})" if s.declaration is not None and s.declaration.location else "")
+        for s in used
+    )
+    return [
+        f"{len(outliers)} row(s) left out as gross errors by the geometric model, which does not take the campaign's "
+        f"logged signals ({names}): rows that a tilt or a shift those signals follow explains are no blunders; "
+        "robocal discover offers the signals as causes and judges the rows against them"
+    ]
+
+
 def _carrying_column(campaign: Campaign, limit_mm: float) -> str | None:
     """A hint when an extra column of lengths (``*_mm`` / ``*_m``) spans more than the start's limit: an axis
     carrying the robot (a track, a lifting column) logged beside the arm's joints, which the robot must hold as
@@ -290,6 +312,7 @@ def run(
     # console says it, not the configured one (newcomer pass 11: the two lines named 0.2267 and 0.015 mm)
     used = float((result.fit.get("noise") or {}).get("used_mm") or cfg.noise_mm)
     warnings += unused_uncertainty(camp, used, cfg.noise_model, cfg.u_coverage, "calibration")
+    warnings += signals_not_modelled(camp, rob, result.fit.get("outliers") or [])
     if warnings:  # the key only when there are some (a clean run's summary.json is unchanged)
         summary["warnings"] = warnings
     cal_record = _with_cell_axes(rob, camp, full, result, summary)
