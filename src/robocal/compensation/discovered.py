@@ -36,6 +36,7 @@ from robocal.compensation.signals import (
     layer_signal,
     transmission_signal,
     weight_signal,
+    with_payload,
 )
 from robocal.kinematics import compiled
 from robocal.kinematics.gravity import gravity_regressor, gravity_torques, regressor_arrays
@@ -84,7 +85,7 @@ def joint_offsets(
         elif kind == "weight":
             if Yg is None:  # one regressor for every joint's weight effect
                 Yg = gravity_regressor(robot, q)
-            S = weight_signal(robot, q, e, Yg)
+            S = weight_signal(robot, q, e, Yg, payload_kg)
         elif kind == "layer":
             S = layer_signal(q, e)[0]
         elif kind == "dictionary":
@@ -299,7 +300,10 @@ class DiscoveredEffects:
             dq[:, cols] += _interp_tables(q, cols, grid, vals, start)
         if weights is not None:
             wcols, P = weights
-            dq[:, wcols] += np.einsum("mjk,jk->mj", gravity_regressor(self.robot, q)[:, wcols, :], P)
+            Y = gravity_regressor(self.robot, q)
+            if P.shape[1] > Y.shape[2]:  # fitted on rows of several payloads: each target's own
+                Y = with_payload(Y, s.payload_kg)
+            dq[:, wcols] += np.einsum("mjk,jk->mj", Y[:, wcols, :], P)
         return dq
 
     @cached_property
@@ -312,6 +316,8 @@ class DiscoveredEffects:
             rest = [e for e in rest if e["signal"] != "layer"]
         if rest or not compiled.AVAILABLE or (tables is None and weights is None and layer is None):
             return None
+        if weights is not None and weights[1].shape[1] != 4 * self.robot.n_joints:
+            return None  # a payload's columns (each target's own payload): the sum term by term
         n = self.robot.n_joints
         none_i, none_f = np.zeros(0, dtype=np.int64), np.zeros(0)
         cols, grid, vals, start = tables if tables is not None else (none_i, none_f, none_f, np.zeros(1, np.int64))

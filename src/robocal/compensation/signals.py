@@ -102,13 +102,29 @@ def transmission_signal(q_rad: np.ndarray, record: dict[str, Any]) -> np.ndarray
     return S - np.asarray(record.get("centre", 0.0), dtype=float)
 
 
+def with_payload(Y: np.ndarray, payload_kg: Any) -> np.ndarray:
+    """The gravity regressor ``Y (m, n, 4 b)`` with a carried payload's columns after it: the last body's four (a
+    mass at its frame's origin, its first mass moments) times each row's payload (kg) — a payload of known mass
+    whose centre of mass, and the stiffness under it, the fit finds (``(m, n, 4 b + 4)``)."""
+    p = np.broadcast_to(np.asarray(0.0 if payload_kg is None else payload_kg, dtype=float), (Y.shape[0],))
+    return np.concatenate([Y, p[:, None, None] * Y[:, :, -4:]], axis=2)
+
+
 def weight_signal(
-    robot: RobotDescription, q: np.ndarray, record: dict[str, Any], Y: np.ndarray | None = None
+    robot: RobotDescription,
+    q: np.ndarray,
+    record: dict[str, Any],
+    Y: np.ndarray | None = None,
+    payload_kg: Any = None,
 ) -> np.ndarray:
     """The compliance-under-own-weight signal of a stored effect (``basis``, ``scale``); ``Y``: the
-    :func:`gravity_regressor` at ``q`` when already computed (one for every joint's effect)."""
+    :func:`gravity_regressor` at ``q`` when already computed (one for every joint's effect); ``payload_kg`` each
+    row's payload, for an effect fitted on rows of several payloads (``payload_columns``: :func:`with_payload`)."""
     j = int(record["joint"]) - 1
-    Yj = (gravity_regressor(robot, q) if Y is None else Y)[:, j, :]
+    Y = gravity_regressor(robot, q) if Y is None else Y
+    if record.get("payload_columns"):
+        Y = with_payload(Y, payload_kg)
+    Yj = Y[:, j, :]
     S = Yj @ np.asarray(record["basis"], dtype=float) / np.asarray(record["scale"], dtype=float)
     if record.get("balancer_harmonics"):
         S = np.column_stack([S, balancer_signal(np.asarray(q, dtype=float)[:, j], record)])

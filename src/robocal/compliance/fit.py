@@ -201,7 +201,7 @@ def missing_loads(campaign: Campaign, cfg: ComplianceConfig, source: str | None 
         f"campaign {source or campaign.source}: the compliance under payload needs calibration rows without a payload "
         f"(payload_kg <= {cfg.unloaded_max_kg:g}) and rows with one; its calibration rows have "
         f"{'only loaded' if loaded else 'only unloaded'} rows (payload_kg {have}). Its deflection under the arm's "
-        "and a constant payload's weight is discovery's weight effect (robocal discover)"
+        "and its payloads' weight (each row's payload_kg) is discovery's weight effect (robocal discover)"
     )
 
 

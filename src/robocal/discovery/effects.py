@@ -126,7 +126,7 @@ def effect_records(fit: Fit) -> tuple[list[dict[str, Any]], list[dict[str, Any]]
                          if k in c.extra}  # fmt: skip
         elif kind == "weight":
             rec_terms = {k: c.extra[k] for k in ("basis", "scale", "prior_deg", "balancer_harmonics",
-                                                  "balancer_centre") if k in c.extra}  # fmt: skip
+                                                  "balancer_centre", "payload_columns") if k in c.extra}  # fmt: skip
         elif kind == "layer":
             rec_terms = {k: c.extra[k] for k in ("centres_rad", "length_rad", "inside_rad")}
         elif kind == "logged":

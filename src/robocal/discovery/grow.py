@@ -21,7 +21,7 @@ the best is the candidate's score.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -33,23 +33,14 @@ from robocal.discovery.config import DiscoveryConfig
 from robocal.discovery.cv import fold_cv, paired_log10_p, pose_paired_log10_p
 from robocal.discovery.gram import RowsOf
 from robocal.discovery.model import Accepted, Fit
-from robocal.discovery.scoring import Score, Step, regressor
+from robocal.discovery.scoring import Score, Step, Variant, regressor
 from robocal.discovery.session_cv import session_own
 from robocal.discovery.state import DiscoveryState, Refit
+from robocal.discovery.weight import weight_candidates
 from robocal.metrics import ErrorStats
 from robocal.robot import RobotDescription
 
 _DEG = float(np.rad2deg(1.0))
-
-
-@dataclass(frozen=True)
-class Variant:
-    """One variant of a candidate: which of its signal columns and which prior (rad per coefficient, one value or
-    one per column)."""
-
-    columns: np.ndarray | None  # None: every column (a parameter drift, whose columns depend on the fit)
-    prior_rad: float | np.ndarray | None
-    label: str
 
 
 def physics_candidates(
@@ -65,18 +56,12 @@ def physics_candidates(
     coverage and bases from the fitted ``rows``."""
     from robocal.compensation.signals import coverage_weight, fourier_signal
     from robocal.discovery.physics import (
-        BALANCER_HARMONICS,
-        balancer_columns,
-        bounded_columns,
         configurations,
         lowest_harmonic,
         periodic_window,
         visited_intervals,
         visited_span_deg,
-        weight_basis,
-        workspace_sample,
     )
-    from robocal.kinematics.gravity import described_mass_moments, generic_mass_moments, gravity_regressor
 
     out: list[tuple[Candidate, list[Variant]]] = []
     q = campaign.q
@@ -120,49 +105,8 @@ def physics_candidates(
                 for t in cfg.transmission_prior_deg
             ]  # fmt: skip
             out.append((cand, variants))
-    # link masses in the description do not stop it: the library's ``compliance`` from those masses competes with
-    # it (a vendor's URDF with link inertials but no tool mass: compliance j2, j3 from the given masses 0.137 mm
-    # held out, the same poses without the inertials, this weight model, 0.059)
-    has_load_signal = campaign.tau_Nm is not None or campaign.current_A is not None
-    if "weight" in cfg.effects and "weight" in effects and not has_load_signal:
-        Y = gravity_regressor(robot, q)
-        # the torque of links shaped like the arm's (uniform rods): one combination of physical shape over the
-        # whole workspace, beside the ones the poses tell apart (on a heavy robot in 17 configurations those alone
-        # matched its true torque to only 40-60 %, and gear harmonics stood in for the rest)
-        qw = workspace_sample(robot)
-        Yw = gravity_regressor(robot, qw)
-        pi0 = described_mass_moments(robot, qw, Yw) if robot.has_dynamics else generic_mass_moments(robot)
-        shoulder, B, centre = balancer_columns(robot, q, rows, Y, qw, offered=cfg.counterbalance != "off")
-        for j in range(n):
-            V, scale = weight_basis(Y[rows, j, :])
-            if V.shape[1] == 0:
-                continue
-            s0 = float(np.sqrt(np.mean((Y[rows, j, :] @ pi0) ** 2)))
-            if s0 > 1e-9 * float(np.max(scale)):  # a torque, not the rounding of one the shape does not exert
-                V, scale = np.column_stack([pi0, V]), np.concatenate([[s0], scale])
-            keep = bounded_columns(Y[rows, j, :] @ V, Yw[:, j, :] @ V)
-            if not keep.any():
-                continue
-            V, scale = V[:, keep], scale[keep]
-            S, r = Y[:, j, :] @ V / scale, V.shape[1]
-            bal: dict[str, Any] = {}
-            if j == shoulder:  # a counterbalance's columns after the torque's
-                S = np.column_stack([S, B])
-                bal = {"balancer_harmonics": list(BALANCER_HARMONICS), "balancer_centre": centre.tolist()}
-            r_all = S.shape[1]
-            cand = Candidate(
-                f"weight:j{j + 1}", "weight", j + 1, None,
-                cause=f"torsional elasticity of the joint-{j + 1} reducer under the arm's own weight "
-                + ("(the torque of the description's link masses and the mass-moment combinations the poses tell "
-                   "apart, which correct them)" if robot.has_dynamics else
-                   "(link masses unknown: the mass-moment combinations the poses tell apart)"),
-                signal=f"gravity-torque regressor of joint {j + 1} ({r} combinations)", shape="joint", S=S,
-                coef_names=tuple(f"w{k + 1}" for k in range(r_all)), coef_units=("rad",) * r_all,
-                extra={"basis": V.tolist(), "scale": scale.tolist(), "prior_deg": cfg.compliance_prior_deg, **bal},
-            )  # fmt: skip
-            tau = float(np.deg2rad(cfg.compliance_prior_deg)) / np.sqrt(r)
-            label = f"prior {cfg.compliance_prior_deg}° RMS" + (", with a counterbalance" if r_all > r else "")
-            out.append((cand, [Variant(np.arange(r_all), tau, label)]))
+    if "weight" in effects:
+        out += weight_candidates(campaign, robot, cfg, rows, q)
     return out
 
 

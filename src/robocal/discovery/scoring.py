@@ -13,6 +13,16 @@ from robocal.discovery.model import Fit, by_row, tracker_columns
 from robocal.identification.model import CalibrationModel, FitData
 
 
+@dataclass(frozen=True)
+class Variant:
+    """One variant of a candidate: which of its signal columns and which prior (rad per coefficient, one value or
+    one per column)."""
+
+    columns: np.ndarray | None  # None: every column (a parameter drift, whose columns depend on the fit)
+    prior_rad: float | np.ndarray | None
+    label: str
+
+
 @dataclass
 class Score:
     """The test of one candidate at one step."""
@@ -116,4 +126,4 @@ def regressor(cand: Candidate, fit: Fit, rows: np.ndarray, data: FitData) -> tup
     return by_row(J[:, [mod.index(f"beta{cand.joint}")]], m, dd) * w, ()
 
 
-__all__ = ["PHASES", "Score", "Step", "regressor"]
+__all__ = ["PHASES", "Score", "Step", "Variant", "regressor"]

@@ -1,0 +1,105 @@
+"""The compliance under the arm's own weight (and its payload's) as a candidate of the cross-validated selection
+(:func:`robocal.discovery.grow.physics_candidates`): the deflection of each joint's reducer under the gravity torque,
+without the link masses (the mass-moment combinations the poses tell apart, :func:`robocal.discovery.physics
+.weight_basis`) or with them (the described torque, corrected by those combinations), beside physical shapes that
+hold over the whole workspace: links shaped like the arm's, the payload carried at the flange (its mass given with
+every row, ``payload_kg``), and a shoulder's counterbalance.
+
+A campaign of several payloads gets the payload's own columns (:func:`robocal.compensation.signals.with_payload`:
+its centre of mass and the stiffness under it fitted; each target's payload then given to the service)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from robocal.data.campaign import Campaign
+from robocal.discovery.candidates import Candidate
+from robocal.discovery.config import DiscoveryConfig
+from robocal.discovery.scoring import Variant
+from robocal.robot import RobotDescription
+
+
+def weight_candidates(
+    campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig, rows: np.ndarray, q: np.ndarray
+) -> list[tuple[Candidate, list[Variant]]]:
+    """The ``weight:j<j>`` candidates of every joint with a gravity torque (none with logged torques or currents:
+    the library's compliance takes those); signals for every campaign row, bases from the fitted ``rows``."""
+    from robocal.compensation.signals import with_payload
+    from robocal.discovery.physics import (
+        BALANCER_HARMONICS,
+        balancer_columns,
+        bounded_columns,
+        weight_basis,
+        workspace_sample,
+    )
+    from robocal.kinematics.gravity import described_mass_moments, generic_mass_moments, gravity_regressor
+
+    # link masses in the description do not stop it: the library's ``compliance`` from those masses competes with
+    # it (a vendor's URDF with link inertials but no tool mass: compliance j2, j3 from the given masses 0.137 mm
+    # held out, the same poses without the inertials, this weight model, 0.059)
+    has_load_signal = campaign.tau_Nm is not None or campaign.current_A is not None
+    if "weight" not in cfg.effects or has_load_signal:
+        return []
+    out: list[tuple[Candidate, list[Variant]]] = []
+    n = robot.n_joints
+    Y = gravity_regressor(robot, q)
+    # the torque of links shaped like the arm's (uniform rods): one combination of physical shape over the
+    # whole workspace, beside the ones the poses tell apart (on a heavy robot in 17 configurations those alone
+    # matched its true torque to only 40-60 %, and gear harmonics stood in for the rest)
+    qw = workspace_sample(robot)
+    Yw = gravity_regressor(robot, qw)
+    pi0 = described_mass_moments(robot, qw, Yw) if robot.has_dynamics else generic_mass_moments(robot)
+    # the payload, for an arm whose masses are unknown (with them the library's compliance carries its torque
+    # exactly: the twin's KR16 at 0 and 16 kg named weight j2 in its place, a heavy arm's 0.077 mm became 0.085)
+    pay = np.broadcast_to(np.asarray(campaign.payload_kg, dtype=float), (len(q),))
+    pay = pay if not robot.has_dynamics else np.zeros(len(q))
+    payload = bool(np.ptp(pay[rows]) > 1e-6)
+    shapes = [pi0]  # physical torques: the links' (and the payload's), beside the combinations the poses tell
+    if payload:  # rows of several payloads: the payload's own columns (newcomer pass 14: 100-200 kg, 2.52 mm)
+        Y, Yw = with_payload(Y, pay), with_payload(Yw, float(np.max(pay[rows])))
+        e_pay = np.zeros(len(pi0) + 4)
+        e_pay[len(pi0)] = 1.0  # the payload's own torque, its mass at the flange (each row's kg)
+        shapes = [np.concatenate([pi0, np.zeros(4)]), e_pay]
+    elif float(np.max(pay[rows])) > 0:  # one payload on every row: its torque's own shape (a mass at the flange)
+        e_pay = np.zeros(len(pi0))
+        e_pay[len(pi0) - 4] = 1.0
+        shapes = [pi0, e_pay]
+    shoulder, B, centre = balancer_columns(robot, q, rows, Y, qw, offered=cfg.counterbalance != "off")
+    for j in range(n):
+        V, scale = weight_basis(Y[rows, j, :])
+        if V.shape[1] == 0:
+            continue
+        for shape in reversed(shapes):
+            s0 = float(np.sqrt(np.mean((Y[rows, j, :] @ shape) ** 2)))
+            if s0 > 1e-9 * float(np.max(scale)):  # a torque, not the rounding of one the shape does not exert
+                V, scale = np.column_stack([shape, V]), np.concatenate([[s0], scale])
+        keep = bounded_columns(Y[rows, j, :] @ V, Yw[:, j, :] @ V)
+        if not keep.any():
+            continue
+        V, scale = V[:, keep], scale[keep]
+        S, r = Y[:, j, :] @ V / scale, V.shape[1]
+        bal: dict[str, Any] = {}
+        if j == shoulder:  # a counterbalance's columns after the torque's
+            S = np.column_stack([S, B])
+            bal = {"balancer_harmonics": list(BALANCER_HARMONICS), "balancer_centre": centre.tolist()}
+        r_all = S.shape[1]
+        cand = Candidate(
+            f"weight:j{j + 1}", "weight", j + 1, None,
+            cause=f"torsional elasticity of the joint-{j + 1} reducer under the arm's own weight "
+            + ("(the torque of the description's link masses and the mass-moment combinations the poses tell "
+               "apart, which correct them)" if robot.has_dynamics else
+               "(link masses unknown: the mass-moment combinations the poses tell apart)"),
+            signal=f"gravity-torque regressor of joint {j + 1} ({r} combinations)", shape="joint", S=S,
+            coef_names=tuple(f"w{k + 1}" for k in range(r_all)), coef_units=("rad",) * r_all,
+            extra={"basis": V.tolist(), "scale": scale.tolist(), "prior_deg": cfg.compliance_prior_deg, **bal,
+                   **({"payload_columns": True} if payload else {})},
+        )  # fmt: skip
+        tau = float(np.deg2rad(cfg.compliance_prior_deg)) / np.sqrt(r)
+        label = f"prior {cfg.compliance_prior_deg}° RMS" + (", with a counterbalance" if r_all > r else "")
+        out.append((cand, [Variant(np.arange(r_all), tau, label)]))
+    return out
+
+
+__all__ = ["weight_candidates"]
