@@ -311,12 +311,10 @@ def _thermal_candidates(campaign: Campaign, robot: RobotDescription, cfg: Discov
         return
     within = temperature_share_within_sessions(campaign, T)
     if within is not None and within < THERMAL_WITHIN_SESSIONS:
-        out.skipped.append(
-            SkippedCandidate(key, effect, None, f"the temperatures change between the sessions (tracker stations) "
-                             f"and hardly within one ({within:.1%} of their variance within): a thermal model would "
-                             "be the sessions' own difference (a tool re-seated, the tracker's frame), confounded "
-                             "with them; the session effects are offered instead")
-        )  # fmt: skip
+        out.skipped.append(SkippedCandidate(key, effect, None, f"the temperatures change between the sessions "
+                           f"(tracker stations) and hardly within one ({within:.1%} of their variance within): a "
+                           "thermal model would be the sessions' own difference (a tool re-seated, the tracker's "
+                           "frame), confounded with them; the session effects are offered instead"))  # fmt: skip
         return
     S, names, load = _temperature_signals(campaign, cfg.thermal_components)
     out.cands.append(
@@ -515,12 +513,14 @@ def _signal_candidates(campaign: Campaign, robot: RobotDescription, cfg: Discove
         for j in range(robot.n_joints):
             if float(np.ptp(campaign.q[:, j])) < 1e-6:
                 continue
+            slide, u = (True, "mm") if robot.prismatic[j] else (False, "rad")  # a linear axis: its mm (pass 14)
             out.cands.append(
                 Candidate(
                     f"signal:{sig.name}:j{j + 1}", "signal", j + 1, None,
-                    cause=f"the joint-{j + 1} angle is offset in proportion to {sig.name} (an encoder or "
-                    "reducer reading the signal's cause)", signal=what, shape="joint", S=S,
-                    coef_names=("c",), coef_units=(f"rad/{unit}",), extra={**info, "frame": None},
+                    cause=f"the joint-{j + 1} {'position' if slide else 'angle'} is offset in proportion to "
+                    f"{sig.name} (an encoder or {'drive' if slide else 'reducer'} reading the signal's cause)",
+                    signal=what, shape="joint", S=S, coef_names=("c",), coef_units=(f"{u}/{unit}",),
+                    extra={**info, "frame": None},
                 )
             )  # fmt: skip
     # every two signals moving one frame, offered together (shape ``pair``: scored on both members' columns, accepted

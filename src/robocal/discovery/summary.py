@@ -113,7 +113,8 @@ def _signal_estimates(acc: Accepted, val: np.ndarray, se: np.ndarray) -> dict[st
     for k, n in enumerate(c.coef_names):
         rotation = c.coef_units[k].startswith("rad")
         f = _DEG if rotation else 1.0
-        label = f"{n}_{'deg' if rotation else 'mm'}_per_{col}" if n != "c" else f"dq{c.joint}_deg_per_{col}"
+        u = "deg" if rotation else "mm"
+        label = f"{n}_{u}_per_{col}" if n != "c" else f"dq{c.joint}_{u}_per_{col}"
         out[label] = _est(val[k] * f, se[k] * f, f"{'deg' if rotation else 'mm'}/{unit}")
         if rotation and per_rad is not None:
             out[f"{n}_gain" if n != "c" else "gain"] = _est(val[k] / per_rad, se[k] / per_rad,
@@ -137,12 +138,13 @@ def signal_statement(acc: Accepted, est: dict[str, Any]) -> str:
         return f"the tracker's scale changes by {e['value']:.4g} ppm per {e['unit'].split('/', 1)[1]} of {col} " + (
             f"(± {float(e['stderr']):.2g})" if e["stderr"] is not None else ""
         )
+    turns = "slides" if c.coef_units and c.coef_units[0].startswith("mm") else "turns"  # a linear axis: mm
     subject = {"base_rot": "the base tilts", "base_trans": "the base moves", "tool_rot": "the tool tilts",
-               "tool_trans": "the tool moves", None: f"joint {c.joint} turns"}[frame]  # fmt: skip
+               "tool_trans": "the tool moves", None: f"joint {c.joint} {turns}"}[frame]  # fmt: skip
     parts = []
     for n in c.coef_names:
         gain = est.get(f"{n}_gain" if n != "c" else "gain")
-        key = next(k for k in est if k.startswith((f"{n}_deg_per_", f"{n}_mm_per_", f"dq{c.joint}_deg_per_")))
+        key = next(k for k in est if k.startswith((f"{n}_deg_per_", f"{n}_mm_per_", f"dq{c.joint}_")))
         e = gain if gain is not None else est[key]
         v, s = float(e["value"]), e["stderr"]
         sig = s is None or abs(v) > 3.0 * float(s)

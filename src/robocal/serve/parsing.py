@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -240,6 +240,7 @@ class CorrectRequest:
     temps: np.ndarray | None
     reasons: list[str]
     move_external: bool = False
+    notes: dict[int, list[str]] = field(default_factory=dict)  # per target: served with them (flagged)
 
 
 def _parse_request(req: dict[str, Any], bundle: Bundle, cfg: ServiceConfig) -> CorrectRequest:
@@ -264,6 +265,7 @@ def _parse_request(req: dict[str, Any], bundle: Bundle, cfg: ServiceConfig) -> C
     if payload < 0:
         raise RequestError("bad_request", "'payload_kg' must be >= 0")
     reasons: list[str] = []  # request-level reasons (apply to every target)
+    notes: dict[int, list[str]] = {}
     if tg.logged:
         known = bundle.signal_ranges()
         unknown = sorted(set(tg.logged) - set(known))
@@ -273,7 +275,7 @@ def _parse_request(req: dict[str, Any], bundle: Bundle, cfg: ServiceConfig) -> C
                 f"targets[].{LOGGED_FIELD} names {unknown}, which no effect of the bundle follows; it follows "
                 f"{sorted(known) or 'none'}",
             )
-        reasons.extend(bundle.signal_reasons(tg.logged))
+        notes = bundle.signal_reasons(tg.logged)
     temps = None
     if bundle.thermal is not None:
         if "temperatures" not in req:
@@ -285,4 +287,4 @@ def _parse_request(req: dict[str, Any], bundle: Bundle, cfg: ServiceConfig) -> C
         reasons.extend(bundle.temperature_reasons(temps, cfg.safety.temperature_margin_C))
     elif "temperatures" in req and not isinstance(req["temperatures"], dict | list):
         raise RequestError("bad_request", "'temperatures' must be an object or a list")
-    return CorrectRequest(tg, mode, tool_name, bundle.tools[tool_name], payload, temps, reasons, move)
+    return CorrectRequest(tg, mode, tool_name, bundle.tools[tool_name], payload, temps, reasons, move, notes)

@@ -184,7 +184,14 @@ class Service:
     def _reply(
         self, bundle: Bundle, r: CorrectRequest, results: list[dict[str, Any]], extra: dict[str, Any], t_start: float
     ) -> dict[str, Any]:
-        """The ``correct`` reply of the targets' ``results`` (the counters updated); ``extra`` request-level keys."""
+        """The ``correct`` reply of the targets' ``results`` (the counters updated); ``extra`` request-level keys.
+        A target's own notes (a logged signal past the values its effects were fitted on) are added to its reasons,
+        an ``ok`` one then ``flagged``."""
+        for k, notes in r.notes.items():
+            res = results[k]
+            res["reasons"] = [*res.get("reasons", []), *notes]
+            if res["status"] == "ok":
+                res["status"] = "flagged"
         m = len(results)
         n_ref = sum(res["status"] == "refused" for res in results)
         n_flag = sum(res["status"] != "refused" and "reasons" in res for res in results)

@@ -57,8 +57,9 @@ calibrated geometry and the axes' own errors along the travel, the calibration's
 target against the revolute path's compiled 0.1 ms, ``benchmarks/external_axes_service.py``), judged by the same
 policy on the arm's joints; an axis outside its limits is a joint-limit reason. Replies add ``"ext_mm"`` and
 ``"ext_correction_mm"`` per target (an axis not moved comes back exactly as sent) and ``"move_external"`` /
-``"external_axes"`` per request. A thermal or compliance model or joint-level effects in such a bundle are
-refused when it is loaded (that path does not apply them).
+``"external_axes"`` per request. The discovered effects apply on that path too (the joints' deflection, a base or
+tool a logged signal moves, with each target's ``signals``); a thermal or compliance model in such a bundle is
+refused when it is loaded (that path does not apply it).
 
 Reply to ``correct``::
 
@@ -87,7 +88,9 @@ A refused target never carries corrected values. Reasons (the one safety policy,
 offsets and joint-level effects) above ``max_correction_deg``, or predicted error after that own correction
 above ``max_error_mm``; target or corrected joints outside the joint limits; temperature
 outside the thermal model's fitted range; no convergence (singularity) or unreachable pose. Each of the first
-three is refused or only flagged as configured (``safety.on_*``).
+three is refused or only flagged as configured (``safety.on_*``). A target whose logged signal lies past the values
+its effects were fitted on is served, flagged with that reason (``"signals.incl_x = ... outside the values its
+effects were fitted on [...]: extrapolated"``).
 
 Errors::
 
