@@ -226,3 +226,17 @@ def test_calibrate_twice_writes_the_same_bytes(campaign_dir, tmp_path):
         )
     for f in ("calibration.json", "summary.json", "residuals.csv"):
         assert (tmp_path / "a" / f).read_bytes() == (tmp_path / "b" / f).read_bytes(), f
+
+
+def test_calibrates_fit_line_on_a_track_says_whose_rms_it_is():
+    """Newcomer pass 14: on a robot on external axes the fit line gave the arm's RMS beside the validation of the
+    model with the axes' errors; both RMS now, each named."""
+    from robocal.commands.calibrate import fit_line
+
+    summary = {"fit": {"n_rows": 160, "rms_position_mm": 0.3766, "nit": 2, "wall_time_s": 0.01},
+               "n_identified": 32, "eliminated": [], "validation": {"n_rows": 80, "mean_position_mm": 0.2333,
+               "max_position_mm": 0.68}, "axes": {"rms_position_mm": 0.2938}}  # fmt: skip
+    line = fit_line(summary, "lm")
+    assert "RMS 0.3766 mm (the arm alone; 0.2938 with the axes' errors)" in line and "validation mean 0.2333" in line
+    del summary["axes"]
+    assert "arm alone" not in fit_line(summary, "lm")

@@ -76,6 +76,25 @@ def misfit_hint(noise: dict[str, Any]) -> str | None:
     )
 
 
+def fit_line(summary: Mapping[str, Any], method: str) -> str:
+    """The fit's console line: rows, RMS, parameters, iterations and the validation; on a robot on external axes
+    the RMS said to be the arm's, beside the fit with the axes' errors whose validation the line gives (newcomer pass
+    14: the arm's RMS and misfit verdict read beside the track model's validation)."""
+    fit = summary["fit"]
+    ax = summary.get("axes") or {}
+    rms = f"RMS {fit['rms_position_mm']:.4f} mm"
+    if ax.get("rms_position_mm") is not None:
+        rms += f" (the arm alone; {float(ax['rms_position_mm']):.4f} with the axes' errors)"
+    line = (
+        f"fit ({method}): {fit['n_rows']} rows, {rms}, {summary['n_identified']} identified, "
+        f"{len(summary['eliminated'])} eliminated, {fit['nit']} iterations in {fit['wall_time_s']:.3f} s"
+    )
+    v = summary.get("validation") or {}
+    if v.get("n_rows"):
+        line += f"; validation mean {v['mean_position_mm']:.4f} / max {v['max_position_mm']:.4f} mm"
+    return line
+
+
 def station_lines(v: Mapping[str, Any]) -> list[str]:
     """The validation's stations each judged otherwise than by the calibration's frame (a new session: its tracker
     registered on its own rows), and with several stations each one's own figure beside the mean over them."""
@@ -110,24 +129,15 @@ def run(args: argparse.Namespace) -> int:
         args.data_dir, args.robot, args.out, ov, split=split, report=not args.no_report, optimizer=optimizer
     )
     fit = summary["fit"]
-    method = (optimizer or {}).get("name", "lm")
-    line = (
-        f"fit ({method}): {fit['n_rows']} rows, RMS {fit['rms_position_mm']:.4f} mm, "
-        f"{summary['n_identified']} identified, {len(summary['eliminated'])} eliminated, "
-        f"{fit['nit']} iterations in {fit['wall_time_s']:.3f} s"
-    )
-    if "validation" in summary and summary["validation"].get("n_rows"):
-        v = summary["validation"]
-        line += f"; validation mean {v['mean_position_mm']:.4f} / max {v['max_position_mm']:.4f} mm"
-    print(line)
+    print(fit_line(summary, (optimizer or {}).get("name", "lm")))
     for text in station_lines(summary.get("validation") or {}):
         print(text)
     from robocal.identification.robust import outlier_line
 
     print(outlier_line(fit.get("outliers", []), fit.get("n_rows_total")))
     hint = misfit_hint(fit.get("noise") or {})
-    if hint:
-        print(hint)
+    if hint:  # on a robot on external axes, of the arm's fit (the axes' errors are the line 'axes:' below)
+        print(hint + (" (the arm's fit, without the axes' errors along the travel)" if "axes" in summary else ""))
     if fit.get("systematic_misfit"):
         from robocal.identification import misfit
 
