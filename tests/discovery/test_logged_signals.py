@@ -437,6 +437,7 @@ def test_a_robot_on_an_external_axis_is_compensated_with_its_logged_tilt(tmp_pat
     from robocal.calibration.load import load_calibration
     from robocal.compensation.axes import compensate_axes
     from robocal.compensation.discovered import frame_transforms
+    from robocal.compensation.effects import Signals
     from robocal.kinematics.chain import fk
     from robocal.workflows.discovery import run
 
@@ -458,7 +459,7 @@ def test_a_robot_on_an_external_axis_is_compensated_with_its_logged_tilt(tmp_pat
     val = camp.subset(camp.split == "validation")
     logged = {c: np.asarray(val.extra[c], dtype=float) for c in ("incl_x", "incl_y")}
     comp = compensate_axes(cal, val.q, "T1", None, payload_kg=val.payload_kg, effects=data["effects"],
-                           signals={"logged": logged})  # fmt: skip
+                           signals=Signals(np.asarray(val.payload_kg, dtype=float), logged=logged))  # fmt: skip
     assert comp.converged.all()
     A, D = frame_transforms(data["effects"], logged, val.n_rows)
     T = np.eye(4)

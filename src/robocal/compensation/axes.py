@@ -29,6 +29,8 @@ import numpy as np
 from robocal.calibration.axes import AxisFit, axis_errors
 from robocal.calibration.result import CalibrationResult
 from robocal.compensation.correct import zero_offsets
+from robocal.compensation.discovered import DiscoveredEffects, frame_desired, frame_transforms
+from robocal.compensation.effects import Signals
 from robocal.identification.model import with_base
 from robocal.kinematics.axes import augment
 from robocal.kinematics.chain import build_chain, fk, point_jacobians, propagate
@@ -87,7 +89,7 @@ def compensate_axes(
     tool: np.ndarray | None = None,
     orientation: bool = True,
     effects: Sequence[Mapping[str, Any]] | None = None,
-    signals: Mapping[str, Any] | None = None,
+    signals: Signals | None = None,
 ) -> AxisCompensation:
     """Correct joint targets ``q_target`` (m, n) for the calibrated robot on its external axes (module docstring);
     ``target`` the reflector whose point is corrected (default: the calibration's first), or ``tool`` (4, 4) a
@@ -103,8 +105,7 @@ def compensate_axes(
 
     ``effects``: joint-level effect records (a calibration's ``effects``, :mod:`robocal.compensation.discovered`)
     to correct for too — each joint moved by its deflection at the pose, and a base or tool that logged signals
-    move (``logged_frame``) moved back — with ``signals`` the targets' own: ``logged`` ``{column: (m,)}``,
-    ``tau_Nm``, ``current_A``, ``direction`` as the effects need them (the payload is ``payload_kg``)."""
+    move (``logged_frame``) moved back — with ``signals`` the targets' own (default: ``payload_kg`` alone)."""
     robot = result.model.robot
     q_target = np.atleast_2d(np.asarray(q_target, dtype=float))
     m, n = q_target.shape
@@ -123,20 +124,23 @@ def compensate_axes(
     Tn = T_base @ fk(build_chain(robot), q_target)
     p_des = Tn[:, :3, 3] + Tn[:, :3, :3] @ tool_p
     R_des = Tn[:, :3, :3] @ tool_R
-    deflect = _effects(list(effects or ()), robot, pl, dict(signals or {}), m)
-    if deflect.frames is not None:  # the base or the tool moved by logged signals: reach the pose cancelling it
-        from robocal.compensation.discovered import frame_desired
-
+    records = [dict(e) for e in effects or ()]
+    sig = signals if signals is not None else Signals(np.array(pl))
+    joint = [e for e in records if e["signal"] != "logged_frame"]
+    deflect = DiscoveredEffects(tuple(joint), robot) if joint else None
+    frames = frame_transforms(records, sig.logged, m) if records else None
+    if frames is not None:  # the base or the tool moved by logged signals: reach the pose cancelling it
         Tt = np.eye(4)
         Tt[:3, :3], Tt[:3, 3] = tool_R, tool_p
         Tb = np.linalg.inv(T_base)  # the desired pose in the robot's base frame, where the frames act
-        pb, Rb = frame_desired(deflect.frames, Tt, (Tb[:3, :3] @ p_des.T).T + Tb[:3, 3], Tb[:3, :3] @ R_des)
+        pb, Rb = frame_desired(frames, Tt, (Tb[:3, :3] @ p_des.T).T + Tb[:3, 3], Tb[:3, :3] @ R_des)
         p_des, R_des = (T_base[:3, :3] @ pb.T).T + T_base[:3, 3], T_base[:3, :3] @ Rb
 
     def pose(q: np.ndarray, rows: np.ndarray, jac: bool) -> tuple[np.ndarray, np.ndarray | None]:
         k_ = len(rows)
         E = axis_errors(robot, q, pl[rows], axis_fit.terms, axis_fit.coef) if axis_fit is not None else None
-        q = q + deflect.dq(q, rows)  # the joints where the effects put them (the Jacobian there: a small effect)
+        if deflect is not None:  # the joints where the effects put them (the Jacobian there: a small effect)
+            q = q + deflect.offsets(q, sig.rows(rows))
         qa = np.concatenate([q, np.zeros((k_, model.chain.n_joints - n)) if E is None else E], axis=1)
         st = propagate(model.full_chain, qa, x[: model.n_chain], T_ref, record=jac)
         p = st.o + st.x * tool_p[0] + st.y * tool_p[1] + st.z * tool_p[2]
@@ -171,37 +175,6 @@ def compensate_axes(
         own_error_mm=np.linalg.norm(r_own[:, :3], axis=1),
         zero_offsets=zero_off,
     )
-
-
-@dataclass
-class _Deflection:
-    """The effects :func:`compensate_axes` corrects for: the joints' deflection at a pose, and the frames."""
-
-    records: list[Mapping[str, Any]]
-    robot: RobotDescription
-    payload: np.ndarray
-    signals: dict[str, Any]
-    frames: tuple[np.ndarray, np.ndarray] | None
-
-    def dq(self, q: np.ndarray, rows: np.ndarray) -> np.ndarray:
-        """``(k, n)`` rad of the targets ``rows`` at their joints ``q``."""
-        if not self.records:
-            return np.zeros_like(q)
-        from robocal.compensation.discovered import joint_offsets
-
-        sig = {k: None if v is None else (v[rows] if k != "logged" else {c: x[rows] for c, x in v.items()})
-               for k, v in self.signals.items()}  # fmt: skip
-        return joint_offsets(list(self.records), self.robot, q, self.payload[rows], **sig)  # type: ignore[arg-type]
-
-
-def _effects(
-    records: list[Mapping[str, Any]], robot: RobotDescription, payload: np.ndarray, signals: dict[str, Any], m: int
-) -> _Deflection:
-    from robocal.compensation.discovered import frame_transforms
-
-    joint = [e for e in records if e.get("signal") != "logged_frame"]
-    frames = frame_transforms([dict(e) for e in records], signals.get("logged"), m) if records else None
-    return _Deflection(joint, robot, payload, signals, frames)
 
 
 def _newton(

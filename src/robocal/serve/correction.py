@@ -179,7 +179,7 @@ def _correct_external(
     q_target = np.zeros((m, robot.n_joints))
     q_target[:, arm], q_target[:, ext] = q_arm, tg.ext_mm
     _joint_offsets(bundle, tg, r.payload_kg)  # an effect's signal missing from the request: a bad_request
-    signals = {"logged": tg.logged, "tau_Nm": tg.tau_Nm, "current_A": tg.current_A, "direction": tg.direction}
+    signals = Signals(np.full(m, r.payload_kg), tg.tau_Nm, tg.current_A, tg.direction, tg.logged)
     c = compensate_axes(
         bundle.calibration, q_target, r.tool_name, bundle.axis_fit, r.move_external, r.payload_kg,
         max_iter=max(cfg.solver.max_iter, 30), tol_mm=cfg.solver.tol_mm, orientation=r.mode == "pose",

@@ -40,7 +40,14 @@ def _tool_T(cal: Any, target: str) -> np.ndarray:
 
 
 def _axes_product(
-    res: DiscoveryResult, cal: Any, sub: Campaign, idx: np.ndarray, tgt: list[str], ids: list[str], out: Path
+    res: DiscoveryResult,
+    cal: Any,
+    sub: Campaign,
+    signals: Any,
+    idx: np.ndarray,
+    tgt: list[str],
+    ids: list[str],
+    out: Path,
 ) -> None:
     """``compensation.csv`` of a robot on external axes (a track, a column): each pose corrected by
     :func:`robocal.compensation.axes.compensate_axes` with the discovered axis errors, the external axes kept at
@@ -56,16 +63,12 @@ def _axes_product(
     qc, cmd, err = np.zeros((m, robot.n_joints)), np.zeros((m, 4, 4)), np.zeros((m, 3))
     status, reason, corr = [TargetStatus.OK] * m, [""] * m, np.zeros(m)
     lim = robot.q_limits
-    # the model's effects corrected for too, with each target's own signals (a tilt an accelerometer logged)
-    cols = {str(e["column"]) for e in cal.effects if e.get("signal") in ("logged", "logged_frame")}
     for t in dict.fromkeys(tgt):
         rows = np.array([k for k, tt in enumerate(tgt) if tt == t])
         r = idx[rows]
-        signals = {"logged": {c: np.asarray(sub.extra[c], dtype=float)[r] for c in cols} or None,
-                   **{k: None if (v := getattr(sub, k)) is None else v[r]
-                      for k in ("tau_Nm", "current_A", "direction")}}  # fmt: skip
+        # the model's effects corrected for too, with each target's own signals (a tilt an accelerometer logged)
         comp = compensate_axes(cal, sub.q[r], t, af, payload_kg=sub.payload_kg[r], effects=list(cal.effects),
-                               signals=signals)  # fmt: skip
+                               signals=signals.rows(r))  # fmt: skip
         cmd[rows] = fk(cal.model.chain, comp.q_target) @ _tool_T(cal, t)
         inside = np.all((comp.q >= lim[:, 0]) & (comp.q <= lim[:, 1]), axis=1)
         for k, row in enumerate(rows):
@@ -126,8 +129,12 @@ def write_product(res: DiscoveryResult, summ: dict[str, Any], out: Path) -> str 
         first.setdefault(str(pid), (i, str(t)))
     idx = np.array([i for i, _ in first.values()])
     tgt = [t for _, t in first.values()]
+    # every row's signals; the logged ones the model's effects follow, from the campaign's own columns
+    cols = {str(e["column"]) for e in cal.effects if e.get("signal") in ("logged", "logged_frame")}
+    signals = Signals(np.asarray(sub.payload_kg, dtype=float), sub.tau_Nm, sub.current_A, sub.direction,
+                      {c: np.asarray(sub.extra[c], dtype=float) for c in cols} or None)  # fmt: skip
     if res.robot.has_prismatic:  # a robot on external axes: robocal.compensation.axes (the track not moved)
-        _axes_product(res, cal, sub, idx, tgt, [f"{p}/{t}" for p, t in zip(first, tgt, strict=True)], out)
+        _axes_product(res, cal, sub, signals, idx, tgt, [f"{p}/{t}" for p, t in zip(first, tgt, strict=True)], out)
         return None
     qc = np.zeros((len(idx), sub.n_joints))
     cmd = np.zeros((len(idx), 4, 4))
@@ -135,19 +142,10 @@ def write_product(res: DiscoveryResult, summ: dict[str, Any], out: Path) -> str 
     status = np.full(len(idx), TargetStatus.OK, dtype=object)
     reason = np.full(len(idx), "", dtype=object)
     corr_max = np.zeros(len(idx))
-    # the logged signals the model's effects follow, from the campaign's own columns (robocal.discovery.logged)
-    cols = {str(e["column"]) for e in cal.effects if e.get("signal") in ("logged", "logged_frame")}
-    logged = {c: np.asarray(sub.extra[c], dtype=float) for c in cols}
     for t in dict.fromkeys(tgt):
         rows = np.array([k for k, tt in enumerate(tgt) if tt == t])
         r = idx[rows]
-        sig = Signals(
-            np.asarray(sub.payload_kg[r], dtype=float),
-            None if sub.tau_Nm is None else sub.tau_Nm[r],
-            None if sub.current_A is None else sub.current_A[r],
-            None if sub.direction is None else sub.direction[r],
-            {k: v[r] for k, v in logged.items()} or None,
-        )
+        sig = signals.rows(r)
         # the tool's orientation matched only when the campaign measured it (a point reflector's calibration never
         # identified it: chasing it turned joints by up to 8.6 deg and refused 7 of 20 rows, position-only 0.36)
         comp = correct(cal, sub.q[r], target=t, signals=sig, orientation=bool(res.extra.get("uses_orientation", True)))
