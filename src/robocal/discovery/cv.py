@@ -339,7 +339,7 @@ class FoldCV:
         vs = {j: self.joint_v(j) for j, _ in blocks}
         offs = np.cumsum([0] + [S.shape[1] for _, S in blocks])
         q = int(offs[-1])
-        Ct, Z2t, bzt = [], [], []
+        Z2t: list[np.ndarray] = []
 
         def fold_blocks(i: int) -> list[tuple[np.ndarray, np.ndarray]]:
             """``(v_t, S_t)`` per block on fold ``i``'s rows: gathered again where needed, not kept for every fold
@@ -347,16 +347,22 @@ class FoldCV:
             rows = self._rows_of_fold(i)
             return [(vs[ja][rows], Sa[rows]) for ja, Sa in blocks]
 
-        for i, (s, e) in enumerate(self.bounds):
-            r3 = self._r[s:e].reshape(-1, self.d)
-            C = np.empty((self.k, q))
+        nf = len(self.bounds)
+        Ct = [np.empty((self.k, q)) for _ in range(nf)]
+        bzt = [np.empty(q) for _ in range(nf)]
+        # each block's joint response read once for all the folds (block by block: fold by fold, the residual
+        # layer's six joints turned the cache over and every joint's response was formed again per fold, 30 for 6)
+        for a, (ja, Sa) in enumerate(blocks):
+            U = self._u(ja, vs[ja])
+            for i, (s, e) in enumerate(self.bounds):
+                rows = self._rows_of_fold(i)
+                Sat, r3 = Sa[rows], self._r[s:e].reshape(-1, self.d)
+                Ct[i][:, offs[a] : offs[a + 1]] = U[i].T @ Sat
+                bzt[i][offs[a] : offs[a + 1]] = Sat.T @ np.einsum("rd,rd->r", vs[ja][rows], r3)
+            del U
+        for i in range(nf):
             Z2 = np.empty((q, q))
-            bz = np.empty(q)
             fb = fold_blocks(i)
-            for a, (ja, _) in enumerate(blocks):
-                va, Sat = fb[a]
-                C[:, offs[a] : offs[a + 1]] = self._u(ja, vs[ja])[i].T @ Sat
-                bz[offs[a] : offs[a + 1]] = Sat.T @ np.einsum("rd,rd->r", va, r3)
             for a in range(len(blocks)):
                 va, Sat = fb[a]
                 for b in range(a, len(blocks)):
@@ -365,9 +371,7 @@ class FoldCV:
                     Z2[offs[a] : offs[a + 1], offs[b] : offs[b + 1]] = blk
                     if b != a:
                         Z2[offs[b] : offs[b + 1], offs[a] : offs[a + 1]] = blk.T
-            Ct.append(C)
             Z2t.append(Z2)
-            bzt.append(bz)
             del fb
 
         def apply_z(i: int, DZ: np.ndarray) -> np.ndarray:

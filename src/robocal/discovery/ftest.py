@@ -237,7 +237,6 @@ def cross_validation_gain(fit: Fit, Uk: np.ndarray, groups: np.ndarray, folds: i
     """
     r = fit.r_w
     A0 = fit.J_w
-    A1 = np.hstack([A0, Uk])
     rng = np.random.default_rng(seed)
     uniq, gidx, _ = group_labels(groups)
     perm = rng.permutation(len(uniq))
@@ -248,9 +247,13 @@ def cross_validation_gain(fit: Fit, Uk: np.ndarray, groups: np.ndarray, folds: i
         train = ~test
         if not test.any() or not train.any():
             continue
-        for A, acc in ((A0, 0), (A1, 1)):
-            delta = np.linalg.lstsq(A[train], -r[train], rcond=1e-10)[0]
-            e = float(np.sum((r[test] + A[test] @ delta) ** 2))
+        # each fold's rows of [A0 Uk] formed from the two (the whole widened matrix beside A0 was one more M x k)
+        for acc in (0, 1):
+            At = A0[train] if acc == 0 else np.hstack([A0[train], Uk[train]])
+            delta = np.linalg.lstsq(At, -r[train], rcond=1e-10)[0]
+            del At
+            Ah = A0[test] if acc == 0 else np.hstack([A0[test], Uk[test]])
+            e = float(np.sum((r[test] + Ah @ delta) ** 2))
             if acc == 0:
                 sse0 += e
             else:
@@ -321,7 +324,9 @@ def best_candidate(
             sc, Uk = score_candidate(cand, Z, None, fit, cfg, thr, Zp=Zp)
             if sc.status == "unidentifiable":
                 unident.setdefault(cand.key, sc.absorbed_share)
-            scored.append((sc, cand, Uk, params))
+            # the directions (M x q) kept only where the cross-validation may read them: every candidate's held
+            # at once grew with the rows (47 library candidates, 70 MB at 24 000 twin rows)
+            scored.append((sc, cand, Uk if sc.passes else np.empty((0, Uk.shape[1])), params))
 
     for cand in remaining:
         Z, params = regressor(cand, fit, rows, data)

@@ -227,14 +227,16 @@ class FactoredJacobian:
         E[np.asarray(pos, dtype=int), np.arange(len(pos))] = 1.0
         return self.mul(E, rows)
 
-    def rows_dense(self, rows: np.ndarray) -> np.ndarray:
+    def rows_dense(self, rows: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """The measurement rows ``rows`` of the matrix, dense: ``(len(rows) d, k)`` (each column written from its
-        factors, no product)."""
-        out = np.empty((len(rows), self.d, self.k))
-        out[:, :, self.dc] = self._dense_rows(rows)
+        factors, no product), into ``out`` when given (any memory order: :class:`FactoredSpace`'s stack)."""
+        o3 = np.empty((len(rows), self.d, self.k)) if out is None else out.reshape(len(rows), self.d, self.k)
+        if out is not None and not np.may_share_memory(o3, out):  # a reshape that copied: written, then lost
+            raise ValueError("rows_dense: out must split its rows into (rows, d) without a copy")
+        o3[:, :, self.dc] = self._dense_rows(rows)
         for P, S, v in zip(self.gram.P, self.gram.S, self.gram.V, strict=True):
-            out[:, :, P] = v[rows][:, :, None] * S[rows][:, None, :]
-        return out.reshape(-1, self.k)
+            o3[:, :, P] = v[rows][:, :, None] * S[rows][:, None, :]
+        return o3.reshape(-1, self.k) if out is None else out
 
     def joint_response(self, v: np.ndarray, rows: np.ndarray | slice | None = None) -> np.ndarray:
         """``U = Σ_d J_row v_row`` (``len(rows) x k``) of a response ``v (len(rows), d)`` (the folds' products with
@@ -276,12 +278,13 @@ class FactoredSpace:
         step = max(1, SPACE_BLOCK_BYTES // max(8 * d * k, 1))
         R = np.zeros((0, k))
         for s in range(0, m, step):
-            blk = F.rows_dense(np.arange(s, min(s + step, m)))
+            rows = np.arange(s, min(s + step, m))
             # R over the block, stacked in column order for LAPACK in place (mode "r" made two more copies of the
-            # stack and kept the whole triangle alive through its slice: 175 MB at 4 000 UR10 rows, k = 383)
-            A = np.empty((len(R) + len(blk), k), order="F")
-            A[: len(R)], A[len(R) :] = R, blk
-            del blk
+            # stack and kept the whole triangle alive through its slice: 175 MB at 4 000 UR10 rows, k = 383); the
+            # block's rows written into the stack from the factors (a dense block beside it was 32 MB more)
+            A = np.empty((len(R) + len(rows) * d, k), order="F")
+            A[: len(R)] = R
+            F.rows_dense(rows, out=A[len(R) :])
             (qr, _), _ = linalg.qr(A, mode="raw", overwrite_a=True, check_finite=False)
             R = np.triu(qr[: min(k, len(qr))])
             del qr, A
