@@ -492,3 +492,31 @@ def test_a_robot_on_an_external_axis_is_compensated_with_its_logged_tilt(tmp_pat
     assert len(ok) >= 3
     for k in ok:
         assert np.allclose(r["results"][k]["q_deg"], np.rad2deg(comp.q[k, 1:]), atol=1e-5), (r["results"][k], k)
+
+
+def test_a_campaign_with_empty_inclinometer_cells_gets_its_product_with_those_poses_flagged(tmp_path):
+    """Newcomer pass 15 (D1): a logged column with a few empty cells is filled for the search, and the product
+    was written from the raw column, whose empty cells are text: ``robocal discover`` stopped after the search
+    ("could not convert string to float: ''") and wrote nothing. compensation.csv now corrects such a pose with
+    the value the search filled in and flags it, saying so (and a reading past the fitted values is flagged as
+    the service flags it: D5)."""
+    import pandas as pd
+
+    from robocal.workflows.discovery import run
+
+    camp, robot, _ = make_campaign(tmp_path, "geometric", 0, {"compliant_stand": {}})
+    d = Path(camp.source)
+    poses = pd.read_csv(d / "poses.csv", dtype=str, keep_default_na=False)
+    val_pose = poses["pose_id"][poses["split"] == "validation"].iloc[3]
+    empty = (poses["pose_id"] == val_pose) | (poses.index % 17 == 5)  # a validation pose and a few others
+    poses.loc[empty, "incl_x"] = ""
+    poses.to_csv(d / "poses.csv", index=False)
+    out = tmp_path / "out"
+    settings = {k: v for k, v in FAST.to_dict().items() if k in ("effects", "layer", "dictionary")}
+    s = run(d, robot, out, settings, report=False)
+    assert "compensation.csv" in s["written"]
+    comp = pd.read_csv(out / "compensation.csv", keep_default_na=False)
+    said = comp["reason"].str.contains("signals.incl_x empty in the campaign")
+    emptied = set(poses["pose_id"][empty & (poses["split"] == "validation")])
+    assert val_pose in emptied and set(comp.iloc[:, 0][said].str.split("/").str[0]) == emptied
+    assert set(comp["status"][said]) <= {"flagged", "refused"}

@@ -423,6 +423,29 @@ def frame_rows(
     return G * cand.S[rows, 0][:, None, None]
 
 
+def filled_columns(
+    campaign: Campaign, robot: RobotDescription, columns: Any
+) -> tuple[dict[str, np.ndarray], dict[str, tuple[np.ndarray, dict[str, Any]]]]:
+    """The logged ``columns`` over every row of ``campaign``, their empty cells filled as the search filled them
+    (:func:`fill_gaps` on the same basis, :func:`screen`), and per column with gaps ``(mask of the empty rows,
+    how they were filled)``: the product (``compensation.csv``) corrects a pose whose reading was empty with the
+    value its effects were fitted with, and says so (it read the empty cell as text and stopped the run)."""
+    values: dict[str, np.ndarray] = {}
+    gaps: dict[str, tuple[np.ndarray, dict[str, Any]]] = {}
+    Bf: np.ndarray | None = None
+    for c in sorted(columns):
+        x = _numeric(campaign.extra[c])
+        if x is None:
+            raise ValueError(f"the logged column {c!r} of {campaign.source} is not numeric")
+        miss = ~np.isfinite(x)
+        if np.any(miss):
+            Bf = fill_basis(campaign, robot, joint_basis(campaign, robot)) if Bf is None else Bf
+            x, how = fill_gaps(x, campaign.timestamp_s, Bf)
+            gaps[c] = (miss, how)
+        values[c] = x
+    return values, gaps
+
+
 def signal_gaps(cal: Any, fit: Any) -> dict[str, np.ndarray]:
     """Per logged column an effect of ``fit`` follows, the rows of ``cal`` (the calibration rows) whose reading was
     empty (filled by :func:`fill_gaps`): a mask over ``cal``'s rows."""

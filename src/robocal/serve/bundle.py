@@ -42,6 +42,7 @@ import numpy as np
 from robocal.calibration.load import load_calibration
 from robocal.calibration.record import check_robot
 from robocal.calibration.result import CalibrationResult
+from robocal.compensation.effects import signal_ranges, signal_reasons
 from robocal.errors import ConfigError
 from robocal.identification.acceptance import too_few_configurations
 from robocal.io import write_json
@@ -170,34 +171,14 @@ class Bundle:
         ]
 
     def signal_ranges(self) -> dict[str, list[float] | None]:
-        """The logged signals the bundle's effects follow (a column of the campaign, given with each target), each
-        with the values the effects were fitted on (``[lo, hi]``; None for a calibration written before they were
-        recorded)."""
-        out: dict[str, list[float] | None] = {}
-        for e in self.effects:
-            if e.get("signal") in ("logged", "logged_frame"):
-                col = str(e["column"])
-                rng = e.get("range")
-                out[col] = out.get(col) or (None if rng is None else [float(rng[0]), float(rng[1])])
-        return out
+        """The logged signals the bundle's effects follow, with the values they were fitted on
+        (:func:`robocal.compensation.effects.signal_ranges`)."""
+        return signal_ranges(self.effects)
 
     def signal_reasons(self, logged: Mapping[str, np.ndarray] | None) -> dict[int, list[str]]:
-        """Per target (its index), one reason per logged signal whose value lies outside the values its effects were
-        fitted on (by more than a tenth of their span): the effect is extrapolated there, the target served with
-        the reason (flagged), never refused for it — a linear tilt extrapolates (newcomer pass 14: 16 of 30
-        targets 0.1-0.5 mrad past a 1.6 mrad span were refused where compensation.csv corrected them right)."""
-        out: dict[int, list[str]] = {}
-        for col, rng in self.signal_ranges().items():
-            if rng is None or logged is None or col not in logged:
-                continue
-            v = np.asarray(logged[col], dtype=float)
-            slack = 0.1 * (rng[1] - rng[0])
-            for k in np.flatnonzero((v < rng[0] - slack) | (v > rng[1] + slack)).tolist():
-                out.setdefault(k, []).append(
-                    f"signals.{col} = {v[k]:.6g} outside the values its effects were fitted on [{rng[0]:.6g}, "
-                    f"{rng[1]:.6g}]: extrapolated"
-                )
-        return out
+        """Per target, the logged signals past the values their effects were fitted on (served flagged, never
+        refused: :func:`robocal.compensation.effects.signal_reasons`)."""
+        return signal_reasons(self.effects, logged)
 
     @property
     def arm(self) -> list[int]:

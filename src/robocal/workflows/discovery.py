@@ -48,6 +48,7 @@ def _axes_product(
     tgt: list[str],
     ids: list[str],
     out: Path,
+    said: Mapping[int, list[str]],
 ) -> None:
     """``compensation.csv`` of a robot on external axes (a track, a column): each pose corrected by
     :func:`robocal.compensation.axes.compensate_axes` with the discovered axis errors, the external axes kept at
@@ -79,10 +80,41 @@ def _axes_product(
             if not ok:
                 status[row] = TargetStatus.REFUSED
                 reason[row] = "not converged" if not comp.converged[k] else "the correction leaves the joint limits"
+    _flag(status, reason, said)
     applied = np.array([s != TargetStatus.REFUSED for s in status], dtype=bool)
     write_controller_csv(
         out / "compensation.csv", ids, qc, cmd, err, None, status, applied, corr, reason, prismatic=robot.prismatic
     )
+
+
+def _flag(status: Any, reason: Any, said: Mapping[int, list[str]]) -> None:
+    """The poses ``said`` names get its reasons after their own, flagged where they were ok (a refused pose
+    stays refused)."""
+    for k, why in said.items():
+        reason[k] = "; ".join([r for r in [reason[k], *why] if r])
+        if status[k] == TargetStatus.OK:
+            status[k] = TargetStatus.FLAGGED
+
+
+def _signal_notes(
+    effects: Sequence[Mapping[str, Any]],
+    logged: Mapping[str, np.ndarray],
+    gaps: Mapping[str, tuple[np.ndarray, Mapping[str, Any]]],
+) -> dict[int, list[str]]:
+    """Per corrected pose (its index), what ``compensation.csv`` says of its logged signals, as the service does
+    (:func:`robocal.compensation.effects.signal_reasons`): a reading past the values the effects were fitted on,
+    and a reading the campaign left empty (corrected with the value the search filled in, and how it was filled);
+    such a pose is flagged, never silently ok."""
+    from robocal.compensation.effects import signal_reasons
+
+    out = signal_reasons(effects, logged)
+    for c, (miss, how) in sorted(gaps.items()):
+        for k in np.flatnonzero(miss).tolist():
+            out.setdefault(k, []).append(
+                f"signals.{c} empty in the campaign: corrected with {float(logged[c][k]):.6g}, filled by "
+                f"{how['way']} (its leave-one-out error {how['loo_rms']:.3g})"
+            )
+    return out
 
 
 def write_product(res: DiscoveryResult, summ: dict[str, Any], out: Path) -> str | None:
@@ -97,6 +129,7 @@ def write_product(res: DiscoveryResult, summ: dict[str, Any], out: Path) -> str 
     from robocal.compensation.correct import correct
     from robocal.compensation.effects import Signals
     from robocal.discovery.effects import extended_calibration
+    from robocal.discovery.logged import filled_columns
     from robocal.kinematics.chain import fk
 
     fit_stats = {k: summ[k] for k in ("rms_before_mm", "rms_after_mm", "noise_floor_mm", "chi2", "dof", "outliers")}
@@ -114,7 +147,8 @@ def write_product(res: DiscoveryResult, summ: dict[str, Any], out: Path) -> str 
     cal = load_calibration(json.loads(json.dumps(cal_dict)), res.robot)
     camp = res.campaign
     sel = camp.split == "validation" if np.any(camp.split == "validation") else np.ones(camp.n_rows, dtype=bool)
-    sub = camp.subset(sel & np.isin(camp.target.astype(str), cal.model.target_names))
+    in_sub = np.flatnonzero(sel & np.isin(camp.target.astype(str), cal.model.target_names))
+    sub = camp.subset(in_sub)
     if sub.n_rows == 0:
         (out / "compensation.csv").unlink(missing_ok=True)
         shown = "validation" if np.any(camp.split == "validation") else "campaign"
@@ -131,10 +165,14 @@ def write_product(res: DiscoveryResult, summ: dict[str, Any], out: Path) -> str 
     tgt = [t for _, t in first.values()]
     # every row's signals; the logged ones the model's effects follow, from the campaign's own columns
     cols = {str(e["column"]) for e in cal.effects if e.get("signal") in ("logged", "logged_frame")}
+    logged, gaps = filled_columns(camp, res.robot, cols)  # an empty reading: the value the search filled in
     signals = Signals(np.asarray(sub.payload_kg, dtype=float), sub.tau_Nm, sub.current_A, sub.direction,
-                      {c: np.asarray(sub.extra[c], dtype=float) for c in cols} or None)  # fmt: skip
+                      {c: v[in_sub] for c, v in logged.items()} or None)  # fmt: skip
+    said = _signal_notes(cal.effects, {c: v[in_sub][idx] for c, v in logged.items()},
+                         {c: (m[in_sub][idx], how) for c, (m, how) in gaps.items()})  # fmt: skip
     if res.robot.has_prismatic:  # a robot on external axes: robocal.compensation.axes (the track not moved)
-        _axes_product(res, cal, sub, signals, idx, tgt, [f"{p}/{t}" for p, t in zip(first, tgt, strict=True)], out)
+        _axes_product(res, cal, sub, signals, idx, tgt, [f"{p}/{t}" for p, t in zip(first, tgt, strict=True)], out,
+                      said)  # fmt: skip
         return None
     qc = np.zeros((len(idx), sub.n_joints))
     cmd = np.zeros((len(idx), 4, 4))
@@ -158,6 +196,7 @@ def write_product(res: DiscoveryResult, summ: dict[str, Any], out: Path) -> str 
         status[rows], reason[rows] = comp.status, ["; ".join(x) for x in comp.reasons]
         corr_max[rows] = np.rad2deg(np.abs(comp.correction_rad).max(axis=1))
     ids = [f"{p}/{t}" for p, t in zip(first, tgt, strict=True)]
+    _flag(status, reason, said)
     # the joints as the controller takes them (a coupled robot's J3 is reported relative to J2: fanuc_j2j3)
     qc = res.robot.to_reported(qc)
     write_compensation_csv(out / "compensation.csv", ids, qc, cmd, res_mm, None, status, reason, corr_max)
