@@ -49,7 +49,9 @@ def metrics_of(summary: dict[str, Any]) -> dict[str, Any]:
 def compute(ctx: Context) -> Metrics | Skipped:
     prep = ctx.read_json(f"{INPUT}/prepare.json")
     if not prep.get("has_payload"):
-        return ctx.skip("the campaign has no payload rows (payload_kg is 0 or absent): no compliance to identify")
+        return ctx.skip("the campaign has no payload rows (payload_kg is 0 or absent): this stage identifies the "
+                        "joints' compliance from payloads; under the arm's own weight it is the discover stage's "
+                        "(compliance from the link masses, weight without them)")  # fmt: skip
     from robocal.compliance.fit import ComplianceConfig, missing_loads
     from robocal.compliance.report import condition_figure, load_table_figure
     from robocal.report import plots

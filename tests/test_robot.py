@@ -422,3 +422,32 @@ def test_a_key_other_tools_read_with_a_meaning_is_refused(where: int | None, key
     assert "cell/robot.yaml" in msg and ("URDF" in msg)
     if where is not None:
         assert f"joints[{where}]" in msg and "negate" in msg
+
+
+@pytest.mark.parametrize(("key", "value"), [("mounting", "ceiling"), ("mount", "wall"), ("gravity", [0, 0, 9.81])])
+def test_a_mounting_stated_where_it_is_not_read_is_refused_with_where_it_is(key: str, value: object) -> None:
+    """Newcomer pass 15 (D3): 'mounting: wall' and a top-level 'gravity:' were left alone as the user's own keys,
+    and the wall-mounted arm's weight was modelled the floor's way (4.78 mm held out; 0.034 with gravity stated)."""
+    d = copy.deepcopy(_raw("kr16_2"))
+    d[key] = value
+    with pytest.raises(ConfigError, match=f"{key!r} is not read by robocal") as info:
+        robot_from_dict(d, source="cell/robot.yaml")
+    assert "gravity_mps2" in str(info.value) and "[0, 0, 9.81] on a ceiling" in str(info.value)
+    d.pop(key)
+    d["dynamics"] = {**d.get("dynamics", {}), "gravity_mps2": [0, 0, 9.81]}  # where it is read
+    assert robot_from_dict(d, source="cell/robot.yaml").n_joints == 6
+
+
+def test_a_negative_compliance_is_said_to_be_one_no_stiffness_can_be() -> None:
+    """Newcomer pass 15 (D4): a ceiling-mounted arm described as on the floor named compliance j3 at -7.57e-7 rad/Nm
+    (+7.57e-7 with its gravity stated) without a word; a positive one, or one within two standard errors of zero,
+    is not a warning."""
+    from robocal.discovery.validate import negative_compliance
+
+    def named(c: float, se: float) -> dict:
+        return {"key": "compliance:j3", "effect": "compliance",
+                "estimates": {"c_rad_per_Nm": {"value": c, "stderr": se, "unit": "rad/Nm"}}}  # fmt: skip
+
+    (said,) = negative_compliance([named(-7.568e-7, 2.6e-8), named(7.5e-7, 2e-8)])
+    assert "compliance:j3" in said and "-7.568e-07" in said and "gravity_mps2" in said
+    assert negative_compliance([named(-1e-8, 2e-8), {"key": "weight:j2", "effect": "weight", "estimates": {}}]) == []

@@ -277,7 +277,14 @@ NOT_READ = {
               "zero is theta_offset_deg"),
     "robot": (("tool", "base", "tool_frame", "base_frame", "flange", "tcp", "world", "base_T", "tool_T"), "the "
               "tracker (base) frame and the tools are fitted from the measurements (the targets); a fixed base or "
-              "tool frame belongs in a URDF given as FILE.urdf#BASE:TIP"),
+              "tool frame belongs in a URDF given as FILE.urdf#BASE:TIP; a robot mounted on a ceiling or a wall states "
+              "gravity in its base frame: dynamics: {gravity_mps2: [0, 0, 9.81]} (ceiling), e.g. [0, -9.81, 0] (wall)"),
+    # a mounting stated where it is not read: the arm's weight then deflected it the floor's way (newcomer pass 15:
+    # a wall-mounted arm's 'mounting: wall' ignored, 4.78 mm held out where gravity_mps2 gave 0.034)
+    "mounting": (("mounting", "mount", "mounted", "installation", "gravity", "gravity_mps2", "g", "orientation"),
+                 "the mounting is stated as gravity in the base frame, under dynamics (with or without link masses): "
+                 "dynamics: {gravity_mps2: [0, 0, -9.81]} on a floor (the default), [0, 0, 9.81] on a ceiling, "
+                 "e.g. [0, -9.81, 0] on a wall"),
 }  # fmt: skip
 
 
@@ -287,8 +294,9 @@ def _misspelt(keys: Any, known: Sequence[str], where: str, level: str = "robot")
     from difflib import get_close_matches
 
     for k in keys:
-        if isinstance(k, str) and k in NOT_READ[level][0]:
-            raise ConfigError(f"{where}: key {k!r} is not read by robocal and would be ignored: {NOT_READ[level][1]}")
+        for lv in (level, "mounting") if level == "robot" else (level,):
+            if isinstance(k, str) and k in NOT_READ[lv][0]:
+                raise ConfigError(f"{where}: key {k!r} is not read by robocal and would be ignored: {NOT_READ[lv][1]}")
     for k in keys:
         if isinstance(k, str) and k not in known:
             if get_close_matches(k, known, n=1, cutoff=0.8):

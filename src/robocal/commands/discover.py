@@ -105,7 +105,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"expected in a new session (the sessions are the campaign's {len(sc['sessions'])} tracker stations, "
               "another placement whether or not another day: each left out, its tracker registered on half of its "
               f"poses to judge the other half): mean {sc['mean_position_mm']:.4f} mm"
-              + (f" (geometric model {gc['mean_position_mm']:.4f} mm)" if gc else ""))  # fmt: skip
+              + (f" (geometric model {gc['mean_position_mm']:.4f} mm"
+                 + (", each model's tool re-measured there: the discovered one holds a re-seated tool"
+                    if gc.get("tool_re_measured") else "") + ")" if gc else ""))  # fmt: skip
     from robocal.discovery.sessions import SAME_ERROR_MM
 
     for where, v in s.get("sessions", {}).items():

@@ -131,12 +131,18 @@ class Sessions:
         return cache["G"], cache["b"], cache["per"]
 
     def errors(
-        self, fit: Fit, opened: frozenset[str] = frozenset(), keep: np.ndarray | None = None
+        self,
+        fit: Fit,
+        opened: frozenset[str] = frozenset(),
+        keep: np.ndarray | None = None,
+        reseat: bool | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Whitened held-out residuals ``(M,)`` of every held-out session's rows (0 on rows of no session) and
         the mask ``(M,)`` of the residuals held out; the effects in ``opened`` applied without their window;
         ``keep``: only these free parameters (positions in ``fit.free``), the others removed from the model as
-        :func:`robocal.discovery.grow.replace_fit_columns` removes them (first order)."""
+        :func:`robocal.discovery.grow.replace_fit_columns` removes them (first order); ``reseat``: the held-out
+        session's tool re-measured too (None: when ``fit`` holds a re-seated tool; the geometric model is judged
+        so when the discovered one does, like with like)."""
         A, r, d = fit.J_w, fit.r_w, fit.d
         k_all = len(fit.free)
         keep = np.arange(k_all) if keep is None else np.asarray(keep, dtype=int)
@@ -160,7 +166,7 @@ class Sessions:
         col = {int(p): i for i, p in enumerate(free)}
         out = np.zeros_like(r)
         mask = np.zeros(len(r), dtype=bool)
-        reseated = any(a.cand.effect == "session" for a in model.accepted)
+        reseated = any(a.cand.effect == "session" for a in model.accepted) if reseat is None else reseat
         tool_cols = [p for p, kind in enumerate(model.base.kinds) if kind in ("tool", "tool_rot")]
         for i, s in enumerate(self.station):
             held = self.index == i
@@ -204,10 +210,16 @@ class Sessions:
         e = (err_w / fit.weights).reshape(-1, fit.d)[:, :3]
         return np.asarray(np.linalg.norm(e[mask.reshape(-1, fit.d)[:, 0]], axis=1))
 
-    def summary(self, fit: Fit, opened: frozenset[str] = frozenset(), keep: np.ndarray | None = None) -> dict[str, Any]:
+    def summary(
+        self,
+        fit: Fit,
+        opened: frozenset[str] = frozenset(),
+        keep: np.ndarray | None = None,
+        reseat: bool | None = None,
+    ) -> dict[str, Any]:
         """``{"sessions", "mean_position_mm", "rms_position_mm", "per_session": {name: mean mm}, "sse"}``
         (:meth:`errors`' arguments)."""
-        err, mask = self.errors(fit, opened, keep)
+        err, mask = self.errors(fit, opened, keep, reseat)
         return self.summary_of(fit, err, mask)
 
     def summary_of(self, fit: Fit, err: np.ndarray, mask: np.ndarray) -> dict[str, Any]:

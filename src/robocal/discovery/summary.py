@@ -547,9 +547,10 @@ def summary(res: DiscoveryResult, validation: dict[str, Any] | None = None) -> d
         out["cross_validation"] = {k: v for k, v in cv.items() if k != "effects"}
     if validation is not None:
         out["validation"] = validation
-    from robocal.discovery.validate import worse_than_geometry
+    from robocal.discovery.validate import negative_compliance, worse_than_geometry
 
-    if said := worse_than_geometry(validation, cv):  # a result worse than its start is said
+    # a result worse than its start is said, and a stiffness that cannot be
+    if said := worse_than_geometry(validation, cv) + negative_compliance(out.get("named", [])):
         out.setdefault("warnings", []).extend(said)
     return out
 

@@ -3,7 +3,7 @@ campaign's held-out rows, with and without the held-out rows that are gross erro
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -209,7 +209,7 @@ def validation_errors(res: DiscoveryResult) -> dict[str, Any] | None:
     return out
 
 
-__all__ = ["validation_errors"]
+__all__ = ["negative_compliance", "validation_errors"]
 
 
 def worse_than_geometry(validation: Mapping[str, Any] | None, cv: Mapping[str, Any]) -> list[str]:
@@ -236,5 +236,24 @@ def worse_than_geometry(validation: Mapping[str, Any] | None, cv: Mapping[str, A
             f"discovered model ({float(sc['mean_position_mm']):.4f} mm mean) is worse than the geometric "
             f"calibration ({float(gc['mean_position_mm']):.4f} mm): its effects do not hold beyond the session "
             "they were fitted in; for a new session robocal calibrate's calibration.json is the better model"
+        )
+    return out
+
+
+def negative_compliance(named: Sequence[Mapping[str, Any]]) -> list[str]:
+    """What is said of a named joint compliance below zero by more than two standard errors: a reducer's stiffness
+    cannot be negative, the gravity torque it was fitted to pulls the other way — the robot mounted otherwise than
+    described (newcomer pass 15: a ceiling-mounted arm described as on the floor gave compliance j3 -7.57e-7
+    rad/Nm, +7.57e-7 with its gravity stated; the predictions are the same, the stated stiffness is not)."""
+    out = []
+    for n in named:
+        est = (n.get("estimates") or {}).get("c_rad_per_Nm") if n.get("effect") == "compliance" else None
+        if est is None or est.get("stderr") is None or not est["value"] + 2.0 * est["stderr"] < 0:
+            continue
+        out.append(
+            f"{n.get('label') or n.get('key')}: the compliance is negative ({est['value']:.4g} ± {est['stderr']:.2g} "
+            "rad/Nm), which a reducer's stiffness cannot be: the gravity torque it follows pulls the other way — is "
+            "the robot mounted as described? A ceiling or wall mount states gravity in the base frame: dynamics: "
+            "{gravity_mps2: [0, 0, 9.81]} (ceiling), e.g. [0, -9.81, 0] (wall)"
         )
     return out

@@ -196,7 +196,9 @@ def _named_section(rep: Report, summ: dict[str, Any]) -> None:
             "others without the sessions' own effects (the tracker's drift and scale, a re-seated tool), the "
             "left-out session's tracker (and a re-seated tool) registered on one half of its poses to judge the "
             "other; the geometric model "
-            f"{gc.get('mean_position_mm', float('nan')):.4f} mm). Within this session (pose-grouped "
+            f"{gc.get('mean_position_mm', float('nan')):.4f} mm"
+            + (", its tool re-measured there too" if gc.get("tool_re_measured") else "")
+            + f"). Within this session (pose-grouped "
             f"cross-validation): {cv.get('cv_mean_position_mm', float('nan')):.4f} mm. Per session left out: "
             + ", ".join(f"{k} {v:.4f} mm" for k, v in sc["per_session"].items())
             + ". An effect that raises the error in a session left out is dropped (the held-out check)."
