@@ -329,3 +329,16 @@ def test_a_stage_finds_the_projects_environment_from_any_folder_below_it(common:
     assert common.project_python(tmp_path / "repo" / "stages") == py
     assert common.project_python(tmp_path / "repo" / ".dvc" / "tmp" / "exps" / "x" / "stages") == py
     assert common.project_python(tmp_path / "elsewhere") is None
+
+
+def test_discover_headline_gives_the_robot_as_served_beside_the_final_figure() -> None:
+    """Measurement-side effects (a tracker's scale drift) correct the held-out readings, which the service never
+    sees: the stage's metrics carried only the corrected figure (newcomer pass 15: 0.0251 mm, the robot as served
+    0.1686); a model without them keeps its metrics as they were."""
+    mod = _load_stage("discover")
+    details = {"rms_after_mm": 0.02, "n_named": 2}
+    final = {"mean_position_mm": 0.0251, "as_served": {"mean_position_mm": 0.1686}}
+    h = mod.headline_of({"validation": {"final": final}}, details)
+    assert h["disc_val_mean_mm"] == 0.0251 and h["disc_val_served_mean_mm"] == 0.1686
+    h = mod.headline_of({"validation": {"final": {"mean_position_mm": 0.03}}}, details)
+    assert h == {"disc_rms_mm": 0.02, "disc_named": 2, "disc_val_mean_mm": 0.03}
