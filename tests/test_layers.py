@@ -26,6 +26,7 @@ LAYERS: list[set[str]] = [
         "robot",
         "robot_dh",
         "robot_files",
+        "robot_keys",
         "pipeline",
         "kinematics",
         "metrics",

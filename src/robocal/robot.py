@@ -63,7 +63,6 @@ converts the reported values once, ``q_kinematic = coupling @ q_reported``; insi
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -79,6 +78,7 @@ from robocal.robot_files import find_robot
 from robocal.robot_files import is_robot_path as is_robot_path
 from robocal.robot_files import project_robot_dir as project_robot_dir
 from robocal.robot_files import robot_dirs as robot_dirs
+from robocal.robot_keys import JOINT_KEYS, ROBOT_KEYS, _misspelt
 
 #: The MD-H convention string accepted in robot files.
 MDH = "mdh_rx_tx_rz_tz_ry"
@@ -257,51 +257,6 @@ def _vec(value: Any, n: int, where: str) -> np.ndarray:
     if arr.shape != (n,) or not np.all(np.isfinite(arr)):
         raise ConfigError(f"{where}: expected {n} finite numbers, got {value!r}")
     return arr
-
-
-#: the keys a robot description reads (top level, and per joint): a key one letter away from one of them is a
-#: misspelling, refused (``beta_fre: true`` was ignored and the joint's beta held; ``conventon: dh`` read a DH table
-#: as MD-H); any other key is the user's own (``source``, ``notes`` ...) and left alone
-ROBOT_KEYS = ("name", "n_joints", "units", "convention", "joints", "poe", "coupling", "dynamics", "T0_C",
-              "temperature_sensors", "signals", "positioner")  # fmt: skip
-JOINT_KEYS = ("name", "type", "role", "a_mm", "alpha_deg", "d_mm", "theta_offset_deg", "beta_deg", "beta_free",
-              "q_min_deg", "q_max_deg", "q_min_mm", "q_max_mm")  # fmt: skip
-
-
-#: keys other tools read with a kinematic meaning a description here does not have, and why: refused, not left alone
-#: as the user's own (a newcomer's ``sign: -1`` on a joint and a top-level ``tool:`` were ignored silently)
-NOT_READ = {
-    "joint": (("sign", "direction", "flip", "flipped", "reversed", "reverse", "invert", "inverted", "axis",
-               "gear_ratio", "ratio", "offset"), "every joint turns about its own +z here: a joint counted the other "
-              "way is given by its column's sign in poses.csv (negate it) or by a URDF with <axis xyz='0 0 -1'>; its "
-              "zero is theta_offset_deg"),
-    "robot": (("tool", "base", "tool_frame", "base_frame", "flange", "tcp", "world", "base_T", "tool_T"), "the "
-              "tracker (base) frame and the tools are fitted from the measurements (the targets); a fixed base or "
-              "tool frame belongs in a URDF given as FILE.urdf#BASE:TIP; a robot mounted on a ceiling or a wall states "
-              "gravity in its base frame: dynamics: {gravity_mps2: [0, 0, 9.81]} (ceiling), e.g. [0, -9.81, 0] (wall)"),
-    # a mounting stated where it is not read: the arm's weight then deflected it the floor's way (newcomer pass 15:
-    # a wall-mounted arm's 'mounting: wall' ignored, 4.78 mm held out where gravity_mps2 gave 0.034)
-    "mounting": (("mounting", "mount", "mounted", "installation", "gravity", "gravity_mps2", "g", "orientation"),
-                 "the mounting is stated as gravity in the base frame, under dynamics (with or without link masses): "
-                 "dynamics: {gravity_mps2: [0, 0, -9.81]} on a floor (the default), [0, 0, 9.81] on a ceiling, "
-                 "e.g. [0, -9.81, 0] on a wall"),
-}  # fmt: skip
-
-
-def _misspelt(keys: Any, known: Sequence[str], where: str, level: str = "robot") -> None:
-    """Refuse a key of ``keys`` that is not in ``known`` but close to one of them (a misspelling), or one that other
-    tools read with a meaning a description here does not have (:data:`NOT_READ`)."""
-    from difflib import get_close_matches
-
-    for k in keys:
-        for lv in (level, "mounting") if level == "robot" else (level,):
-            if isinstance(k, str) and k in NOT_READ[lv][0]:
-                raise ConfigError(f"{where}: key {k!r} is not read by robocal and would be ignored: {NOT_READ[lv][1]}")
-    for k in keys:
-        if isinstance(k, str) and k not in known:
-            if get_close_matches(k, known, n=1, cutoff=0.8):
-                like = " or ".join(repr(c) for c in get_close_matches(k, known, n=2, cutoff=0.6))
-                raise ConfigError(f"{where}: unknown key {k!r}: did you mean {like}? (a misspelt key would be ignored)")
 
 
 def robot_from_dict(data: dict[str, Any], source: str = "<dict>") -> RobotDescription:

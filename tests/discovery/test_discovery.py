@@ -291,9 +291,9 @@ def test_an_effect_the_held_out_check_drops_gives_the_library_another_pass():
     """A heavy arm in 18 configurations (tests/discovery/campaigns/fanuc_com_behind): the library took a gear
     harmonic of joint 2 before the weight on joint 3, the held-out check dropped the harmonic and joint 3 was left
     without a model (0.307 mm held out). An effect the library took and the check drops gives the library another
-    pass without it, its additions checked the same way. (At the default threshold the harmonic now stays: its
-    loss in the session left out, -29 %, is not more than chance pose by pose; 0.259 mm.) A threshold that drops the
-    library's effects shows the second pass and its check."""
+    pass without it, its additions checked the same way. (The weight's links split into the one the joint turns
+    and those beyond it now carry the shoulder without the harmonic: weight j2, j3, 0.158 mm; 0.259 with the
+    harmonic kept.) A threshold that drops the library's effects shows the second pass and its check."""
     from pathlib import Path
 
     from robocal.data.contract import read_campaign
@@ -305,14 +305,15 @@ def test_an_effect_the_held_out_check_drops_gives_the_library_another_pass():
     camp = read_campaign(folder, robot)
     res = discover(camp, robot)
     s = summary(res, validation_errors(res))
-    assert s["validation"]["final"]["mean_position_mm"] < 0.28  # 0.259 (0.307 before; geometric 0.834)
-    # (the counterbalance's columns off: the search path this mechanism was shown on)
-    res = discover(camp, robot, DiscoveryConfig(min_held_out_gain=0.45, counterbalance="off"))
+    assert s["validation"]["final"]["mean_position_mm"] < 0.20  # 0.158 (0.307, then 0.259 before; geometric 0.834)
+    # (the counterbalance's columns off: the search path this mechanism was shown on; a gain of 300 % asked of each
+    # effect: the check drops the library's)
+    res = discover(camp, robot, DiscoveryConfig(min_held_out_gain=3.0, counterbalance="off"))
     phases = [st["phase"] for st in summary(res)["steps"]]
     first = phases.index("held-out check of the parametric model")
     # the library once more after the check (its steps), and the check once more on what it added
-    assert "library F-test search" in phases[first + 1 :]
-    assert phases.count("held-out check of the parametric model") == 2
+    again = phases.index("library F-test search", first + 1)
+    assert "held-out check of the parametric model" in phases[again + 1 :]
 
 
 def test_the_same_configurations_measured_in_another_order_give_the_same_model(tmp_path):
