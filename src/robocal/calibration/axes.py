@@ -52,6 +52,7 @@ from robocal.kinematics.axes import (
     carried_moment,
     legendre,
     moment_features,
+    rod_moment,
     travel_coordinate,
 )
 
@@ -120,8 +121,11 @@ class Term:
     column: int = -1  # a "masses" feature: which mass parameter (robocal.kinematics.axes.moment_features)
 
 
-def axis_terms(robot: Any, settings: AxisSettings, order: int, bending: bool) -> list[Term]:
-    """The terms of every linear axis for a polynomial ``order`` and with or without the column's bending."""
+def axis_terms(robot: Any, settings: AxisSettings, order: int, bending: bool, rods: bool = False) -> list[Term]:
+    """The terms of every linear axis for a polynomial ``order`` and with or without the column's bending;
+    ``rods``: a description without masses bends by the moment of links shaped like the arm's
+    (:func:`robocal.kinematics.axes.rod_moment`, ``column:bending_x_rods``, ``_rods_ext``: discovery's compact
+    candidate) instead of one coefficient per mass parameter."""
     out: list[Term] = []
     axes = [j for j in range(robot.n_joints) if robot.prismatic[j]]
     for a, j in enumerate(axes):
@@ -136,6 +140,11 @@ def axis_terms(robot: Any, settings: AxisSettings, order: int, bending: bool) ->
                 c = COMPONENTS.index(comp)
                 for k, suffix in ((0, ""), (1, "_ext")):
                     out.append(Term(f"{role}:{name}{suffix}", f"{role}:{name}", j, a, c, "moment", k, "rad/kNm", ax))
+        elif bending and rods:  # no masses, the links shaped like the arm's: one moment, and times the extension
+            for name, comp, ax in BENDING:
+                c = COMPONENTS.index(comp)
+                for k, suffix in ((0, ""), (1, "_ext")):
+                    out.append(Term(f"{role}:{name}_rods{suffix}", f"{role}:{name}", j, a, c, "rods", k, "rad/kNm", ax))
         elif bending:  # no masses: the moment of each unknown mass parameter (robocal.kinematics.axes), no _ext
             for name, comp, ax in BENDING:
                 c = COMPONENTS.index(comp)
@@ -154,11 +163,16 @@ def features(robot: Any, q: np.ndarray, payload_kg: np.ndarray, terms: list[Term
     """The feature of every term at every row, ``(m, T)``: the value of its error element per unit coefficient."""
     F = np.zeros((q.shape[0], len(terms)))
     moments: dict[int, np.ndarray] = {}
+    rods: dict[int, np.ndarray] = {}
     per_mass: dict[int, np.ndarray] = {}
     for t, term in enumerate(terms):
         u = travel_coordinate(q[:, term.joint], robot.q_limits[term.joint])
         if term.feature == "legendre":
             F[:, t] = legendre(u, term.order)
+        elif term.feature == "rods":
+            if term.joint not in rods:
+                rods[term.joint] = rod_moment(robot, q, term.joint, payload_kg)
+            F[:, t] = rods[term.joint][:, term.moment_axis] * u**term.order
         elif term.feature == "masses":
             if term.joint not in per_mass:
                 per_mass[term.joint] = moment_features(robot, q, term.joint)[0]
@@ -186,8 +200,8 @@ def axis_errors(
 def term_named(robot: Any, name: str) -> Term:
     """The :class:`Term` of a name as :func:`axis_terms` writes it (``track:straightness_y_P2``,
     ``column:bending_x_ext``); raises :class:`ConfigError` for a name no linear axis of ``robot`` has."""
-    for bend in (False, True):
-        for t in axis_terms(robot, AxisSettings(), AxisSettings().max_order + 6, bend):
+    for bend, rods in ((False, False), (True, False), (True, True)):
+        for t in axis_terms(robot, AxisSettings(), AxisSettings().max_order + 6, bend, rods):
             if t.name == name:
                 return t
     raise ConfigError(f"no axis error term {name!r} on robot {robot.name!r}")

@@ -35,6 +35,7 @@ from robocal.kinematics.axes import (
     carried_moment,
     legendre,
     moment_features,
+    rod_moment,
     travel_coordinate,
 )
 from robocal.robot import RobotDescription
@@ -91,6 +92,26 @@ def axis_candidates(
                     names.append(f"{name}_{pn}")
             signal = ("moment about the carriage of each unknown mass parameter of the bodies it carries (kN·m per kg "
                       "or per kg x 0.1 m; no masses in the description)")  # fmt: skip
+            R = rod_moment(robot, campaign.q, j, campaign.payload_kg)
+            rcols, rslots, rnames = [], [], []
+            for name, comp, ax in BENDING:
+                for k, suffix in ((0, ""), (1, "_ext")):
+                    rcols.append(R[:, ax] * u**k)
+                    rslots.append(COMPONENTS.index(comp))
+                    rnames.append(f"{name}_rods{suffix}")
+            cands.append(
+                dict(
+                    key=f"{role}:bending_rods", effect="axis", joint=j + 1, harmonic=None,
+                    cause=f"the {role} bends under the arm's weight: its carriage turns about its x and y in "
+                    "proportion to the moment of the weight it carries, more as it extends (the links' masses unknown: "
+                    "shaped like the arm's, with the payload)",
+                    signal="moment about the carriage of links shaped like the arm's (uniform rods) and the payload, "
+                    "and times the extension", shape="axis", S=np.column_stack(rcols),
+                    coef_names=tuple(rnames), coef_units=tuple("rad/kNm" for _ in rnames),
+                    extra={"axis_joint": j, "slots": tuple(rslots), "role": role, "component": "bending",
+                           "q": campaign.q, "target": campaign.target},
+                )
+            )  # fmt: skip
         cands.append(
             dict(
                 key=key, effect="axis", joint=j + 1, harmonic=None,

@@ -184,3 +184,25 @@ def moment_features(robot: RobotDescription, q: np.ndarray, joint: int) -> tuple
             names.append(f"b{i + 1}_{axis}")
     M = np.stack(cols, axis=-1)  # (m, 3, F) base frame, N·m per unit
     return np.einsum("mji,mjf->mif", R, M) / 1000.0, names
+
+
+def rod_moment(robot: RobotDescription, q: np.ndarray, joint: int, payload_kg: np.ndarray | float) -> np.ndarray:
+    """The moment (kN·m, carriage frame; (m, 3)) about the carriage of ``joint`` of the bodies it carries shaped
+    like the arm's links (uniform rods, 1 kg per m: :func:`robocal.kinematics.gravity.generic_mass_moments`) and
+    the payload at the flange's origin (each row's kg), for a description without masses: one moment of physical
+    shape, its scale the bending's coefficient (:func:`moment_features` weighted by the rods' mass parameters). The
+    per-parameter moments are 24 coefficients on a 6-axis arm, more than a column's few placements tell apart
+    (newcomer pass 16: a column given as a DH table bent 2 mm at its top, the bending not found, 3 top rows called
+    gross errors)."""
+    from robocal.kinematics.gravity import generic_mass_moments
+
+    Mf, _ = moment_features(robot, q, joint)
+    pi0 = generic_mass_moments(robot)
+    w = []
+    for i in range(joint + 1, robot.n_joints):
+        w += [pi0[4 * i]] + [float(v) / FIRST_MOMENT_M for v in pi0[4 * i + 1 : 4 * i + 4]]
+    M = Mf @ np.asarray(w)
+    pay = np.broadcast_to(np.asarray(payload_kg, dtype=float), (Mf.shape[0],))
+    if np.any(pay):  # the payload at the flange: the last body's frame origin, its mass each row's
+        M = M + Mf[:, :, 4 * (robot.n_joints - joint - 2)] * pay[:, None]
+    return np.asarray(M)
