@@ -17,6 +17,10 @@ JOINT_KEYS = ("name", "type", "role", "a_mm", "alpha_deg", "d_mm", "theta_offset
               "q_min_deg", "q_max_deg", "q_min_mm", "q_max_mm")  # fmt: skip
 
 
+#: where a robot mounted on a ceiling or a wall states it
+MOUNTED = ("a robot mounted on a ceiling or a wall states gravity in its base frame: dynamics: {gravity_mps2: [0, 0, "
+           "9.81]} (ceiling), e.g. [0, -9.81, 0] (wall)")  # fmt: skip
+
 #: keys other tools read with a kinematic meaning a description here does not have, and why: refused, not left alone
 #: as the user's own (a newcomer's ``sign: -1`` on a joint and a top-level ``tool:`` were ignored silently)
 NOT_READ = {
@@ -26,8 +30,7 @@ NOT_READ = {
               "zero is theta_offset_deg"),
     "robot": (("tool", "base", "tool_frame", "base_frame", "flange", "tcp", "world", "base_T", "tool_T"), "the "
               "tracker (base) frame and the tools are fitted from the measurements (the targets); a fixed base or "
-              "tool frame belongs in a URDF given as FILE.urdf#BASE:TIP; a robot mounted on a ceiling or a wall states "
-              "gravity in its base frame: dynamics: {gravity_mps2: [0, 0, 9.81]} (ceiling), e.g. [0, -9.81, 0] (wall)"),
+              "tool frame belongs in a URDF given as FILE.urdf#BASE:TIP"),
     # a mounting stated where it is not read: the arm's weight then deflected it the floor's way (newcomer pass 15:
     # a wall-mounted arm's 'mounting: wall' ignored, 4.78 mm held out where gravity_mps2 gave 0.034)
     "mounting": (("mounting", "mount", "mounted", "installation", "gravity", "gravity_mps2", "g", "orientation"),
@@ -45,7 +48,11 @@ def _misspelt(keys: Any, known: Sequence[str], where: str, level: str = "robot")
     for k in keys:
         for lv in (level, "mounting") if level == "robot" else (level,):
             if isinstance(k, str) and k in NOT_READ[lv][0]:
-                raise ConfigError(f"{where}: key {k!r} is not read by robocal and would be ignored: {NOT_READ[lv][1]}")
+                # a base given as a frame may be a mounting: where gravity is stated said too (not for a tool)
+                more = f"; {MOUNTED}" if k in ("base", "base_frame", "base_T", "world") else ""
+                raise ConfigError(
+                    f"{where}: key {k!r} is not read by robocal and would be ignored: {NOT_READ[lv][1]}{more}"
+                )
     for k in keys:
         if isinstance(k, str) and k not in known:
             if get_close_matches(k, known, n=1, cutoff=0.8):

@@ -146,7 +146,8 @@ def run(args: argparse.Namespace) -> int:
         ax = summary["axes"]
         terms = sorted({t["name"].rsplit("_P", 1)[0] for t in ax["terms"]})
         v = ax["validation"]
-        line = f"axes: order {ax['order']} (cross-validated), {len(ax['terms'])} terms of {', '.join(terms) or 'none'}"
+        line = (f"axes: order {ax['order']} (cross-validated), {len(ax['terms'])} terms of {', '.join(terms)}" if terms
+                else f"axes: order {ax['order']} (cross-validated): no error along the travel is fitted")  # fmt: skip
         if v.get("n_rows"):
             line += f"; validation mean {v['mean_position_mm']:.4f} / max {v['max_position_mm']:.4f} mm"
             if "without_axes_mean_mm" in v:
