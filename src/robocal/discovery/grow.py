@@ -34,6 +34,7 @@ from robocal.discovery.cv import fold_cv, paired_log10_p, pose_paired_log10_p
 from robocal.discovery.gram import RowsOf
 from robocal.discovery.model import Accepted, Fit
 from robocal.discovery.scoring import Score, Step, Variant, regressor
+from robocal.discovery.served import served_conflict
 from robocal.discovery.session_cv import session_own
 from robocal.discovery.state import DiscoveryState, Refit
 from robocal.discovery.weight import weight_candidates
@@ -251,6 +252,10 @@ def held_out_check(state: DiscoveryState, final: bool = False) -> dict[str, Any]
         hurts = sorted(k for k, g in s_gains.items() if g < -thr and s_p[k] < np.log10(state.cfg.cv_alpha)
                        and k not in weak)  # fmt: skip
         weak = sorted(weak + hurts)
+        # a robot-side effect that a measurement-side one cancels: the model as served worse than the geometry
+        clash, served = served_conflict(fit, state.steps[0].rms_before_mm if state.steps else None)
+        if clash is not None and clash not in weak:
+            weak = sorted([*weak, clash])
         if not weak:
             if final and gains:
                 state.steps.append(
@@ -263,15 +268,20 @@ def held_out_check(state: DiscoveryState, final: bool = False) -> dict[str, Any]
         state.fit = fit = state.refit(state.accepted, before)
         cv_mean = float(con["cv_mean_position_mm"])
         dropped += [
-            {"key": k, "held_out_gain": gains[k], "threshold": thr,
-             "position_gain_mm": float(con["effects"][k]["cv_mean_without_mm"]) - cv_mean,
-             **({"session_gain": s_gains[k], "hurts_in_new_session": k in hurts} if k in s_gains else {})}
+            {"key": k, "held_out_gain": gains.get(k), "threshold": thr,
+             **({"position_gain_mm": float(con["effects"][k]["cv_mean_without_mm"]) - cv_mean}
+                if k in con["effects"] else {}),
+             **({"session_gain": s_gains[k], "hurts_in_new_session": k in hurts} if k in s_gains else {}),
+             **({"served_conflict": served} if k == clash else {})}
             for k in weak
         ]  # fmt: skip
         state.steps.append(
             Step(None, f"held-out check: dropped {', '.join(weak)} (held-out gain at most {thr:.2%}"
                  + (f"; {', '.join(hurts)}: raise the error in a session left out by more than {thr:.2%}" if hurts
-                    else "") + ")",
+                    else "")
+                 + (f"; {clash}: cancels a measurement-side effect, the model as served "
+                    f"{served['served_rms_mm']:.4g} mm RMS where the geometry fits {served['geometric_rms_mm']:.4g}"
+                    if clash is not None else "") + ")",
                  before.rms_mm, fit.rms_mm, before.rss, fit.rss, fit.dof, [], weak, before.residuals_mm,
                  fit.residuals_mm, phase=phase)
         )  # fmt: skip
