@@ -30,8 +30,10 @@ def refitter(
     held and the user's ``discovery.fixed`` fixed, the calibration's prior kept (:func:`calibration_prior`)."""
     targets, T_ref = geo.model.target_names, geo.model.T_ref
     fixed = set(ParameterSpec.of(geo.model, cfg.fixed, "discovery.fixed").fixed)
-    base_prior = calibration_prior(geo, cfg)
-    held = frozenset(e.name for e in geo.eliminated) | held_poorly_determined(geo)
+    base_prior = bounded_poorly_determined(geo, calibration_prior(geo, cfg))
+    lengths = {nm for nm, k, u in zip(geo.model.names, geo.model.kinds, geo.model.units, strict=True)
+               if k == "kinematic" and u == "mm"}  # fmt: skip
+    held = frozenset(e.name for e in geo.eliminated) | (held_poorly_determined(geo) - lengths)
 
     def refit(accepted: list[Accepted], prev: Fit | None) -> Fit:
         model = ExtendedModel(robot, targets, T_ref, accepted, like=geo.model, base_prior=base_prior)
@@ -50,6 +52,27 @@ def held_poorly_determined(geo: Any) -> frozenset[str]:
     turning the wrist by a median 9.7 deg and refusing 3 of 30 targets)."""
     poor = (getattr(geo, "fit", None) or {}).get("poorly_determined") or []
     return frozenset(str(p["name"]) for p in poor if str(p.get("action", "")).startswith("held"))
+
+
+def bounded_poorly_determined(geo: Any, prior: np.ndarray | None) -> np.ndarray | None:
+    """``prior`` (precision toward nominal on the geometric parameters, or None) with the joint lengths calibrate
+    held as poorly determined kept within their bound instead (precision ``1 / bound²``): held, a pair the data
+    determine only together (the UR10 D's d6 and its tool's z) lost its sum and the discovery 0.1086 -> 0.1294 mm
+    held out (0.1161 bounded). An angle stays held (:func:`held_poorly_determined`): bounded, a column arm's theta6
+    still went 5 bounds off with its tilt effects and compensation.csv turned the wrist by up to 9 deg (free: 6.9
+    deg, a7 34 mm, 30 deg); so does a tool's or frame's (its prior is not toward nominal)."""
+    poor = {str(p["name"]): p for p in ((getattr(geo, "fit", None) or {}).get("poorly_determined") or [])
+            if str(p.get("action", "")).startswith("held")}  # fmt: skip
+    model = geo.model
+    idx = [i for i, (nm, k, u) in enumerate(zip(model.names, model.kinds, model.units, strict=True))
+           if nm in poor and k == "kinematic" and u == "mm"]  # fmt: skip
+    if not idx:
+        return prior
+    out = np.zeros(len(model.names)) if prior is None else np.array(prior, dtype=float)
+    for i in idx:
+        p = poor[model.names[i]]
+        out[i] = max(out[i], 1.0 / float(p["bound"]) ** 2)
+    return out
 
 
 def release(prev: Fit | None) -> None:
@@ -86,4 +109,4 @@ def calibration_prior(geo: Any, cfg: Any = None) -> np.ndarray | None:
     return np.where(joint, strength / width**2, 0.0)
 
 
-__all__ = ["calibration_prior", "held_poorly_determined", "refitter", "release", "start"]
+__all__ = ["bounded_poorly_determined", "calibration_prior", "held_poorly_determined", "refitter", "release", "start"]
