@@ -78,7 +78,7 @@ from robocal.robot_files import find_robot
 from robocal.robot_files import is_robot_path as is_robot_path
 from robocal.robot_files import project_robot_dir as project_robot_dir
 from robocal.robot_files import robot_dirs as robot_dirs
-from robocal.robot_keys import JOINT_KEYS, ROBOT_KEYS, _misspelt
+from robocal.robot_keys import JOINT_KEYS, ROBOT_KEYS, refuse_unknown_keys
 
 #: The MD-H convention string accepted in robot files.
 MDH = "mdh_rx_tx_rz_tz_ry"
@@ -263,14 +263,14 @@ def robot_from_dict(data: dict[str, Any], source: str = "<dict>") -> RobotDescri
     """Build a :class:`RobotDescription` from a parsed YAML mapping; errors name ``source`` and the key."""
     if not isinstance(data, dict):
         raise ConfigError(f"{source}: a robot description must be a mapping")
-    _misspelt(data, ROBOT_KEYS, source)
+    refuse_unknown_keys(data, ROBOT_KEYS, source)
     joints = data.get("joints")
     if not isinstance(joints, list) or not joints:
         raise ConfigError(f"{source}: 'joints' must be a non-empty list")
     for i, j in enumerate(joints, start=1):
         if isinstance(j, dict):  # joints[i] counts from 1: the joint's name said too
-            _misspelt(j, JOINT_KEYS, f"{source}: joints[{i}] (joint {i}" + (f", {j['name']})" if "name" in j else ")"),
-                      "joint")  # fmt: skip
+            where = f"{source}: joints[{i}] (joint {i}" + (f", {j['name']})" if "name" in j else ")")
+            refuse_unknown_keys(j, JOINT_KEYS, where, "joint")
     n = len(joints)
     if "n_joints" in data and int(data["n_joints"]) != n:
         raise ConfigError(f"{source}: n_joints = {data['n_joints']} but {n} joints are listed")

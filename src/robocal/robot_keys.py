@@ -40,7 +40,7 @@ NOT_READ = {
 }  # fmt: skip
 
 
-def _misspelt(keys: Any, known: Sequence[str], where: str, level: str = "robot") -> None:
+def refuse_unknown_keys(keys: Any, known: Sequence[str], where: str, level: str = "robot") -> None:
     """Refuse a key of ``keys`` that is not in ``known`` but close to one of them (a misspelling), or one that other
     tools read with a meaning a description here does not have (:data:`NOT_READ`)."""
     from difflib import get_close_matches

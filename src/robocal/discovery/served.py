@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from robocal.discovery.session_cv import session_own
+from robocal.metrics import ErrorStats
 
 
 def _contribution_mm(fit: Any, sl: slice) -> np.ndarray | None:
@@ -28,7 +29,7 @@ def _contribution_mm(fit: Any, sl: slice) -> np.ndarray | None:
 
 
 def _rms_mm(r: np.ndarray, d: int) -> float:
-    return float(np.sqrt(np.mean(np.sum(r.reshape(-1, d)[:, :3] ** 2, axis=1))))
+    return ErrorStats.of(r.reshape(-1, d)[:, :3]).rms_mm
 
 
 def served_conflict(fit: Any, geometric_rms_mm: float | None) -> tuple[str | None, dict[str, float]]:
