@@ -135,16 +135,13 @@ def axis_terms(robot: Any, settings: AxisSettings, order: int, bending: bool, ro
             for k in range(LOWEST_ORDER[comp], order + 1):
                 unit = "mm" if UNITS[c] == "mm" else "rad"
                 out.append(Term(f"{role}:{comp}_P{k}", f"{role}:{comp}", j, a, c, "legendre", k, unit))
-        if bending and robot.has_dynamics:
+        if bending and (robot.has_dynamics or rods):  # one moment (the masses', or rods'), and times the extension
+            feature, tag = ("moment", "") if robot.has_dynamics else ("rods", "_rods")
             for name, comp, ax in BENDING:
                 c = COMPONENTS.index(comp)
                 for k, suffix in ((0, ""), (1, "_ext")):
-                    out.append(Term(f"{role}:{name}{suffix}", f"{role}:{name}", j, a, c, "moment", k, "rad/kNm", ax))
-        elif bending and rods:  # no masses, the links shaped like the arm's: one moment, and times the extension
-            for name, comp, ax in BENDING:
-                c = COMPONENTS.index(comp)
-                for k, suffix in ((0, ""), (1, "_ext")):
-                    out.append(Term(f"{role}:{name}_rods{suffix}", f"{role}:{name}", j, a, c, "rods", k, "rad/kNm", ax))
+                    out.append(Term(f"{role}:{name}{tag}{suffix}", f"{role}:{name}", j, a, c, feature, k, "rad/kNm",
+                                    ax))  # fmt: skip
         elif bending:  # no masses: the moment of each unknown mass parameter (robocal.kinematics.axes), no _ext
             for name, comp, ax in BENDING:
                 c = COMPONENTS.index(comp)

@@ -73,14 +73,11 @@ def axis_candidates(
         if "column" not in role:
             continue
         key = f"{role}:bending"
-        cols, slots, names = [], [], []
+        cols: list[np.ndarray] = []
+        slots: list[int] = []
+        names: list[str] = []
         if robot.has_dynamics:
-            M = carried_moment(robot, campaign.q, j, campaign.payload_kg) / KNM
-            for name, comp, ax in BENDING:
-                for k, suffix in ((0, ""), (1, "_ext")):
-                    cols.append(M[:, ax] * u**k)
-                    slots.append(COMPONENTS.index(comp))
-                    names.append(f"{name}{suffix}")
+            cols, slots, names = _moment_columns(carried_moment(robot, campaign.q, j, campaign.payload_kg) / KNM, u, "")
             signal = ("moment of the carried weight about the carriage (description's masses, kN·m), and times the "
                       "extension")  # fmt: skip
         else:  # no masses: the moment per unknown mass parameter of the bodies carried (the calibration's axis fit)
@@ -92,13 +89,7 @@ def axis_candidates(
                     names.append(f"{name}_{pn}")
             signal = ("moment about the carriage of each unknown mass parameter of the bodies it carries (kN·m per kg "
                       "or per kg x 0.1 m; no masses in the description)")  # fmt: skip
-            R = rod_moment(robot, campaign.q, j, campaign.payload_kg)
-            rcols, rslots, rnames = [], [], []
-            for name, comp, ax in BENDING:
-                for k, suffix in ((0, ""), (1, "_ext")):
-                    rcols.append(R[:, ax] * u**k)
-                    rslots.append(COMPONENTS.index(comp))
-                    rnames.append(f"{name}_rods{suffix}")
+            rcols, rslots, rnames = _moment_columns(rod_moment(robot, campaign.q, j, campaign.payload_kg), u, "_rods")
             cands.append(
                 dict(
                     key=f"{role}:bending_rods", effect="axis", joint=j + 1, harmonic=None,
@@ -124,6 +115,18 @@ def axis_candidates(
             )
         )  # fmt: skip
     return cands, skipped
+
+
+def _moment_columns(M: np.ndarray, u: np.ndarray, tag: str) -> tuple[list[np.ndarray], list[int], list[str]]:
+    """A column's bending by one moment ``M (m, 3)`` (kN·m, carriage frame): per bending axis the moment and the
+    moment times the extension ``u``, with their error elements and names (``bending_x<tag>``, ``..._ext``)."""
+    cols, slots, names = [], [], []
+    for name, comp, ax in BENDING:
+        for k, suffix in ((0, ""), (1, "_ext")):
+            cols.append(M[:, ax] * u**k)
+            slots.append(COMPONENTS.index(comp))
+            names.append(f"{name}{tag}{suffix}")
+    return cols, slots, names
 
 
 _WORDS = {

@@ -50,8 +50,13 @@ def held_poorly_determined(geo: Any) -> frozenset[str]:
     refits too. Freed there, a column arm's single reflector on the wrist's axis let theta6 and alpha7 wander with
     the effects (newcomer pass 16: a7 34 mm, theta6 6.9 deg, held-out positions unchanged, compensation.csv
     turning the wrist by a median 9.7 deg and refusing 3 of 30 targets)."""
+    return frozenset(_held_poor(geo))
+
+
+def _held_poor(geo: Any) -> dict[str, dict[str, Any]]:
+    """calibrate's ``fit.poorly_determined`` records it held (``action`` "held ..."), by parameter name."""
     poor = (getattr(geo, "fit", None) or {}).get("poorly_determined") or []
-    return frozenset(str(p["name"]) for p in poor if str(p.get("action", "")).startswith("held"))
+    return {str(p["name"]): p for p in poor if str(p.get("action", "")).startswith("held")}
 
 
 def bounded_poorly_determined(geo: Any, prior: np.ndarray | None) -> np.ndarray | None:
@@ -61,8 +66,7 @@ def bounded_poorly_determined(geo: Any, prior: np.ndarray | None) -> np.ndarray 
     held out (0.1161 bounded). An angle stays held (:func:`held_poorly_determined`): bounded, a column arm's theta6
     still went 5 bounds off with its tilt effects and compensation.csv turned the wrist by up to 9 deg (free: 6.9
     deg, a7 34 mm, 30 deg); so does a tool's or frame's (its prior is not toward nominal)."""
-    poor = {str(p["name"]): p for p in ((getattr(geo, "fit", None) or {}).get("poorly_determined") or [])
-            if str(p.get("action", "")).startswith("held")}  # fmt: skip
+    poor = _held_poor(geo)
     model = geo.model
     idx = [i for i, (nm, k, u) in enumerate(zip(model.names, model.kinds, model.units, strict=True))
            if nm in poor and k == "kinematic" and u == "mm"]  # fmt: skip

@@ -166,9 +166,10 @@ def write_product(res: DiscoveryResult, summ: dict[str, Any], out: Path) -> str 
     # every row's signals; the logged ones the model's effects follow, from the campaign's own columns
     cols = {str(e["column"]) for e in cal.effects if e.get("signal") in ("logged", "logged_frame")}
     logged, gaps = filled_columns(camp, res.robot, cols)  # an empty reading: the value the search filled in
+    at_sub = {c: v[in_sub] for c, v in logged.items()}
     signals = Signals(np.asarray(sub.payload_kg, dtype=float), sub.tau_Nm, sub.current_A, sub.direction,
-                      {c: v[in_sub] for c, v in logged.items()} or None)  # fmt: skip
-    said = _signal_notes(cal.effects, {c: v[in_sub][idx] for c, v in logged.items()},
+                      at_sub or None)  # fmt: skip
+    said = _signal_notes(cal.effects, {c: v[idx] for c, v in at_sub.items()},
                          {c: (m[in_sub][idx], how) for c, (m, how) in gaps.items()})  # fmt: skip
     if res.robot.has_prismatic:  # a robot on external axes: robocal.compensation.axes (the track not moved)
         _axes_product(res, cal, sub, signals, idx, tgt, [f"{p}/{t}" for p, t in zip(first, tgt, strict=True)], out,
