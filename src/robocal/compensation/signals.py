@@ -68,6 +68,81 @@ def fourier_signal(q_rad: np.ndarray, harmonics: np.ndarray, weight: np.ndarray 
     return S if weight is None else S * np.asarray(weight, dtype=float)[:, None]
 
 
+class LazySignal:
+    """A candidate's signals ``S (m, q)`` formed when read, at the rows asked for (``S[rows]``, ``S[rows, cols]``,
+    ``S[:, cols]``), the columns ``cols`` of those :meth:`formed` gives. Each row's value is the one a whole array
+    would hold (every row is formed on its own); the discovery holds its physics candidates and the residual
+    layer through the search, whose ``(all rows, q)`` arrays were a 24 000-row discovery's growth (6 x 18 MB of
+    transmission signals, 3 x 19 MB of layer features). Subclasses give :meth:`formed` and ``n_cols``."""
+
+    ndim = 2
+    n_rows: int
+    n_cols: int
+    cols: np.ndarray | None = None
+
+    def formed(self, rows: Any) -> np.ndarray:
+        """Every column at ``rows`` (an index, slice or mask of the rows, 1-D)."""
+        raise NotImplementedError
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (self.n_rows, self.n_cols if self.cols is None else len(self.cols))
+
+    def columns(self, cols: Any) -> LazySignal:
+        """The same signals restricted to ``cols`` (of this one's columns)."""
+        from copy import copy
+
+        out = copy(self)
+        cols = np.asarray(cols, dtype=int)
+        out.cols = cols if self.cols is None else self.cols[cols]
+        return out
+
+    def __getitem__(self, idx: Any) -> np.ndarray:
+        rows, cols = idx if isinstance(idx, tuple) else (idx, slice(None))
+        one = isinstance(rows, (int, np.integer))
+        S = self.formed(np.array([rows]) if one else rows)
+        if self.cols is not None:
+            S = S[:, self.cols]
+        S = S[:, cols]
+        return S[0] if one else S
+
+    def __array__(self, dtype: Any = None, copy: Any = None) -> np.ndarray:
+        return np.asarray(self[:], dtype=dtype)
+
+    def __len__(self) -> int:
+        return self.n_rows
+
+
+class FourierColumns(LazySignal):
+    """A transmission error's signals: :func:`fourier_signal` of the joint's angle ``q (m,)`` for the harmonics
+    ``h`` times the coverage weight ``w (m,)``, less ``centre`` (the part the geometry's joint offset carries)."""
+
+    def __init__(self, q: np.ndarray, h: np.ndarray, w: np.ndarray, centre: Any = 0.0) -> None:
+        self.q = np.asarray(q, dtype=float)
+        self.h = np.asarray(h, dtype=int)
+        self.w = np.asarray(w, dtype=float)
+        self.centre = np.asarray(centre, dtype=float)
+        self.n_rows, self.n_cols = len(self.q), 2 * len(self.h)
+
+    def formed(self, rows: Any) -> np.ndarray:
+        return fourier_signal(self.q[rows], self.h, self.w[rows]) - self.centre
+
+
+class LayerColumns(LazySignal):
+    """The residual layer's signals: the gated kernel features (:func:`layer_features`, :func:`layer_gate`) of the
+    joint angles ``q (m, n)`` at ``centres`` for the length scale ``length_rad``, gated at ``inside_rad``."""
+
+    def __init__(self, q: np.ndarray, centres: np.ndarray, length_rad: float, inside_rad: float) -> None:
+        self.q = np.asarray(q, dtype=float)
+        self.centres = np.asarray(centres, dtype=float)
+        self.length_rad, self.inside_rad = float(length_rad), float(inside_rad)
+        self.n_rows, self.n_cols = len(self.q), len(self.centres)
+
+    def formed(self, rows: Any) -> np.ndarray:
+        F, d = layer_features(self.q[rows], self.centres, self.length_rad)
+        return F * layer_gate(d, self.inside_rad, self.length_rad)[:, None]
+
+
 def held_harmonic_signal(q_rad: np.ndarray, harmonic: int, held_deg: list[float] | None) -> np.ndarray:
     """``S (m, 2)``: ``sin(h q), cos(h q)`` of a joint's angle on the arc ``held_deg = [lo, hi]`` (deg) its
     calibration visited, and held outside it at the value of the nearer end: over the first and the last quarter
@@ -142,11 +217,14 @@ def balancer_signal(q_rad: np.ndarray, record: dict[str, Any]) -> np.ndarray:
 
 def layer_features(q_rad: np.ndarray, centres: np.ndarray, length_rad: float) -> tuple[np.ndarray, np.ndarray]:
     """Gaussian kernel features ``exp(-|q - c|² / (2 l²))`` ``(m, D)`` and each pose's distance to its nearest
-    centre ``(m,)`` rad (scikit-learn's pairwise kernels)."""
-    from sklearn.metrics.pairwise import euclidean_distances
-
-    d = euclidean_distances(np.atleast_2d(np.asarray(q_rad, dtype=float)), centres)
-    return np.exp(-(d**2) / (2.0 * length_rad**2)), d.min(axis=1)
+    centre ``(m,)`` rad."""
+    q = np.atleast_2d(np.asarray(q_rad, dtype=float))
+    c = np.asarray(centres, dtype=float)
+    d2 = np.zeros((len(q), len(c)))
+    for j in range(q.shape[1]):  # joint by joint, each element on its own: a row's value whatever rows are read
+        d2 += (q[:, j, None] - c[None, :, j]) ** 2
+    d = np.sqrt(d2)
+    return np.exp(-d2 / (2.0 * length_rad**2)), d.min(axis=1)
 
 
 def layer_gate(dist_rad: np.ndarray, inside_rad: float, length_rad: float) -> np.ndarray:

@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from robocal.compensation.signals import Factor, evaluate_factor, factor_label
+from robocal.compensation.signals import Factor, LazySignal, evaluate_factor, factor_label
 from robocal.data.contract import Campaign
 from robocal.discovery.cv import CHUNK
 from robocal.discovery.gram import FactoredSpace
@@ -54,12 +54,35 @@ class Term:
         return {"signal": self.label, "factors": [{"kind": k, "index": i, "harmonic": h} for k, i, h in self.factors]}
 
 
+class TermColumns(LazySignal):
+    """The dictionary's columns formed when read (:class:`robocal.compensation.signals.LazySignal`): the joint
+    terms (``n_joint`` harmonics and products) from the angles ``q (m, n)`` at the rows read, then the ``fixed``
+    columns ``(m, b)`` held (gravity torques, torques, currents, temperatures, time: a few per joint). Its
+    ``(all rows, K)`` matrix (~280 columns, 54 MB at 24 000 rows) was held through the dictionary stage beside
+    its fitted rows' copy."""
+
+    def __init__(self, q: np.ndarray, joint_terms: list[Term], fixed: np.ndarray) -> None:
+        self.q, self.joint_terms, self.fixed = q, joint_terms, fixed
+        self.n_rows, self.n_cols = len(q), len(joint_terms) + fixed.shape[1]
+
+    def formed(self, rows: Any) -> np.ndarray:
+        q = self.q[rows]
+        out = np.empty((len(q), self.n_cols))
+        for c, t in enumerate(self.joint_terms):
+            out[:, c] = evaluate_factor(t.factors[0], q)
+            for f in t.factors[1:]:
+                out[:, c] *= evaluate_factor(f, q)
+        out[:, len(self.joint_terms) :] = self.fixed[rows]
+        return out
+
+
 @dataclass
 class Dictionary:
-    """The dictionary's functions evaluated on every campaign row: ``F (m_all, K)``, one :class:`Term` per column."""
+    """The dictionary's functions on every campaign row: ``F (m_all, K)`` (formed when read), one :class:`Term`
+    per column."""
 
     terms: list[Term]
-    F: np.ndarray
+    F: TermColumns
     skipped: list[str] = field(default_factory=list)
 
 
@@ -69,12 +92,13 @@ def build_dictionary(
     """The dictionary of a campaign (see the module docstring)."""
     q = campaign.q
     n = q.shape[1]
+    joint_terms: list[Term] = []
     terms: list[Term] = []
     cols: list[np.ndarray] = []
     skipped: list[str] = []
     # harmonics of an angle: a linear axis's value (mm) is none (its errors along the travel: robocal.discovery.axes)
     moving = [i for i in range(n) if np.ptp(q[:, i]) > 1e-6 and not robot.prismatic[i]]
-    _joint_terms(q, moving, harmonics, product_harmonics, terms, cols)
+    _joint_terms(moving, harmonics, product_harmonics, joint_terms)
     if robot.has_dynamics:
         from robocal.kinematics.gravity import gravity_torques
 
@@ -96,28 +120,23 @@ def build_dictionary(
     if np.ptp(t_all) > 1.0:
         terms.append(Term((("time", 0, 0),)))
         cols.append((t_all - t_all.mean()) / 3600.0)
-    F = np.column_stack(cols) if cols else np.zeros((campaign.n_rows, 0))
-    return Dictionary(terms, F, skipped)
+    fixed = np.column_stack(cols) if cols else np.zeros((campaign.n_rows, 0))
+    return Dictionary(joint_terms + terms, TermColumns(q, joint_terms, fixed), skipped)
 
 
-def _joint_terms(
-    q: np.ndarray, moving: list[int], harmonics: int, product_harmonics: int, terms: list[Term], cols: list[np.ndarray]
-) -> None:
+def _joint_terms(moving: list[int], harmonics: int, product_harmonics: int, terms: list[Term]) -> None:
     """The harmonics of every moving joint and the products of two joints' harmonics (appended)."""
     for i in moving:
         for h in range(1, harmonics + 1):
             for fn in ("sin", "cos"):
                 terms.append(Term(((fn, i + 1, h),)))
-                cols.append(evaluate_factor((fn, i + 1, h), q))
     for a_pos, a in enumerate(moving):
         for b in moving[a_pos + 1 :]:
             for h in range(1, product_harmonics + 1):
                 for k in range(1, product_harmonics + 1):
                     for fa in ("sin", "cos"):
                         for fb in ("sin", "cos"):
-                            t = Term(((fa, a + 1, h), (fb, b + 1, k)))
-                            terms.append(t)
-                            cols.append(evaluate_factor(t.factors[0], q) * evaluate_factor(t.factors[1], q))
+                            terms.append(Term(((fa, a + 1, h), (fb, b + 1, k))))
 
 
 def _temperature_terms(campaign: Campaign, terms: list[Term], cols: list[np.ndarray]) -> None:

@@ -54,7 +54,7 @@ def propose(state: DiscoveryState) -> None:
                 cause=reading(p.joint, terms),
                 signal=" + ".join(labels),
                 shape="joint",
-                S=dic.F[:, p.atoms],
+                S=dic.F.columns(p.atoms),  # formed when read
                 coef_names=labels,
                 coef_units=("rad",) * len(terms),
                 extra={"terms": [t.to_dict() for t in terms], "stability": p.stability, "n_columns": p.n_columns},
