@@ -160,3 +160,19 @@ def test_a_model_worse_in_a_new_session_than_the_geometry_is_said():
     assert "new session" in said and "1.0046" in said and "0.2261" in said
     cv["session_cv"]["mean_position_mm"] = 0.0544
     assert worse_than_geometry(None, cv) == []
+
+
+def test_a_model_worse_than_calibrates_axes_fit_is_said():
+    """Newcomer pass 17: a track arm without its inclinometer, discover 0.1679 mm held-out where calibrate (the
+    linear axes' errors fitted, which the search starts without) gave 0.1523, written without a word."""
+    from robocal.discovery.validate import worse_than_geometry
+
+    val = {"geometric": {"mean_position_mm": 0.3069, "with_axes": {"mean_position_mm": 0.1523}},
+           "final": {"mean_position_mm": 0.1679, "n_rows": 90}}  # fmt: skip
+    (said,) = worse_than_geometry(val, {})
+    assert "linear axes" in said and "0.1679" in said and "0.1523" in said
+    val["final"]["mean_position_mm"] = 0.1500
+    assert worse_than_geometry(val, {}) == []
+    del val["geometric"]["with_axes"]  # no axes: the discovered model beats the geometric one, nothing said
+    val["final"]["mean_position_mm"] = 0.1679
+    assert worse_than_geometry(val, {}) == []

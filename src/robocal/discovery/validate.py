@@ -227,6 +227,15 @@ def worse_than_geometry(validation: Mapping[str, Any] | None, cv: Mapping[str, A
                 f"is worse than the geometric calibration ({float(vg['mean_position_mm']):.4f} mm) on these poses "
                 "the fit did not see: robocal calibrate's calibration.json is the better model for this campaign"
             )
+        elif vg.get("with_axes") and float(vf["mean_position_mm"]) > float(vg["with_axes"]["mean_position_mm"]) + (
+            SAME_ERROR_MM
+        ):  # calibrate fits the linear axes' errors the search started without (newcomer pass 17: 0.1679 vs 0.1523)
+            out.append(
+                f"on the {vf['n_rows']} validation rows the final model ({float(vf['mean_position_mm']):.4f} mm mean) "
+                "is worse than robocal calibrate's with the linear axes' errors fitted "
+                f"({float(vg['with_axes']['mean_position_mm']):.4f} mm) on these poses the fit did not see: its "
+                "calibration.json is the better model for this campaign"
+            )
     sc, gc = cv.get("session_cv"), cv.get("geometric_session_cv")
     if sc and gc and float(sc["mean_position_mm"]) > float(gc["mean_position_mm"]) + SAME_ERROR_MM:
         # a model that holds within the session and not in the next one (newcomer pass 13: 1.00 mm expected in a
