@@ -128,7 +128,7 @@ def compensate_axes(
     sig = signals if signals is not None else Signals(np.array(pl))
     joint = [e for e in records if e["signal"] != "logged_frame"]
     deflect = DiscoveredEffects(tuple(joint), robot) if joint else None
-    frames = frame_transforms(records, sig.logged, m) if records else None
+    frames = frame_transforms(records, sig.logged, m, q_target, robot) if records else None
     if frames is not None:  # the base or the tool moved by logged signals: reach the pose cancelling it
         Tt = np.eye(4)
         Tt[:3, :3], Tt[:3, 3] = tool_R, tool_p

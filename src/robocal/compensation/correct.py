@@ -405,7 +405,7 @@ def correct(
         if desired is None:
             nominal = ActualRobot(model.chain, np.zeros(model.chain.n_params), np.eye(4), tool, tool_R)
             p_d, R_d = desired_poses(nominal, q_target)
-            frames = frame_transforms(records, sig.logged, m)
+            frames = frame_transforms(records, sig.logged, m, q_target, model.robot)
             if frames is not None:  # the base or the tool moved by the logged signals: reach the pose cancelling it
                 p_d, R_d = frame_desired(frames, T_tool, p_d, R_d)
         else:

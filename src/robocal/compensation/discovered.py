@@ -162,21 +162,39 @@ def _rotation(w: np.ndarray) -> np.ndarray:
 
 
 def frame_transforms(
-    effects: list[dict[str, Any]], logged: Mapping[str, np.ndarray] | None, m: int
+    effects: list[dict[str, Any]],
+    logged: Mapping[str, np.ndarray] | None,
+    m: int,
+    q: np.ndarray | None = None,
+    robot: RobotDescription | None = None,
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """The base and the tool as the logged signals move them (``logged_frame`` records), per target: ``(A (m, 4,
     4), D (m, 4, 4))`` with the real tool at ``A · base_T_flange(q) · D · flange_T_tool`` — ``A`` the base turned
-    (rotation vector, base axes) and moved about its origin, ``D`` the tool turned and moved on the flange (flange
-    axes); None when no record is a frame effect."""
+    (rotation vector, base axes) and moved about its origin, and turned about the origin of the carriage of the
+    linear axis carrying the arm (``carriage_rot``: base axes, the origin at the targets' joints ``q (m, n)`` of
+    ``robot``), ``D`` the tool turned and moved on the flange (flange axes); None when no record is a frame
+    effect."""
     frames = [e for e in effects if e["signal"] == "logged_frame"]
     if not frames:
         return None
-    vec = {k: np.zeros((m, 3)) for k in ("base_rot", "base_trans", "tool_rot", "tool_trans")}
+    vec = {k: np.zeros((m, 3)) for k in ("base_rot", "base_trans", "tool_rot", "tool_trans", "carriage_rot")}
+    pivot = np.zeros((m, 3))
     for e in frames:
         vec[e["frame"]] += logged_values(e, logged, m)[:, None] * np.asarray(e["coefficients"], dtype=float)[None, :]
+        if e["frame"] == "carriage_rot":
+            if q is None or robot is None:
+                raise ValueError(f"the effect {e['key']} turns a carriage: its origin needs the targets' joints")
+            from robocal.kinematics.axes import carriage_origin
+
+            pivot = carriage_origin(robot, np.atleast_2d(q), int(e["axis_joint"]) - 1)
     A = np.tile(np.eye(4), (m, 1, 1))
     D = np.tile(np.eye(4), (m, 1, 1))
     A[:, :3, :3], A[:, :3, 3] = _rotation(vec["base_rot"]), vec["base_trans"]
+    if np.any(vec["carriage_rot"]):  # about the carriage's origin c: [R, c - R c], after the base's own
+        C = np.tile(np.eye(4), (m, 1, 1))
+        C[:, :3, :3] = Rc = _rotation(vec["carriage_rot"])
+        C[:, :3, 3] = pivot - np.einsum("mij,mj->mi", Rc, pivot)
+        A = A @ C
     D[:, :3, :3], D[:, :3, 3] = _rotation(vec["tool_rot"]), vec["tool_trans"]
     return A, D
 

@@ -471,7 +471,7 @@ def _signal_candidates(campaign: Campaign, robot: RobotDescription, cfg: Discove
     """The ``signal`` candidates: every usable logged signal (extra numeric column, screened by
     :mod:`robocal.discovery.logged`) as a driver of the four frame effects, the tracker's scale and a joint offset
     per moving joint; the columns not used go to the skipped list with their reason."""
-    from robocal.discovery.logged import FRAME_WORDS, FRAMES, screen
+    from robocal.discovery.logged import FRAME_WORDS, offered_frames, screen
 
     used, skipped = screen(campaign, robot)
     for s in skipped:
@@ -493,13 +493,13 @@ def _signal_candidates(campaign: Campaign, robot: RobotDescription, cfg: Discove
             "signal_info": sig.to_dict(),
             "target": campaign.target,
         }
-        for frame, (names, cu) in FRAMES.items():
+        for frame, (names, cu), carried in offered_frames(campaign, robot):
             out.cands.append(
                 Candidate(
                     f"signal:{sig.name}:{frame}", "signal", None, None,
                     cause=FRAME_WORDS[frame].format(s=sig.name), signal=what, shape="frame", S=S,
                     coef_names=names, coef_units=tuple(f"{cu}/{unit}" for _ in names),
-                    extra={**info, "frame": frame},
+                    extra={**info, "frame": frame, **carried},
                 )
             )  # fmt: skip
         out.cands.append(

@@ -83,6 +83,7 @@ def effect_records(fit: Fit) -> tuple[list[dict[str, Any]], list[dict[str, Any]]
                     "harmonic": None,
                     "signal": "logged_frame",
                     "frame": c.extra["frame"],
+                    **({"axis_joint": int(c.extra["axis_joint"])} if "axis_joint" in c.extra else {}),
                     "column": c.extra["column"],
                     "centre": float(c.extra["centre"]),
                     **({"range": list(c.extra["range"])} if "range" in c.extra else {}),

@@ -32,6 +32,8 @@ Each remaining signal ``s`` (centred on the calibration rows) is offered as the 
   or ``tx, ty, tz`` mm per unit of the signal, in the robot's base axes; on every tracker station);
 * ``signal:<col>:tool_rot`` / ``tool_trans``: the tool (every target alike) rotating / moving on the flange
   (flange axes);
+* ``signal:<col>:carriage_rot``: on an arm a linear axis carries, the axis's carriage rotating about its own
+  origin, which travels with the axis (base axes: :func:`offered_frames`);
 * ``signal:<col>:j<j>``: a joint offset ``dq_j = c · s`` (rad per unit);
 * ``signal:<col>:scale``: the tracker's length scale following the signal (ppm per unit, measurement side).
 
@@ -76,12 +78,15 @@ FRAMES = {
     "base_trans": (("tx", "ty", "tz"), "mm"),
     "tool_rot": (("rx", "ry", "rz"), "rad"),
     "tool_trans": (("tx", "ty", "tz"), "mm"),
+    "carriage_rot": (("rx", "ry", "rz"), "rad"),
 }
 FRAME_WORDS = {
     "base_rot": "the robot base rotates with {s} (a compliant stand or floor tilting, an axis carrying the base)",
     "base_trans": "the robot base moves with {s} (a stand or a carrying axis deflecting)",
     "tool_rot": "the tool rotates on the flange with {s} (a compliant tool or gripper, a loose mount)",
     "tool_trans": "the tool moves on the flange with {s} (a compliant tool, its thermal growth)",
+    "carriage_rot": "the carriage of the linear axis carrying the arm rotates with {s} about its own origin, which "
+    "travels with the axis (a rail's or a column's pitch, a carriage rocking under the arm; base axes)",
 }
 
 
@@ -368,8 +373,34 @@ def _group_columns(names: tuple[str, ...], suffix: str, kind: str) -> list[int]:
     return [i for i, n in enumerate(names) if n.startswith("tool_") and n.endswith(f"_{suffix}")]
 
 
+def offered_frames(
+    campaign: Campaign, robot: RobotDescription
+) -> list[tuple[str, tuple[tuple[str, ...], str], dict[str, Any]]]:
+    """The frame effects a signal is offered as the cause of, each with its coefficients' names and unit and what
+    its candidate carries: the four of :data:`FRAMES` and, on an arm carried by a linear axis that moves in the
+    campaign, its carriage's rotation about the carriage's origin (``axis_joint``, 1-based; ``pivot_mm`` every
+    row's origin in the base frame). A fixed base's tilt cannot follow a pivot travelling metres along a rail: a
+    carriage inclinometer on a 5 m track came out at 0.75 of its gain with a translation of -44.6 mm per degree
+    beside it (newcomer pass 17)."""
+    from robocal.kinematics.axes import carriage_origin, carrying_axis
+
+    out: list[tuple[str, tuple[tuple[str, ...], str], dict[str, Any]]] = [
+        (f, FRAMES[f], {}) for f in FRAMES if f != "carriage_rot"
+    ]
+    j = carrying_axis(robot)
+    if j is not None and float(np.ptp(campaign.q[:, j])) > 1.0:  # mm: a carriage that travels
+        carried = {"axis_joint": j + 1, "pivot_mm": carriage_origin(robot, campaign.q, j)}
+        out.append(("carriage_rot", FRAMES["carriage_rot"], carried))
+    return out
+
+
 def frame_columns(
-    frame: str, Jx: np.ndarray, names: tuple[str, ...], tools_mm: np.ndarray, target_index: np.ndarray
+    frame: str,
+    Jx: np.ndarray,
+    names: tuple[str, ...],
+    tools_mm: np.ndarray,
+    target_index: np.ndarray,
+    pivot_mm: np.ndarray | None = None,
 ) -> np.ndarray:
     """``(m, d, 3)``: the first-order change of the residuals per unit of each coefficient of a frame effect.
 
@@ -377,8 +408,19 @@ def frame_columns(
     names : its parameter names; tools_mm : (K, 3) the targets' offsets in the flange frame; target_index : (m,).
     Base effects sum the base's and every station's own column (each row lives in one station's frame); tool
     translations sum every target's (each row measures one target); a tool rotation ``w`` moves target ``t`` by
-    ``R_flange (w x t)`` and turns it by ``R_flange w``."""
+    ``R_flange (w x t)`` and turns it by ``R_flange w``. A carriage's rotation ``w`` about its origin ``c``
+    (``pivot_mm (m, 3)``, base frame) is the base's rotation ``w`` and its translation ``c x w``: ``w x (p - c)``.
+    """
     m, d, _ = Jx.shape
+    if frame == "carriage_rot":
+        if pivot_mm is None:
+            raise ValueError("a carriage's rotation needs its origin on every row (pivot_mm)")
+        rot, trans = (frame_columns(f, Jx, names, tools_mm, target_index) for f in ("base_rot", "base_trans"))
+        c = np.asarray(pivot_mm, dtype=float)
+        cx = np.zeros((m, 3, 3))  # [c]x
+        cx[:, 0, 1], cx[:, 0, 2], cx[:, 1, 2] = -c[:, 2], c[:, 1], -c[:, 0]
+        cx[:, 1, 0], cx[:, 2, 0], cx[:, 2, 1] = c[:, 2], -c[:, 1], c[:, 0]
+        return rot + np.einsum("mdk,mkj->mdj", trans, cx)
     if frame in ("base_rot", "base_trans"):
         sfx = ("rx", "ry", "rz") if frame == "base_rot" else ("tx", "ty", "tz")
         return np.stack([Jx[:, :, _group_columns(names, s, "base")].sum(axis=2) for s in sfx], axis=2)
@@ -419,7 +461,9 @@ def frame_rows(
 ) -> np.ndarray:
     """``(m, d, 3)`` regressor of a frame candidate on campaign rows ``rows`` (its signal times
     :func:`frame_columns`) at the base model ``base`` with parameters ``x``."""
-    G = frame_columns(cand.extra["frame"], Jx, base.names, base.tools(x), target_index)
+    pivot = cand.extra.get("pivot_mm")
+    G = frame_columns(cand.extra["frame"], Jx, base.names, base.tools(x), target_index,
+                      None if pivot is None else np.asarray(pivot)[rows])  # fmt: skip
     return G * cand.S[rows, 0][:, None, None]
 
 

@@ -140,7 +140,8 @@ def signal_statement(acc: Accepted, est: dict[str, Any]) -> str:
         )
     turns = "slides" if c.coef_units and c.coef_units[0].startswith("mm") else "turns"  # a linear axis: mm
     subject = {"base_rot": "the base tilts", "base_trans": "the base moves", "tool_rot": "the tool tilts",
-               "tool_trans": "the tool moves", None: f"joint {c.joint} {turns}"}[frame]  # fmt: skip
+               "tool_trans": "the tool moves", "carriage_rot": "the carriage tilts",
+               None: f"joint {c.joint} {turns}"}[frame]  # fmt: skip
     parts = []
     for n in c.coef_names:
         gain = est.get(f"{n}_gain" if n != "c" else "gain")

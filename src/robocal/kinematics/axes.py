@@ -125,6 +125,23 @@ def carried_moment(
     return np.einsum("mji,mj->mi", R, M)  # R^T M: the carriage frame
 
 
+def carrying_axis(robot: RobotDescription) -> int | None:
+    """The linear axis that carries the arm (0-based): the last prismatic joint with a revolute joint after it (a
+    track's or a lifting column's carriage), or None."""
+    slides = [j for j in range(robot.n_joints) if robot.prismatic[j] and not all(robot.prismatic[j + 1 :])]
+    return slides[-1] if slides else None
+
+
+def carriage_origin(robot: RobotDescription, q: np.ndarray, joint: int) -> np.ndarray:
+    """The origin ``(m, 3)`` mm of joint ``joint``'s carriage frame (right after its element) in the base frame at
+    joint values ``q (m, n)``, nominal kinematics (the pivot a carriage turns about; its errors, a few mm over
+    metres of travel, change a tilt's lever arm by parts per thousand)."""
+    q = np.asarray(q, dtype=float)
+    chain = build_chain(robot)
+    e_joint = int(np.flatnonzero(chain.joint == joint)[0])
+    return np.broadcast_to(propagate(_prefix(chain, e_joint + 1), q).o, (q.shape[0], 3)).copy()
+
+
 def arm_chain(chain: Chain, external: Sequence[int], values: Sequence[float] | np.ndarray) -> Chain:
     """The chain of the arm alone with the external axes ``external`` (0-based joints, prismatic or not) held at
     ``values`` (mm / rad): each of their elements becomes a constant element (its nominal value plus the axis'

@@ -10,6 +10,14 @@ Config (one mapping per axis, or a list of them)::
       bending_urad_per_kNm:           # a column bending under the arm's weight: rotation about the carriage's
         x: [30.0, 15.0]               #   x (y) of (k0 + k1 u) µrad per kN·m of the carried moment about x (y)
         y: [30.0, 15.0]
+      rail:                           # a rail laid in segments: the carriage's pitch (about its x) and yaw (y)
+        segments: 4                   #   piecewise linear along the travel, a kink and a step at each joint,
+        pitch_urad: 150.0             #   random (seeded), scaled to these RMS values
+        yaw_urad: 60.0
+      inclinometer:                   # a two-axis inclinometer on the carriage logs its pitch and yaw
+        columns: [carriage_incl_x, carriage_incl_y]
+        noise_urad: 2.0               #   the reading's own noise (mrad columns, declared location: carriage)
+        declare: true
 
 The carriage frame, the components and the moment are those of :mod:`robocal.kinematics.axes` (the identification
 fits the same functions, :mod:`robocal.calibration.axes`). The errors act on the true points through the
@@ -72,4 +80,47 @@ class LinearAxisEffect:
                     E[:, 3 + axis] += (k0 + k1 * u) * M[:, axis]
                     truth[f"{role}:bending_{comp}"] = k0
                     truth[f"{role}:bending_{comp}_ext"] = k1
+            if cfg.get("rail"):
+                E[:, 3:5] += _rail(dict(cfg["rail"]), u, ctx.rng_factory(f"linear_axis_rail_{j + 1}"))
+                truth[f"{role}:rail"] = dict(cfg["rail"])
+            if cfg.get("inclinometer"):
+                _inclinometer(dict(cfg["inclinometer"]), E, rows, ctx, role, j)
             rows.axis_error[j] = E
+
+
+def _rail(cfg: dict[str, Any], u: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """``(m, 2)`` rad: the pitch and yaw of a carriage on a rail of ``segments`` pieces over the travel ``u`` in
+    [-1, 1], each piece linear with a kink and a step at its joints, scaled to ``pitch_urad`` / ``yaw_urad`` RMS."""
+    n = int(cfg.get("segments", 4))
+    if n < 1:
+        raise ConfigError(f"linear_axis.rail.segments must be >= 1; got {n}")
+    edges = np.linspace(-1.0, 1.0, n + 1)
+    piece = np.clip(np.searchsorted(edges, u, side="right") - 1, 0, n - 1)
+    out = np.zeros((len(u), 2))
+    for k, key in enumerate(("pitch_urad", "yaw_urad")):
+        level, slope = rng.normal(size=n), rng.normal(size=n)
+        v = level[piece] + slope[piece] * (u - edges[piece]) * n
+        v -= v.mean()
+        s = float(np.std(v))
+        out[:, k] = v * (float(cfg.get(key, 0.0)) * 1e-6 / s if s > 0 else 0.0)
+    return out
+
+
+def _inclinometer(cfg: dict[str, Any], E: np.ndarray, rows: Rows, ctx: TwinContext, role: str, j: int) -> None:
+    """Log the carriage's pitch and yaw (``E[:, 3:5]``, rad) in mrad with the reading's noise, and declare it."""
+    names = list(cfg.get("columns", ["carriage_incl_x", "carriage_incl_y"]))
+    if len(names) != 2:
+        raise ConfigError(f"linear_axis.inclinometer.columns must name two columns; got {names!r}")
+    rng = ctx.rng_factory(f"linear_axis_inclinometer_{j + 1}")
+    noise = float(cfg.get("noise_urad", 2.0)) * 1e-3
+    for k, nm in enumerate(names):
+        rows.columns[nm] = E[:, 3 + k] * 1e3 + rng.normal(0.0, noise, len(E))
+    if cfg.get("declare", True):
+        ctx.truth.setdefault("signals", {}).update(
+            {nm: {"unit": "mrad", "location": "carriage", "description": f"inclinometer on the {role}'s carriage, "
+                  f"its rotation about the carriage {ax} axis"} for nm, ax in zip(names, "xy", strict=True)}
+        )  # fmt: skip
+    ctx.truth.setdefault("effects", {})["carriage_inclinometer"] = {
+        "columns": names, "joint": j + 1, "gain": 1.0, "noise_mrad": noise,
+        "tilt_rms_mrad": [float(np.sqrt(np.mean(E[:, 3 + k] ** 2)) * 1e3) for k in range(2)],
+    }  # fmt: skip
