@@ -117,11 +117,15 @@ def test_robocal_discover_on_a_track_names_the_axis_errors_and_compensates_with_
     assert "compensation.csv" in summ["written"] and not summ["not_written"]
     comp = pd.read_csv(out / "compensation.csv")
     assert list(comp.columns[3:5]) == ["q1_mm", "q2_deg"]  # the track in mm
-    ok = comp["status"] == "ok"
-    # a random validation pose may lie near a singular arm configuration (the stretched elbow): refused there,
-    # with its reason, as the service refuses it; the others corrected
-    assert len(comp) == 10 and ok.sum() >= 8
-    assert (comp.loc[~ok, "reason"] == "not converged").all() and (comp.loc[~ok, "applied"] == 0).all()
+    ok = comp["status"] != "refused"
+    # judged by the service's safety policy (newcomer pass 17: the file said "ok" where the service refused): a
+    # random validation pose may lie near a singular arm configuration (the stretched elbow), not converging, or
+    # ask for more than the 0.5 deg bound (beyond the calibration's own zero offsets) the twin's random geometry
+    # needs there: refused, as the service refuses it (4 of these 10; none refused but by those reasons)
+    assert len(comp) == 10 and ok.sum() >= 5
+    assert (comp.loc[~ok, "applied"] == 0).all() and (comp.loc[ok, "applied"] == 1).all()
+    why = comp["reason"].fillna("")
+    assert why[comp["status"] != "ok"].str.contains("did not converge|exceeds the bound").all()
     val = camp.validation()
     e1 = {f"{p}/{t}": q for p, t, q in zip(val.pose_id, val.target, val.q[:, 0], strict=True)}
     assert np.allclose(comp["q1_mm"], [e1[i] for i in comp["target_id"]], atol=1e-6)  # the track not moved

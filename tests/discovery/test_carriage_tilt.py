@@ -108,8 +108,8 @@ def test_compensation_csv_and_the_service_turn_the_carriage_back(tmp_path):
     frames = [e for e in data["effects"] if e["signal"] == "logged_frame"]
     assert {e["frame"] for e in frames} == {"carriage_rot"} and all(e["axis_joint"] == 1 for e in frames)
     comp = pd.read_csv(out / "compensation.csv")
-    ok = (comp["status"] == "ok").to_numpy()
-    assert ok.sum() >= 15 and (comp.loc[ok, "pred_err_mm"] < 1e-3).all()
+    ok = (comp["status"] != "refused").to_numpy()  # flagged: a correction over the 0.5 deg bound (random geometry)
+    assert ok.sum() >= 10 and (comp.loc[ok, "pred_err_mm"] < 1e-3).all()
     val = camp.validation()
     cols = ("carriage_incl_x", "carriage_incl_y")
     svc = Service(load_bundle(write_bundle(tmp_path / "bundle", "kr16_2_track", out / "calibration.json")))
@@ -119,20 +119,19 @@ def test_compensation_csv_and_the_service_turn_the_carriage_back(tmp_path):
          "signals": {c: float(np.asarray(val.extra[c], dtype=float)[k]) for c in cols}}
         for k in k_ok
     ]  # fmt: skip
-    r = json.loads(svc.handle_line(json.dumps({"op": "correct", "targets": targets}).encode()))
+    r = json.loads(svc.handle_line(json.dumps({"op": "correct", "mode": "position", "targets": targets}).encode()))
     assert r["ok"], r
-    served = [k for k, res in zip(k_ok, r["results"], strict=True) if res["status"] == "ok"]
-    assert len(served) >= 2, r
-    q_csv = comp.loc[served, [f"q{j}_deg" for j in range(2, 8)]].to_numpy()
-    got = np.array([res["q_deg"] for res in r["results"] if res["status"] == "ok"])
-    assert np.allclose(got, q_csv, atol=1e-5), (got, q_csv)  # the one compensation path (csv: 6 decimals)
+    # the one compensation path and the one policy (csv: 6 decimals)
+    assert [res["status"] for res in r["results"]] == comp.loc[k_ok, "status"].tolist(), r
+    q_csv = comp.loc[k_ok, [f"q{j}_deg" for j in range(2, 8)]].to_numpy()
+    assert np.allclose([res["q_deg"] for res in r["results"]], q_csv, atol=1e-5), (r, q_csv)
     for t in targets:  # the carriage level: other corrections, by the tilt's lever (~0.1-0.7 mm at the tool)
         t["signals"] = {c: float(np.mean(np.asarray(val.extra[c], dtype=float))) for c in cols}
-    flat = json.loads(svc.handle_line(json.dumps({"op": "correct", "targets": targets}).encode()))
+    flat = json.loads(svc.handle_line(json.dumps({"op": "correct", "mode": "position", "targets": targets}).encode()))
     moved = [np.abs(np.subtract(a["q_deg"], b["q_deg"])).max()
              for a, b in zip(r["results"], flat["results"], strict=True) if "q_deg" in a and "q_deg" in b]  # fmt: skip
     assert max(moved) > 1e-3, moved  # deg
     for t in targets:
         del t["signals"]
-    r = json.loads(svc.handle_line(json.dumps({"op": "correct", "targets": targets}).encode()))
+    r = json.loads(svc.handle_line(json.dumps({"op": "correct", "mode": "position", "targets": targets}).encode()))
     assert r["error"]["code"] == "bad_request" and "signals.carriage_incl_" in r["error"]["message"], r

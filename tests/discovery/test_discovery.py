@@ -379,7 +379,9 @@ def test_the_parameters_calibrate_holds_as_poorly_determined_stay_held_in_the_di
     assert abs(ke["a7"]) < 2.0  # mm: 0.49 (the truth's tool offsets are within 0.5 mm); freed it reached 34
     comp = pd.read_csv(tmp_path / "compensation.csv")
     # a few tenths of a degree: the geometry's 0.1-0.5 mm and the tilt; 9.7 deg median freed
-    assert comp["correction_max_deg"].max() < 2.0 and (comp["status"] != "refused").all()
+    # judged by the service's policy (its 0.5 deg bound), the position alone matched (a point reflector: the tool's
+    # orientation is not the data's; matched, the wrist chased it, 0.57-1.38 deg, 9 of 30 refused): max 0.30
+    assert comp["correction_max_deg"].max() < 0.5 and (comp["status"] != "refused").all()
     assert s["validation"]["final"]["mean_position_mm"] < 0.18  # 0.1694 (0.1732 freed; oracle 0.144, floor 0.16)
 
 

@@ -31,6 +31,7 @@ from robocal.calibration.result import CalibrationResult
 from robocal.compensation.correct import zero_offsets
 from robocal.compensation.discovered import DiscoveredEffects, frame_desired, frame_transforms
 from robocal.compensation.effects import Signals
+from robocal.compensation.safety import SafetyPolicy
 from robocal.identification.model import with_base
 from robocal.kinematics.axes import augment
 from robocal.kinematics.chain import build_chain, fk, point_jacobians, propagate
@@ -175,6 +176,45 @@ def compensate_axes(
         own_error_mm=np.linalg.norm(r_own[:, :3], axis=1),
         zero_offsets=zero_off,
     )
+
+
+def judge_axes(
+    c: AxisCompensation,
+    q_target: np.ndarray,
+    robot: RobotDescription,
+    policy: SafetyPolicy | None = None,
+    request_reasons: Sequence[str] = (),
+    unreachable: np.ndarray | None = None,
+) -> tuple[list[str], list[list[str]]]:
+    """The one safety policy's status and reasons of every target of a robot on external axes (the service's and
+    ``compensation.csv``'s: a correction the service refused was written "ok" in the file, newcomer pass 17):
+    the arm's joints as for any robot (the correction beyond the calibration's own zero offsets, the predicted
+    error, the residual, the joint limits), an external axis outside its limits (mm) a joint-limit reason too."""
+    sf = policy if policy is not None else SafetyPolicy()
+    assert c.zero_offsets is not None and c.own_error_mm is not None
+    arm = [j for j in range(robot.n_joints) if not robot.prismatic[j]]
+    ext = [j for j in range(robot.n_joints) if robot.prismatic[j]]
+    dq = c.q[:, arm] - q_target[:, arm]
+    excess = np.rad2deg(np.abs(dq).max(axis=1))
+    beyond = np.rad2deg(np.abs(dq + c.zero_offsets[arm]).max(axis=1))  # past the calibration's own zero offsets
+    excess = np.where(excess > sf.max_correction_deg, np.minimum(excess, beyond), excess)
+    rest = np.where(c.error_before_mm > sf.max_error_mm, np.minimum(c.error_before_mm, c.own_error_mm),
+                    c.error_before_mm)  # fmt: skip
+    status, reasons = sf.judge(
+        c.converged, c.residual_mm, c.residual_deg, excess, rest, q_target[:, arm], c.q[:, arm],
+        robot.q_limits[arm], [robot.joint_names[j] for j in arm], request_reasons, unreachable,
+    )  # fmt: skip
+    lim = robot.q_limits[ext]
+    for k in range(len(q_target)):
+        lo = np.minimum(q_target[k, ext], c.q[k, ext]) < lim[:, 0]
+        hi = np.maximum(q_target[k, ext], c.q[k, ext]) > lim[:, 1]
+        if (lo | hi).any():
+            reasons[k] = [*reasons[k], "outside the external axis limits: " + ", ".join(
+                f"{robot.joint_names[j]}={q_target[k, j]:.4f} mm (corrected {c.q[k, j]:.4f})"
+                for i, j in enumerate(ext) if lo[i] or hi[i])]  # fmt: skip
+            refuse = sf.on_joint_limits == "refuse" or status[k] == "refused"
+            status[k] = "refused" if refuse else "flagged"
+    return status, reasons
 
 
 def _newton(

@@ -157,7 +157,7 @@ def _correct_external(
     ``move_external``. The one safety policy judges the arm's joints as for any robot (the correction beyond the
     calibration's own zero offsets, the predicted error, the residual, the joint limits); an external axis outside
     its limits (mm) is a joint-limit reason too."""
-    from robocal.compensation.axes import compensate_axes
+    from robocal.compensation.axes import compensate_axes, judge_axes
     from robocal.kinematics.axes import arm_chain
 
     tg = r.targets
@@ -185,28 +185,9 @@ def _correct_external(
         max_iter=max(cfg.solver.max_iter, 30), tol_mm=cfg.solver.tol_mm, orientation=r.mode == "pose",
         effects=list(bundle.effects), signals=signals,
     )  # fmt: skip
-    assert c.zero_offsets is not None and c.own_error_mm is not None and c.error_before_xyz_mm is not None
-    sf = cfg.safety
+    status, reasons = judge_axes(c, q_target, robot, cfg.safety, r.reasons, ~ik_ok)
+    assert c.error_before_xyz_mm is not None
     dq = c.q[:, arm] - q_target[:, arm]
-    excess = np.rad2deg(np.abs(dq).max(axis=1))
-    beyond = np.rad2deg(np.abs(dq + c.zero_offsets[arm]).max(axis=1))  # past the calibration's own zero offsets
-    excess = np.where(excess > sf.max_correction_deg, np.minimum(excess, beyond), excess)
-    rest = np.where(c.error_before_mm > sf.max_error_mm, np.minimum(c.error_before_mm, c.own_error_mm),
-                    c.error_before_mm)  # fmt: skip
-    status, reasons = sf.judge(
-        c.converged, c.residual_mm, c.residual_deg, excess, rest, q_target[:, arm], c.q[:, arm],
-        robot.q_limits[arm], [robot.joint_names[j] for j in arm], r.reasons, ~ik_ok,
-    )  # fmt: skip
-    lim = robot.q_limits[ext]
-    for k in range(m):
-        lo = np.minimum(q_target[k, ext], c.q[k, ext]) < lim[:, 0]
-        hi = np.maximum(q_target[k, ext], c.q[k, ext]) > lim[:, 1]
-        if (lo | hi).any():
-            reasons[k] = [*reasons[k], "outside the external axis limits: " + ", ".join(
-                f"{robot.joint_names[j]}={q_target[k, j]:.4f} mm (corrected {c.q[k, j]:.4f})"
-                for i, j in enumerate(ext) if lo[i] or hi[i])]  # fmt: skip
-            refuse = sf.on_joint_limits == "refuse" or status[k] == "refused"
-            status[k] = "refused" if refuse else "flagged"
     # the command for the nominal controller: the nominal pose of the corrected joints (base frame)
     T = fk(bundle.chain, c.q) @ r.tool_T
     quat = quaternions(T[:, :3, :3])

@@ -52,8 +52,9 @@ def _axes_product(
 ) -> None:
     """``compensation.csv`` of a robot on external axes (a track, a column): each pose corrected by
     :func:`robocal.compensation.axes.compensate_axes` with the discovered axis errors, the external axes kept at
-    their commanded value; refused (nominal joints kept) when it does not converge or leaves the joint limits."""
-    from robocal.compensation.axes import compensate_axes
+    their commanded value, judged by the service's one safety policy (:func:`robocal.compensation.axes.judge_axes`):
+    refused (nominal joints kept) or flagged as the service would."""
+    from robocal.compensation.axes import compensate_axes, judge_axes
     from robocal.compensation.controller_csv import write_controller_csv
     from robocal.discovery.axes import discovered_axis_fit
     from robocal.kinematics.chain import fk
@@ -62,24 +63,24 @@ def _axes_product(
     af = discovered_axis_fit(res.final, robot, cal.x)
     m = len(idx)
     qc, cmd, err = np.zeros((m, robot.n_joints)), np.zeros((m, 4, 4)), np.zeros((m, 3))
-    status, reason, corr = [TargetStatus.OK] * m, [""] * m, np.zeros(m)
-    lim = robot.q_limits
+    status: list[str] = [TargetStatus.OK] * m
+    reason, corr = [""] * m, np.zeros(m)
+    orient = bool(res.extra.get("uses_orientation", True))
     for t in dict.fromkeys(tgt):
         rows = np.array([k for k, tt in enumerate(tgt) if tt == t])
         r = idx[rows]
         # the model's effects corrected for too, with each target's own signals (a tilt an accelerometer logged)
+        # the tool's orientation matched only when the campaign measured it (as for an arm alone, write_product)
         comp = compensate_axes(cal, sub.q[r], t, af, payload_kg=sub.payload_kg[r], effects=list(cal.effects),
-                               signals=signals.rows(r))  # fmt: skip
+                               signals=signals.rows(r), orientation=orient)  # fmt: skip
         cmd[rows] = fk(cal.model.chain, comp.q_target) @ _tool_T(cal, t)
-        inside = np.all((comp.q >= lim[:, 0]) & (comp.q <= lim[:, 1]), axis=1)
+        st, why = judge_axes(comp, comp.q_target, robot)
         for k, row in enumerate(rows):
-            ok = bool(comp.converged[k] and inside[k])
+            ok = st[k] != TargetStatus.REFUSED
             qc[row] = comp.q[k] if ok else comp.q_target[k]
             err[row, 0] = comp.residual_mm[k] if ok else comp.error_before_mm[k]
             corr[row] = float(np.rad2deg(np.abs(comp.q[k] - comp.q_target[k])[~robot.prismatic].max()))
-            if not ok:
-                status[row] = TargetStatus.REFUSED
-                reason[row] = "not converged" if not comp.converged[k] else "the correction leaves the joint limits"
+            status[row], reason[row] = st[k], "; ".join(why[k])
     _flag(status, reason, said)
     applied = np.array([s != TargetStatus.REFUSED for s in status], dtype=bool)
     write_controller_csv(
