@@ -135,3 +135,31 @@ def test_compensation_csv_and_the_service_turn_the_carriage_back(tmp_path):
         del t["signals"]
     r = json.loads(svc.handle_line(json.dumps({"op": "correct", "mode": "position", "targets": targets}).encode()))
     assert r["error"]["code"] == "bad_request" and "signals.carriage_incl_" in r["error"]["message"], r
+
+
+def test_a_rail_inclinometers_gaps_are_filled_along_the_track():
+    """Newcomer pass 17 (D2): the poses jump along the rail in time, and the rail's pitch follows where the carriage
+    is: its empty cells were filled from the pose and time (0.0055 deg, the signal's spread 0.0098), along the
+    track 0.0020. Each pose is read once for its two reflectors: its leave-one-out error is taken from the
+    neighbouring positions only (from its own other row it was ~0)."""
+    from robocal.discovery.logged import fill_gaps
+
+    rng = np.random.default_rng(5)
+    n_pose = 90
+    s = np.repeat(rng.uniform(0.0, 5000.0, n_pose), 2)  # mm: two reflector rows per pose
+    t = np.arange(2 * n_pose) * 30.0  # s: the poses in random order along the rail
+    knots = np.linspace(0.0, 5000.0, 5)
+    truth = np.interp(s, knots, rng.normal(0.0, 0.01, 5))  # deg: a rail in 4 straight segments
+    x = truth + np.repeat(rng.normal(0.0, 0.0003, n_pose), 2)  # one reading per pose
+    miss = np.zeros(2 * n_pose, dtype=bool)
+    miss[np.repeat(rng.choice(n_pose, 9, replace=False) * 2, 2) + np.tile([0, 1], 9)] = True
+    xm = np.where(miss, np.nan, x)
+    B = np.column_stack([np.ones(2 * n_pose), rng.normal(size=(2 * n_pose, 3))])  # a pose basis that cannot hold it
+    filled, how = fill_gaps(xm, t, B, {"E1": s})
+    assert how["way"] == "linear interpolation along E1 between the readings" and how["rows"] == 18
+    err = float(np.sqrt(np.mean((filled[miss] - truth[miss]) ** 2)))
+    # the fill's error on the truth is near its stated leave-one-out figure (the readings' noise, 0.0003, in it),
+    # and far below the time's (the neighbours in time are anywhere on the rail)
+    assert err < 2.0 * how["loo_rms"] and how["loo_rms"] > 0.0003  # from its own pose's other row: 0
+    _, by_time = fill_gaps(xm, t, B)
+    assert by_time["loo_rms"] > 5 * how["loo_rms"], (by_time, how)
