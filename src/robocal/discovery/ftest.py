@@ -301,6 +301,14 @@ def wald_log10_p(fit: Fit, acc: Accepted) -> float:
     return f_log10_sf(float(w / q), q, fit.dof)
 
 
+def family_threshold(cand: Candidate, log_thr: float, log_thr_signal: float | None) -> float:
+    """The log10 p-value a candidate must pass: its own family's (a scanned tracker step's ``family_log10_p``,
+    :mod:`robocal.discovery.steps`), the logged signals' (``log_thr_signal``), or the library's (``log_thr``)."""
+    if "family_log10_p" in cand.extra:
+        return float(cand.extra["family_log10_p"])
+    return log_thr_signal if log_thr_signal is not None and cand.effect == "signal" else log_thr
+
+
 def best_candidate(
     remaining: list[Candidate],
     fit: Fit,
@@ -320,7 +328,7 @@ def best_candidate(
 
     def score(batch: list[tuple[Candidate, np.ndarray, tuple[str, ...]]]) -> None:
         for (cand, Z, params), Zp in zip(batch, off_space(Q, [Z for _, Z, _ in batch]), strict=True):
-            thr = log_thr_signal if log_thr_signal is not None and cand.effect == "signal" else log_thr
+            thr = family_threshold(cand, log_thr, log_thr_signal)
             sc, Uk = score_candidate(cand, Z, None, fit, cfg, thr, Zp=Zp)
             if sc.status == "unidentifiable":
                 unident.setdefault(cand.key, sc.absorbed_share)
@@ -364,11 +372,7 @@ def backward_check(
     dropped: list[str] = []
     while True:
         weak = [(a, wald_log10_p(fit, a)) for a in accepted[:-1]]
-        weak = [
-            (a, lp)
-            for a, lp in weak
-            if lp > (log_thr_signal if log_thr_signal is not None and a.cand.effect == "signal" else log_thr)
-        ]
+        weak = [(a, lp) for a, lp in weak if lp > family_threshold(a.cand, log_thr, log_thr_signal)]
         if not weak:
             return accepted, fit, dropped
         worst = max(weak, key=lambda t: t[1])[0]

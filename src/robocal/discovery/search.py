@@ -55,6 +55,7 @@ from robocal.discovery.refit import calibration_prior, refitter, release, start
 from robocal.discovery.scoring import Step
 from robocal.discovery.session_cv import Sessions
 from robocal.discovery.state import DiscoveryState
+from robocal.discovery.steps import step_candidate
 from robocal.discovery.systematic import misfit_candidates
 from robocal.errors import ConfigError
 from robocal.identification.identifiability import ParameterSpec
@@ -456,6 +457,12 @@ def _search(
     groups.setflags(write=False)  # one array for the whole search (its sorted labels kept, cv.group_labels)
     state = DiscoveryState(campaign, robot, cfg, rows, data, groups, refit, geometric, sessions=sessions)
     _library(state, list(library) + weight, log_thr, log_thr_signal, unident)
+    # no pause for a fresh registration: the tracker's step at the time a scan of the library's residuals finds,
+    # offered once (its own family's test; not offered when its scan does not pass it)
+    step = step_candidate(campaign, rows, state.fit, cfg.alpha) if _step_wanted(cfg, library) else None
+    if step is not None:
+        progress.note("library F-test search: a tracker step scanned for")
+        _library(state, [step], log_thr, log_thr_signal, unident)
     from_library = {a.cand.key for a in state.accepted}
     # many small effects chosen together by cross-validation (physics first), then equations for what is left,
     # then the residual layer (robocal.discovery.grow)
@@ -516,7 +523,7 @@ def _search(
         config=cfg,
         campaign=campaign,
         rows=rows,
-        library=library,
+        library=library if step is None else [*library, step],
         skipped=skipped,
         unidentifiable=unident,
         geometric=geometric,
@@ -533,6 +540,12 @@ def _search(
             "signal_threshold_log10_p": log_thr_signal,
         },
     )
+
+
+def _step_wanted(cfg: DiscoveryConfig, library: list[Candidate]) -> bool:
+    """A tracker step is scanned for when ``regap`` is searched and the library holds no registration after a
+    pause (:mod:`robocal.discovery.steps`)."""
+    return "regap" in cfg.effects and not any(c.effect == "regap" for c in library)
 
 
 def _library(

@@ -172,7 +172,7 @@ def _drift_estimates(fit: Fit, acc: Accepted, val: np.ndarray, se: np.ndarray) -
         unit_p = model.base.units[model.base.index(pname)]
         f = _DEG if unit_p == "rad" else 1.0
         unit = "deg" if unit_p == "rad" else "mm"
-        if sig.startswith("after_gap") or sig == "in_condition":  # a step: the frame's change at the gap / under it
+        if sig.startswith(("after_gap", "after_step")) or sig == "in_condition":  # a step: the frame's change
             out[f"{pname}_{sig}"] = _est(val[k] * f, se[k] * f, unit)
             continue
         per = "h" if sig == "t_h" else f"°C ({sig})"
