@@ -71,9 +71,11 @@ def fourier_signal(q_rad: np.ndarray, harmonics: np.ndarray, weight: np.ndarray 
 class LazySignal:
     """A candidate's signals ``S (m, q)`` formed when read, at the rows asked for (``S[rows]``, ``S[rows, cols]``,
     ``S[:, cols]``), the columns ``cols`` of those :meth:`formed` gives. Each row's value is the one a whole array
-    would hold (every row is formed on its own); the discovery holds its physics candidates and the residual
-    layer through the search, whose ``(all rows, q)`` arrays were a 24 000-row discovery's growth (6 x 18 MB of
-    transmission signals, 3 x 19 MB of layer features). Subclasses give :meth:`formed` and ``n_cols``."""
+    would hold (every row is formed on its own): the dictionary's ``(all rows, ~280)`` matrix was a 24 000-row
+    discovery's growth (54 MB beside its fitted rows' copy; :class:`robocal.discovery.dictionary.TermColumns`). A
+    signal read many times is better held: the transmission error's and the residual layer's, formed at each read,
+    saved 14 MB there and cost UR10 A's 12 000 rows 7 % more time (4.7 s of 1 170 full reads). Subclasses give
+    :meth:`formed` and ``n_cols``."""
 
     ndim = 2
     n_rows: int
@@ -111,36 +113,6 @@ class LazySignal:
 
     def __len__(self) -> int:
         return self.n_rows
-
-
-class FourierColumns(LazySignal):
-    """A transmission error's signals: :func:`fourier_signal` of the joint's angle ``q (m,)`` for the harmonics
-    ``h`` times the coverage weight ``w (m,)``, less ``centre`` (the part the geometry's joint offset carries)."""
-
-    def __init__(self, q: np.ndarray, h: np.ndarray, w: np.ndarray, centre: Any = 0.0) -> None:
-        self.q = np.asarray(q, dtype=float)
-        self.h = np.asarray(h, dtype=int)
-        self.w = np.asarray(w, dtype=float)
-        self.centre = np.asarray(centre, dtype=float)
-        self.n_rows, self.n_cols = len(self.q), 2 * len(self.h)
-
-    def formed(self, rows: Any) -> np.ndarray:
-        return fourier_signal(self.q[rows], self.h, self.w[rows]) - self.centre
-
-
-class LayerColumns(LazySignal):
-    """The residual layer's signals: the gated kernel features (:func:`layer_features`, :func:`layer_gate`) of the
-    joint angles ``q (m, n)`` at ``centres`` for the length scale ``length_rad``, gated at ``inside_rad``."""
-
-    def __init__(self, q: np.ndarray, centres: np.ndarray, length_rad: float, inside_rad: float) -> None:
-        self.q = np.asarray(q, dtype=float)
-        self.centres = np.asarray(centres, dtype=float)
-        self.length_rad, self.inside_rad = float(length_rad), float(inside_rad)
-        self.n_rows, self.n_cols = len(self.q), len(self.centres)
-
-    def formed(self, rows: Any) -> np.ndarray:
-        F, d = layer_features(self.q[rows], self.centres, self.length_rad)
-        return F * layer_gate(d, self.inside_rad, self.length_rad)[:, None]
 
 
 def held_harmonic_signal(q_rad: np.ndarray, harmonic: int, held_deg: list[float] | None) -> np.ndarray:

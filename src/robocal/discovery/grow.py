@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from robocal.compensation.signals import FourierColumns, LazySignal
+from robocal.compensation.signals import LazySignal
 from robocal.data.contract import Campaign
 from robocal.discovery import engine, progress
 from robocal.discovery.candidates import Candidate, SkippedCandidate
@@ -85,8 +85,9 @@ def physics_candidates(
                 continue
             w = coverage_weight(q[:, j], visited, taper)
             h = np.arange(h0, kmax + 1)
-            centre = fourier_signal(q[rows, j], h, w[rows]).mean(axis=0)  # the geometry's joint offset's part
-            S = FourierColumns(q[:, j], h, w, centre)  # formed when read: 6 x (rows, 2 H) held through the search
+            S = fourier_signal(q[:, j], h, w)
+            centre = S[rows].mean(axis=0)  # the constant part belongs to the geometry's joint offset
+            S = S - centre
             names = tuple(f"sin{k}" for k in h) + tuple(f"cos{k}" for k in h)
             cand = Candidate(
                 f"transmission:j{j + 1}", "transmission", j + 1, None,
@@ -446,7 +447,7 @@ def layer_candidates(campaign: Campaign, cfg: DiscoveryConfig, rows: np.ndarray)
     """The residual layer: every joint's leftover error as a kernel ridge (Gaussian kernel on all joint angles,
     k-means centres of the calibration poses) — one pool entry per length scale, the prior widths as variants.
     Gated to the calibrated region (:func:`robocal.compensation.signals.layer_gate`)."""
-    from robocal.compensation.signals import LayerColumns, layer_features
+    from robocal.compensation.signals import layer_features, layer_gate
     from robocal.discovery.physics import layer_centres
 
     q = campaign.q
@@ -459,8 +460,9 @@ def layer_candidates(campaign: Campaign, cfg: DiscoveryConfig, rows: np.ndarray)
     pool: Pool = []
     for ell_deg in cfg.layer_length_deg:
         ell = float(np.deg2rad(ell_deg))
-        inside = float(np.quantile(layer_features(q[rows], centres, ell)[1], 0.95))
-        S = LayerColumns(q, centres, ell, inside)  # formed when read, as the transmission's
+        F, d = layer_features(q, centres, ell)
+        inside = float(np.quantile(d[rows], 0.95))
+        S = F * layer_gate(d, inside, ell)[:, None]
         extra = {"centres_rad": centres.tolist(), "length_rad": ell, "inside_rad": inside}
         members = [
             Candidate(
