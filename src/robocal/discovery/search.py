@@ -26,6 +26,7 @@ from robocal.calibration.screening import describe_outliers
 from robocal.calibration.start import fit_data, present_stations, present_targets
 from robocal.data.contract import Campaign
 from robocal.discovery import progress
+from robocal.discovery.axes import with_calibrate_order
 from robocal.discovery.candidates import Candidate, SkippedCandidate, build_library
 from robocal.discovery.choices import (
     counterbalance_choice,
@@ -157,6 +158,7 @@ def discover(campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig |
     sigma = float(noise["used_mm"])
     sigma_rad = float(np.deg2rad(cfg.noise_deg))
     library, skipped = build_library(campaign, robot, cfg)
+    library = with_calibrate_order(library, campaign, robot, geo)  # a linear axis's errors to calibrate's order
     not_tried = orders_not_tried(cfg, len(np.unique(np.asarray(cal.pose_id).astype(str))))
     skipped += [not_tried] if not_tried is not None else []
     # a systematic misfit the geometric calibration named is offered to the search (issue 33 item 4)
