@@ -24,6 +24,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import yaml
 
 from robocal.errors import ConfigError
@@ -32,6 +33,9 @@ from robocal.errors import ConfigError
 MEASUREMENT_LOCATIONS = ("tracker", "measurement")
 #: the keys a declaration may have
 DECLARATION_KEYS = ("unit", "location", "description", "use")
+#: radians per unit of an angle a logged signal may be declared in (a tilt's gain is then dimensionless)
+ANGLE_UNITS = {"rad": 1.0, "mrad": 1e-3, "urad": 1e-6, "µrad": 1e-6, "deg": np.pi / 180.0,
+               "arcsec": np.pi / 648000.0, "arcmin": np.pi / 10800.0}  # fmt: skip
 #: the file beside a campaign that declares its signals
 SIGNALS_FILE = "signals.yaml"
 

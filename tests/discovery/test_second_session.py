@@ -176,3 +176,17 @@ def test_a_model_worse_than_calibrates_axes_fit_is_said():
     del val["geometric"]["with_axes"]  # no axes: the discovered model beats the geometric one, nothing said
     val["final"]["mean_position_mm"] = 0.1679
     assert worse_than_geometry(val, {}) == []
+
+
+def test_a_signal_declared_in_an_angles_near_miss_is_said():
+    """Newcomer pass 18: ``unit: mard`` was accepted without a word, its effects printed "per mard" with no gain."""
+    from robocal.discovery.validate import unknown_units
+
+    rec = {"used": [{"column": "incl_x", "declared": True, "unit": "mard"},
+                    {"column": "incl_y", "declared": True, "unit": "mrad"},
+                    {"column": "acc_x", "declared": True, "unit": "m/s^2"},
+                    {"column": "air", "declared": True, "unit": "degC"},
+                    {"column": "other", "declared": False, "unit": None}]}  # fmt: skip
+    (said,) = unknown_units(rec)
+    assert "incl_x" in said and "'mard'" in said and "did you mean 'mrad'" in said
+    assert unknown_units(None) == []

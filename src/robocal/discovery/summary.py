@@ -13,6 +13,7 @@ from robocal.discovery.scoring import Step
 from robocal.discovery.search import DiscoveryResult
 from robocal.discovery.session_cv import MEASUREMENT_FAMILIES
 from robocal.kinematics.chain import fk
+from robocal.logged_signals import ANGLE_UNITS
 from robocal.metrics import ErrorStats
 
 _DEG = float(np.rad2deg(1.0))
@@ -91,11 +92,6 @@ def estimates(fit: Fit, acc: Accepted) -> dict[str, Any]:
     elif c.effect in ("signal", "session"):
         out.update(_signal_estimates(acc, val, se))
     return out
-
-
-#: radians per unit of an angle a logged signal may be declared in (a gain is then dimensionless)
-ANGLE_UNITS = {"rad": 1.0, "mrad": 1e-3, "urad": 1e-6, "µrad": 1e-6, "deg": np.pi / 180.0,
-               "arcsec": np.pi / 648000.0, "arcmin": np.pi / 10800.0}  # fmt: skip
 
 
 def _signal_estimates(acc: Accepted, val: np.ndarray, se: np.ndarray) -> dict[str, Any]:
@@ -548,10 +544,11 @@ def summary(res: DiscoveryResult, validation: dict[str, Any] | None = None) -> d
         out["cross_validation"] = {k: v for k, v in cv.items() if k != "effects"}
     if validation is not None:
         out["validation"] = validation
-    from robocal.discovery.validate import negative_compliance, worse_than_geometry
+    from robocal.discovery.validate import negative_compliance, unknown_units, worse_than_geometry
 
-    # a result worse than its start is said, and a stiffness that cannot be
-    if said := worse_than_geometry(validation, cv) + negative_compliance(out.get("named", [])):
+    # a result worse than its start is said, a stiffness that cannot be, and a unit that is an angle's near miss
+    said = worse_than_geometry(validation, cv) + negative_compliance(out.get("named", []))
+    if said := said + unknown_units(out.get("logged_signals")):
         out.setdefault("warnings", []).extend(said)
     return out
 

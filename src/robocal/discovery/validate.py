@@ -14,6 +14,7 @@ from robocal.discovery.model import Fit, tracker_columns
 from robocal.discovery.search import DiscoveryResult
 from robocal.identification.model import FitData
 from robocal.kinematics.chain import fk
+from robocal.logged_signals import ANGLE_UNITS
 from robocal.metrics import ErrorStats
 
 
@@ -209,7 +210,32 @@ def validation_errors(res: DiscoveryResult) -> dict[str, Any] | None:
     return out
 
 
-__all__ = ["negative_compliance", "validation_errors"]
+#: units of a logged signal that are not angles (a near miss of an angle's name among them is not a typo)
+OTHER_UNITS = {"degc", "degf", "°c", "°f", "c", "k", "g", "mg", "mm", "m", "um", "µm", "m/s^2", "m/s²", "m/s2", "n",
+               "nm", "n·m", "kg", "a", "ma", "v", "mv", "s", "h", "ppm", "%", "bar", "pa", "hpa", "unit"}  # fmt: skip
+
+
+def unknown_units(logged: Mapping[str, Any] | None) -> list[str]:
+    """What is said of a declared signal whose unit is a near miss of an angle's (``mard``): robocal gives a
+    tilt's gain only in the angle units it knows, and printed the effect "per mard" without a word (newcomer pass
+    18; a misspelt key is refused, a misspelt unit is a free word)."""
+    from difflib import get_close_matches
+
+    out = []
+    for u in (logged or {}).get("used", []):
+        unit = str(u.get("unit") or "")
+        if not u.get("declared") or not unit or unit in ANGLE_UNITS or unit.lower() in OTHER_UNITS:
+            continue
+        near = get_close_matches(unit, list(ANGLE_UNITS), n=1, cutoff=0.6)
+        if near:
+            out.append(
+                f"the logged signal {u['column']} is declared in '{unit}', not a unit robocal converts (did you "
+                f"mean '{near[0]}'?): its effects are given per {unit}, with no gain against the tilt"
+            )
+    return out
+
+
+__all__ = ["negative_compliance", "unknown_units", "validation_errors"]
 
 
 def worse_than_geometry(validation: Mapping[str, Any] | None, cv: Mapping[str, Any]) -> list[str]:
