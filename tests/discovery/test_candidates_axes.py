@@ -178,4 +178,5 @@ def test_the_axis_candidates_reach_the_order_calibrate_chooses(tmp_path):
     # a campaign whose axes calibrate fits to order 3 or less keeps the library's candidates as they are
     plain, robot2, _ = make_campaign(tmp_path, "track", 0, n_poses=40, n_validation_poses=10)
     lib = [object()]
-    assert with_calibrate_order(lib, plain, robot2, None) is lib  # no axis candidate: nothing fitted
+    out, af = with_calibrate_order(lib, plain, robot2, None)
+    assert out is lib and af is None  # no axis candidate: nothing fitted

@@ -178,19 +178,19 @@ def frame_transforms(
     if not frames:
         return None
     vec = {k: np.zeros((m, 3)) for k in ("base_rot", "base_trans", "tool_rot", "tool_trans", "carriage_rot")}
-    pivot = np.zeros((m, 3))
     for e in frames:
         vec[e["frame"]] += logged_values(e, logged, m)[:, None] * np.asarray(e["coefficients"], dtype=float)[None, :]
-        if e["frame"] == "carriage_rot":
-            if q is None or robot is None:
-                raise ValueError(f"the effect {e['key']} turns a carriage: its origin needs the targets' joints")
-            from robocal.kinematics.axes import carriage_origin
-
-            pivot = carriage_origin(robot, np.atleast_2d(q), int(e["axis_joint"]) - 1)
+    carriage = next((e for e in frames if e["frame"] == "carriage_rot"), None)  # one carrying axis
+    if carriage is not None and (q is None or robot is None):
+        raise ValueError(f"the effect {carriage['key']} turns a carriage: its origin needs the targets' joints")
     A = np.tile(np.eye(4), (m, 1, 1))
     D = np.tile(np.eye(4), (m, 1, 1))
     A[:, :3, :3], A[:, :3, 3] = _rotation(vec["base_rot"]), vec["base_trans"]
-    if np.any(vec["carriage_rot"]):  # about the carriage's origin c: [R, c - R c], after the base's own
+    if carriage is not None:  # about the carriage's origin c: [R, c - R c], after the base's own
+        from robocal.kinematics.axes import carriage_origin
+
+        assert q is not None and robot is not None
+        pivot = carriage_origin(robot, np.atleast_2d(q), int(carriage["axis_joint"]) - 1)
         C = np.tile(np.eye(4), (m, 1, 1))
         C[:, :3, :3] = Rc = _rotation(vec["carriage_rot"])
         C[:, :3, 3] = pivot - np.einsum("mij,mj->mi", Rc, pivot)

@@ -68,53 +68,6 @@ def fourier_signal(q_rad: np.ndarray, harmonics: np.ndarray, weight: np.ndarray 
     return S if weight is None else S * np.asarray(weight, dtype=float)[:, None]
 
 
-class LazySignal:
-    """A candidate's signals ``S (m, q)`` formed when read, at the rows asked for (``S[rows]``, ``S[rows, cols]``,
-    ``S[:, cols]``), the columns ``cols`` of those :meth:`formed` gives. Each row's value is the one a whole array
-    would hold (every row is formed on its own): the dictionary's ``(all rows, ~280)`` matrix was a 24 000-row
-    discovery's growth (54 MB beside its fitted rows' copy; :class:`robocal.discovery.dictionary.TermColumns`). A
-    signal read many times is better held: the transmission error's and the residual layer's, formed at each read,
-    saved 14 MB there and cost UR10 A's 12 000 rows 7 % more time (4.7 s of 1 170 full reads). Subclasses give
-    :meth:`formed` and ``n_cols``."""
-
-    ndim = 2
-    n_rows: int
-    n_cols: int
-    cols: np.ndarray | None = None
-
-    def formed(self, rows: Any) -> np.ndarray:
-        """Every column at ``rows`` (an index, slice or mask of the rows, 1-D)."""
-        raise NotImplementedError
-
-    @property
-    def shape(self) -> tuple[int, int]:
-        return (self.n_rows, self.n_cols if self.cols is None else len(self.cols))
-
-    def columns(self, cols: Any) -> LazySignal:
-        """The same signals restricted to ``cols`` (of this one's columns)."""
-        from copy import copy
-
-        out = copy(self)
-        cols = np.asarray(cols, dtype=int)
-        out.cols = cols if self.cols is None else self.cols[cols]
-        return out
-
-    def __getitem__(self, idx: Any) -> np.ndarray:
-        rows, cols = idx if isinstance(idx, tuple) else (idx, slice(None))
-        one = isinstance(rows, (int, np.integer))
-        S = self.formed(np.array([rows]) if one else rows)
-        if self.cols is not None:
-            S = S[:, self.cols]
-        S = S[:, cols]
-        return S[0] if one else S
-
-    def __array__(self, dtype: Any = None, copy: Any = None) -> np.ndarray:
-        return np.asarray(self[:], dtype=dtype)
-
-    def __len__(self) -> int:
-        return self.n_rows
-
-
 def held_harmonic_signal(q_rad: np.ndarray, harmonic: int, held_deg: list[float] | None) -> np.ndarray:
     """``S (m, 2)``: ``sin(h q), cos(h q)`` of a joint's angle on the arc ``held_deg = [lo, hi]`` (deg) its
     calibration visited, and held outside it at the value of the nearer end: over the first and the last quarter

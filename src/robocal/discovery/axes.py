@@ -173,27 +173,30 @@ def axis_rows(cand: Any, base: CalibrationModel, x: np.ndarray, data: FitData, r
     return out
 
 
-def with_calibrate_order(library: list[Any], campaign: Campaign, robot: RobotDescription, geo: Any) -> list[Any]:
+def with_calibrate_order(
+    library: list[Any], campaign: Campaign, robot: RobotDescription, geo: Any
+) -> tuple[list[Any], Any]:
     """The library with its axis candidates offered up to the Legendre order ``robocal calibrate``'s
     cross-validation picks for the axes' errors (:func:`robocal.calibration.axes.fit_axis_errors` on the geometric
     fit ``geo``), when above :data:`ORDER`: a rail the search followed to order 3 held out 0.2638 mm where calibrate,
-    its order 4 chosen, gave 0.1879 (newcomer passes 17 and 18)."""
+    its order 4 chosen, gave 0.1879 (newcomer passes 17 and 18). Returns the library and calibrate's axis fit
+    (None when none was made), which the validation's "as robocal calibrate" figure reads again."""
     if not robot.has_prismatic or not any(getattr(c, "effect", None) == "axis" for c in library):
-        return library
+        return library, None
     from dataclasses import replace
 
     from robocal.calibration.axes import fit_axis_errors
     from robocal.errors import ConfigError
 
     try:
-        terms = fit_axis_errors(campaign, geo).terms
+        af = fit_axis_errors(campaign, geo)
     except (ConfigError, np.linalg.LinAlgError, ValueError):
-        return library
-    order = max((t.order for t in terms if t.feature == "legendre"), default=0)
+        return library, None
+    order = max((t.order for t in af.terms if t.feature == "legendre"), default=0)
     if order <= ORDER:
-        return library
+        return library, af
     specs = {k["key"]: k for k in axis_candidates(campaign, robot, order)[0]}
-    return [replace(c, **specs[c.key]) if c.effect == "axis" and c.key in specs else c for c in library]
+    return [replace(c, **specs[c.key]) if c.effect == "axis" and c.key in specs else c for c in library], af
 
 
 def discovered_axis_fit(fit: Any, robot: RobotDescription, x: np.ndarray) -> Any:

@@ -36,9 +36,9 @@ from typing import Any
 
 import numpy as np
 
-from robocal.compensation.signals import LazySignal
 from robocal.data.contract import Campaign
 from robocal.discovery.config import DiscoveryConfig
+from robocal.discovery.dictionary import TermColumns
 from robocal.discovery.sessions import THERMAL_WITHIN_SESSIONS, temperature_share_within_sessions
 from robocal.robot import RobotDescription
 
@@ -67,7 +67,7 @@ class Candidate:
     cause: str
     signal: str
     shape: str
-    S: np.ndarray | LazySignal  # the transmission error's and the layer's formed when read
+    S: np.ndarray | TermColumns  # a proposed equation's: the dictionary's columns, formed when read
     coef_names: tuple[str, ...] = ()
     coef_units: tuple[str, ...] = ()
     params: tuple[str, ...] = ()  # param shape: which calibration parameters drift ("*identified*" = all)

@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from robocal.compensation.signals import Factor, LazySignal, evaluate_factor, factor_label
+from robocal.compensation.signals import Factor, evaluate_factor, factor_label
 from robocal.data.contract import Campaign
 from robocal.discovery.cv import CHUNK
 from robocal.discovery.gram import FactoredSpace
@@ -54,26 +54,52 @@ class Term:
         return {"signal": self.label, "factors": [{"kind": k, "index": i, "harmonic": h} for k, i, h in self.factors]}
 
 
-class TermColumns(LazySignal):
-    """The dictionary's columns formed when read (:class:`robocal.compensation.signals.LazySignal`): the joint
-    terms (``n_joint`` harmonics and products) from the angles ``q (m, n)`` at the rows read, then the ``fixed``
-    columns ``(m, b)`` held (gravity torques, torques, currents, temperatures, time: a few per joint). Its
-    ``(all rows, K)`` matrix (~280 columns, 54 MB at 24 000 rows) was held through the dictionary stage beside
-    its fitted rows' copy."""
+class TermColumns:
+    """The dictionary's columns ``(m, K)`` formed when read, at the rows asked for (``F[rows]``, ``F[rows, cols]``;
+    :meth:`columns` a candidate's few): the joint terms (harmonics and products) from the angles ``q (m, n)`` at
+    those rows, then the ``fixed`` columns ``(m, b)`` held (gravity torques, torques, currents, temperatures, time:
+    a few per joint). Each row is formed on its own, its values the ones the whole matrix held. That ``(all rows,
+    K)`` matrix (~280 columns, 54 MB at 24 000 rows) was held through the dictionary stage beside its fitted rows'
+    copy (issue 31). A signal read many times is better held: the transmission error's and the residual layer's,
+    formed at each read, saved 14 MB there and cost UR10 A's 12 000 rows 7 % more time."""
 
-    def __init__(self, q: np.ndarray, joint_terms: list[Term], fixed: np.ndarray) -> None:
-        self.q, self.joint_terms, self.fixed = q, joint_terms, fixed
-        self.n_rows, self.n_cols = len(q), len(joint_terms) + fixed.shape[1]
+    ndim = 2
 
-    def formed(self, rows: Any) -> np.ndarray:
-        q = self.q[rows]
+    def __init__(
+        self, q: np.ndarray, joint_terms: list[Term], fixed: np.ndarray, cols: np.ndarray | None = None
+    ) -> None:
+        self.q, self.joint_terms, self.fixed, self.cols = q, joint_terms, fixed, cols
+        self.n_cols = len(joint_terms) + fixed.shape[1]
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (len(self.q), self.n_cols if self.cols is None else len(self.cols))
+
+    def __len__(self) -> int:
+        return len(self.q)
+
+    def columns(self, cols: Any) -> TermColumns:
+        """The same columns restricted to ``cols`` (of this one's)."""
+        cols = np.asarray(cols, dtype=int)
+        return TermColumns(self.q, self.joint_terms, self.fixed, cols if self.cols is None else self.cols[cols])
+
+    def __getitem__(self, idx: Any) -> np.ndarray:
+        rows, cols = idx if isinstance(idx, tuple) else (idx, slice(None))
+        one = isinstance(rows, (int, np.integer))
+        q = self.q[np.array([rows]) if one else rows]
         out = np.empty((len(q), self.n_cols))
         for c, t in enumerate(self.joint_terms):
             out[:, c] = evaluate_factor(t.factors[0], q)
             for f in t.factors[1:]:
                 out[:, c] *= evaluate_factor(f, q)
-        out[:, len(self.joint_terms) :] = self.fixed[rows]
-        return out
+        out[:, len(self.joint_terms) :] = self.fixed[np.array([rows]) if one else rows]
+        if self.cols is not None:
+            out = out[:, self.cols]
+        out = out[:, cols]
+        return out[0] if one else out
+
+    def __array__(self, dtype: Any = None, copy: Any = None) -> np.ndarray:
+        return np.asarray(self[:], dtype=dtype)
 
 
 @dataclass

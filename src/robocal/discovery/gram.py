@@ -16,8 +16,6 @@ from typing import Any
 
 import numpy as np
 
-from robocal.compensation.signals import LazySignal
-
 
 class JointGram:
     """``gram(J, r) -> (JᵀJ, Jᵀr)`` of the refit's whitened Jacobian ``J`` (``M + len(ridge)`` rows: the
@@ -347,7 +345,7 @@ class RowsOf:
 
     __slots__ = ("S", "rows")
 
-    def __init__(self, S: np.ndarray | LazySignal, rows: np.ndarray) -> None:
+    def __init__(self, S: np.ndarray, rows: np.ndarray) -> None:
         self.S = S
         rows = np.asarray(rows)
         self.rows = np.flatnonzero(rows) if rows.dtype == bool else rows

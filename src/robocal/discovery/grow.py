@@ -26,7 +26,6 @@ from typing import Any
 
 import numpy as np
 
-from robocal.compensation.signals import LazySignal
 from robocal.data.contract import Campaign
 from robocal.discovery import engine, progress
 from robocal.discovery.candidates import Candidate, SkippedCandidate
@@ -167,10 +166,7 @@ def variant_candidate(cand: Candidate, v: Variant) -> Candidate:
     names = tuple(cand.coef_names[i] for i in v.columns)
     every = np.array_equal(v.columns, np.arange(cand.S.shape[1]))  # every column: its signals, no (m, q) copy
     units = tuple(cand.coef_units[i] for i in v.columns)
-    if every:
-        S = cand.S
-    else:  # a signal formed when read stays so
-        S = cand.S.columns(v.columns) if isinstance(cand.S, LazySignal) else cand.S[:, v.columns]
+    S = cand.S if every else cand.S[:, v.columns]
     return replace(cand, S=S, coef_names=names, coef_units=units, extra=extra)
 
 
@@ -337,7 +333,7 @@ def _step(state: DiscoveryState, pool: Pool, refit: Refit, what: str = "cross-va
         def make() -> tuple[str, Any, list[Variant]]:
             if all(c.shape == "joint" for c in members):
                 # joint-level: the candidate's factors, not its (M, q) regressor (robocal.discovery.cv)
-                blocks = [(int(c.joint) - 1, RowsOf(c.S, rows)) for c in members if c.joint is not None]
+                blocks = [(int(c.joint) - 1, RowsOf(np.asarray(c.S), rows)) for c in members if c.joint is not None]
                 q_of[i] = sum(S.shape[1] for _, S in blocks)
                 drift[i].update({c.key: () for c in members})
                 return "joint", blocks, pool[i][1]

@@ -158,7 +158,7 @@ def discover(campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig |
     sigma = float(noise["used_mm"])
     sigma_rad = float(np.deg2rad(cfg.noise_deg))
     library, skipped = build_library(campaign, robot, cfg)
-    library = with_calibrate_order(library, campaign, robot, geo)  # a linear axis's errors to calibrate's order
+    library, axis_fit = with_calibrate_order(library, campaign, robot, geo)  # a linear axis's: calibrate's order
     not_tried = orders_not_tried(cfg, len(np.unique(np.asarray(cal.pose_id).astype(str))))
     skipped += [not_tried] if not_tried is not None else []
     # a systematic misfit the geometric calibration named is offered to the search (issue 33 item 4)
@@ -224,6 +224,7 @@ def discover(campaign: Campaign, robot: RobotDescription, cfg: DiscoveryConfig |
         sigma_mm=sigma,
         uses_orientation=use_rot,
         geometric_calibration=geo,
+        calibrate_axis_fit=axis_fit,
         kept_rows=rows_all[kept],
         **({"positioner_part_rows_left_out": n_part} if n_part else {}),
     )

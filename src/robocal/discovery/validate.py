@@ -73,8 +73,9 @@ def _calibrate_with_axes(res: DiscoveryResult, geo: Any) -> dict[str, float] | N
     from robocal.calibration.axes import fit_axis_errors
     from robocal.errors import ConfigError
 
+    af = res.extra.get("calibrate_axis_fit")  # the search's (robocal.discovery.axes.with_calibrate_order)
     try:
-        af = fit_axis_errors(res.campaign, geo)
+        af = af if af is not None else fit_axis_errors(res.campaign, geo)
     except (ConfigError, np.linalg.LinAlgError, ValueError):
         return None
     v = af.validation
